@@ -1,0 +1,53 @@
+# thesis_repro: every target bootstraps .venv from this repo's own files on first use.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+SCALE ?= small
+JOBS ?=
+export MUJOCO_GL ?= egl
+export PYTHONUNBUFFERED := 1
+
+.PHONY: venv test smoke book bench lint clean-build figure-% table-%
+
+venv: $(STAMP)
+
+# torch==2.13.0 goes in first (a CPU wheel lies on these machines); the pin in pyproject keeps it there.
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --disable-pip-version-check torch==2.13.0
+	$(BIN)/pip install -q --disable-pip-version-check -e ".[dev]"
+	$(BIN)/python -m ipykernel install --sys-prefix --name python3 >/dev/null
+	touch $(STAMP)
+
+## make figure-3.3 SCALE=small : execute notebooks/fig-3.3.py at SCALE, write build/$(SCALE)/
+figure-%: $(STAMP)
+	$(BIN)/python -m thesis_repro figure $* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS))
+
+table-%: $(STAMP)
+	$(BIN)/python -m thesis_repro figure table-$* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS))
+
+## make smoke : every notebook at SCALE=smoke (seconds each)
+smoke: $(STAMP)
+	$(BIN)/python -m thesis_repro figure all --scale smoke
+
+## make book SCALE=small : execute (or reuse) every notebook at SCALE and build the HTML book in book/_build
+book: $(STAMP)
+	$(BIN)/python -m thesis_repro book --scale $(SCALE)
+
+## make test : unit tests + papermill smoke run of every notebook + book build at smoke scale
+test: $(STAMP)
+	$(BIN)/ruff check thesis_repro tests notebooks
+	$(BIN)/python -m pytest -q; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests collected"; exit 1; fi; exit $$rc
+
+## make bench : throughput benchmarks (batched evaluation, PPO training, ...), printed as ratios
+bench: $(STAMP)
+	$(BIN)/python -m thesis_repro.bench
+
+lint: $(STAMP)
+	$(BIN)/ruff check thesis_repro tests notebooks
+	$(BIN)/ruff format --check thesis_repro tests notebooks
+
+clean-build:
+	rm -rf build book/_build book/executed

@@ -1,0 +1,15 @@
+"""Shared fixtures: every test gets its own empty run cache and build folder."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+@pytest.fixture(autouse=True)
+def _isolated_dirs(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path_factory.mktemp("runs")))
+    monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path_factory.mktemp("build")))

@@ -1,0 +1,54 @@
+"""Every location the kit reads or writes, in one place.
+
+Override the run cache with ``THESIS_REPRO_DATA`` (tests point it at a temporary folder) and the
+build folder with ``THESIS_REPRO_BUILD``.
+
+>>> from thesis_repro import paths
+>>> paths.notebook("3.3").name
+'fig-3.3.py'
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+ROOT: Path = Path(__file__).resolve().parent.parent
+PACKAGE: Path = ROOT / "thesis_repro"
+CONFIG: Path = PACKAGE / "config"
+NOTEBOOKS: Path = ROOT / "notebooks"
+THESIS_DATA: Path = ROOT / "data" / "thesis"
+BOOK: Path = ROOT / "book"
+BOOK_EXECUTED: Path = BOOK / "executed"
+BOOK_BUILD: Path = BOOK / "_build"
+
+
+def runs() -> Path:
+    """Root of the content-addressed run cache (``data/runs`` unless ``THESIS_REPRO_DATA`` is set)."""
+    return Path(os.environ.get("THESIS_REPRO_DATA", ROOT / "data" / "runs"))
+
+
+def build(scale: str) -> Path:
+    """Root of generated artefacts for one scale: executed notebooks and figures."""
+    return Path(os.environ.get("THESIS_REPRO_BUILD", ROOT / "build")) / scale
+
+
+def executed(scale: str) -> Path:
+    """Folder of notebooks executed at ``scale``."""
+    return build(scale) / "notebooks"
+
+
+def figures(scale: str) -> Path:
+    """Folder where notebooks save their figure files at ``scale``."""
+    return build(scale) / "figures"
+
+
+def notebook(figure: str) -> Path:
+    """Source (jupytext percent ``.py``) of the notebook for a figure id such as ``"3.3"``."""
+    name = figure if figure.startswith(("fig-", "table-")) else f"fig-{figure}"
+    return NOTEBOOKS / f"{name}.py"
+
+
+def thesis_table(name: str) -> Path:
+    """A transcribed reference table of the thesis, e.g. ``thesis_table("fig3_3c")``."""
+    return THESIS_DATA / f"{name}.csv"
