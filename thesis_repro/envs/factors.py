@@ -1,0 +1,298 @@
+"""Environment factors θ^h of thesis Table 3.2, read from and written to a live MuJoCo model.
+
+How a factor value maps onto the simulator (σ is the noise / shift scale, ε ~ N(0, 1)):
+
+* **relative factors** (``cart_mass``, ``pole_mass``, ``pole1_mass``, ``pole2_mass``, ``body_mass``,
+  ``friction``, ``gravity``): the value is a *ratio* r to the default, written as default × r.
+  Sampled as r = max(1 + σ·ε, MIN_RATIO) with ``MIN_RATIO = 0.05`` (masses, friction and gravity must stay
+  positive; at σ ≤ 0.4 the clip is hit with probability < 1e-6).
+
+  - ``body_mass``: ALL bodies of the robot scaled together by one ratio (``model.body_mass`` and
+    ``model.body_inertia``, i.e. as if the density were scaled, so the bodies' shapes stay consistent).
+  - ``cart_mass`` / ``pole_mass`` / ``pole1_mass`` / ``pole2_mass``: the one named body (mass and inertia).
+  - ``friction``: the sliding friction coefficient of every geom (``model.geom_friction[:, 0]``); MuJoCo
+    uses the max over the two geoms of a contact, so every contact's friction is scaled by r.
+  - ``gravity``: the gravity vector ``model.opt.gravity``.
+
+* **wind** (``wind``, Walker2d and Hopper only): default 0, so it is not relative. Its value ξ is a
+  horizontal acceleration in m/s²; the wind is the constant horizontal force F = ξ · M0 (N) on the torso,
+  M0 the robot's *default* total mass (so wind and ``body_mass`` are independent factors). Sampled as
+  ξ = σ·ε·WIND_SCALE with ``WIND_SCALE = g = 9.81`` m/s²: σ = 0.2 is a wind force of std 20 % of the
+  robot's weight, the same relative size as a 20 % mass/gravity change. Chapter 4's ξ ~ U(-2.5, 2.5) and
+  test range [-5, 5] are read in the same unit (|ξ| = 5 is a force of half the robot's weight).
+  It is written into ``data.xfrc_applied[torso, 0]``, which ``mj_resetData`` (every ``reset()``) zeroes,
+  so the wrappers re-apply it after every reset and before every step.
+
+Defaults are read once per simulator (stored on the unwrapped env, shared by nested wrappers) and every
+write is computed from them, so values never drift and ``restore()`` is exact.
+
+>>> import gymnasium as gym
+>>> env = gym.make("Hopper-v5").unwrapped
+>>> mass = FACTORS["Hopper"]["body_mass"].bind(env)
+>>> mass.set(1.5); round(float(env.model.body_mass[1:].sum() / mass.defaults[0].sum()), 6)
+1.5
+>>> mass.restore(); float(mass.value)
+1.0
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from thesis_repro.envs.registry import ENVS, short_name
+from thesis_repro.validation import check_choice
+
+MIN_RATIO: float = 0.05
+WIND_SCALE: float = 9.81  # m/s² of horizontal acceleration per unit of σ·ε (= |g|)
+_DEFAULTS_ATTR = "_thesis_repro_factor_defaults"
+
+
+def _body_id(model: mujoco.MjModel, name: str) -> int:
+    """Body index of ``name``; ``ValueError`` if missing (mj_name2id's -1 would silently hit the last body)."""
+    idx = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+    if idx < 0:
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(model.nbody)]
+        raise ValueError(f"body {name!r} not in the MuJoCo model; bodies are: {names}")
+    return int(idx)
+
+
+@dataclass(frozen=True)
+class Factor:
+    """One environment factor: knows how to read its default and write a value into a MuJoCo env.
+
+    ``relative`` factors take a ratio to the default (1 = default); the others take an absolute value.
+    """
+
+    name: str
+    relative: bool = True
+
+    @property
+    def neutral(self) -> float:
+        """The value that leaves the simulator at its default (1 for ratios, 0 for absolute values)."""
+        return 1.0 if self.relative else 0.0
+
+    def bind(self, env) -> BoundFactor:
+        """Attach to an (unwrapped) MuJoCo env; defaults are read on first bind and then shared."""
+        base = env.unwrapped
+        store = base.__dict__.setdefault(_DEFAULTS_ATTR, {})
+        key = repr(self)
+        if key not in store:
+            store[key] = tuple(np.array(a, dtype=np.float64, copy=True) for a in self._read(base))
+        return BoundFactor(self, base, store[key])
+
+    # --- subclass hooks ---------------------------------------------------------------------------------
+    def _read(self, base) -> tuple[np.ndarray, ...]:
+        raise NotImplementedError
+
+    def _targets(self, base) -> tuple[np.ndarray, ...]:
+        """Live arrays (views into the model/data) that ``_read`` read from, in the same order."""
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class BodyMass(Factor):
+    """Mass and inertia of the named bodies (``bodies=()``: every body but the world) scaled by one ratio."""
+
+    bodies: tuple[str, ...] = ()
+
+    def _index(self, model) -> slice | np.ndarray:
+        if not self.bodies:
+            return slice(1, model.nbody)
+        return np.array([_body_id(model, b) for b in self.bodies])
+
+    def _read(self, base):
+        idx = self._index(base.model)
+        return base.model.body_mass[idx], base.model.body_inertia[idx]
+
+    def _targets(self, base):
+        idx = self._index(base.model)
+        if isinstance(idx, slice):
+            return base.model.body_mass[idx], base.model.body_inertia[idx]
+        return _Fancy(base.model.body_mass, idx), _Fancy(base.model.body_inertia, idx)
+
+
+@dataclass(frozen=True)
+class Friction(Factor):
+    """Sliding friction coefficient of every geom (``geom_friction[:, 0]``)."""
+
+    def _read(self, base):
+        return (base.model.geom_friction[:, 0],)
+
+    def _targets(self, base):
+        return (base.model.geom_friction[:, 0],)
+
+
+@dataclass(frozen=True)
+class Gravity(Factor):
+    """The gravity vector ``opt.gravity``."""
+
+    def _read(self, base):
+        return (base.model.opt.gravity,)
+
+    def _targets(self, base):
+        return (base.model.opt.gravity,)
+
+
+@dataclass(frozen=True)
+class WindForce(Factor):
+    """Horizontal force ξ·M0 (N) on ``body``; ξ in m/s², M0 the default total mass. Not relative."""
+
+    relative: bool = False
+    body: str = "torso"
+
+    def _read(self, base):
+        mass = np.asarray(base.model.body_mass[1:], dtype=np.float64).sum()
+        return (np.array([mass]), np.array([_body_id(base.model, self.body)], dtype=np.float64))
+
+    def _targets(self, base):
+        return ()
+
+
+class _Fancy:
+    """Write-through view of ``array[idx]`` for a non-contiguous index (numpy fancy indexing copies)."""
+
+    __slots__ = ("array", "idx")
+
+    def __init__(self, array: np.ndarray, idx: np.ndarray) -> None:
+        self.array, self.idx = array, idx
+
+
+class BoundFactor:
+    """A factor attached to one simulator: ``set(value)``, ``restore()``, ``reapply()``, ``value``."""
+
+    def __init__(self, factor: Factor, base, defaults: tuple[np.ndarray, ...]) -> None:
+        self.factor, self.name, self.relative = factor, factor.name, factor.relative
+        self.defaults = defaults
+        self.value: float = factor.neutral
+        self._base = base
+        self._wind = isinstance(factor, WindForce)
+        if self._wind:
+            self._total_mass = float(defaults[0][0])
+            self._bid = int(defaults[1][0])
+            self._xfrc = base.data.xfrc_applied  # stable array; mj_resetData zeroes it in place
+            self._force = 0.0
+        else:
+            self._targets = factor._targets(base)
+
+    def set(self, value: float) -> None:
+        """Write ``value`` (a ratio for relative factors, ξ in m/s² for wind) into the simulator."""
+        self.value = value
+        if self._wind:
+            self._force = value * self._total_mass
+            self._xfrc[self._bid, 0] = self._force
+            return
+        for t, d in zip(self._targets, self.defaults, strict=True):
+            if isinstance(t, _Fancy):
+                t.array[t.idx] = d * value
+            else:
+                np.multiply(d, value, out=t)
+
+    def reapply(self) -> None:
+        """Re-write state that ``reset()`` clears (only the wind force lives in ``data``)."""
+        if self._wind:
+            self._xfrc[self._bid, 0] = self._force
+
+    def restore(self) -> None:
+        """Write the saved defaults back exactly."""
+        self.set(self.factor.neutral)
+
+
+#: Table 3.2: env short name -> factor name -> Factor.
+FACTORS: dict[str, dict[str, Factor]] = {
+    "InvertedPendulum": {
+        "cart_mass": BodyMass("cart_mass", bodies=("cart",)),
+        "pole_mass": BodyMass("pole_mass", bodies=("pole",)),
+    },
+    "InvertedDoublePendulum": {
+        "cart_mass": BodyMass("cart_mass", bodies=("cart",)),
+        "pole1_mass": BodyMass("pole1_mass", bodies=("pole",)),
+        "pole2_mass": BodyMass("pole2_mass", bodies=("pole2",)),
+    },
+    "Walker2d": {
+        "body_mass": BodyMass("body_mass"),
+        "wind": WindForce("wind"),
+        "friction": Friction("friction"),
+        "gravity": Gravity("gravity"),
+    },
+    "Hopper": {
+        "body_mass": BodyMass("body_mass"),
+        "wind": WindForce("wind"),
+        "friction": Friction("friction"),
+        "gravity": Gravity("gravity"),
+    },
+    "HalfCheetah": {
+        "body_mass": BodyMass("body_mass"),
+        "friction": Friction("friction"),
+        "gravity": Gravity("gravity"),
+    },
+}
+assert set(FACTORS) == set(ENVS)
+
+
+def env_short_name(env) -> str:
+    """Short task name of a Gymnasium env (wrapped or not) from its spec id."""
+    spec = env.unwrapped.spec
+    if spec is None:
+        raise ValueError("env has no spec; build it with gymnasium.make or thesis_repro.envs.make_env")
+    return short_name(spec.id)
+
+
+def check_factors(env: str, names: Iterable[str] | None) -> tuple[str, ...]:
+    """Validated factor names of task ``env`` (``None`` = all of Table 3.2); ``ValueError`` names the valid ones."""
+    valid = FACTORS[short_name(env)]
+    if names is None:
+        return tuple(valid)
+    if isinstance(names, str):
+        names = (names,)
+    out = tuple(names)
+    if not out:
+        raise ValueError(f"factors must not be empty; valid factors for {env} are: {', '.join(valid)}")
+    for n in out:
+        check_choice(n, list(valid), f"factor of {short_name(env)}")
+    if len(set(out)) != len(out):
+        raise ValueError(f"duplicate factor names in {out}")
+    return out
+
+
+class FactorSet:
+    """Several bound factors of one env, sampled and written together (used by the wrappers).
+
+    ``sample(rng, sigma)`` draws one ε per factor: ratios max(1 + σε, MIN_RATIO), wind σ·ε·WIND_SCALE.
+    """
+
+    def __init__(self, env, names: Iterable[str] | None) -> None:
+        task = env_short_name(env)
+        self.names = check_factors(task, names)
+        self.bound = [FACTORS[task][n].bind(env) for n in self.names]
+        self.relative = np.array([b.relative for b in self.bound])
+        self._scale = np.where(self.relative, 1.0, WIND_SCALE)
+        self._offset = np.where(self.relative, 1.0, 0.0)
+        self._floor = np.where(self.relative, MIN_RATIO, -np.inf)
+        self._wind = [b for b in self.bound if not b.relative]
+
+    def sample(self, rng: np.random.Generator, sigma: float) -> None:
+        eps = rng.standard_normal(len(self.bound))
+        vals = np.maximum(self._offset + sigma * self._scale * eps, self._floor)
+        for b, v in zip(self.bound, vals.tolist(), strict=True):
+            b.set(v)
+
+    def set(self, values: Mapping[str, float]) -> None:
+        for b in self.bound:
+            if b.name in values:
+                b.set(float(values[b.name]))
+
+    def reapply(self) -> None:
+        for b in self._wind:
+            b.reapply()
+
+    def restore(self) -> None:
+        for b in self.bound:
+            b.restore()
+
+    def values(self) -> dict[str, float]:
+        """Currently applied values: ratios for relative factors, ξ (m/s²) for wind."""
+        return {b.name: b.value for b in self.bound}
