@@ -1,0 +1,159 @@
+"""Tests of the multi-domain learners: aggregation math (Eq 4.6-4.11) and each learner's defining step."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.optimize import minimize
+
+from thesis_repro.mdl import aggregate as agg
+
+
+def _setup(seed: int = 0, n: int = 3, scale: float = 0.05, hidden=(4,), n_states: int = 64):
+    torch.manual_seed(seed)
+    pol = agg.GaussianPolicy(3, 2, hidden=hidden, seed=seed, log_std_init=-0.5)
+    view = agg.PolicyView(pol)
+    states = torch.randn(n_states, 3, generator=torch.Generator().manual_seed(seed + 100))
+    t0 = view.get_flat()
+    gen = torch.Generator().manual_seed(seed + 1)
+    thetas = [t0 + scale * torch.randn(t0.shape, generator=gen) for _ in range(n)]
+    return view, states, t0, thetas
+
+
+def test_params_avg_eq_4_6_flat_and_state_dict():
+    a, b = torch.tensor([1.0, 2.0]), torch.tensor([3.0, 6.0])
+    assert torch.equal(agg.params_avg([a, b]), torch.tensor([2.0, 4.0]))
+    sd = agg.params_avg([{"w": a, "n": torch.tensor(3)}, {"w": b, "n": torch.tensor(3)}])
+    assert torch.equal(sd["w"], torch.tensor([2.0, 4.0])) and sd["n"].item() == 3
+    with pytest.raises(ValueError, match="at least one"):
+        agg.params_avg([])
+
+
+def test_fvp_matches_dense_fim_and_fim_is_psd():
+    view, states, t0, _ = _setup()
+    fim = agg.fisher_matrix(view, t0, states)
+    assert torch.allclose(fim, fim.T, atol=1e-6)
+    assert torch.linalg.eigvalsh(fim.double()).min() > -1e-6
+    v = torch.randn(t0.shape, generator=torch.Generator().manual_seed(5))
+    assert torch.allclose(agg.fisher_vector_product(view, t0, states, v), fim @ v, atol=1e-5)
+    # log-std block is analytic: 2 * identity (state-independent log-std)
+    assert view.names[0] == "log_std"
+    assert torch.allclose(fim[:2, :2], 2.0 * torch.eye(2), atol=1e-6)
+    assert torch.allclose(fim[:2, 2:], torch.zeros(2, view.numel - 2), atol=1e-6)
+
+
+def test_quadratic_approximation_matches_true_kl_for_small_steps():
+    view, states, t0, _ = _setup()
+    v = torch.randn(t0.shape, generator=torch.Generator().manual_seed(7))
+    v = v / v.norm()
+    fim = agg.fisher_matrix(view, t0, states).double()
+    for eps in (1e-2, 3e-3):
+        true = agg.mean_kl(view, t0, t0 + eps * v, states).item()
+        quad = 0.5 * eps**2 * (v.double() @ fim @ v.double()).item()
+        assert true == pytest.approx(quad, rel=0.05)
+
+
+def test_closed_form_equals_numerical_argmin_of_eq_4_8():
+    view, states, _, thetas = _setup(n=4, n_states=128)
+    fims = [agg.fisher_matrix(view, t, states).double().numpy() for t in thetas]
+    th = [t.double().numpy() for t in thetas]
+
+    def objective(x):
+        d = [ti - x for ti in th]
+        val = sum(di @ f @ di for di, f in zip(d, fims, strict=True))
+        grad = -2 * sum(f @ di for di, f in zip(d, fims, strict=True))
+        return val, grad
+
+    x0 = np.mean(th, axis=0)
+    res = minimize(objective, x0, jac=True, method="L-BFGS-B", options={"maxiter": 5000, "gtol": 1e-12, "ftol": 1e-16})
+    closed = agg.kl_avg_dense(view, thetas, states, damping=0.0).double().numpy()
+    assert objective(closed)[0] <= res.fun + 1e-9
+    np.testing.assert_allclose(closed, res.x, atol=2e-3)
+    # and it differs from the Euclidean mean (the FIMs are not equal)
+    assert objective(closed)[0] < objective(x0)[0] - 1e-6
+
+
+def test_identical_subpolicies_are_returned_unchanged():
+    view, states, t0, thetas = _setup()
+    same = [thetas[0].clone() for _ in range(4)]
+    for damping in (0.0, 0.1):
+        out = agg.kl_avg(view, same, states, t0, cg_iters=10, damping=damping)
+        assert torch.allclose(out, thetas[0], atol=1e-6)
+    assert torch.allclose(agg.params_avg(same), thetas[0])
+
+
+def test_equal_fisher_matrices_reduce_kl_avg_to_params_avg():
+    # a linear-Gaussian policy with only the log-std moved has FIM independent of theta... use a
+    # policy whose mean is linear in θ with fixed log-std: then I(θ_i) are all equal.
+    pol = agg.GaussianPolicy(3, 2, hidden=(), seed=0)
+    names = [n for n, _ in pol.named_parameters() if n != "log_std"]
+    view = agg.PolicyView(pol, names)
+    states = torch.randn(50, 3, generator=torch.Generator().manual_seed(1))
+    t0 = view.get_flat()
+    gen = torch.Generator().manual_seed(2)
+    thetas = [t0 + torch.randn(t0.shape, generator=gen) for _ in range(4)]
+    f = [agg.fisher_matrix(view, t, states) for t in thetas]
+    assert all(torch.allclose(f[0], fi, atol=1e-6) for fi in f)
+    out = agg.kl_avg(view, thetas, states, t0, cg_iters=20, damping=0.0)
+    assert torch.allclose(out, agg.params_avg(thetas), atol=1e-5)
+
+
+def test_huge_damping_gives_params_avg():
+    view, states, t0, thetas = _setup()
+    out = agg.kl_avg(view, thetas, states, t0, cg_iters=10, damping=1e8)
+    assert torch.allclose(out, agg.params_avg(thetas), atol=1e-6)
+
+
+@pytest.mark.parametrize("damping", [1e-2, 0.1])
+def test_cg_solve_agrees_with_dense_solve(damping):
+    view, states, t0, thetas = _setup(n=4)
+    info: dict = {}
+    cg = agg.kl_avg(view, thetas, states, t0, cg_iters=200, damping=damping, info=info)
+    dense = agg.kl_avg_dense(view, thetas, states, damping=damping)
+    assert info["cg_residual"] < 1e-3
+    assert torch.allclose(cg, dense, atol=1e-4)
+    # theta_old cancels out of Eq 4.11
+    other = agg.kl_avg(view, thetas, states, None, cg_iters=200, damping=damping)
+    assert torch.allclose(cg, other, atol=1e-4)
+
+
+def test_conjugate_gradient_on_spd_system():
+    a = torch.tensor([[4.0, 1.0], [1.0, 3.0]])
+    b = torch.tensor([1.0, 2.0])
+    x, res = agg.conjugate_gradient(lambda v: a @ v, b, iters=10)
+    assert torch.allclose(x, torch.linalg.solve(a, b), atol=1e-6) and res < 1e-5
+    with pytest.raises(ValueError, match="iters"):
+        agg.conjugate_gradient(lambda v: a @ v, b, iters=0)
+
+
+def test_view_errors_and_entropy():
+    pol = agg.GaussianPolicy(2, 1, hidden=(3,))
+    with pytest.raises(ValueError, match="valid names"):
+        agg.PolicyView(pol, ["nope"])
+    view = agg.PolicyView(pol)
+    with pytest.raises(ValueError, match="shape"):
+        view.params(torch.zeros(3))
+    with pytest.raises(ValueError, match="damping"):
+        agg.kl_avg(view, [view.get_flat()], torch.zeros(2, 2), damping=-1.0)
+    h = agg.entropy(view, view.get_flat(), torch.zeros(4, 2)).item()
+    assert h == pytest.approx(0.5 * np.log(2 * np.pi * np.e))  # log_std = 0, one action dim
+    t = view.get_flat() + 1.0
+    view.set_flat(t)
+    assert torch.equal(view.get_flat(), t)
+
+
+def test_sb3_view_selects_actor_parameters():
+    import gymnasium as gym
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    obs = gym.spaces.Box(-1, 1, (3,))
+    act = gym.spaces.Box(-1, 1, (2,))
+    pol = ActorCriticPolicy(obs, act, lambda _: 3e-4, net_arch=dict(pi=[8], vf=[8]))
+    view = agg.PolicyView.from_sb3(pol)
+    assert not any("value" in n for n in view.names) and "log_std" in view.names
+    s = torch.randn(5, 3)
+    mean, log_std = view.dist(view.get_flat(), s)
+    dist = pol.get_distribution(s)
+    assert torch.allclose(mean, dist.distribution.mean, atol=1e-6)
+    assert torch.allclose(log_std.exp(), dist.distribution.stddev, atol=1e-6)

@@ -1,0 +1,268 @@
+"""Aggregation of sub-policies for multi-domain learning (thesis §4.2, Eq 4.6-4.11), in torch.
+
+A policy is seen through a :class:`PolicyView`: the flat vector θ of the parameters that shape the
+diagonal-Gaussian action distribution, and a function ``θ, states -> (mean, log_std)``. On top of it:
+
+* :func:`params_avg` — Eq 4.6, the arithmetic mean of the sub-policies' parameters;
+* :func:`fisher_vector_product` — ``I(θ) v`` of the expected Fisher information (Eq 4.9) without
+  forming the matrix: for a diagonal Gaussian, ``I = E_s[J_μᵀ Σ⁻¹ J_μ + 2 J_ℓᵀ J_ℓ]`` (ℓ = log σ),
+  computed with one forward-mode and one reverse-mode product;
+* :func:`kl_avg` — Eq 4.10/4.11 solved by conjugate gradient with those products;
+  :func:`kl_avg_dense` is the dense reference solve for tiny networks.
+
+>>> import torch
+>>> pol = GaussianPolicy(3, 2, hidden=(4,), seed=0)
+>>> view = PolicyView(pol)
+>>> s = torch.randn(32, 3, generator=torch.Generator().manual_seed(0))
+>>> t0 = view.get_flat()
+>>> thetas = [t0 + 0.01 * torch.randn(t0.shape, generator=torch.Generator().manual_seed(i)) for i in range(3)]
+>>> new = kl_avg(view, thetas, s, t0, cg_iters=50, damping=0.1)
+>>> bool(torch.allclose(new, kl_avg_dense(view, thetas, s, damping=0.1), atol=1e-4))
+True
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+
+import torch
+from torch import Tensor, nn
+from torch.func import functional_call, jacrev, jvp, vjp
+
+from thesis_repro.validation import check_nonneg
+
+DistFn = Callable[[nn.Module, Tensor], tuple[Tensor, Tensor]]
+
+#: SB3 ``ActorCriticPolicy`` parameter prefixes that shape the action distribution / the value.
+SB3_ACTOR_PREFIXES: tuple[str, ...] = ("features_extractor.", "pi_features_extractor.", "mlp_extractor.policy_net.",
+                                       "action_net.", "log_std")
+SB3_CRITIC_PREFIXES: tuple[str, ...] = ("vf_features_extractor.", "mlp_extractor.value_net.", "value_net.")
+
+
+class GaussianPolicy(nn.Module):
+    """Small tanh-MLP diagonal-Gaussian policy (mean net + state-independent log-std), for tests and docs.
+
+    >>> m, ls = GaussianPolicy(3, 2, hidden=(8,), seed=1)(torch.zeros(5, 3))
+    >>> tuple(m.shape), tuple(ls.shape)
+    ((5, 2), (5, 2))
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden: Sequence[int] = (64, 64), seed: int = 0,
+                 log_std_init: float = 0.0):
+        super().__init__()
+        if obs_dim < 1 or act_dim < 1 or any(h < 1 for h in hidden):
+            raise ValueError(f"dimensions must be >= 1, got obs_dim={obs_dim}, act_dim={act_dim}, hidden={hidden}")
+        gen = torch.Generator().manual_seed(seed)
+        layers: list[nn.Module] = []
+        last = obs_dim
+        for h in hidden:
+            layers += [nn.Linear(last, h), nn.Tanh()]
+            last = h
+        layers.append(nn.Linear(last, act_dim))
+        self.mean_net = nn.Sequential(*layers)
+        with torch.no_grad():
+            for p in self.mean_net.parameters():
+                p.copy_(torch.randn(p.shape, generator=gen) / math.sqrt(max(p.shape[-1], 1)))
+        self.log_std = nn.Parameter(torch.full((act_dim,), float(log_std_init)))
+
+    def forward(self, states: Tensor) -> tuple[Tensor, Tensor]:
+        mean = self.mean_net(states)
+        return mean, self.log_std.expand_as(mean)
+
+
+def _sb3_dist(policy: nn.Module, states: Tensor) -> tuple[Tensor, Tensor]:
+    features = policy.extract_features(states, policy.pi_features_extractor)  # type: ignore[operator]
+    mean = policy.action_net(policy.mlp_extractor.forward_actor(features))  # type: ignore[operator]
+    return mean, policy.log_std.expand_as(mean)  # type: ignore[union-attr]
+
+
+class _Head(nn.Module):
+    def __init__(self, module: nn.Module, fn: DistFn):
+        super().__init__()
+        self.p = module
+        self._fn = fn
+
+    def forward(self, states: Tensor) -> tuple[Tensor, Tensor]:
+        return self._fn(self.p, states)
+
+
+class PolicyView:
+    """Flat-vector view θ of the distribution parameters of ``module`` and ``dist(θ, states)``.
+
+    ``names`` selects the parameters forming θ (default: all); ``dist_fn(module, states)`` returns
+    ``(mean, log_std)`` (default: ``module(states)``). Use :meth:`from_sb3` for an SB3 ``ActorCriticPolicy``.
+
+    >>> view = PolicyView(GaussianPolicy(2, 1, hidden=(3,)))
+    >>> view.numel
+    14
+    """
+
+    def __init__(self, module: nn.Module, names: Sequence[str] | None = None, dist_fn: DistFn | None = None):
+        params = dict(module.named_parameters())
+        self.names: tuple[str, ...] = tuple(params) if names is None else tuple(names)
+        unknown = [n for n in self.names if n not in params]
+        if unknown:
+            raise ValueError(f"unknown parameter names {unknown}; valid names are: {list(params)}")
+        if not self.names:
+            raise ValueError("a PolicyView needs at least one parameter")
+        self.module = module
+        self.shapes = [params[n].shape for n in self.names]
+        self.sizes = [params[n].numel() for n in self.names]
+        self.numel = sum(self.sizes)
+        self._head = _Head(module, dist_fn or (lambda m, s: m(s)))
+
+    @classmethod
+    def from_sb3(cls, policy: nn.Module) -> PolicyView:
+        """View over the actor parameters (features, policy MLP, action net, log-std) of an SB3 policy."""
+        names = [n for n, _ in policy.named_parameters() if n.startswith(SB3_ACTOR_PREFIXES)]
+        return cls(policy, names, _sb3_dist)
+
+    def params(self, theta: Tensor) -> dict[str, Tensor]:
+        if theta.shape != (self.numel,):
+            raise ValueError(f"theta must have shape ({self.numel},), got {tuple(theta.shape)}")
+        return {n: t.view(s) for n, t, s in zip(self.names, torch.split(theta, self.sizes), self.shapes, strict=True)}
+
+    def get_flat(self) -> Tensor:
+        """Current θ of the module (detached copy)."""
+        p = dict(self.module.named_parameters())
+        return torch.cat([p[n].detach().reshape(-1) for n in self.names]).clone()
+
+    def set_flat(self, theta: Tensor) -> None:
+        """Write θ into the module in place."""
+        p = dict(self.module.named_parameters())
+        with torch.no_grad():
+            for n, t in self.params(theta).items():
+                p[n].copy_(t)
+
+    def dist(self, theta: Tensor, states: Tensor) -> tuple[Tensor, Tensor]:
+        """``(mean, log_std)``, each of shape (S, A), of π_θ at ``states``."""
+        full = {f"p.{n}": t for n, t in self.params(theta).items()}
+        return functional_call(self._head, full, (states,), strict=False)
+
+
+# ----------------------------------------------------------------------------------------------- Eq 4.6
+def params_avg(thetas: Sequence[Tensor] | Sequence[Mapping[str, Tensor]]) -> Tensor | dict[str, Tensor]:
+    """Eq 4.6: θ_new = (1/N) Σ θ_i, for flat tensors or state dicts (every floating entry is averaged).
+
+    >>> params_avg([torch.tensor([0.0, 2.0]), torch.tensor([2.0, 4.0])])
+    tensor([1., 3.])
+    """
+    if len(thetas) == 0:
+        raise ValueError("params_avg needs at least one sub-policy")
+    if isinstance(thetas[0], Mapping):
+        keys = list(thetas[0])
+        out = {}
+        for k in keys:
+            vals = [t[k] for t in thetas]  # type: ignore[index]
+            out[k] = torch.stack(vals).mean(0) if vals[0].is_floating_point() else vals[0].clone()
+        return out
+    return torch.stack(list(thetas)).mean(0)  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------------- KL, entropy, Fisher
+def gaussian_kl(mean_p: Tensor, log_std_p: Tensor, mean_q: Tensor, log_std_q: Tensor) -> Tensor:
+    """Per-state KL(N(μ_p, σ_p²) ‖ N(μ_q, σ_q²)) of diagonal Gaussians, summed over action dims."""
+    var_p, var_q = torch.exp(2 * log_std_p), torch.exp(2 * log_std_q)
+    return (log_std_q - log_std_p + (var_p + (mean_p - mean_q) ** 2) / (2 * var_q) - 0.5).sum(-1)
+
+
+def mean_kl(view: PolicyView, theta_p: Tensor, theta_q: Tensor, states: Tensor) -> Tensor:
+    """E_s[KL(π_θp(·|s) ‖ π_θq(·|s))] over the rows of ``states``."""
+    return gaussian_kl(*view.dist(theta_p, states), *view.dist(theta_q, states)).mean()
+
+
+def entropy(view: PolicyView, theta: Tensor, states: Tensor) -> Tensor:
+    """E_s[H(π_θ(·|s))] of the diagonal Gaussian (nats)."""
+    _, log_std = view.dist(theta, states)
+    return (log_std + 0.5 * math.log(2 * math.pi * math.e)).sum(-1).mean()
+
+
+def fisher_vector_product(view: PolicyView, theta: Tensor, states: Tensor, v: Tensor) -> Tensor:
+    """``I(θ) v`` with I(θ) = ∂²/∂θ'² E_s KL(π_θ ‖ π_θ')|θ'=θ = E_s[J_μᵀΣ⁻¹J_μ + 2 J_ℓᵀJ_ℓ] (matrix-free)."""
+    theta = theta.detach()
+
+    def f(t: Tensor) -> tuple[Tensor, Tensor]:
+        return view.dist(t, states)
+
+    (mean, log_std), (dmu, dls) = jvp(f, (theta,), (v.detach(),))
+    _, pull = vjp(f, theta)
+    n = states.shape[0]
+    (out,) = pull((dmu * torch.exp(-2 * log_std.detach()) / n, 2.0 * dls / n))
+    return out
+
+
+def fisher_matrix(view: PolicyView, theta: Tensor, states: Tensor) -> Tensor:
+    """Dense expected FIM (P×P); only for tiny networks (reference for tests)."""
+    theta = theta.detach()
+    jac_mu, jac_ls = jacrev(lambda t: view.dist(t, states))(theta)  # (S, A, P) each
+    _, log_std = view.dist(theta, states)
+    w = torch.exp(-2 * log_std.detach())
+    n = states.shape[0]
+    return (torch.einsum("sap,sa,saq->pq", jac_mu, w, jac_mu) + 2.0 * torch.einsum("sap,saq->pq", jac_ls, jac_ls)) / n
+
+
+# ----------------------------------------------------------------------------------------- Eq 4.10/4.11
+def conjugate_gradient(avp: Callable[[Tensor], Tensor], b: Tensor, iters: int = 10,
+                       tol: float = 1e-10) -> tuple[Tensor, float]:
+    """Solve A x = b for symmetric positive (semi-)definite A given ``avp(v) = A v``; returns (x, ‖r‖)."""
+    if iters < 1:
+        raise ValueError(f"cg iters must be >= 1, got {iters}")
+    x = torch.zeros_like(b)
+    r = b.clone()
+    p = r.clone()
+    rr = r @ r
+    for _ in range(iters):
+        if rr <= tol:
+            break
+        ap = avp(p)
+        denom = p @ ap
+        if denom <= 0:
+            break
+        alpha = rr / denom
+        x = x + alpha * p
+        r = r - alpha * ap
+        rr_new = r @ r
+        p = r + (rr_new / rr) * p
+        rr = rr_new
+    return x, float(rr.sqrt())
+
+
+def kl_avg(view: PolicyView, thetas: Sequence[Tensor], states: Tensor, theta_old: Tensor | None = None,
+           cg_iters: int = 10, damping: float = 0.1, info: dict | None = None) -> Tensor:
+    """Eq 4.11: θ_new = θ_old + ḡ + [Σ I(θ_i) + λ·1]⁻¹ Σ I(θ_i)(g_i − ḡ), by CG with Fisher-vector products.
+
+    g_i = θ_i − θ_old; the FIMs are estimated on ``states`` (the θ_old rollouts). θ_old cancels
+    (θ_old + ḡ = mean θ_i), so it only fixes the parametrisation of the correction, which the damping
+    λ ≥ 0 shrinks towards zero, i.e. towards :func:`params_avg` (λ → ∞ gives Eq 4.6 exactly). With λ = 0
+    and enough iterations this is Eq 4.10, the argmin of Σ_i (θ_i − θ)ᵀ I(θ_i) (θ_i − θ) (Eq 4.8).
+    ``info`` (if given) receives the CG residual norm.
+    """
+    damping = check_nonneg(damping, "damping")
+    if len(thetas) == 0:
+        raise ValueError("kl_avg needs at least one sub-policy")
+    thetas = [t.detach() for t in thetas]
+    mean = torch.stack(thetas).mean(0)
+    base = mean if theta_old is None else theta_old.detach()
+    gs = [t - base for t in thetas]
+    gbar = mean - base
+    b = sum(fisher_vector_product(view, t, states, g - gbar) for t, g in zip(thetas, gs, strict=True))
+
+    def avp(v: Tensor) -> Tensor:
+        return sum(fisher_vector_product(view, t, states, v) for t in thetas) + damping * v
+
+    corr, res = conjugate_gradient(avp, b, cg_iters)  # type: ignore[arg-type]
+    if info is not None:
+        info["cg_residual"] = res
+    return base + gbar + corr
+
+
+def kl_avg_dense(view: PolicyView, thetas: Sequence[Tensor], states: Tensor, damping: float = 0.0) -> Tensor:
+    """Dense reference of Eq 4.10 (with the same damping convention as :func:`kl_avg`): forms every FIM."""
+    damping = check_nonneg(damping, "damping")
+    thetas = [t.detach().double() for t in thetas]
+    mean = torch.stack(thetas).mean(0)
+    fims = [fisher_matrix(view, t.float(), states).double() for t in thetas]
+    a = sum(fims) + damping * torch.eye(mean.numel(), dtype=torch.float64)
+    b = sum(f @ (t - mean) for f, t in zip(fims, thetas, strict=True))
+    return (mean + torch.linalg.solve(a, b)).float()
