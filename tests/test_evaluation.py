@@ -1,0 +1,286 @@
+"""Chapter-3 evaluation protocol: Eq. 3.6 AUC, metrics, batched evaluator, cached jobs, score_model."""
+
+from __future__ import annotations
+
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thesis_repro import evaluation as ev
+from thesis_repro.cache import Job, RunCache
+from thesis_repro.envs import make_env
+from thesis_repro.evaluation import jobs as jobs_mod
+
+W = np.random.default_rng(0).normal(0.0, 0.3, size=(3, 11))
+
+
+def linear(obs: np.ndarray) -> np.ndarray:
+    """Deterministic linear-tanh policy computed row by row (bit-identical for any batch size)."""
+    return np.tanh((obs[:, None, :] * W[None]).sum(axis=-1))
+
+
+def falling(obs: np.ndarray) -> np.ndarray:
+    return np.tile([1.0, -1.0, 1.0], (len(obs), 1))
+
+
+def sequential(policy, env, perturbation, sigmas, n_rollouts, seed, max_steps):
+    """The plain reference loop: one env, one episode at a time, batch-of-one policy calls."""
+    returns = np.zeros((len(sigmas), n_rollouts))
+    lengths = np.zeros((len(sigmas), n_rollouts), dtype=int)
+    for c, s in enumerate(sigmas):
+        for r, ts in enumerate(ev.test_seeds(seed, n_rollouts)):
+            e = make_env(env, perturbation, s, max_episode_steps=max_steps)
+            obs, _ = e.reset(seed=ts)
+            done = False
+            while not done:
+                a = np.clip(policy(np.asarray(obs, dtype=np.float64)[None])[0], -1.0, 1.0)
+                obs, rew, term, trunc, _ = e.step(a)
+                returns[c, r] += rew
+                lengths[c, r] += 1
+                done = term or trunc or lengths[c, r] >= max_steps
+            e.close()
+    return returns, lengths
+
+
+# --- metrics ---------------------------------------------------------------------------------------
+
+
+def test_auc_matches_hand_computation():
+    assert ev.auc([100.0, 80.0, 40.0], [0.0, 0.2, 0.4]) == pytest.approx(0.2 * 220)
+    grid = np.array([[100.0, 80.0, 40.0], [10.0, 20.0, 30.0]])
+    np.testing.assert_allclose(ev.auc(grid, [0.0, 0.2, 0.4]), [44.0, 12.0])
+    np.testing.assert_allclose(ev.auc(grid.T, [0.0, 0.2, 0.4], axis=0), [44.0, 12.0])
+    # linearity: AUC of the expected curve == mean of the per-rollout AUCs
+    R = np.random.default_rng(1).normal(size=(4, 5, 7))
+    s = np.linspace(0.1, 0.7, 7)
+    np.testing.assert_allclose(ev.auc(R.mean(axis=1), s), ev.auc(R, s).mean(axis=1))
+
+
+@pytest.mark.parametrize(
+    "sigmas", [[0.0, 0.1, 0.3], [0.0], [], [0.2, 0.1, 0.0], [0.0, 0.0, 0.0], [-0.1, 0.0, 0.1], [[0.0, 0.1]]]
+)
+def test_auc_rejects_bad_grids(sigmas):
+    with pytest.raises(ValueError):
+        ev.auc(np.ones(max(len(sigmas), 1)), sigmas)
+
+
+def test_auc_needs_one_return_per_sigma():
+    with pytest.raises(ValueError, match="one entry per sigma"):
+        ev.auc([1.0, 2.0], [0.0, 0.1, 0.2])
+
+
+def test_expected_return_is_mean_over_rollouts():
+    R = np.arange(12.0).reshape(2, 2, 3)
+    np.testing.assert_allclose(ev.expected_return(R), R.mean(axis=-1))
+    assert ev.expected_return([1.0, 2.0, 6.0]) == 3.0
+    with pytest.raises(ValueError):
+        ev.expected_return([])
+
+
+def test_pareto_frontier_on_hand_made_points():
+    train = [1.0, 2.0, 3.0, 2.5, 0.5, 3.0]
+    test = [5.0, 4.0, 1.0, 2.0, 5.0, 0.5]
+    # (0.5,5) dominated by (1,5); (3,0.5) by (3,1); the rest trade off
+    assert ev.pareto_frontier(train, test).tolist() == [0, 1, 3, 2]
+    assert ev.pareto_frontier([1.0, 1.0], [2.0, 2.0]).tolist() == [0, 1]  # ties dominate nobody
+    assert ev.pareto_frontier([3.0], [1.0]).tolist() == [0]
+    with pytest.raises(ValueError):
+        ev.pareto_frontier([1.0, 2.0], [1.0])
+
+
+def test_correlation_sign_on_constructed_data():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=30)
+    r_neg, p_neg = ev.correlation(x, -2.0 * x + 0.1 * rng.normal(size=30))
+    r_pos, _ = ev.correlation(x, 3.0 * x + 0.1 * rng.normal(size=30))
+    assert r_neg < -0.95 and p_neg < 1e-6 and r_pos > 0.95
+    with pytest.raises(ValueError):
+        ev.correlation([1.0, 2.0], [2.0, 1.0])
+    with pytest.raises(ValueError):
+        ev.correlation([1.0, 2.0, 3.0], [1.0, 1.0, 1.0])
+
+
+# --- testing seeds ----------------------------------------------------------------------------------
+
+
+def test_testing_seeds_are_fixed_distinct_and_never_training_seeds():
+    s = ev.test_seeds(0, 20)
+    assert s == ev.test_seeds(0, 20) and s[:5] == ev.test_seeds(0, 5)
+    assert len(set(s)) == 20
+    assert not set(s) & set(range(100_000))  # training seeds are small integers
+    assert min(s) >= 2**32
+    assert not set(s) & set(ev.test_seeds(1, 20))
+    with pytest.raises(ValueError):
+        ev.test_seeds(0, 0)
+    with pytest.raises(ValueError):
+        ev.test_seeds(-1, 3)
+
+
+# --- batched evaluator ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("perturbation", ["obs", "act", "dom"])
+def test_batched_equals_sequential_loop(perturbation):
+    sigmas, n, steps = [0.0, 0.3], 3, 40
+    out = ev.evaluate(
+        linear, "Hopper", perturbation, sigmas, n, seed=7, max_episode_steps=steps, n_envs=4, return_lengths=True
+    )
+    ref_r, ref_l = sequential(linear, "Hopper", perturbation, sigmas, n, 7, steps)
+    np.testing.assert_array_equal(out.returns, ref_r)
+    np.testing.assert_array_equal(out.lengths, ref_l)
+    assert out.returns.shape == (2, 3)
+    # noise actually acts (σ > 0 differs from σ = 0), and the result does not depend on n_envs
+    assert not np.array_equal(out.returns[0], out.returns[1])
+    one = ev.evaluate(linear, "Hopper", perturbation, sigmas, n, seed=7, max_episode_steps=steps, n_envs=1)
+    np.testing.assert_array_equal(one, out.returns)
+
+
+def test_masking_of_early_terminations():
+    out = ev.evaluate(falling, "Hopper", "none", [0.0], 3, max_episode_steps=200, n_envs=2, return_lengths=True)
+    ref_r, ref_l = sequential(falling, "Hopper", "none", [0.0], 3, 0, 200)
+    assert np.all(out.lengths < 200) and np.all(out.lengths > 0)
+    np.testing.assert_array_equal(out.lengths, ref_l)
+    np.testing.assert_array_equal(out.returns, ref_r)
+    # mixing falling and surviving episodes in one batch: each keeps its own length and return
+    zero = lambda obs: np.zeros((len(obs), 3))  # noqa: E731  (keeps Hopper up for > 100 steps)
+    mixed = ev.BatchedEvaluator(zero, lambda **c: make_env(**c), n_envs=3, max_episode_steps=60)
+    conds = [{"env": "Hopper", "perturbation": "act", "sigma": s} for s in (0.0, 2.0)]
+    got = mixed.run(conds, ev.test_seeds(0, 2))
+    assert got.lengths.shape == (2, 2) and np.all(got.lengths[0] == 60) and np.all(got.lengths[1] < 60)
+    ref_r, ref_l = sequential(zero, "Hopper", "act", [0.0, 2.0], 2, 0, 60)
+    np.testing.assert_array_equal(got.lengths, ref_l)
+    np.testing.assert_array_equal(got.returns, ref_r)
+
+
+def test_one_policy_forward_per_step():
+    calls = []
+
+    def counting(obs):
+        calls.append(len(obs))
+        return np.zeros((len(obs), 3))
+
+    out = ev.evaluate(counting, "Hopper", "none", [0.0], 8, max_episode_steps=25, n_envs=8, return_lengths=True)
+    assert np.all(out.lengths == 25) and calls == [8] * 25
+
+
+def test_systematic_shift_grid():
+    zero = lambda obs: np.zeros((len(obs), 3))  # noqa: E731
+    R = ev.evaluate_shift(zero, "Hopper", [{"body_mass": 1.0}, {"body_mass": 1.5}], 2, max_episode_steps=100)
+    base = ev.evaluate(zero, "Hopper", "none", [0.0], 2, max_episode_steps=100)
+    assert R.shape == (2, 2)
+    np.testing.assert_array_equal(R[0], base[0])  # ratio 1 is the training domain
+    assert not np.array_equal(R[1], base[0])
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"sigmas": [-0.1, 0.0]}, "sigma"),
+        ({"perturbation": "wind"}, "valid perturbations"),
+        ({"n_rollouts": 0}, "n_rollouts"),
+        ({"n_envs": 0}, "n_envs"),
+        ({"sigmas": []}, "sigmas"),
+        ({"max_episode_steps": 0}, "max_episode_steps"),
+    ],
+)
+def test_bad_arguments_raise(kwargs, match):
+    args = {"perturbation": "obs", "sigmas": [0.0, 0.1], "n_rollouts": 2, "n_envs": 2, "max_episode_steps": 5}
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        ev.evaluate(linear, "Hopper", args.pop("perturbation"), args.pop("sigmas"), args.pop("n_rollouts"), **args)
+
+
+def test_policy_with_wrong_batch_raises():
+    with pytest.raises(ValueError, match="actions"):
+        ev.evaluate(lambda o: np.zeros((1, 3)), "Hopper", "none", [0.0], 4, max_episode_steps=5, n_envs=4)
+
+
+# --- SB3 scoring ------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiny_ppo():
+    from stable_baselines3 import PPO
+
+    model = PPO("MlpPolicy", "Hopper-v5", n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    return model.learn(128)
+
+
+def test_sb3_policy_matches_predict(tiny_ppo):
+    obs = np.random.default_rng(0).normal(size=(5, 11))
+    np.testing.assert_allclose(ev.sb3_policy(tiny_ppo)(obs), tiny_ppo.predict(obs, deterministic=True)[0])
+    with pytest.raises(TypeError):
+        ev.sb3_policy(object())
+
+
+def test_score_model_shapes_and_auc(tiny_ppo):
+    sig = [0.0, 0.2]
+    scores = ev.score_model(tiny_ppo, "Hopper", tests=("obs", "dom"), sigmas=sig, n_rollouts=2, max_episode_steps=20)
+    assert set(scores) == {"obs", "dom"}
+    for s in scores.values():
+        assert s["returns"].shape == (2, 2) and s["expected_return"].shape == (2,)
+        assert s["auc"] == pytest.approx(0.2 * s["returns"].mean(axis=1).sum())
+    assert ev.summarise(scores)["obs"] == scores["obs"]["auc"]
+    with pytest.raises(ValueError, match="valid test types"):
+        ev.score_model(tiny_ppo, "Hopper", tests=("noise",), sigmas=sig)
+    with pytest.raises(ValueError, match="uniform"):
+        ev.score_model(tiny_ppo, "Hopper", sigmas=[0.0, 0.1, 0.5])
+    assert len(ev.default_sigmas()) >= 2
+
+
+# --- cached jobs with a stand-in learner ------------------------------------------------------------
+
+
+def fake_train_job(config: dict, workdir: Path) -> dict:
+    """Stand-in for thesis_repro.learners:train_job: a 'trained' linear policy scaled by the seed."""
+    np.save(workdir / "out" / "w.npy", W * (1 + config["seed"]))
+    return {"train_return": 100.0 + config["seed"]}
+
+
+@pytest.fixture
+def fake_learners(monkeypatch):
+    def load_policy(result, snapshot=None):
+        w = np.load(result.out / "w.npy")
+        return lambda obs: np.tanh((obs[:, None, :] * w[None]).sum(axis=-1))
+
+    def train_config(algo, env, seed, timesteps, **overrides):
+        return {"algo": algo, "env": env, "seed": seed, "timesteps": timesteps, **overrides}
+
+    stub = types.SimpleNamespace(load_policy=load_policy, train_config=train_config)
+    monkeypatch.setattr(jobs_mod, "_learners", lambda: stub)
+    monkeypatch.setattr(jobs_mod, "TRAIN_FN", "tests.test_evaluation:fake_train_job")
+    monkeypatch.setenv("THESIS_REPRO_JOBS", "1")
+    return stub
+
+
+def test_evaluate_job_through_the_cache(fake_learners):
+    cfg = {
+        "train": fake_learners.train_config("PPO", "Hopper", 0, 1000),
+        "test": {"perturbation": "obs", "sigmas": [0.0, 0.1], "n_rollouts": 2, "seed": 3, "max_episode_steps": 15},
+    }
+    res = RunCache().run(Job("thesis_repro.evaluation:evaluate_job", cfg))
+    assert res["returns"].shape == (2, 2) and res["train_return"] == 100.0
+    direct = ev.evaluate(linear, "Hopper", "obs", [0.0, 0.1], 2, seed=3, max_episode_steps=15)
+    np.testing.assert_array_equal(res["returns"], direct)
+    assert res["auc"] == pytest.approx(ev.auc(direct.mean(axis=1), [0.0, 0.1]))
+    assert RunCache().run(Job("thesis_repro.evaluation:evaluate_job", cfg)).from_cache
+    with pytest.raises(ValueError, match="exactly one"):
+        ev.check_test({"perturbation": "obs"})
+
+
+def test_benchmark_jobs_stack_seeds_tasks_algos(fake_learners):
+    tests = ["obs", {"name": "mass", "perturbation": "none", "ratios": [{"body_mass": 0.8}, {"body_mass": 1.2}]}]
+    bench = ev.benchmark_jobs(
+        ["PPO", "PPO-16"], ["Hopper"], [0, 1, 2], 1000, tests, sigmas=[0.0, 0.2], n_rollouts=2, max_episode_steps=10
+    )
+    assert len(bench.train_jobs) == 6 and len(bench.eval_jobs["obs"]) == 6
+    res = bench.run(n_jobs=1, progress=False)
+    assert res.returns["obs"].shape == (3, 1, 2, 2, 2)
+    assert res.returns["mass"].shape == (3, 1, 2, 2, 2)
+    assert res.auc["obs"].shape == (3, 1, 2) and "mass" not in res.auc
+    np.testing.assert_array_equal(res.train_return[:, 0, 0], [100.0, 101.0, 102.0])
+    assert res.by_algo(res.auc["obs"])["PPO-16"].shape == (3, 1)
+    with pytest.raises(ValueError, match="sigmas"):
+        ev.benchmark_jobs(["PPO"], ["Hopper"], [0], 1000, ["obs"])

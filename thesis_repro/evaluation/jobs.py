@@ -1,0 +1,178 @@
+"""Cached evaluation jobs and figure-level benchmark grids (train jobs first, then evaluation jobs).
+
+An evaluation config is ``{"train": <train_config(...)>, "test": {"perturbation", "sigmas" | "ratios",
+"n_rollouts", "seed", "max_episode_steps", "snapshot" (optional), "env_kwargs" (optional)}}``; the
+trained model comes from the run cache (the same train job is trained once and shared by every test).
+
+Arrays of :class:`BenchmarkResult` have axes ``(training seeds, tasks, algorithms, points, rollouts)``
+(points = sigmas, or ratio settings of a shift grid); ``auc``/``train_return`` drop the last two axes.
+
+>>> bench = benchmark_jobs(["PPO"], ["Hopper"], [0, 1], 100_000, ["obs", "act"],
+...                        sigmas=[0.0, 0.1, 0.2])  # doctest: +SKIP
+>>> res = bench.run()  # doctest: +SKIP
+>>> res.auc["obs"].shape  # (seeds, tasks, algorithms)  # doctest: +SKIP
+(2, 1, 1)
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from thesis_repro.cache import Job, Result, RunCache, run_jobs
+from thesis_repro.evaluation.evaluator import PERTURBATIONS, evaluate, evaluate_shift
+from thesis_repro.evaluation.metrics import auc, expected_return, sigma_step
+from thesis_repro.validation import check_choice
+
+TRAIN_FN = "thesis_repro.learners:train_job"
+EVAL_FN = "thesis_repro.evaluation:evaluate_job"
+
+
+def _learners() -> Any:
+    return importlib.import_module("thesis_repro.learners")
+
+
+def check_test(test: Mapping[str, Any]) -> dict[str, Any]:
+    """Validate a test block and fill defaults (``seed=0``, ``max_episode_steps=1000``, ``n_rollouts=20``)."""
+    t = {"seed": 0, "max_episode_steps": 1000, "n_rollouts": 20, **dict(test)}
+    check_choice(t.get("perturbation"), PERTURBATIONS, "perturbation")
+    if ("sigmas" in t) == ("ratios" in t):
+        raise ValueError("a test needs exactly one of 'sigmas' (noise grid) or 'ratios' (systematic shifts)")
+    if "ratios" in t and t["perturbation"] != "none":
+        raise ValueError("systematic-shift tests ('ratios') use perturbation 'none'")
+    return t
+
+
+def evaluate_job(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
+    """Job function: train (through the cache) or reuse the model of ``config["train"]``, evaluate ``["test"]``.
+
+    Returns ``returns`` and ``lengths`` ``(points, n_rollouts)``, ``expected_return`` ``(points,)``, ``auc``
+    (Eq. 3.6; ``None`` for shift grids or a single sigma) and ``train_return`` if the train job reports one.
+    """
+    test = check_test(config["test"])
+    train = RunCache().run(Job(TRAIN_FN, config["train"]))
+    policy = _learners().load_policy(train, snapshot=test.get("snapshot"))
+    env = test.get("env", config["train"]["env"])
+    kw = {
+        "seed": int(test["seed"]),
+        "max_episode_steps": int(test["max_episode_steps"]),
+        "env_kwargs": test.get("env_kwargs"),
+        "return_lengths": True,
+    }
+    if "ratios" in test:
+        out = evaluate_shift(policy, env, test["ratios"], int(test["n_rollouts"]), **kw)
+        area = None
+    else:
+        out = evaluate(policy, env, test["perturbation"], test["sigmas"], int(test["n_rollouts"]), **kw)
+        area = float(auc(expected_return(out.returns, axis=1), test["sigmas"])) if len(test["sigmas"]) > 1 else None
+    tr = train.get("train_return")
+    return {
+        "returns": out.returns,
+        "lengths": out.lengths,
+        "expected_return": expected_return(out.returns, axis=1),
+        "auc": area,
+        "train_return": None if tr is None else float(np.mean(tr)),
+    }
+
+
+@dataclass
+class BenchmarkResult:
+    """Stacked results; axes ``(seeds, tasks, algos, points, rollouts)`` for ``returns``/``lengths``."""
+
+    algos: list[str]
+    envs: list[str]
+    seeds: list[int]
+    tests: dict[str, dict[str, Any]]
+    returns: dict[str, np.ndarray] = field(default_factory=dict)
+    lengths: dict[str, np.ndarray] = field(default_factory=dict)
+    auc: dict[str, np.ndarray] = field(default_factory=dict)
+    train_return: np.ndarray | None = None
+
+    def by_algo(self, values: np.ndarray) -> dict[str, np.ndarray]:
+        """``{algo: values[:, :, i]}`` — the (runs × tasks) matrices rliable-style aggregators expect."""
+        return {a: values[:, :, i] for i, a in enumerate(self.algos)}
+
+
+@dataclass
+class Benchmark:
+    """Train and evaluation jobs of a figure; :meth:`run` executes them (train first) and stacks results."""
+
+    algos: list[str]
+    envs: list[str]
+    seeds: list[int]
+    tests: dict[str, dict[str, Any]]
+    train_jobs: list[Job]
+    eval_jobs: dict[str, list[Job]]  # test name -> jobs in (seed, env, algo) order
+
+    def run(self, n_jobs: int | None = None, progress: bool = True) -> BenchmarkResult:
+        """Run missing jobs (cached ones are loaded) and return stacked arrays."""
+        trained = run_jobs(self.train_jobs, n_jobs=n_jobs, progress=progress, desc="train")
+        shape = (len(self.seeds), len(self.envs), len(self.algos))
+        res = BenchmarkResult(self.algos, self.envs, self.seeds, self.tests)
+        tr = [t.get("train_return") for t in trained]
+        if all(v is not None for v in tr):
+            res.train_return = np.array([float(np.mean(v)) for v in tr]).reshape(shape)
+        for name, jobs in self.eval_jobs.items():
+            out: list[Result] = run_jobs(jobs, n_jobs=n_jobs, progress=progress, desc=f"evaluate {name}")
+            rets = np.stack([np.asarray(r["returns"]) for r in out])
+            res.returns[name] = rets.reshape(*shape, *rets.shape[1:])
+            res.lengths[name] = np.stack([np.asarray(r["lengths"]) for r in out]).reshape(res.returns[name].shape)
+            if "sigmas" in self.tests[name] and len(self.tests[name]["sigmas"]) > 1:
+                res.auc[name] = auc(expected_return(res.returns[name], axis=-1), self.tests[name]["sigmas"])
+        return res
+
+
+def benchmark_jobs(
+    algos: Sequence[str],
+    envs: Sequence[str],
+    seeds: Sequence[int],
+    timesteps: int,
+    tests: Sequence[str | Mapping[str, Any]],
+    *,
+    sigmas: Sequence[float] | None = None,
+    n_rollouts: int = 20,
+    test_seed: int = 0,
+    max_episode_steps: int = 1000,
+    snapshot: Any = None,
+    train_overrides: Mapping[str, Any] | None = None,
+) -> Benchmark:
+    """Train jobs (one per seed × task × algorithm) and evaluation jobs (one per train job × test).
+
+    ``tests`` items are perturbation names (using ``sigmas``) or full test blocks with a ``"name"``
+    (``{"name": "mass", "perturbation": "none", "ratios": [...]}``).
+    """
+    if not (algos and envs and seeds and tests):
+        raise ValueError("algos, envs, seeds and tests must all be non-empty")
+    blocks: dict[str, dict[str, Any]] = {}
+    for t in tests:
+        if isinstance(t, str):
+            if sigmas is None:
+                raise ValueError(f"test {t!r} is given by name, so pass sigmas=[...]")
+            if len(sigmas) > 1:
+                sigma_step(sigmas)
+            t = {"name": t, "perturbation": t, "sigmas": list(sigmas)}
+        t = dict(t)
+        name = t.pop("name", t.get("perturbation"))
+        t.setdefault("n_rollouts", n_rollouts)
+        t.setdefault("seed", test_seed)
+        t.setdefault("max_episode_steps", max_episode_steps)
+        if snapshot is not None:
+            t.setdefault("snapshot", snapshot)
+        if name in blocks:
+            raise ValueError(f"duplicate test name {name!r}")
+        blocks[name] = check_test(t)
+    learners = _learners()
+    train_cfgs = [
+        learners.train_config(a, e, int(s), int(timesteps), **dict(train_overrides or {}))
+        for s in seeds
+        for e in envs
+        for a in algos
+    ]
+    train_jobs = [Job(TRAIN_FN, c) for c in train_cfgs]
+    eval_jobs = {name: [Job(EVAL_FN, {"train": c, "test": b}) for c in train_cfgs] for name, b in blocks.items()}
+    return Benchmark(list(algos), list(envs), [int(s) for s in seeds], blocks, train_jobs, eval_jobs)
