@@ -1,0 +1,266 @@
+"""``train_job``: one resumable, cached training run of a chapter-3 learner.
+
+Usable as ``Job("thesis_repro.learners:train_job", train_config(...))``. The job
+
+* builds ``n_envs`` copies of ``make_env(env, perturbation, sigma, seed=seed + i)`` in one process
+  (``DummyVecEnv`` -> ``VecMonitor`` (raw returns) -> ``VecNormalize`` (obs filter) [-> ``ARPLVecEnv``]);
+* seeds SB3 (torch, numpy, env ``i`` with ``seed + i``) with the config's training ``seed``;
+* checkpoints model + VecNormalize statistics (+ replay buffer off-policy) + bookkeeping into
+  ``workdir/ckpt-<steps>`` at iteration boundaries at least ``checkpoint_every`` steps apart, and resumes
+  from the newest checkpoint when rerun after an interruption (the timestep counter continues);
+* writes ``out/model.zip``, ``out/vecnormalize.pkl`` (if the obs filter is on), ``out/policy.pth`` +
+  ``out/obs_norm.npz`` (what :func:`thesis_repro.learners.load_policy` reads) and, every
+  ``snapshot_every`` steps at iteration boundaries, ``out/snapshots/step_<t>/`` (policy + obs filter).
+
+Training return (Fig. 3.3's x-axis) := mean undiscounted return of the last 100 training episodes,
+measured in the training environment (with its training perturbation), i.e. SB3's ``ep_rew_mean``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise, VectorizedActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
+
+from thesis_repro.envs import make_env
+from thesis_repro.learners.algos import DDPGSplit
+from thesis_repro.learners.arpl import ARPLVecEnv
+from thesis_repro.learners.policies import SCNPolicy
+
+RETURN_WINDOW = 100  # training episodes averaged into train_return and the curve
+
+
+def _algo_class(name: str) -> type[BaseAlgorithm]:
+    if name == "TRPO":
+        from sb3_contrib import TRPO
+
+        return TRPO
+    return {"PPO": PPO, "SAC": SAC, "DDPG": DDPGSplit}[name]
+
+
+def make_train_venv(cfg: dict[str, Any]) -> VecEnv:
+    """The ``VecMonitor(DummyVecEnv([...]))`` training env of a resolved config (before normalisation)."""
+    fns = [
+        partial(
+            make_env, cfg["env"], cfg["perturbation"], cfg["sigma"],
+            seed=cfg["seed"] + i, max_episode_steps=cfg["max_episode_steps"],
+        )
+        for i in range(cfg["n_envs"])
+    ]
+    return VecMonitor(DummyVecEnv(fns))
+
+
+def _wrap(cfg: dict[str, Any], inner: VecEnv, vecnorm_path: Path | None) -> VecEnv:
+    venv: VecEnv = inner
+    if cfg["normalize_obs"] or cfg["norm_reward"]:
+        if vecnorm_path is not None:
+            venv = VecNormalize.load(str(vecnorm_path), inner)
+        else:
+            venv = VecNormalize(
+                inner, norm_obs=cfg["normalize_obs"], norm_reward=cfg["norm_reward"],
+                clip_obs=cfg["clip_obs"], gamma=cfg["sb3"].get("gamma", 0.99),
+            )
+    if cfg.get("arpl") is not None:
+        venv = ARPLVecEnv(venv, cfg["arpl"]["epsilon"], cfg["arpl"]["prob"], seed=cfg["seed"])
+    return venv
+
+
+def build_model(cfg: dict[str, Any], venv: VecEnv) -> BaseAlgorithm:
+    """A fresh SB3 model for a resolved config (``train_config``) on ``venv``."""
+    cls = _algo_class(cfg["class"])
+    act = {"tanh": th.nn.Tanh, "relu": th.nn.ReLU}[cfg["activation"]]
+    kwargs: dict[str, Any] = dict(cfg["sb3"])
+    if cfg["class"] == "DDPG":
+        kwargs.update(actor_lr=cfg["actor_lr"], critic_lr=cfg["critic_lr"], critic_l2=cfg["critic_l2"])
+    noise = cfg.get("action_noise")
+    if noise is not None:
+        if noise["type"] != "ou":
+            raise ValueError(f"unknown action_noise type {noise['type']!r}; valid types are: 'ou'")
+        dim = int(np.prod(venv.action_space.shape))
+        base = OrnsteinUhlenbeckActionNoise(np.zeros(dim), float(noise["sigma"]) * np.ones(dim))
+        kwargs["action_noise"] = base if venv.num_envs == 1 else VectorizedActionNoise(base, venv.num_envs)
+    policy = SCNPolicy if cfg["policy"] == "scn" else "MlpPolicy"
+    return cls(
+        policy, venv, seed=cfg["seed"], device="cpu", verbose=0,
+        policy_kwargs={"net_arch": cfg["net_arch"], "activation_fn": act}, **kwargs,
+    )
+
+
+def _batch_steps(cfg: dict[str, Any]) -> int:
+    if cfg["class"] in ("PPO", "TRPO"):
+        return int(cfg["sb3"]["n_steps"]) * int(cfg["n_envs"])
+    return 1000
+
+
+def _checkpoints(workdir: Path) -> list[Path]:
+    return sorted(workdir.glob("ckpt-*"), key=lambda p: int(p.name.split("-")[1]))
+
+
+def save_artifacts(model: BaseAlgorithm, folder: Path, cfg: dict[str, Any], full: bool) -> None:
+    """Write ``policy.pth`` + ``obs_norm.npz`` + ``learner.json`` (and ``model.zip``/``vecnormalize.pkl`` if full)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    model.policy.save(str(folder / "policy.pth"))
+    vn = model.get_vec_normalize_env()
+    if vn is not None and vn.norm_obs:
+        np.savez(folder / "obs_norm.npz", mean=vn.obs_rms.mean, var=vn.obs_rms.var,
+                 clip_obs=vn.clip_obs, epsilon=vn.epsilon)
+    pcls = type(model.policy)
+    meta = {"policy_class": f"{pcls.__module__}:{pcls.__qualname__}", "algorithm": cfg["algorithm"],
+            "class": cfg["class"], "env": cfg["env"], "num_timesteps": int(model.num_timesteps)}
+    (folder / "learner.json").write_text(json.dumps(meta, indent=1))
+    if full:
+        model.save(str(folder / "model.zip"))
+        if vn is not None:
+            vn.save(str(folder / "vecnormalize.pkl"))
+
+
+class _Bookkeeper(BaseCallback):
+    """Records finished episodes; checkpoints and snapshots at iteration boundaries (rollout starts)."""
+
+    def __init__(self, cfg: dict[str, Any], workdir: Path, state: dict[str, Any]):
+        super().__init__()
+        self.cfg, self.workdir, self.state = cfg, workdir, state
+        self.t0 = time.time()
+
+    def _on_step(self) -> bool:
+        for info in self.locals.get("infos", []):
+            if "episode" in info:
+                self.state["episodes"].append([int(self.num_timesteps), float(info["episode"]["r"])])
+        return True
+
+    def _on_rollout_start(self) -> None:
+        t = int(self.model.num_timesteps)
+        every = self.cfg["snapshot_every"]
+        last = self.state["last_snapshot"]
+        if every > 0 and (last is None or t - last >= every):
+            self.snapshot()
+        if self.cfg["checkpoint_every"] > 0 and t - self.state["last_checkpoint"] >= self.cfg["checkpoint_every"]:
+            self.checkpoint()
+
+    def snapshot(self) -> None:
+        t = int(self.model.num_timesteps)
+        save_artifacts(self.model, self.workdir / "out" / "snapshots" / f"step_{t:09d}", self.cfg, full=False)
+        self.state["last_snapshot"] = t
+
+    def checkpoint(self) -> None:
+        t = int(self.model.num_timesteps)
+        self.state["last_checkpoint"] = t
+        self.state["wall_time"] = self.state["wall_time_before"] + time.time() - self.t0
+        tmp = self.workdir / ".ckpt-tmp"
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        self.model.save(str(tmp / "model.zip"))
+        vn = self.model.get_vec_normalize_env()
+        if vn is not None:
+            vn.save(str(tmp / "vecnormalize.pkl"))
+        if isinstance(self.model, OffPolicyAlgorithm):
+            self.model.save_replay_buffer(str(tmp / "replay_buffer.pkl"))
+        (tmp / "state.json").write_text(json.dumps(self.state))
+        old = _checkpoints(self.workdir)
+        os.replace(tmp, self.workdir / f"ckpt-{t:012d}")
+        for p in old:
+            if p.name != f"ckpt-{t:012d}":
+                shutil.rmtree(p, ignore_errors=True)
+
+
+def _curve(episodes: np.ndarray, every: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+    grid = np.arange(every, end + every, every, dtype=np.int64)
+    grid[-1] = min(grid[-1], end) if len(grid) else end
+    out = np.full(len(grid), np.nan)
+    if len(episodes):
+        n_done = np.searchsorted(episodes[:, 0], grid, side="right")
+        for i, n in enumerate(n_done):
+            if n:
+                out[i] = episodes[max(0, n - RETURN_WINDOW) : n, 1].mean()
+    return grid, out
+
+
+def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback | None = None) -> dict[str, Any]:
+    """Train (or resume) the run described by ``config`` (from :func:`train_config`); see module docstring.
+
+    ``callback`` is an extra SB3 callback (tests use it to simulate an interruption); the cache never
+    passes it. Returns ``train_return`` (None if no episode finished), the training curve
+    (``curve_timesteps``, ``curve_return``), every finished episode (``episode_timesteps``,
+    ``episode_returns``), ``timesteps_done``, ``resumed_from``, ``snapshots`` (steps), ``wall_time``
+    (seconds over all sessions) and ``steps_per_s`` (env steps per second in this session).
+    """
+    th.set_num_threads(1)
+    cfg = config
+    workdir = Path(workdir)
+    (workdir / "out").mkdir(parents=True, exist_ok=True)
+    cls = _algo_class(cfg["class"])
+    ckpts = _checkpoints(workdir)
+    inner = make_train_venv(cfg)
+    if ckpts:
+        ckpt = ckpts[-1]
+        state = json.loads((ckpt / "state.json").read_text())
+        vn_path = ckpt / "vecnormalize.pkl"
+        venv = _wrap(cfg, inner, vn_path if vn_path.exists() else None)
+        model = cls.load(str(ckpt / "model.zip"), env=venv, device="cpu")
+        if isinstance(model, OffPolicyAlgorithm):
+            model.load_replay_buffer(str(ckpt / "replay_buffer.pkl"))
+        # fresh, reproducible randomness for the remaining steps (not a replay of the first session's)
+        model.set_random_seed(int(np.random.SeedSequence([cfg["seed"], state["last_checkpoint"]]).generate_state(1)[0]))
+        resumed_from = int(model.num_timesteps)
+        snaps = workdir / "out" / "snapshots"
+        for p in snaps.glob("step_*") if snaps.exists() else []:
+            if int(p.name.split("_")[1]) > resumed_from:  # written after the checkpoint by the lost session
+                shutil.rmtree(p)
+        if state["last_snapshot"] is not None and state["last_snapshot"] > resumed_from:
+            state["last_snapshot"] = None
+        state["wall_time_before"] = state["wall_time"]
+    else:
+        venv = _wrap(cfg, inner, None)
+        model = build_model(cfg, venv)
+        resumed_from = 0
+        state = {"episodes": [], "last_snapshot": None, "last_checkpoint": 0, "wall_time": 0.0,
+                 "wall_time_before": 0.0}
+    if isinstance(venv, ARPLVecEnv):
+        venv.policy = model.policy
+    book = _Bookkeeper(cfg, workdir, state)
+    remaining = int(cfg["timesteps"]) - int(model.num_timesteps)
+    t0 = time.time()
+    if remaining > 0:
+        cbs = [book] + ([callback] if callback is not None else [])
+        model.learn(total_timesteps=remaining, callback=CallbackList(cbs), reset_num_timesteps=not ckpts)
+    else:
+        book.init_callback(model)
+    elapsed = time.time() - t0
+    done = int(model.num_timesteps)
+    if cfg["snapshot_every"] > 0 and state["last_snapshot"] != done:
+        book.snapshot()
+    save_artifacts(model, workdir / "out", cfg, full=True)
+    venv.close()
+
+    episodes = np.asarray(state["episodes"], dtype=np.float64).reshape(-1, 2)
+    every = cfg["curve_every"] or _batch_steps(cfg)
+    grid, curve = _curve(episodes, every, done)
+    last = episodes[-RETURN_WINDOW:, 1]
+    snaps = workdir / "out" / "snapshots"
+    return {
+        "train_return": float(last.mean()) if len(last) else None,
+        "train_return_episodes": int(len(last)),
+        "n_episodes": int(len(episodes)),
+        "timesteps_done": done,
+        "resumed_from": resumed_from,
+        "curve_timesteps": grid,
+        "curve_return": curve,
+        "episode_timesteps": episodes[:, 0].astype(np.int64),
+        "episode_returns": episodes[:, 1],
+        "snapshots": sorted(int(p.name.split("_")[1]) for p in snaps.glob("step_*")) if snaps.exists() else [],
+        "wall_time": float(state["wall_time_before"] + elapsed),
+        "steps_per_s": float((done - resumed_from) / elapsed) if elapsed > 0 and done > resumed_from else None,
+    }
