@@ -46,7 +46,8 @@ class DDPGSplit(DDPG):
             g["lr"] = self.actor_lr
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
-        self.logger.record("train/actor_lr", self.actor_lr)
-        self.logger.record("train/critic_lr", self.critic_lr)
+        if hasattr(self, "_logger"):  # set by learn()
+            self.logger.record("train/actor_lr", self.actor_lr)
+            self.logger.record("train/critic_lr", self.critic_lr)
         update_learning_rate(self.actor.optimizer, self.actor_lr)
         update_learning_rate(self.critic.optimizer, self.critic_lr)

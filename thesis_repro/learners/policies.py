@@ -8,7 +8,8 @@ by letting the policy latent be ``[s, h(s)]``; SB3's linear ``action_net`` then 
 >>> import gymnasium as gym
 >>> from stable_baselines3.common.utils import ConstantSchedule
 >>> env = gym.make("InvertedPendulum-v5")
->>> pol = SCNPolicy(env.observation_space, env.action_space, ConstantSchedule(3e-4), net_arch=dict(pi=[16, 16], vf=[16]))
+>>> arch = {"pi": [16, 16], "vf": [16]}
+>>> pol = SCNPolicy(env.observation_space, env.action_space, ConstantSchedule(3e-4), net_arch=arch)
 >>> pol.mlp_extractor.latent_dim_pi  # 4 observation dims + 16 hidden units
 20
 """
