@@ -21,6 +21,7 @@ from thesis_repro.envs import (
     Wind,
     make_env,
     resolve_env,
+    wrap_env,
 )
 from thesis_repro.envs.factors import BodyMass, WindForce
 
@@ -345,8 +346,12 @@ def test_bad_arguments_raise_clear_errors():
         SystematicShift(gym.make("HalfCheetah-v5"), {"wind": 1.0})
     with pytest.raises(ValueError, match="non-empty"):
         SystematicShift(gym.make("Hopper-v5"), {})
-    with pytest.raises(ValueError, match="both set"):
+    with pytest.raises(ValueError, match="'body_mass' is set by both 'ratios' and 'dom'"):
         make_env("Hopper", "dom", 0.1, ratios={"body_mass": 1.2})
+    with pytest.raises(ValueError, match="'wind' is set by both 'wind' and 'env'"):
+        make_env("Hopper", "env", 0.1, wind=(-1.0, 1.0))
+    with pytest.raises(ValueError, match="low, high"):
+        make_env("Hopper", wind=1.0)
     with pytest.raises(ValueError, match="max_episode_steps"):
         make_env("Hopper", max_episode_steps=0)
     with pytest.raises(ValueError, match="seed"):
@@ -368,3 +373,13 @@ def test_make_env_options():
     np.testing.assert_allclose(env.unwrapped.model.body_mass[1:], 1.2 * pristine["body_mass"][1:])
     env.close()
     np.testing.assert_array_equal(env.unwrapped.model.body_mass, pristine["body_mass"])
+
+
+def test_wrap_env_and_chapter4_options():
+    raw = gym.make("Hopper-v5")
+    assert wrap_env(raw) is raw
+    assert isinstance(wrap_env(raw, "dom", 0.1, ["wind"]), DomainShift)
+    env = make_env("Walker2d", "obs", 0.1, wind=(0.5, 0.5), env_kwargs={"ctrl_cost_weight": 1.0}, seed=0)
+    assert env.unwrapped._ctrl_cost_weight == 1.0
+    _, info = env.env.reset(seed=1)  # the Wind wrapper sits under the observation noise
+    assert info["factors"] == {"wind": 0.5}

@@ -20,7 +20,7 @@ inertias) together; wind (Walker2d, Hopper) is a horizontal force ξ·M0 on the 
 """
 
 from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE, BoundFactor, Factor, FactorSet, check_factors
-from thesis_repro.envs.make import PERTURBATIONS, make_env
+from thesis_repro.envs.make import PERTURBATIONS, make_env, wrap_env
 from thesis_repro.envs.registry import ENVS, resolve_env, short_name
 from thesis_repro.envs.wrappers import (
     ActionNoise,
@@ -50,4 +50,5 @@ __all__ = [
     "make_env",
     "resolve_env",
     "short_name",
+    "wrap_env",
 ]

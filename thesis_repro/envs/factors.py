@@ -176,7 +176,9 @@ class BoundFactor:
             self._xfrc = base.data.xfrc_applied  # stable array; mj_resetData zeroes it in place
             self._force = 0.0
         else:
-            self._targets = factor._targets(base)
+            targets = factor._targets(base)
+            self._fancy = any(isinstance(t, _Fancy) for t in targets)
+            self._pairs = tuple(zip(targets, defaults, strict=True))
 
     def set(self, value: float) -> None:
         """Write ``value`` (a ratio for relative factors, ξ in m/s² for wind) into the simulator."""
@@ -185,10 +187,11 @@ class BoundFactor:
             self._force = value * self._total_mass
             self._xfrc[self._bid, 0] = self._force
             return
-        for t, d in zip(self._targets, self.defaults, strict=True):
-            if isinstance(t, _Fancy):
+        if self._fancy:
+            for t, d in self._pairs:
                 t.array[t.idx] = d * value
-            else:
+        else:
+            for t, d in self._pairs:
                 np.multiply(d, value, out=t)
 
     def reapply(self) -> None:
@@ -268,17 +271,17 @@ class FactorSet:
         task = env_short_name(env)
         self.names = check_factors(task, names)
         self.bound = [FACTORS[task][n].bind(env) for n in self.names]
-        self.relative = np.array([b.relative for b in self.bound])
-        self._scale = np.where(self.relative, 1.0, WIND_SCALE)
-        self._offset = np.where(self.relative, 1.0, 0.0)
-        self._floor = np.where(self.relative, MIN_RATIO, -np.inf)
+        self._n = len(self.bound)
         self._wind = [b for b in self.bound if not b.relative]
 
     def sample(self, rng: np.random.Generator, sigma: float) -> None:
-        eps = rng.standard_normal(len(self.bound))
-        vals = np.maximum(self._offset + sigma * self._scale * eps, self._floor)
-        for b, v in zip(self.bound, vals.tolist(), strict=True):
-            b.set(v)
+        eps = rng.standard_normal(self._n).tolist()
+        for b, e in zip(self.bound, eps, strict=True):
+            if b.relative:
+                v = 1.0 + sigma * e
+                b.set(v if v > MIN_RATIO else MIN_RATIO)
+            else:
+                b.set(sigma * WIND_SCALE * e)
 
     def set(self, values: Mapping[str, float]) -> None:
         for b in self.bound:

@@ -1,23 +1,56 @@
-"""``make_env``: a raw v5 task with one chapter-3 perturbation applied.
+"""``make_env``: a raw v5 task with one chapter-3 perturbation applied (``wrap_env`` for an existing env).
 
 >>> env = make_env("Walker2d", "env", 0.2, max_episode_steps=10, seed=0)
 >>> type(env).__name__
 'EnvironmentNoise'
+>>> env = make_env("Walker2d", wind=(-0.5, 0.5), env_kwargs={"ctrl_cost_weight": 1.0})
+>>> type(env).__name__, env.unwrapped._ctrl_cost_weight
+('Wind', 1.0)
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from typing import Any
 
 import gymnasium as gym
 
-from thesis_repro.envs.factors import check_factors
+from thesis_repro.envs.factors import check_factors, env_short_name
 from thesis_repro.envs.registry import resolve_env, short_name
-from thesis_repro.envs.wrappers import ActionNoise, DomainShift, EnvironmentNoise, ObservationNoise, SystematicShift
+from thesis_repro.envs.wrappers import (
+    ActionNoise,
+    DomainShift,
+    EnvironmentNoise,
+    ObservationNoise,
+    SystematicShift,
+    Wind,
+)
 from thesis_repro.validation import check_choice, check_nonneg
 
 #: thesis testing settings: none, Obs (σ^o), Act (σ^u), Env (σ^s), Dom (Σ).
 PERTURBATIONS: tuple[str, ...] = ("none", "obs", "act", "env", "dom")
+
+
+def wrap_env(env: gym.Env, perturbation: str = "none", sigma: float = 0.0, factors: Iterable[str] | None = None):
+    """Wrap an existing task env with ``perturbation`` ("none" returns ``env`` itself).
+
+    >>> import gymnasium as gym
+    >>> type(wrap_env(gym.make("Hopper-v5"), "obs", 0.1)).__name__
+    'ObservationNoise'
+    """
+    check_choice(perturbation, PERTURBATIONS, "perturbation")
+    sigma = check_nonneg(sigma, "sigma")
+    if factors is not None and perturbation not in ("env", "dom"):
+        raise ValueError(f"factors only apply to perturbation 'env' or 'dom', not {perturbation!r}")
+    if perturbation == "obs":
+        return ObservationNoise(env, sigma)
+    if perturbation == "act":
+        return ActionNoise(env, sigma)
+    if perturbation == "env":
+        return EnvironmentNoise(env, sigma, factors)
+    if perturbation == "dom":
+        return DomainShift(env, sigma, factors)
+    return env
 
 
 def make_env(
@@ -27,18 +60,22 @@ def make_env(
     *,
     factors: Iterable[str] | None = None,
     ratios: Mapping[str, float] | None = None,
+    wind: tuple[float, float] | None = None,
     max_episode_steps: int | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
     seed: int | None = None,
 ) -> gym.Env:
     """Build task ``env`` (short name or v5 id) with ``perturbation`` of scale ``sigma``.
 
     ``factors`` restricts "env"/"dom" to some factors of Table 3.2 (default all). ``ratios`` adds a
-    :class:`SystematicShift` underneath (it may not share factors with "env"/"dom"). ``seed`` seeds the
-    action space and the first ``reset``. Unknown names and negative σ raise ``ValueError``.
+    :class:`SystematicShift` and ``wind=(low, high)`` a chapter-4 :class:`Wind` underneath the
+    perturbation; no two of them may set the same factor. ``env_kwargs`` go to ``gymnasium.make``
+    (e.g. ``{"ctrl_cost_weight": 1.0}``, chapter 4's c_a). ``seed`` seeds the action space and calls
+    ``reset(seed=seed)`` once. Unknown names, clashing factors and negative σ raise ``ValueError``.
     """
     task = short_name(env)
     check_choice(perturbation, PERTURBATIONS, "perturbation")
-    sigma = check_nonneg(sigma, "sigma")
+    check_nonneg(sigma, "sigma")
     if factors is not None:
         if perturbation not in ("env", "dom"):
             raise ValueError(f"factors only apply to perturbation 'env' or 'dom', not {perturbation!r}")
@@ -47,23 +84,29 @@ def make_env(
         raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
     if seed is not None and (int(seed) != seed or seed < 0):
         raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+    if wind is not None and (not isinstance(wind, (tuple, list)) or len(wind) != 2):
+        raise ValueError(f"wind must be a (low, high) pair in m/s², got {wind!r}")
 
-    kwargs = {} if max_episode_steps is None else {"max_episode_steps": int(max_episode_steps)}
+    owners: dict[str, str] = {}
+    claims = [("ratios", list(ratios or ())), ("wind", ["wind"] if wind is not None else [])]
+    if perturbation in ("env", "dom"):
+        claims.append((perturbation, list(factors if factors is not None else check_factors(task, None))))
+    for who, names in claims:
+        for n in names:
+            if n in owners:
+                raise ValueError(f"factor {n!r} is set by both {owners[n]!r} and {who!r}")
+            owners[n] = who
+
+    kwargs: dict[str, Any] = dict(env_kwargs or {})
+    if max_episode_steps is not None:
+        kwargs["max_episode_steps"] = int(max_episode_steps)
     out: gym.Env = gym.make(resolve_env(task), disable_env_checker=True, **kwargs)
+    assert env_short_name(out) == task
     if ratios is not None:
-        if perturbation in ("env", "dom"):
-            shared = set(ratios) & set(factors if factors is not None else check_factors(task, None))
-            if shared:
-                raise ValueError(f"ratios and {perturbation!r} noise both set factors {sorted(shared)}")
         out = SystematicShift(out, ratios)
-    if perturbation == "obs":
-        out = ObservationNoise(out, sigma)
-    elif perturbation == "act":
-        out = ActionNoise(out, sigma)
-    elif perturbation == "env":
-        out = EnvironmentNoise(out, sigma, factors)
-    elif perturbation == "dom":
-        out = DomainShift(out, sigma, factors)
+    if wind is not None:
+        out = Wind(out, wind[0], wind[1])
+    out = wrap_env(out, perturbation, sigma, factors)
     if seed is not None:
         out.action_space.seed(int(seed))
         out.reset(seed=int(seed))
