@@ -383,3 +383,17 @@ def test_wrap_env_and_chapter4_options():
     assert env.unwrapped._ctrl_cost_weight == 1.0
     _, info = env.env.reset(seed=1)  # the Wind wrapper sits under the observation noise
     assert info["factors"] == {"wind": 0.5}
+
+
+def test_domain_shift_statistics_match_sigma():
+    sigma = 0.25
+    env = DomainShift(gym.make("Walker2d-v5"), sigma)
+    draws = []
+    for ep in range(400):
+        _, info = env.reset(seed=5 if ep == 0 else None)
+        draws.append([info["factors"][k] for k in ("body_mass", "wind", "friction", "gravity")])
+    d = np.array(draws)
+    rel = d[:, [0, 2, 3]]
+    assert abs(rel.mean() - 1.0) < 0.03 and abs(rel.std() - sigma) < 0.02
+    assert abs(d[:, 1].mean()) < 0.1 * WIND_SCALE * sigma * 3 and abs(d[:, 1].std() / WIND_SCALE - sigma) < 0.03
+    assert abs(np.corrcoef(d.T)[np.triu_indices(4, 1)]).max() < 0.2  # one independent ε per factor
