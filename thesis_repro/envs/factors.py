@@ -15,10 +15,11 @@ How a factor value maps onto the simulator (σ is the noise / shift scale, ε ~ 
   - ``gravity``: the gravity vector ``model.opt.gravity``.
 
 * **wind** (``wind``, Walker2d and Hopper only): default 0, so it is not relative. Its value ξ is a
-  horizontal acceleration in m/s²; the wind is the constant horizontal force F = ξ · M0 (N) on the torso,
-  M0 the robot's *default* total mass (so wind and ``body_mass`` are independent factors). Sampled as
-  ξ = σ·ε·WIND_SCALE with ``WIND_SCALE = g = 9.81`` m/s²: σ = 0.2 is a wind force of std 20 % of the
-  robot's weight, the same relative size as a 20 % mass/gravity change. Chapter 4's ξ ~ U(-2.5, 2.5) and
+  horizontal acceleration in m/s²; the wind is the constant horizontal force F = ξ · M0 (N) at the torso's
+  centre of mass, along +x (the running direction) for ξ > 0, M0 the robot's *default* total mass (so
+  wind and ``body_mass`` are independent factors). Sampled as ξ = σ·ε·WIND_SCALE with
+  ``WIND_SCALE = g = 9.81`` m/s²: σ = 0.2 is a wind force of std 20 % of the robot's weight, the same
+  relative size as a 20 % mass/gravity change. Chapter 4's ξ ~ U(-2.5, 2.5) and
   test range [-5, 5] are read in the same unit (|ξ| = 5 is a force of half the robot's weight).
   It is written into ``data.xfrc_applied[torso, 0]``, which ``mj_resetData`` (every ``reset()``) zeroes,
   so the wrappers re-apply it after every reset and before every step.
