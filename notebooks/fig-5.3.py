@@ -33,7 +33,7 @@ from thesis_repro.cache import Job, run_jobs
 from thesis_repro.scales import figure_settings
 
 settings = figure_settings("5.3", SCALE)
-settings
+print(settings)
 
 # %%
 jobs = [
@@ -54,7 +54,7 @@ jobs = [
 ]
 results = run_jobs(jobs, desc="fig-5.3 CMA-ES on one BIC task")
 cfg = ArmConfig()
-for seed, r in zip(settings["seeds"], results):
+for seed, r in zip(settings["seeds"], results, strict=True):
     print(
         f"seed {seed}: reproduced success={bool(r['success'])}, cost (Eq 5.12)={float(r['cost']):.2f}, "
         f"catch at t={int(r['hit_step']) * cfg.dt:.2f} s" if bool(r["success"]) else
@@ -81,7 +81,7 @@ def draw(ax, r, title):
 
 n = len(results)
 fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.4), squeeze=False)
-for ax, seed, r in zip(axes[0], settings["seeds"], results):
+for ax, seed, r in zip(axes[0], settings["seeds"], results, strict=True):
     status = f"caught at {int(r['hit_step']) * cfg.dt:.2f} s" if bool(r["success"]) else "not caught"
     draw(ax, r, f"reproduced, seed {seed}: {status}")
 axes[0, 0].set_ylabel("y (m)")
