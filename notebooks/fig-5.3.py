@@ -28,7 +28,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from thesis_repro import paths
-from thesis_repro.arm import ArmConfig
+from thesis_repro.arm import SIM_VERSION, ArmConfig
 from thesis_repro.cache import Job, run_jobs
 from thesis_repro.scales import figure_settings
 
@@ -48,6 +48,7 @@ jobs = [
             "popsize": settings["popsize"],
             "shaped": True,
             "seed": seed,
+            "sim_version": SIM_VERSION,
         },
     )
     for seed in settings["seeds"]

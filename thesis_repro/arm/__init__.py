@@ -8,6 +8,7 @@
 from thesis_repro.arm.policy import RBFPolicy
 from thesis_repro.arm.tasks import (
     FAMILIES,
+    SIM_VERSION,
     TASK_PARAM_NAMES,
     TASK_RANGES,
     ArmConfig,
@@ -20,6 +21,7 @@ from thesis_repro.arm.tasks import (
 
 __all__ = [
     "FAMILIES",
+    "SIM_VERSION",
     "TASK_PARAM_NAMES",
     "TASK_RANGES",
     "ArmConfig",

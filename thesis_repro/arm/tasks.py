@@ -3,8 +3,9 @@
 Model. The end-effector is a point in the vertical plane (x right, y up, metres; it starts at rest at
 the origin). An ideal inverse kinematics is assumed, so the policy's two outputs are directly the
 end-effector's horizontal and vertical accelerations (clipped per component to ``accel_limit``). The arm
-has a workspace box (``workspace``, like joint limits): a position leaving it is clipped and the velocity
-component into the wall zeroed. Four families:
+has a workspace box (``workspace``, like joint limits) that it cannot leave: its speed towards a wall at
+distance d is capped at ``sqrt(2 accel_limit d)``, i.e. it brakes within the actuator limit (no infinite
+deceleration at a wall to exploit); positions are also clipped as a safeguard. Four families:
 
 * ``reach`` (goal_x, goal_y): cost ``Σ_{t=0}^{T} γ^t (|x_t - g|² - b_reach) + Σ_t α|a_t|``; success if the
   final distance is below ``reach_tolerance``.
@@ -65,6 +66,8 @@ import numpy as np
 from thesis_repro.arm.policy import A, RBFPolicy
 from thesis_repro.validation import check_choice, check_nonneg, check_positive
 
+#: Bump whenever the simulated physics or costs change; put it in every cached job's config that simulates.
+SIM_VERSION: int = 2
 FAMILIES: tuple[str, ...] = ("reach", "throw", "bic", "cast")
 TASK_PARAM_NAMES: dict[str, tuple[str, ...]] = {
     "reach": ("goal_x", "goal_y"),
@@ -354,6 +357,7 @@ def simulate(
     lo = np.array([cfg.workspace[0][0], cfg.workspace[1][0]])
     hi = np.array([cfg.workspace[0][1], cfg.workspace[1][1]])
     g = np.array([0.0, -cfg.gravity])
+    two_a = 2.0 * cfg.accel_limit
     p = np.zeros((B, A))
     v = np.zeros((B, A))
     has_ball = family != "reach"
@@ -406,6 +410,9 @@ def simulate(
         for _ in range(ns):
             p_old, v_old = p, v
             v = v + a * h
+            # brake within the actuator limit before the workspace boundary: speed towards a wall at
+            # distance d is at most sqrt(2 a_max d) (no infinite deceleration at the walls)
+            v = np.clip(v, -np.sqrt(two_a * np.maximum(p - lo, 0.0)), np.sqrt(two_a * np.maximum(hi - p, 0.0)))
             p = p + v * h
             out_lo, out_hi = p < lo, p > hi
             if out_lo.any() or out_hi.any():
