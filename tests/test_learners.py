@@ -34,8 +34,21 @@ def model_for(cfg: dict):
 
 
 def test_algorithms_and_appendix_values():
-    for name in ("ppo", "trpo", "ddpg", "sac", "ppo-16", "ppo-scn", "ppo-scn-16", "ppo-ent", "ppo-arpl",
-                 "ppo-obsnoise", "ppo-actnoise", "ppo-envnoise", "ppo-mdl"):
+    for name in (
+        "ppo",
+        "trpo",
+        "ddpg",
+        "sac",
+        "ppo-16",
+        "ppo-scn",
+        "ppo-scn-16",
+        "ppo-ent",
+        "ppo-arpl",
+        "ppo-obsnoise",
+        "ppo-actnoise",
+        "ppo-envnoise",
+        "ppo-mdl",
+    ):
         assert name in ALGORITHMS
     ppo = train_config("ppo", "Hopper", 0, 4_000_000)
     assert ppo["n_envs"] * ppo["sb3"]["n_steps"] == 2048

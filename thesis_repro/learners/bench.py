@@ -48,8 +48,9 @@ def bench_training(env: str = "Hopper", steps: int = 20_000, off_policy_steps: i
         out = {"ppo_sb3_default_steps_per_s": sb3_default, "ppo_ours_steps_per_s": ours, "ratio": ours / sb3_default}
         for algo in ("sac", "ddpg") if off_policy_steps > 0 else ():
             cfg = train_config(algo, env, 0, off_policy_steps, learning_starts=min(1000, off_policy_steps // 4))
-            out[f"{algo}_steps_per_s"] = rate = _rate(build_model(cfg, _wrap(cfg, make_train_venv(cfg), None)),
-                                                      off_policy_steps)
+            out[f"{algo}_steps_per_s"] = rate = _rate(
+                build_model(cfg, _wrap(cfg, make_train_venv(cfg), None)), off_policy_steps
+            )
             print(f"{algo.upper()} ours:                         {rate:8.0f} steps/s")
         return out
     finally:

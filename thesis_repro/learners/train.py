@@ -55,8 +55,12 @@ def make_train_venv(cfg: dict[str, Any]) -> VecEnv:
     """The ``VecMonitor(DummyVecEnv([...]))`` training env of a resolved config (before normalisation)."""
     fns = [
         partial(
-            make_env, cfg["env"], cfg["perturbation"], cfg["sigma"],
-            seed=cfg["seed"] + i, max_episode_steps=cfg["max_episode_steps"],
+            make_env,
+            cfg["env"],
+            cfg["perturbation"],
+            cfg["sigma"],
+            seed=cfg["seed"] + i,
+            max_episode_steps=cfg["max_episode_steps"],
         )
         for i in range(cfg["n_envs"])
     ]
@@ -70,8 +74,11 @@ def _wrap(cfg: dict[str, Any], inner: VecEnv, vecnorm_path: Path | None) -> VecE
             venv = VecNormalize.load(str(vecnorm_path), inner)
         else:
             venv = VecNormalize(
-                inner, norm_obs=cfg["normalize_obs"], norm_reward=cfg["norm_reward"],
-                clip_obs=cfg["clip_obs"], gamma=cfg["sb3"].get("gamma", 0.99),
+                inner,
+                norm_obs=cfg["normalize_obs"],
+                norm_reward=cfg["norm_reward"],
+                clip_obs=cfg["clip_obs"],
+                gamma=cfg["sb3"].get("gamma", 0.99),
             )
     if cfg.get("arpl") is not None:
         venv = ARPLVecEnv(venv, cfg["arpl"]["epsilon"], cfg["arpl"]["prob"], seed=cfg["seed"])
@@ -94,8 +101,13 @@ def build_model(cfg: dict[str, Any], venv: VecEnv) -> BaseAlgorithm:
         kwargs["action_noise"] = base if venv.num_envs == 1 else VectorizedActionNoise(base, venv.num_envs)
     policy = SCNPolicy if cfg["policy"] == "scn" else "MlpPolicy"
     return cls(
-        policy, venv, seed=cfg["seed"], device="cpu", verbose=0,
-        policy_kwargs={"net_arch": cfg["net_arch"], "activation_fn": act}, **kwargs,
+        policy,
+        venv,
+        seed=cfg["seed"],
+        device="cpu",
+        verbose=0,
+        policy_kwargs={"net_arch": cfg["net_arch"], "activation_fn": act},
+        **kwargs,
     )
 
 
@@ -115,11 +127,17 @@ def save_artifacts(model: BaseAlgorithm, folder: Path, cfg: dict[str, Any], full
     model.policy.save(str(folder / "policy.pth"))
     vn = model.get_vec_normalize_env()
     if vn is not None and vn.norm_obs:
-        np.savez(folder / "obs_norm.npz", mean=vn.obs_rms.mean, var=vn.obs_rms.var,
-                 clip_obs=vn.clip_obs, epsilon=vn.epsilon)
+        np.savez(
+            folder / "obs_norm.npz", mean=vn.obs_rms.mean, var=vn.obs_rms.var, clip_obs=vn.clip_obs, epsilon=vn.epsilon
+        )
     pcls = type(model.policy)
-    meta = {"policy_class": f"{pcls.__module__}:{pcls.__qualname__}", "algorithm": cfg["algorithm"],
-            "class": cfg["class"], "env": cfg["env"], "num_timesteps": int(model.num_timesteps)}
+    meta = {
+        "policy_class": f"{pcls.__module__}:{pcls.__qualname__}",
+        "algorithm": cfg["algorithm"],
+        "class": cfg["class"],
+        "env": cfg["env"],
+        "num_timesteps": int(model.num_timesteps),
+    }
     (folder / "learner.json").write_text(json.dumps(meta, indent=1))
     if full:
         model.save(str(folder / "model.zip"))
@@ -226,8 +244,7 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
         venv = _wrap(cfg, inner, None)
         model = build_model(cfg, venv)
         resumed_from = 0
-        state = {"episodes": [], "last_snapshot": None, "last_checkpoint": 0, "wall_time": 0.0,
-                 "wall_time_before": 0.0}
+        state = {"episodes": [], "last_snapshot": None, "last_checkpoint": 0, "wall_time": 0.0, "wall_time_before": 0.0}
     if isinstance(venv, ARPLVecEnv):
         venv.policy = model.policy
     book = _Bookkeeper(cfg, workdir, state)
