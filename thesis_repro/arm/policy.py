@@ -147,7 +147,7 @@ class RBFPolicy:
     def desired(self, W: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Desired positions (Eq 5.6) and velocities (Eq 5.7) at steps 0..T-1, each (B, T, A)."""
         W = self.check_W(self.W if W is None else W)
-        ext = np.einsum("kn,bna->bka", self._phi_ext, W[:, : self.n_basis])  # (B, T+2, A)
+        ext = np.matmul(self._phi_ext, W[:, : self.n_basis])  # (B, T+2, A)
         pos = ext[:, 1:-1]
         vel = (ext[:, 2:] - ext[:, :-2]) / (2 * self.dt)
         return pos, vel

@@ -238,6 +238,11 @@ def sample_tasks(family: str, n: int, rng: np.random.Generator) -> np.ndarray:
     return lo + (hi - lo) * rng.random((int(n), len(lo)))
 
 
+def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Row-wise dot product of (B, 2) arrays (faster than a ``sum(-1)`` reduction for two columns)."""
+    return x[:, 0] * y[:, 0] + x[:, 1] * y[:, 1]
+
+
 def pendulum_step(
     p_old: np.ndarray,
     v_old: np.ndarray,
@@ -260,30 +265,30 @@ def pendulum_step(
     """
     r = q - p_old
     w = u - v_old
-    dist = np.sqrt((r * r).sum(-1))
+    dist = np.sqrt(_dot(r, r))
     n = r / np.maximum(dist, 1e-12)[:, None]
     tang = np.stack([-n[:, 1], n[:, 0]], axis=1)  # counter-clockwise tangent
     f = g_eff - (v - v_old) / h  # forcing in the (accelerating) end-effector frame
-    omega = (w * tang).sum(-1) / length
-    tension = length * omega**2 + (f * n).sum(-1)
-    on_circle = (dist >= length * (1 - 1e-9)) & ((w * n).sum(-1) >= -1e-9) & (tension >= 0)
+    omega = _dot(w, tang) / length
+    tension = length * omega**2 + _dot(f, n)
+    on_circle = (dist >= length * (1 - 1e-9)) & (_dot(w, n) >= -1e-9) & (tension >= 0)
     # taut candidate: pendulum angle, velocity Verlet (f is constant over the substep)
-    omega = omega + 0.5 * h * (f * tang).sum(-1) / length
+    omega = omega + 0.5 * h * _dot(f, tang) / length
     phi = np.arctan2(n[:, 1], n[:, 0]) + omega * h
     n_new = np.stack([np.cos(phi), np.sin(phi)], axis=1)
     t_new = np.stack([-n_new[:, 1], n_new[:, 0]], axis=1)
-    omega = omega + 0.5 * h * (f * t_new).sum(-1) / length
+    omega = omega + 0.5 * h * _dot(f, t_new) / length
     q_taut = p + length[:, None] * n_new
     u_taut = v + (length * omega)[:, None] * t_new
     # slack candidate: ballistic, then the string catches it if it overshoots
     q_free = q + u * h + 0.5 * g_eff * h * h
     u_free = u + g_eff * h
     r = q_free - p
-    dist = np.sqrt((r * r).sum(-1))
+    dist = np.sqrt(_dot(r, r))
     over = dist > length
     n = r / np.maximum(dist, 1e-12)[:, None]
     q_free = np.where(over[:, None], p + length[:, None] * n, q_free)
-    w_r = ((u_free - v) * n).sum(-1)
+    w_r = _dot(u_free - v, n)
     u_free = u_free - np.where(over & (w_r > 0), w_r, 0.0)[:, None] * n
     q = np.where(on_circle[:, None], q_taut, q_free)
     u = np.where(on_circle[:, None], u_taut, u_free)
@@ -307,7 +312,7 @@ def _bounce_below(
     u = np.stack([u[:, 0], uy], axis=1)
     if anchor is not None:  # keep the string inextensible after the shift
         r = q - anchor
-        dist = np.sqrt((r * r).sum(-1))
+        dist = np.sqrt(_dot(r, r))
         over = rows & (dist > length)
         q = np.where(over[:, None], anchor + (length / np.maximum(dist, 1e-12))[:, None] * r, q)
     return q, u
@@ -398,12 +403,12 @@ def simulate(
         taut_rec[:, 0] = taut
     if family == "reach":
         goal = params
-        reach_cost += ((p - goal) ** 2).sum(-1) - cfg.reach_baseline
+        reach_cost += _dot(p - goal, p - goal) - cfg.reach_baseline
 
     substep = 0
     for t in range(T):
         a = kp * (xd[:, t] - p) + kd * (vd[:, t] - v)
-        action_cost += cfg.alpha * np.sqrt((a * a).sum(-1))
+        action_cost += cfg.alpha * np.sqrt(_dot(a, a))
         if record:
             act_rec[:, t] = a  # the policy's output (the penalised action), before the actuator limit
         a = np.clip(a, -cfg.accel_limit, cfg.accel_limit)
@@ -433,7 +438,7 @@ def simulate(
                 cup_prev = target
                 free = np.ones(B, dtype=bool)
             else:
-                speed = np.sqrt((u * u).sum(-1))
+                speed = np.sqrt(_dot(u, u))
                 g_eff = g - (drag * speed)[:, None] * u
                 q, u, taut = pendulum_step(p_old, v_old, p, v, q, u, length, g_eff, h)
                 cup_prev = p_old if family == "bic" else target
@@ -466,12 +471,12 @@ def simulate(
                     q, u = _bounce_below(q, u, cup, v if family == "bic" else np.zeros_like(v), blocked,
                                          cfg.cup_restitution, p if string else None, length)
                     if string:
-                        dist = np.sqrt(((q - p) ** 2).sum(-1))
+                        dist = np.sqrt(_dot(q - p, q - p))
                         taut = np.where(blocked, dist >= length * (1 - 1e-9), taut)
-            min_dist = np.minimum(min_dist, np.sqrt(((q - cup) ** 2).sum(-1)))
+            min_dist = np.minimum(min_dist, np.sqrt(_dot(q - cup, q - cup)))
             substep += 1
         if family == "reach":
-            reach_cost += cfg.gamma ** (t + 1) * (((p - goal) ** 2).sum(-1) - cfg.reach_baseline)
+            reach_cost += cfg.gamma ** (t + 1) * (_dot(p - goal, p - goal) - cfg.reach_baseline)
         if record:
             ee_rec[:, t + 1] = p
             ball_rec[:, t + 1] = q if has_ball else np.nan
@@ -479,7 +484,7 @@ def simulate(
 
     if family == "reach":
         task_cost = reach_cost + action_cost
-        success = np.sqrt(((p - params) ** 2).sum(-1)) < cfg.reach_tolerance
+        success = np.sqrt(_dot(p - params, p - params)) < cfg.reach_tolerance
         shaping = np.zeros(B)
     else:
         bonus = np.where(
