@@ -9,6 +9,8 @@ from scipy.optimize import minimize
 
 from thesis_repro.mdl import aggregate as agg
 
+torch.set_num_threads(1)  # tiny ops: threads only add contention on the shared 2-core machine
+
 
 def _setup(seed: int = 0, n: int = 3, scale: float = 0.05, hidden=(4,), n_states: int = 64):
     torch.manual_seed(seed)
@@ -109,12 +111,12 @@ def test_huge_damping_gives_params_avg():
 def test_cg_solve_agrees_with_dense_solve(damping):
     view, states, t0, thetas = _setup(n=4)
     info: dict = {}
-    cg = agg.kl_avg(view, thetas, states, t0, cg_iters=200, damping=damping, info=info)
+    cg = agg.kl_avg(view, thetas, states, t0, cg_iters=60, damping=damping, info=info)
     dense = agg.kl_avg_dense(view, thetas, states, damping=damping)
     assert info["cg_residual"] < 1e-3
     assert torch.allclose(cg, dense, atol=1e-4)
     # theta_old cancels out of Eq 4.11
-    other = agg.kl_avg(view, thetas, states, None, cg_iters=200, damping=damping)
+    other = agg.kl_avg(view, thetas, states, None, cg_iters=60, damping=damping)
     assert torch.allclose(cg, other, atol=1e-4)
 
 
@@ -157,3 +159,137 @@ def test_sb3_view_selects_actor_parameters():
     dist = pol.get_distribution(s)
     assert torch.allclose(mean, dist.distribution.mean, atol=1e-6)
     assert torch.allclose(log_std.exp(), dist.distribution.stddev, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ learners
+from thesis_repro.mdl import train as mt  # noqa: E402
+from thesis_repro.mdl.config import ALGORITHMS, mdl_config  # noqa: E402
+
+TINY = dict(n_domains=2, steps_per_domain=32, batch_size=32, max_episode_steps=20, n_epochs=2, wind=[-0.5, 0.5],
+            checkpoint_every=1)
+
+
+def test_epopt_keeps_only_the_worst_epsilon_fraction():
+    scores = np.random.default_rng(0).normal(size=40)
+    for eps in (0.05, 0.1, 0.5, 1.0):
+        keep = mt.worst_fraction(scores, eps)
+        k = int(np.ceil(eps * 40))
+        assert keep.sum() == k
+        assert scores[keep].max() <= scores[~keep].min() if k < 40 else keep.all()
+    assert mt.worst_fraction(np.array([3.0]), 0.01).tolist() == [True]
+    with pytest.raises(ValueError, match="epsilon"):
+        mt.worst_fraction(scores, 0.0)
+    assert mt.trajectory_segments(np.array([0, 0, 1, 0, 1])).tolist() == [0, 0, 1, 1, 2]
+
+
+def test_reptile_meta_gradient_is_pi_minus_adapted():
+    torch.manual_seed(0)
+    m = torch.nn.Linear(3, 2)
+    before = {k: v.clone() for k, v in m.state_dict().items()}
+    adapted = {k: v + torch.randn_like(v) for k, v in before.items()}
+    opt = torch.optim.SGD(m.parameters(), lr=0.25)
+    mt.reptile_meta_step(m, adapted, opt)
+    for name, p in m.named_parameters():
+        assert torch.allclose(p.grad, before[name] - adapted[name])
+        assert torch.allclose(p, before[name] + 0.25 * (adapted[name] - before[name]))
+    # Adam's first step moves every coordinate by ~lr towards pi'
+    m2 = torch.nn.Linear(3, 2)
+    b2 = {k: v.clone() for k, v in m2.state_dict().items()}
+    mt.reptile_meta_step(m2, {k: v + 1.0 for k, v in b2.items()}, torch.optim.Adam(m2.parameters(), lr=1e-3))
+    for name, p in m2.named_parameters():
+        assert torch.allclose(p - b2[name], torch.full_like(p, 1e-3), atol=1e-6)
+
+
+def test_fomaml_meta_step_uses_mean_of_given_gradients():
+    m = torch.nn.Linear(2, 1)
+    before = {k: v.clone() for k, v in m.state_dict().items()}
+    grads = [{k: torch.full_like(v, float(i)) for k, v in before.items()} for i in (1, 2, 3)]
+    mt.fomaml_meta_step(m, grads, torch.optim.SGD(m.parameters(), lr=1.0))
+    for name, p in m.named_parameters():
+        assert torch.allclose(p, before[name] - 2.0)
+    with pytest.raises(ValueError, match="at least one"):
+        mt.fomaml_meta_step(m, [], torch.optim.SGD(m.parameters(), lr=1.0))
+
+
+def test_maml_gradient_is_taken_at_adapted_parameters_on_fresh_data():
+    cfg = mdl_config("ppo-maml-dg", "Hopper", 0, 10**6, **{**TINY, "max_grad_norm": 1e9})
+    tr = mt.MultiDomainTrainer(cfg)
+    try:
+        start = {k: v.clone() for k, v in tr.main.policy.state_dict().items()}
+        w = tr.workers[0]
+        tr._collect(0, start)
+        w.n_epochs = 1
+        w.train()  # adapted pi_0
+        adapted = {k: v.clone() for k, v in w.policy.state_dict().items()}
+        assert any(not torch.equal(adapted[k], start[k]) for k in start)
+        buf = tr._collect(0, None)  # D'_0 with pi_0
+        g = mt.post_adaptation_gradient(w)
+        assert all(torch.equal(v, adapted[k]) for k, v in w.policy.state_dict().items())  # unchanged
+        # the PPO loss at pi_0 on D'_0, by hand (ratio = 1 on fresh data)
+        data = next(buf.get(buf.buffer_size))
+        w.policy.zero_grad()
+        values, logp, ent = w.policy.evaluate_actions(data.observations, data.actions)
+        assert torch.allclose(logp, data.old_log_prob, atol=1e-5)
+        adv = (data.advantages - data.advantages.mean()) / (data.advantages.std() + 1e-8)
+        loss = -(adv * torch.exp(logp - data.old_log_prob)).mean() + cfg["vf_coef"] * torch.nn.functional.mse_loss(
+            data.returns, values.flatten()) - cfg["ent_coef"] * ent.mean()
+        loss.backward()
+        for n, p in w.policy.named_parameters():
+            assert torch.allclose(g[n], p.grad, atol=1e-5), n
+    finally:
+        tr.close()
+
+
+def test_merge_buffers_with_masks():
+    cfg = mdl_config("joint", "Hopper", 0, 10**6, **TINY)
+    tr = mt.MultiDomainTrainer(cfg)
+    try:
+        bufs = [tr._collect(i, None) for i in range(2)]
+        masks = [np.zeros((32, 1), bool), np.ones((32, 1), bool)]
+        masks[0][:10] = True
+        merged = mt.merge_buffers(bufs, masks)
+        assert merged.buffer_size == 42 and merged.observations.shape == (42, 1, 11)
+        assert np.allclose(merged.rewards[10:, 0], bufs[1].rewards[:, 0])
+    finally:
+        tr.close()
+
+
+def test_aggregators_with_zero_learning_rate_keep_theta_old():
+    for algo in ("params_avg", "kl_avg"):
+        tr = mt.MultiDomainTrainer(mdl_config(algo, "Hopper", 0, 10**6, **{**TINY, "learning_rate": 0.0}))
+        try:
+            before = tr.view.get_flat()
+            row = tr.iterate()
+            assert torch.allclose(tr.view.get_flat(), before, atol=1e-6)
+            assert np.allclose(row["kl"], 0.0, atol=1e-8)
+        finally:
+            tr.close()
+
+
+@pytest.mark.parametrize("algo", ALGORITHMS)
+def test_train_job_curves_artefacts_and_resume(algo, tmp_path):
+    cfg = mdl_config(algo, "Hopper", 1, 128, **({**TINY, "epsilon": 0.3} if algo == "ppo-epopt" else TINY))
+    (tmp_path / "out").mkdir()
+    res = mt.train_job(cfg, tmp_path)
+    per_iter = 2 * 64 if algo == "ppo-maml-dg" else 64
+    n = int(np.ceil(128 / per_iter))
+    assert res["timesteps"].tolist() == [per_iter * (i + 1) for i in range(n)]
+    assert res["kl"].shape == (n, 2) and res["entropy"].shape == (n,)
+    assert np.isfinite(res["kl"]).all() == (algo in ("params_avg", "kl_avg"))
+    if algo == "ppo-epopt":
+        assert (res["kept_fraction"] < 1.0).all()
+    assert (tmp_path / "out" / "model.zip").exists() and (tmp_path / "out" / "vecnormalize.pkl").exists()
+    act = mt.load_policy(tmp_path / "out")(np.zeros((4, 11)))
+    assert act.shape == (4, 3) and np.abs(act).max() <= 1.0
+    # resume: a checkpoint at the last iteration means nothing is left to do
+    res2 = mt.train_job(cfg, tmp_path)
+    assert res2["timesteps"].tolist() == res["timesteps"].tolist()
+
+
+def test_config_errors():
+    with pytest.raises(ValueError, match="valid algorithms"):
+        mdl_config("maml", "Hopper", 0, 100)
+    with pytest.raises(ValueError, match="wind"):
+        mdl_config("joint", "Hopper", 0, 100, wind=[1.0, -1.0])
+    with pytest.raises(ValueError, match="epsilon"):
+        mdl_config("ppo-epopt", "Hopper", 0, 100, epsilon=0.0)
