@@ -215,6 +215,16 @@ def test_sb3_policy_matches_predict(tiny_ppo):
         ev.sb3_policy(object())
 
 
+def test_sb3_policy_matches_predict_for_squashed_sac():
+    from stable_baselines3 import SAC
+
+    sac = SAC("MlpPolicy", "Pendulum-v1", seed=0, device="cpu", learning_starts=0, buffer_size=100)
+    obs = np.random.default_rng(1).normal(size=(4, 3))
+    got = ev.sb3_policy(sac)(obs)
+    np.testing.assert_allclose(got, sac.predict(obs, deterministic=True)[0], rtol=1e-6)
+    assert got.shape == (4, 1) and np.all(np.abs(got) <= 2.0)
+
+
 def test_score_model_shapes_and_auc(tiny_ppo):
     sig = [0.0, 0.2]
     scores = ev.score_model(tiny_ppo, "Hopper", tests=("obs", "dom"), sigmas=sig, n_rollouts=2, max_episode_steps=20)

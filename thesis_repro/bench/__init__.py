@@ -1,0 +1,70 @@
+"""Registry of throughput benchmarks run by ``make bench`` (``python -m thesis_repro.bench``).
+
+A benchmark is a zero-argument function named by ``"package.module:function"`` in :data:`BENCHMARKS`.
+It may print its own lines and returns a dict of measured values (printed as ``name.key = value``) or
+``None``. Entries whose module is not importable yet are reported as missing, never as failures.
+To add yours, add one line to :data:`BENCHMARKS` (small edit) or call :func:`register` at import time.
+
+>>> run(["nope"])  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+...
+ValueError: unknown benchmark 'nope'; valid benchmarks are: ...
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+from thesis_repro.validation import check_choice
+
+#: name -> "module:function". Order = run order.
+BENCHMARKS: dict[str, str] = {
+    "evaluation": "thesis_repro.bench.evaluation:bench_evaluation",  # chapter 3: batched evaluator vs predict/raw
+    "training": "thesis_repro.learners.bench:bench_training",  # chapter 3: PPO training throughput
+    "kl_avg": "thesis_repro.mdl.bench:bench_kl_avg",  # chapter 4: KL-weighted averaging iteration cost
+    "arm": "thesis_repro.arm.bench:bench_arm",  # chapter 5: vectorised arm simulator
+}
+
+
+def register(name: str, target: str) -> None:
+    """Add (or replace) benchmark ``name`` -> ``"module:function"``."""
+    if ":" not in target:
+        raise ValueError(f"benchmark target must look like 'package.module:function', got {target!r}")
+    BENCHMARKS[name] = target
+
+
+def resolve(name: str) -> Callable[[], Mapping[str, Any] | None] | None:
+    """The benchmark function, or ``None`` if its module (or function) does not exist yet."""
+    module, func = BENCHMARKS[check_choice(name, BENCHMARKS, "benchmark")].split(":")
+    try:
+        mod = importlib.import_module(module)
+    except ModuleNotFoundError as err:
+        if err.name and module.startswith(err.name):  # the benchmark's own module is missing, not a dependency
+            return None
+        raise
+    return getattr(mod, func, None)
+
+
+def run(names: Iterable[str] | None = None) -> dict[str, Mapping[str, Any] | None]:
+    """Run the named benchmarks (default: all) and print their results; missing ones get one clear line."""
+    names = list(BENCHMARKS) if names is None else list(names)
+    for n in names:
+        check_choice(n, BENCHMARKS, "benchmark")
+    results: dict[str, Mapping[str, Any] | None] = {}
+    for name in names:
+        fn = resolve(name)
+        if fn is None:
+            print(f"[{name}] MISSING: {BENCHMARKS[name]} is not implemented yet (skipped)\n", flush=True)
+            continue
+        print(f"[{name}] {BENCHMARKS[name]}", flush=True)
+        t0 = time.perf_counter()
+        out = fn()
+        results[name] = out
+        for key, value in (out or {}).items():
+            text = f"{value:,.3f}" if isinstance(value, float) else str(value)
+            print(f"  {name}.{key} = {text}")
+        print(f"[{name}] done in {time.perf_counter() - t0:.1f}s\n", flush=True)
+    return results
