@@ -326,3 +326,28 @@ def test_shaping_only_changes_the_optimised_cost():
     shaped = simulate("bic", tasks, W, config={"shaped": True})
     np.testing.assert_array_equal(plain.task_cost, shaped.task_cost)
     np.testing.assert_allclose(shaped.cost - shaped.task_cost, ArmConfig().shaping_weight * shaped.min_dist)
+
+
+# -------------------------------------------------------------------------------------- bench & job
+def test_bench_arm_reports_ratio_and_cma_generation():
+    from thesis_repro.arm.bench import bench_arm
+
+    r = bench_arm(n_rollouts=200, loop_rollouts=3, cma_generations=1)
+    assert r["speedup"] == pytest.approx(r["vectorised_rollouts_per_s"] / r["loop_rollouts_per_s"])
+    assert r["speedup"] > 1.0  # vectorised beats the per-policy loop even at B = 200
+    assert r["cma_n_params"] == 24 and r["cma_popsize"] == 4 + int(3 * np.log(24))
+    assert r["cma_generation_s"] > 0
+    with pytest.raises(ValueError, match="valid familys"):
+        bench_arm(family="juggle")
+
+
+def test_solve_task_job_returns_a_recorded_rollout(tmp_path):
+    from thesis_repro.arm.bench import solve_task
+
+    cfg = {"family": "bic", "task": [0.3, 0.05], "n_basis": 6, "generations": 2, "sigma": 0.3,
+           "popsize": 4, "shaped": True, "seed": 0}
+    r = solve_task(cfg, tmp_path)
+    assert r["W"].shape == (8, 2) and r["curve"].shape == (2,) and r["popsize"] == 4
+    assert r["ee"].shape == (101, 2) and r["ball"].shape == (101, 2) and r["taut"].shape == (101,)
+    again = simulate("bic", cfg["task"], r["W"])
+    assert again.task_cost[0] == pytest.approx(r["cost"]) and bool(again.success[0]) == r["success"]
