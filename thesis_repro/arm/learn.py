@@ -133,3 +133,225 @@ def cma_lockstep(
         best[:, g] = best_so_far
     x = np.stack([np.asarray(e.mean)[:dim] for e in es])
     return CMAResult(x=x, curve=curve, success=success, best=best, popsize=pop)
+
+
+# ------------------------------------------------------------------------------------ the arm
+def _arm_config(config: dict[str, Any] | None, shaped: bool) -> dict[str, Any]:
+    cfg = dict(config or {})
+    cfg["shaped"] = bool(shaped)
+    return cfg
+
+
+def arm_objective(
+    family: str,
+    tasks: np.ndarray,
+    *,
+    shaped: bool = False,
+    config: dict[str, Any] | None = None,
+) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``f(W (n, pop, D, A)) -> (fitness, task_cost, success)`` each (n, pop) for the ``n`` tasks (n, k).
+
+    All ``n × pop`` rollouts go through ONE ``simulate`` call. ``fitness`` is the shaped cost of the
+    simulator when ``shaped`` (a dense ball-to-target distance term), else the thesis's task cost.
+
+    >>> from thesis_repro.arm import sample_tasks
+    >>> f = arm_objective("reach", sample_tasks("reach", 2, np.random.default_rng(0)))
+    >>> [a.shape for a in f(np.zeros((2, 5, 8, 2)))]
+    [(2, 5), (2, 5), (2, 5)]
+    """
+    from thesis_repro.arm.tasks import simulate, validate_tasks
+
+    tasks = validate_tasks(family, tasks)
+    cfg = _arm_config(config, shaped)
+
+    def f(W: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        W = np.asarray(W, dtype=float)
+        n, pop = W.shape[:2]
+        if n != len(tasks):
+            raise ValueError(f"W has {n} task rows but the objective has {len(tasks)} tasks")
+        rows = np.repeat(tasks, pop, axis=0)
+        r = simulate(family, rows, W.reshape(n * pop, *W.shape[2:]), config=cfg)
+        shape = (n, pop)
+        return r.cost.reshape(shape), r.task_cost.reshape(shape), r.success.reshape(shape).astype(float)
+
+    return f
+
+
+def evaluate_policies(family: str, tasks: np.ndarray, W: np.ndarray, config: dict[str, Any] | None = None) -> dict:
+    """Task cost and success of one policy per task (``W`` (n, D, A)): the 'at convergence' numbers."""
+    _, cost, success = arm_objective(family, tasks, config=config)(np.asarray(W)[:, None])
+    return {"cost": cost[:, 0], "success": success[:, 0]}
+
+
+def learn_independent(
+    family: str,
+    tasks: np.ndarray,
+    W0: np.ndarray,
+    *,
+    generations: int,
+    sigma: float = 0.01,
+    popsize: int | None = None,
+    shaped: bool = False,
+    l2: float = 0.0,
+    seed: int = 0,
+    config: dict[str, Any] | None = None,
+) -> tuple[np.ndarray, CMAResult]:
+    """CMA-ES on the full ``W`` of every task independently (lockstep, batched): Scratch and Direct.
+
+    ``W0`` (n, D, A) initial policies. Returns the final ``W`` (n, D, A) and the :class:`CMAResult`.
+    """
+    W0 = np.asarray(W0, dtype=float)
+    n, D, A = W0.shape
+    f = arm_objective(family, tasks, shaped=shaped, config=config)
+
+    def evaluate(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        W = X.reshape(n, X.shape[1], D, A)
+        fit, cost, succ = f(W)
+        return fit + l2 * (X**2).sum(-1), cost, succ
+
+    res = cma_lockstep(evaluate, W0.reshape(n, D * A), sigma, generations, popsize=popsize, seed=seed)
+    return res.x.reshape(n, D, A), res
+
+
+@dataclass
+class MTLResult:
+    """Constructive MTL outcome: the factors, the multiplied-out policies and the learning curve."""
+
+    core: np.ndarray
+    factors: list[np.ndarray]
+    W: np.ndarray  # (P, D, A)
+    curve: np.ndarray  # (G,) mean task cost over tasks and population
+    success: np.ndarray  # (G,)
+    popsize: int
+
+
+def _unpack(theta: np.ndarray, shapes: list[tuple[int, ...]]) -> list[np.ndarray]:
+    parts, i = [], 0
+    for shp in shapes:
+        size = int(np.prod(shp))
+        parts.append(theta[..., i : i + size].reshape(*theta.shape[:-1], *shp))
+        i += size
+    return parts
+
+
+def mtl_refine(
+    family: str,
+    tasks: np.ndarray,
+    W: Any,
+    ranks: tuple[int, int, int] | None = None,
+    *,
+    generations: int,
+    sigma: float = 0.01,
+    l1: float = 1e-3,
+    l2: float = 1e-3,
+    popsize: int | None = None,
+    shaped: bool = False,
+    seed: int = 0,
+    config: dict[str, Any] | None = None,
+) -> MTLResult:
+    """Constructive multi-task learning (§5.2.3): CMA-ES on (G, U1, U2, U3) for all P tasks at once.
+
+    The initial condition is the HOSVD of the stacked ``W`` (P, D, A) (Algorithm 5, "MTL initial
+    condition") with ``ranks``, or ``W`` is already a :class:`~thesis_repro.arm.transfer.Tucker` (factors
+    transferred from another family, as in the curriculum). The fitness of a factor vector is the mean over
+    tasks of the cost of its multiplied-out policies + ``l1 |U3|_1 + l2 (|G|² + |U1|² + |U2|²)``. One
+    ``simulate`` call per generation (pop × P).
+    """
+    from thesis_repro.arm.transfer import Tucker, hosvd
+
+    if isinstance(W, Tucker):
+        t = W
+    else:
+        if ranks is None:
+            raise ValueError("mtl_refine needs ranks (r1, r2, r3) to factorise W")
+        t = hosvd(np.moveaxis(np.asarray(W, dtype=float), 0, 2), ranks)
+    if t.factors[2].shape[0] != len(tasks):
+        raise ValueError(f"U3 has {t.factors[2].shape[0]} task rows but there are {len(tasks)} tasks")
+    shapes = [t.core.shape, *(u.shape for u in t.factors)]
+    theta0 = np.concatenate([t.core.ravel(), *(u.ravel() for u in t.factors)])
+    f = arm_objective(family, tasks, shaped=shaped, config=config)
+
+    def evaluate(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        G, U1, U2, U3 = _unpack(X[0], shapes)  # (pop, ...)
+        Wp = np.einsum("bijk,bdi,baj,bpk->pbda", G, U1, U2, U3)  # (P, pop, D, A)
+        fit, cost, succ = f(Wp)
+        sq = (G**2).sum(axis=(1, 2, 3)) + (U1**2).sum((1, 2)) + (U2**2).sum((1, 2))
+        reg = l1 * np.abs(U3).sum(axis=(1, 2)) + l2 * sq
+        return (fit.mean(0) + reg)[None], cost.mean(0)[None], succ.mean(0)[None]
+
+    res = cma_lockstep(evaluate, theta0[None], sigma, generations, popsize=popsize, seed=seed)
+    G, U1, U2, U3 = _unpack(res.x[0], shapes)
+    Wp = np.einsum("ijk,di,aj,pk->pda", G, U1, U2, U3)
+    return MTLResult(core=G, factors=[U1, U2, U3], W=Wp, curve=res.curve[0], success=res.success[0],
+                     popsize=res.popsize)
+
+
+# ------------------------------------------------------------------------------ cached jobs
+#: Defaults of :func:`source_job` (every key may be overridden by the job config).
+SOURCE_DEFAULTS: dict[str, Any] = {
+    "n_tasks": 16,
+    "n_basis": 10,
+    "seed": 0,
+    "sigma": 0.1,
+    "generations": 200,
+    "popsize": 16,
+    "mtl_generations": 50,
+    "mtl_sigma": 0.01,
+    "ranks": [8, 2, 8],
+    "l1": 1e-3,
+    "l2": 1e-4,
+    "arm": {},
+}
+
+
+def source_config(family: str, **overrides: Any) -> dict[str, Any]:
+    """Full config of the source-task job of ``family`` (``SOURCE_DEFAULTS`` + overrides)."""
+    from thesis_repro.arm.tasks import check_family
+
+    check_family(family)
+    for k in overrides:
+        if k not in SOURCE_DEFAULTS:
+            raise ValueError(f"unknown source setting {k!r}; valid settings are: {', '.join(SOURCE_DEFAULTS)}")
+    return {"family": family, **SOURCE_DEFAULTS, **overrides}
+
+
+def source_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any]:
+    """Learn a family of source tasks automatically (module docstring) and return their policies.
+
+    Stage 1: CMA-ES per task from the zero-trajectory policy (σ = ``sigma``) on the simulator's shaped
+    cost (our stand-in for the thesis's demonstrations). Stage 2: constructive MTL refinement of the
+    Tucker factors (σ = ``mtl_sigma``) on the same cost. Returns ``W`` (P, D, A), ``tasks`` (P, k), the
+    curves and the final task cost/success of every source task (thesis cost, unshaped).
+    """
+    from thesis_repro.arm.policy import RBFPolicy
+    from thesis_repro.arm.tasks import sample_tasks
+
+    cfg = {**SOURCE_DEFAULTS, **config}
+    family, P = cfg["family"], int(cfg["n_tasks"])
+    rng = np.random.default_rng(cfg["seed"])
+    tasks = sample_tasks(family, P, rng)
+    pol = RBFPolicy(n_basis=cfg["n_basis"])
+    W0 = np.tile(pol.default_params(), (P, 1, 1))
+    W, res = learn_independent(
+        family, tasks, W0, generations=cfg["generations"], sigma=cfg["sigma"], popsize=cfg["popsize"], shaped=True,
+        seed=cfg["seed"], config=cfg["arm"],
+    )
+    stage1 = evaluate_policies(family, tasks, W, cfg["arm"])
+    out: dict[str, Any] = {"tasks": tasks, "curve": res.curve.mean(0), "success_curve": res.success.mean(0),
+                           "stage1_success": stage1["success"], "stage1_cost": stage1["cost"]}
+    if cfg["mtl_generations"] > 0:
+        D = W.shape[1]
+        r1, r2, r3 = cfg["ranks"]
+        mtl = mtl_refine(
+            family, tasks, W, (min(r1, D), min(r2, 2), min(r3, P)), generations=cfg["mtl_generations"],
+            sigma=cfg["mtl_sigma"], l1=cfg["l1"], l2=cfg["l2"], popsize=cfg["popsize"], shaped=True,
+            seed=cfg["seed"] + 1, config=cfg["arm"],
+        )
+        final = evaluate_policies(family, tasks, mtl.W, cfg["arm"])
+        # keep the refined policies only where they are not worse (MTL with truncated ranks can lose a task)
+        better = final["cost"] <= stage1["cost"]
+        W = np.where(better[:, None, None], mtl.W, W)
+        out.update(mtl_curve=mtl.curve, mtl_success_curve=mtl.success)
+    final = evaluate_policies(family, tasks, W, cfg["arm"])
+    out.update(W=W, success=final["success"], cost=final["cost"], success_rate=float(final["success"].mean()))
+    return out
