@@ -294,3 +294,15 @@ def test_benchmark_jobs_stack_seeds_tasks_algos(fake_learners):
     assert res.by_algo(res.auc["obs"])["PPO-16"].shape == (3, 1)
     with pytest.raises(ValueError, match="sigmas"):
         ev.benchmark_jobs(["PPO"], ["Hopper"], [0], 1000, ["obs"])
+
+
+def test_evaluate_job_with_the_real_learner():
+    from thesis_repro.learners import load_policy, train_config
+
+    tc = train_config("ppo", "Hopper", 0, 256, n_envs=1, n_steps=128, batch_size=64, n_epochs=1)
+    test = {"perturbation": "act", "sigmas": [0.0, 0.1], "n_rollouts": 2, "max_episode_steps": 25}
+    res = RunCache().run(Job("thesis_repro.evaluation:evaluate_job", {"train": tc, "test": test}))
+    policy = load_policy(RunCache().run(Job("thesis_repro.learners:train_job", tc)))
+    direct = ev.evaluate(policy, "Hopper", "act", [0.0, 0.1], 2, max_episode_steps=25)
+    np.testing.assert_allclose(res["returns"], direct)
+    assert res["lengths"].max() <= 25 and res["auc"] == pytest.approx(0.1 * direct.mean(axis=1).sum())
