@@ -298,3 +298,64 @@ def competitor_source_job(config: dict[str, Any], workdir: Any = None) -> dict[s
     _, cost, succ = f(theta[:, None])
     return {"theta": theta, "tasks": tasks, "curve": res.curve.mean(0), "success": succ[:, 0],
             "success_rate": float(succ.mean()), "cost": cost[:, 0]}
+
+
+# ------------------------------------------------------------------------- experiment grids
+def source_settings(settings: dict[str, Any], family: str, seed: int) -> dict[str, Any]:
+    """The source config of ``family`` from a figure's settings (``settings["source"]``)."""
+    from thesis_repro.arm.learn import source_config
+
+    return source_config(family, seed=seed, **settings["source"])
+
+
+def grid_jobs(settings: dict[str, Any], strategies: tuple[str, ...] | list[str]) -> tuple[list, list[dict]]:
+    """Source and target :class:`~thesis_repro.cache.Job` lists for every (source, target, strategy, seed).
+
+    ``settings`` (a figure's scale entry) has ``families``, ``seeds``, ``source`` (source overrides) and
+    ``target`` (target overrides). Returns ``(source_jobs, rows)`` where each row holds ``source``,
+    ``target``, ``strategy``, ``seed`` and its ``job``. Run the source jobs first (they are shared).
+    """
+    from thesis_repro.cache import Job
+
+    for s in strategies:
+        check_choice(s, STRATEGIES, "strategy")
+    sources, rows = {}, []
+    for seed in settings["seeds"]:
+        for src in settings["families"]:
+            cfg = source_settings(settings, src, seed)
+            for strategy in strategies:
+                if strategy in COMPETITORS:
+                    job = Job("thesis_repro.arm.baselines:competitor_source_job", {**cfg, "policy": strategy})
+                else:
+                    job = Job("thesis_repro.arm.learn:source_job", cfg)
+                sources[job.key] = job
+                for tgt in settings["families"]:
+                    tcfg = {**TARGET_DEFAULTS, **settings["target"], "source": cfg, "target": tgt,
+                            "strategy": strategy, "seed": seed}
+                    rows.append({"source": src, "target": tgt, "strategy": strategy, "seed": seed,
+                                 "job": Job("thesis_repro.arm.baselines:target_job", tcfg)})
+    return list(sources.values()), rows
+
+
+def run_grid(settings: dict[str, Any], strategies: tuple[str, ...] | list[str], n_jobs: int | None = None):
+    """Run (or load) a transfer grid; returns ``(summary, curves)`` pandas DataFrames labelled "reproduced".
+
+    ``summary``: one row per (source, target, strategy, seed) with ``success_rate`` and ``total_cost``
+    (mean over target tasks). ``curves``: long format ``trials``, ``cost``, ``success`` (means over the
+    target tasks) per (source, target, strategy, seed).
+    """
+    import pandas as pd
+
+    from thesis_repro.cache import run_jobs
+
+    src_jobs, rows = grid_jobs(settings, strategies)
+    run_jobs(src_jobs, n_jobs=n_jobs, desc="arm sources")
+    results = run_jobs([r["job"] for r in rows], n_jobs=n_jobs, desc="arm targets")
+    summary, curves = [], []
+    for row, res in zip(rows, results, strict=True):
+        key = {k: row[k] for k in ("source", "target", "strategy", "seed")}
+        summary.append({**key, "success_rate": res["success_rate"], "total_cost": res["mean_total_cost"],
+                        "final_cost": float(np.mean(res["final_cost"])), "label": "reproduced"})
+        curves.append(pd.DataFrame({**key, "trials": res["trials"], "cost": res["curve"].mean(0),
+                                    "success": res["success_curve"].mean(0)}))
+    return pd.DataFrame(summary), pd.concat(curves, ignore_index=True)
