@@ -39,6 +39,7 @@ def make_mdl_env(
     ratios: Mapping[str, float] | None = None,
     max_episode_steps: int | None = None,
     seed: int | None = None,
+    render_mode: str | None = None,
 ) -> gym.Env:
     """Task ``env`` with reward Eq 4.12 (``c_a``; None = the task default 1e-3), wind and a perturbation.
 
@@ -55,6 +56,8 @@ def make_mdl_env(
         kwargs["ctrl_cost_weight"] = check_nonneg(c_a, "c_a")
     if max_episode_steps is not None:
         kwargs["max_episode_steps"] = int(max_episode_steps)
+    if render_mode is not None:
+        kwargs.update(render_mode=render_mode, width=480, height=320)
     out: gym.Env = gym.make(resolve_env(env), **kwargs)
     fixed = dict(ratios or {})
     if wind is not None and not isinstance(wind, int | float):
