@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from thesis_repro.arm.learn import ALGO_VERSION
+from thesis_repro.arm.tasks import SIM_VERSION
 from thesis_repro.validation import check_choice
 
 CONDITIONS: tuple[str, ...] = ("CL", "NC")
@@ -30,6 +32,8 @@ CURRICULUM: tuple[str, ...] = ("reach", "throw", "bic")
 
 #: Defaults of :func:`curriculum_job`.
 CURRICULUM_DEFAULTS: dict[str, Any] = {
+    "sim_version": SIM_VERSION,
+    "algo_version": ALGO_VERSION,
     "n_tasks": 16,
     "n_basis": 10,
     "ranks": [8, 2, 8],
@@ -101,3 +105,17 @@ def curriculum_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any
         success_rate=float(final["success"].mean()),
     )
     return out
+
+
+def curriculum_jobs(settings: dict[str, Any]) -> list[dict[str, Any]]:
+    """One row per (condition, seed) with its :class:`~thesis_repro.cache.Job` from a figure's settings."""
+    from thesis_repro.cache import Job
+
+    keys = [k for k in CURRICULUM_DEFAULTS if k in settings and k != "seed"]
+    rows = []
+    for seed in settings["seeds"]:
+        for condition in CONDITIONS:
+            cfg = {**CURRICULUM_DEFAULTS, **{k: settings[k] for k in keys}, "condition": condition, "seed": seed}
+            rows.append({"condition": condition, "seed": seed,
+                         "job": Job("thesis_repro.arm.curriculum:curriculum_job", cfg)})
+    return rows

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from thesis_repro.arm.tasks import SIM_VERSION
 from thesis_repro.validation import check_positive
 
 #: ``evaluate(X (n, pop, dim))`` returns either ``fitness`` or ``(fitness, cost, success)``, each ``(n, pop)``.
@@ -287,8 +288,13 @@ def mtl_refine(
 
 
 # ------------------------------------------------------------------------------ cached jobs
+#: Bump when a change to this package's learning code alters results (part of every job config).
+ALGO_VERSION: int = 1
+
 #: Defaults of :func:`source_job` (every key may be overridden by the job config).
 SOURCE_DEFAULTS: dict[str, Any] = {
+    "sim_version": SIM_VERSION,
+    "algo_version": ALGO_VERSION,
     "n_tasks": 16,
     "n_basis": 10,
     "seed": 0,
