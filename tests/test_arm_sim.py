@@ -332,7 +332,7 @@ def test_shaping_only_changes_the_optimised_cost():
 def test_bench_arm_reports_ratio_and_cma_generation():
     from thesis_repro.arm.bench import bench_arm
 
-    r = bench_arm(n_rollouts=200, loop_rollouts=3, cma_generations=1)
+    r = bench_arm(n_rollouts=200, loop_rollouts=3, cma_generations=1, repeats=1)
     assert r["speedup"] == pytest.approx(r["vectorised_rollouts_per_s"] / r["loop_rollouts_per_s"])
     assert r["speedup"] > 1.0  # vectorised beats the per-policy loop even at B = 200
     assert r["cma_n_params"] == 24 and r["cma_popsize"] == 4 + int(3 * np.log(24))
