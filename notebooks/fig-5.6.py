@@ -72,17 +72,19 @@ fig.savefig(out, dpi=120)
 # ## Conclusion (computed from the runs above)
 
 # %%
-tail = curves.groupby(["condition", "seed"]).apply(lambda d: d.iloc[-max(1, len(d) // 10):][["cost", "success"]].mean(),
-                                                    include_groups=False)
+tail = curves.groupby(["condition", "seed"]).apply(
+    lambda d: d.iloc[-max(1, len(d) // 10) :][["cost", "success"]].mean(), include_groups=False
+)
 end = tail.groupby("condition").mean().reindex(list(CONDITIONS))
 fin = final.groupby("condition").final_success.mean().reindex(list(CONDITIONS))
 print("reproduced, last 10 % of BIC trials (mean over seeds):")
 print(end.round(3))
 print("reproduced final success rate of the learned BIC policies:", fin.round(2).to_dict())
-cl_better = bool(end.loc["CL", "cost"] < end.loc["NC", "cost"] and end.loc["CL", "success"] > end.loc["NC", "success"])
+cl, nc = end.loc["CL"], end.loc["NC"]
+cl_better = bool(cl["cost"] < nc["cost"] and cl["success"] > nc["success"])
 cl_solves = bool(fin["CL"] >= 0.5)
-print(f"curriculum beats no curriculum (lower cost and higher success): {'reproduced' if cl_better else 'NOT reproduced'}"
-      f" at scale {SCALE!r}")
+verdict = "reproduced" if cl_better else "NOT reproduced"
+print(f"curriculum beats no curriculum (lower cost and higher success): {verdict} at scale {SCALE!r}")
 print(f"curriculum solves BIC (final success >= 50 %): {'reproduced' if cl_solves else 'NOT reproduced'} "
       f"at scale {SCALE!r}")
 if SCALE == "smoke":
