@@ -51,7 +51,7 @@ final = pd.DataFrame(
     [{"condition": r["condition"], "seed": r["seed"], "final_success": res["success_rate"]}
      for r, res in zip(rows, results, strict=True)]
 )
-final
+print(final.to_string())
 
 # %%
 fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
