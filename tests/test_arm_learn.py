@@ -114,3 +114,110 @@ def test_alternation_improves_toy_objective():
     assert np.all(final < 0.5 * start)
     # the L phases bring a further improvement over the s-only phase of round 1
     assert np.all(res.curve[:, -5:].mean(axis=1) < res.curve[:, 20:25].mean(axis=1))
+
+
+# ---------------------------------------------------------------- the arm: objective, MTL, strategies
+from thesis_repro.arm import RBFPolicy, baselines, curriculum, sample_tasks, simulate  # noqa: E402  # noqa: E402
+
+
+def test_arm_objective_matches_simulate_row_by_row():
+    rng = np.random.default_rng(5)
+    tasks = sample_tasks("bic", 2, rng)
+    W = np.tile(RBFPolicy(n_basis=6).default_params(), (2, 3, 1, 1))
+    W[..., :6, :] += 0.3 * rng.normal(size=(2, 3, 6, 2))
+    fit, cost, succ = learn.arm_objective("bic", tasks)(W)
+    assert fit.shape == cost.shape == succ.shape == (2, 3)
+    ref = simulate("bic", tasks[1], W[1, 2])
+    assert cost[1, 2] == pytest.approx(float(ref.task_cost[0]))
+    shaped_fit, shaped_cost, _ = learn.arm_objective("bic", tasks, shaped=True)(W)
+    np.testing.assert_allclose(shaped_cost, cost)  # the curve's task cost is never the shaped one
+    assert np.all(shaped_fit >= cost - 1e-12)
+
+
+def test_closed_loop_adapter_reproduces_simulate_for_a_pd_controller():
+    rng = np.random.default_rng(6)
+    pol = RBFPolicy(n_basis=8)
+    for family in ("reach", "throw", "bic", "cast"):
+        tasks = sample_tasks(family, 4, rng)
+        W = np.tile(pol.default_params(), (4, 1, 1))
+        W[:, :8] += 0.2 * rng.normal(size=(4, 8, 2))
+        xd, vd = pol.desired(W)
+        kp, kd = pol.gains(W)
+        ref = simulate(family, tasks, W)
+
+        def pd(t, p, v, kp=kp, kd=kd, xd=xd, vd=vd):
+            return kp * (xd[:, t] - p) + kd * (vd[:, t] - v)
+
+        got = baselines.closed_loop_simulate(family, tasks, pd, 4)
+        np.testing.assert_allclose(got.task_cost, ref.task_cost)
+        np.testing.assert_array_equal(got.success, ref.success)
+
+
+@pytest.mark.parametrize(("kind", "n_params"), [("ella", 8), ("rbf-ella", 250), ("fcnn", 66)])
+def test_competitor_policies_shapes_and_parameter_counts(kind, n_params):
+    pol = baselines.ClosedLoopPolicy(kind)
+    assert pol.n_params == n_params  # ELLA: [x, v, t, 1] per actuator; RBF-ELLA: 5x5x5 tiles per actuator
+    theta = np.random.default_rng(0).normal(size=(3, n_params))
+    a = pol.action(theta, 10, np.zeros((3, 2)), np.zeros((3, 2)))
+    assert a.shape == (3, 2) and np.all(np.isfinite(a))
+    np.testing.assert_allclose(pol.action(np.zeros((3, n_params)), 10, np.ones((3, 2)), np.ones((3, 2))), 0.0)
+
+
+def test_ella_policy_is_linear_in_state_and_time():
+    pol = baselines.ClosedLoopPolicy("ella")
+    w = np.zeros((1, 4, 2))
+    w[0, 0, 0], w[0, 3, 1] = 2.0, -1.0  # a_x = 2 x/pos_scale, a_y = -1 (bias), times acc_scale
+    a = pol.action(w.reshape(1, 8), 0, np.array([[0.15, 0.0]]), np.zeros((1, 2)))
+    np.testing.assert_allclose(a, [[pol.acc_scale * 2 * 0.15 / pol.pos_scale, -pol.acc_scale]])
+    with pytest.raises(ValueError, match="'ella', 'rbf-ella', 'fcnn'"):
+        baselines.ClosedLoopPolicy("svm")
+
+
+def test_mtl_refine_improves_reach_and_keeps_factor_shapes():
+    rng = np.random.default_rng(7)
+    tasks = sample_tasks("reach", 3, rng)
+    W = np.tile(RBFPolicy(n_basis=6).default_params(), (3, 1, 1))
+    W[:, :6] += 0.05 * rng.normal(size=(3, 6, 2))
+    res = learn.mtl_refine("reach", tasks, W, (6, 2, 3), generations=25, sigma=0.1, popsize=8, seed=0)
+    assert res.W.shape == (3, 8, 2) and res.core.shape == (6, 2, 3)
+    assert [u.shape for u in res.factors] == [(8, 6), (2, 2), (3, 3)]
+    assert res.curve[-5:].mean() < 0.5 * res.curve[:3].mean()
+    with pytest.raises(ValueError, match="task rows"):
+        learn.mtl_refine("reach", tasks[:2], transfer.hosvd(np.moveaxis(W, 0, 2), (6, 2, 3)), generations=1)
+
+
+@pytest.mark.parametrize("strategy", baselines.STRATEGIES)
+def test_every_strategy_gets_the_same_budget(strategy):
+    rng = np.random.default_rng(8)
+    targets = sample_tasks("throw", 2, rng)
+    if strategy in baselines.COMPETITORS:
+        sources = 0.1 * rng.normal(size=(4, baselines.ClosedLoopPolicy(strategy).n_params))
+    else:
+        sources = np.tile(RBFPolicy(n_basis=6).default_params(), (4, 1, 1)) + 0.1 * rng.normal(size=(4, 8, 2))
+    out = baselines.learn_target(strategy, "throw", targets, sources, rounds=1, phase_generations=2, popsize=5,
+                                 ranks=(4, 2, 3), n_basis=6)
+    assert out["curve"].shape == out["success_curve"].shape == (2, 4)
+    assert out["trials"].tolist() == [5, 10, 15, 20]
+    np.testing.assert_allclose(out["total_cost"], 5 * out["curve"].sum(1))
+    assert out["final_success"].shape == (2,) and set(np.unique(out["final_success"])) <= {0.0, 1.0}
+
+
+def test_grid_jobs_cover_all_pairs_and_share_sources():
+    settings = {"families": ["reach", "bic"], "seeds": [0], "source": {"n_tasks": 3}, "target": {"n_targets": 2}}
+    sources, rows = baselines.grid_jobs(settings, ["scratch", "tensor", "ella"])
+    assert len(rows) == 2 * 2 * 3
+    assert len(sources) == 2 * 2  # RBF sources shared by scratch/tensor, ELLA learns its own
+    with pytest.raises(ValueError, match="valid strategys"):
+        baselines.grid_jobs(settings, ["cp"])
+
+
+def test_curriculum_job_shapes_and_conditions():
+    cfg = {"n_tasks": 2, "pretrain_trials": 8, "bic_trials": 8, "popsize": 4, "ranks": [4, 2, 2], "seed": 0}
+    for condition in curriculum.CONDITIONS:
+        out = curriculum.curriculum_job({**cfg, "condition": condition})
+        assert out["curve"].shape == out["success_curve"].shape == (2,)
+        assert out["trials"].tolist() == [4, 8]
+        assert 0.0 <= out["success_rate"] <= 1.0
+    assert "pretrain_reach_curve" in out or "pretrain_bic_curve" in out
+    with pytest.raises(ValueError, match="'CL', 'NC'"):
+        curriculum.curriculum_job({**cfg, "condition": "random"})
