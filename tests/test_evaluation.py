@@ -306,3 +306,29 @@ def test_evaluate_job_with_the_real_learner():
     direct = ev.evaluate(policy, "Hopper", "act", [0.0, 0.1], 2, max_episode_steps=25)
     np.testing.assert_allclose(res["returns"], direct)
     assert res["lengths"].max() <= 25 and res["auc"] == pytest.approx(0.1 * direct.mean(axis=1).sum())
+
+
+# --- make bench ------------------------------------------------------------------------------------
+
+
+def test_bench_registry_reports_missing_and_rejects_unknown(monkeypatch, capsys):
+    from thesis_repro import bench
+
+    monkeypatch.setitem(bench.BENCHMARKS, "ghost", "thesis_repro.no_such_module:bench_ghost")
+    assert bench.resolve("ghost") is None
+    assert bench.run(["ghost"]) == {}
+    assert "MISSING" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="valid benchmarks"):
+        bench.run(["nope"])
+    with pytest.raises(ValueError, match="module:function"):
+        bench.register("x", "no_colon")
+
+
+def test_bench_evaluation_reports_all_rates(capsys):
+    from thesis_repro.bench.evaluation import bench_evaluation
+
+    out = bench_evaluation(seconds=0.02, n_envs=2, horizon=10, rounds=1)
+    assert {"batched_steps_per_s", "predict_steps_per_s", "raw_steps_per_s", "a_over_b", "a_over_c"} <= set(out)
+    assert all(v > 0 for v in out.values())
+    assert out["a_over_c"] == pytest.approx(out["batched_steps_per_s"] / out["raw_steps_per_s"])
+    assert "a/c" in capsys.readouterr().out
