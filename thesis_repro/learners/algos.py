@@ -33,6 +33,7 @@ class DDPGSplit(DDPG):
     def _setup_model(self) -> None:
         super()._setup_model()
         opt_cls = type(self.critic.optimizer)
+        extra = {k: v for k, v in self.policy.optimizer_kwargs.items() if k != "weight_decay"}
         decay, rest = [], []
         for name, p in self.critic.named_parameters():
             # critic.qf0 = Sequential(Linear, act, Linear, act, Linear): every weight but the output layer
@@ -41,6 +42,7 @@ class DDPGSplit(DDPG):
         self.critic.optimizer = opt_cls(
             [{"params": decay, "weight_decay": self.critic_l2}, {"params": rest, "weight_decay": 0.0}],
             lr=self.critic_lr,
+            **extra,
         )
         for g in self.actor.optimizer.param_groups:
             g["lr"] = self.actor_lr

@@ -106,9 +106,14 @@ def build_model(cfg: dict[str, Any], venv: VecEnv) -> BaseAlgorithm:
         seed=cfg["seed"],
         device="cpu",
         verbose=0,
-        policy_kwargs={"net_arch": cfg["net_arch"], "activation_fn": act},
+        policy_kwargs={"net_arch": cfg["net_arch"], "activation_fn": act, **_optimizer(cfg)},
         **kwargs,
     )
+
+
+def _optimizer(cfg: dict[str, Any]) -> dict[str, Any]:
+    kw = cfg.get("optimizer_kwargs")
+    return {} if kw is None else {"optimizer_kwargs": dict(kw)}
 
 
 def _batch_steps(cfg: dict[str, Any]) -> int:
