@@ -292,6 +292,13 @@ def test_benchmark_jobs_stack_seeds_tasks_algos(fake_learners):
     assert res.auc["obs"].shape == (3, 1, 2) and "mass" not in res.auc
     np.testing.assert_array_equal(res.train_return[:, 0, 0], [100.0, 101.0, 102.0])
     assert res.by_algo(res.auc["obs"])["PPO-16"].shape == (3, 1)
+    df = res.frame("obs")
+    assert len(df) == res.returns["obs"].size and set(df["sigma"]) == {0.0, 0.2}
+    row = df[(df.seed == 2) & (df.algo == "PPO-16") & (df.sigma == 0.2) & (df.rollout == 1)]
+    assert row["return"].item() == res.returns["obs"][2, 0, 1, 1, 1]
+    assert len(res.frame("mass")) == res.returns["mass"].size
+    af = res.auc_frame()
+    assert len(af) == 6 and af.loc[(af.seed == 1) & (af.algo == "PPO"), "train_return"].item() == 101.0
     with pytest.raises(ValueError, match="sigmas"):
         ev.benchmark_jobs(["PPO"], ["Hopper"], [0], 1000, ["obs"])
 

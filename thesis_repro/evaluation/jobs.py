@@ -93,6 +93,46 @@ class BenchmarkResult:
     auc: dict[str, np.ndarray] = field(default_factory=dict)
     train_return: np.ndarray | None = None
 
+    def points(self, test: str) -> list[Any]:
+        """The x values of ``test``: its sigmas, or its ratio settings for a shift grid."""
+        t = self.tests[test]
+        return list(t["sigmas"]) if "sigmas" in t else list(t["ratios"])
+
+    def frame(self, test: str) -> Any:
+        """Tidy ``pandas.DataFrame`` of ``test``: one row per (seed, env, algo, point, rollout) with its return.
+
+        The point column is ``sigma`` for noise tests and ``ratios`` (the dict, as text) for shift grids.
+        """
+        import pandas as pd
+
+        r, ln = self.returns[test], self.lengths[test]
+        col = "sigma" if "sigmas" in self.tests[test] else "ratios"
+        pts = [p if col == "sigma" else str(p) for p in self.points(test)]
+        idx = np.indices(r.shape).reshape(r.ndim, -1)
+        return pd.DataFrame(
+            {
+                "seed": np.asarray(self.seeds)[idx[0]],
+                "env": np.asarray(self.envs)[idx[1]],
+                "algo": np.asarray(self.algos)[idx[2]],
+                col: np.asarray(pts, dtype=object if col == "ratios" else float)[idx[3]],
+                "rollout": idx[4],
+                "return": r.reshape(-1),
+                "length": ln.reshape(-1),
+                "test": test,
+            }
+        )
+
+    def auc_frame(self) -> Any:
+        """Tidy ``pandas.DataFrame`` of every noise test's AUC: columns seed, env, algo, test, auc, train_return."""
+        import pandas as pd
+
+        rows = []
+        for test, a in self.auc.items():
+            for (i, j, k), v in np.ndenumerate(a):
+                tr = None if self.train_return is None else float(self.train_return[i, j, k])
+                rows.append((self.seeds[i], self.envs[j], self.algos[k], test, float(v), tr))
+        return pd.DataFrame(rows, columns=["seed", "env", "algo", "test", "auc", "train_return"])
+
     def by_algo(self, values: np.ndarray) -> dict[str, np.ndarray]:
         """``{algo: values[:, :, i]}`` — the (runs × tasks) matrices rliable-style aggregators expect."""
         return {a: values[:, :, i] for i, a in enumerate(self.algos)}
