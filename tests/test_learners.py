@@ -100,6 +100,29 @@ def test_config_errors(args, kwargs, match):
         train_config(*args, **kwargs)
 
 
+CH3 = ("ppo", "trpo", "ddpg", "sac", "ppo-16", "ppo-scn", "ppo-scn-16", "ppo-ent", "ppo-arpl",
+       "ppo-obsnoise", "ppo-actnoise", "ppo-envnoise", "ppo-mdl")  # fmt: skip
+WRAPPER = {"obs": "ObservationNoise", "act": "ActionNoise", "env": "EnvironmentNoise", "dom": "DomainShift"}
+
+
+@pytest.mark.parametrize("algo", CH3)
+def test_every_learner_builds_with_its_training_perturbation(algo):
+    kw = {"buffer_size": 1000} if algo in ("ddpg", "sac") else {}
+    cfg = tiny(algo, **kw)
+    venv = make_train_venv(cfg)
+    env, chain = venv.venv.envs[0], []
+    while env is not None:
+        chain.append(type(env).__name__)
+        env = getattr(env, "env", None)
+    if cfg["perturbation"] != "none":
+        assert WRAPPER[cfg["perturbation"]] in chain
+    else:
+        assert not set(WRAPPER.values()) & set(chain)
+    model = build_model(cfg, _wrap(cfg, venv, None))
+    assert type(model).__name__.startswith(cfg["class"])
+    assert model.seed == 0
+
+
 # ---- architectures ----------------------------------------------------------------------------
 
 
