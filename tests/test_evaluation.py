@@ -339,3 +339,17 @@ def test_bench_evaluation_reports_all_rates(capsys):
     assert all(v > 0 for v in out.values())
     assert out["a_over_c"] == pytest.approx(out["batched_steps_per_s"] / out["raw_steps_per_s"])
     assert "a/c" in capsys.readouterr().out
+
+
+def test_sb3_policy_applies_vecnormalize(tiny_ppo):
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    vn = VecNormalize(DummyVecEnv([lambda: make_env("Hopper")]), norm_reward=False)
+    vn.obs_rms.mean = np.linspace(-1.0, 1.0, 11)
+    vn.obs_rms.var = np.linspace(0.5, 2.0, 11)
+    obs = np.random.default_rng(2).normal(size=(3, 11))
+    want = tiny_ppo.predict(vn.normalize_obs(obs), deterministic=True)[0]
+    np.testing.assert_allclose(ev.sb3_policy(tiny_ppo, vn)(obs), want)
+    assert not np.allclose(ev.sb3_policy(tiny_ppo)(obs), want)
+    with pytest.raises(TypeError, match="VecNormalize"):
+        ev.sb3_policy(tiny_ppo, vecnormalize=object())
