@@ -170,3 +170,29 @@ def render_cycle(run_result: Any, env: str, c_a: float, n_frames: int = 5, steps
     start = max(n - 1 - period, 0)
     idx = np.linspace(start, min(start + period, n - 1), n_frames).round().astype(int).tolist()
     return [frames[i] for i in idx], idx
+
+
+def verdict(table: pd.DataFrame, ours: str = "kl_avg", easy: Sequence[str] = ("a",), tol: float = 0.1,
+            what: str = "mean return") -> tuple[list[str], bool]:
+    """Sentences on the thesis's chapter-4 claim for a per-panel table of a higher-is-better metric.
+
+    Claim: ``ours`` is similar (within ``tol`` relative to the best baseline) in the ``easy`` panels and
+    strictly better than every baseline in the others. Returns (one sentence per panel, claim holds).
+    """
+    lines, ok = [], True
+    for panel, row in table.iterrows():
+        algos = [c for c in row.index if c not in ("best", f"{ours}_best")]
+        base = max(float(row[a]) for a in algos if a != ours)
+        mine = float(row[ours])
+        scale = max(abs(base), 1e-9)
+        if panel in easy:
+            good = mine >= base - tol * scale
+            word = "similar or better" if good else "worse"
+            lines.append(f"panel {panel}: {ours} {what} {mine:.3g} vs best baseline {base:.3g} -> {word} "
+                         f"(thesis: similar)")
+        else:
+            good = mine > base
+            lines.append(f"panel {panel}: {ours} {what} {mine:.3g} vs best baseline {base:.3g} -> "
+                         f"{'better' if good else 'not better'} (thesis: better)")
+        ok &= good
+    return lines, ok
