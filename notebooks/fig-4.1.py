@@ -29,7 +29,7 @@ from thesis_repro.mdl import experiments as ex
 from thesis_repro.scales import figure_settings
 
 settings = figure_settings("4.1", SCALE)
-conds = ex.conditions("4.1")
+conds = ex.conditions("4.1", settings["panels"])
 runs = ex.train_runs(settings, settings["algos"], conds, n_jobs=settings["n_jobs"])
 curves = ex.curves_frame(runs)
 curves["source"] = "reproduced"

@@ -30,7 +30,7 @@ from thesis_repro.mdl import experiments as ex
 from thesis_repro.scales import figure_settings
 
 settings = figure_settings("4.2", SCALE)
-conds = ex.conditions("4.2")
+conds = ex.conditions("4.2", settings["panels"])
 cond = conds[0]
 runs = ex.train_runs(settings, settings["algos"], conds, n_jobs=settings["n_jobs"])
 runs["final_return"] = [float(np.nanmean(r["ep_return"][-3:])) if np.isfinite(r["ep_return"]).any() else -np.inf

@@ -28,7 +28,7 @@ from thesis_repro.mdl import experiments as ex
 from thesis_repro.scales import figure_settings
 
 settings = figure_settings("4.4", SCALE)
-conds = ex.conditions("4.4")
+conds = ex.conditions("4.4", settings["panels"])
 runs = ex.train_runs(settings, settings["algos"], conds, n_jobs=settings["n_jobs"])
 wind = ex.evaluate_runs(runs, "wind", settings["winds"], settings["test_rollouts"], n_jobs=settings["n_jobs"])
 grid = [{"body_mass": m, "friction": f} for m, f in itertools.product(settings["mass_ratios"],

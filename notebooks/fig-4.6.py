@@ -28,7 +28,7 @@ from thesis_repro.mdl import experiments as ex
 from thesis_repro.scales import figure_settings
 
 settings = figure_settings("4.6", SCALE)
-conds = ex.conditions("4.6")
+conds = ex.conditions("4.6", settings["panels"])
 runs = ex.train_runs(settings, settings["algos"], conds, n_jobs=settings["n_jobs"])
 noise = pd.concat([ex.evaluate_runs(runs, kind, settings["sigmas"], settings["test_rollouts"],
                                     n_jobs=settings["n_jobs"]).assign(noise=kind) for kind in ("obs", "act")])

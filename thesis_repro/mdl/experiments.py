@@ -28,12 +28,20 @@ EVAL_FN = "thesis_repro.mdl.experiments:evaluate_job"
 EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
 
 
-def conditions(figure: str) -> list[dict[str, Any]]:
-    """Training conditions (panel, c_a, wind range) of a chapter-4 figure, from the thesis table."""
+def conditions(figure: str, panels: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    """Training conditions (panel, c_a, wind range) of a chapter-4 figure, from the thesis table.
+
+    ``panels`` keeps only those panels (ignored for single-panel figures); ``None`` keeps all.
+    """
     rows = reference.load("chapter4_conditions")
     rows = rows[rows["figure"] == figure]
     if rows.empty:
         raise ValueError(f"no chapter-4 conditions for figure {figure!r}")
+    if panels is not None and len(rows) > 1:
+        unknown = sorted(set(panels) - set(rows["panel"]))
+        if unknown:
+            raise ValueError(f"unknown panels {unknown} of figure {figure}; valid panels are: {list(rows['panel'])}")
+        rows = rows[rows["panel"].isin(list(panels))]
     return [{"panel": r.panel, "c_a": float(r.action_penalty), "wind": [float(r.wind_low), float(r.wind_high)]}
             for r in rows.itertuples()]
 
