@@ -17,7 +17,7 @@ from thesis_repro.mdl.config import mdl_config
 from thesis_repro.mdl.train import MultiDomainTrainer
 
 
-def bench_kl_avg(env: str = "Walker2d", iterations: int = 2, **overrides: Any) -> dict[str, float]:
+def bench_kl_avg(env: str = "Walker2d", iterations: int = 1, **overrides: Any) -> dict[str, float]:
     """Seconds per training iteration (N=4 domains x 1024 steps by default) of joint, params_avg and kl_avg.
 
     The first iteration of each learner is a warm-up and not timed (``iterations`` are timed after it).
