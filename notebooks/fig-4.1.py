@@ -41,8 +41,16 @@ for j, cond in enumerate(conds):
     sub = curves[curves["panel"] == cond["panel"]]
     for i, metric in enumerate(["return", "length"]):
         ax = axes[i, j]
-        sns.lineplot(data=sub, x="iteration", y=metric, hue="algo", hue_order=settings["algos"], ax=ax,
-                     errorbar="sd", legend=(i == 0 and j == 0))
+        sns.lineplot(
+            data=sub,
+            x="iteration",
+            y=metric,
+            hue="algo",
+            hue_order=settings["algos"],
+            ax=ax,
+            errorbar="sd",
+            legend=(i == 0 and j == 0),
+        )
         ax.set_title(f"({cond['panel']}) {ex.label(cond)}" if i == 0 else "")
         ax.set_ylabel(f"episode {metric} (reproduced)")
 fig.suptitle(f"Fig 4.1 reproduced — {settings['env']}, scale={SCALE}, {settings['train_seeds']} seed(s)")
@@ -62,8 +70,10 @@ table = ex.compare(late, "return")
 print(table)
 lines, holds = ex.verdict(table, easy=("a",))
 print("\n".join(lines))
-print(f"Conclusion (reproduced, scale={SCALE}, {n_it} iterations x {settings['train_seeds']} seed(s)): the thesis "
-      f"claim that kl_avg matches the baselines in the easy condition and beats them in the harder ones "
-      f"{'HOLDS' if holds else 'does NOT hold'} here.")
+print(
+    f"Conclusion (reproduced, scale={SCALE}, {n_it} iterations x {settings['train_seeds']} seed(s)): the thesis "
+    f"claim that kl_avg matches the baselines in the easy condition and beats them in the harder ones "
+    f"{'HOLDS' if holds else 'does NOT hold'} here."
+)
 if SCALE != "full":
     print("Note: at this scale training is far shorter than the thesis's, so this is not a test of the claim.")

@@ -33,8 +33,9 @@ settings = figure_settings("4.2", SCALE)
 conds = ex.conditions("4.2", settings["panels"])
 cond = conds[0]
 runs = ex.train_runs(settings, settings["algos"], conds, n_jobs=settings["n_jobs"])
-runs["final_return"] = [float(np.nanmean(r["ep_return"][-3:])) if np.isfinite(r["ep_return"]).any() else -np.inf
-                        for r in runs["result"]]
+runs["final_return"] = [
+    float(np.nanmean(r["ep_return"][-3:])) if np.isfinite(r["ep_return"]).any() else -np.inf for r in runs["result"]
+]
 best = runs.loc[runs.groupby("algo")["final_return"].idxmax()].set_index("algo")
 best[["seed", "final_return"]]
 
@@ -42,8 +43,9 @@ best[["seed", "final_return"]]
 algos = settings["algos"]
 fig, axes = plt.subplots(len(algos), 5, figsize=(15, 2.6 * len(algos)), squeeze=False)
 for i, algo in enumerate(algos):
-    frames, idx = ex.render_cycle(best.loc[algo, "result"], settings["env"], cond["c_a"], n_frames=5,
-                                  steps=settings["render_steps"])
+    frames, idx = ex.render_cycle(
+        best.loc[algo, "result"], settings["env"], cond["c_a"], n_frames=5, steps=settings["render_steps"]
+    )
     for j, (frame, step) in enumerate(zip(frames, idx, strict=True)):
         axes[i, j].imshow(frame)
         axes[i, j].set_axis_off()
@@ -59,11 +61,14 @@ print("saved", out)
 # "More natural" cannot be computed; we report the testing return at ξ = 0 of the best seeds.
 
 # %%
-ev = ex.evaluate_runs(runs.set_index("algo").loc[algos].reset_index(), "wind", [0.0], settings["test_rollouts"],
-                      n_jobs=settings["n_jobs"])
+ev = ex.evaluate_runs(
+    runs.set_index("algo").loc[algos].reset_index(), "wind", [0.0], settings["test_rollouts"], n_jobs=settings["n_jobs"]
+)
 ev = ev.merge(best[["seed"]].reset_index(), on=["algo", "seed"])
 print(ev[["algo", "seed", "return"]])
 r = ev.set_index("algo")["return"]
-print(f"Conclusion (reproduced, scale={SCALE}): at ξ = 0 the best kl_avg policy returns {r['kl_avg']:.1f} vs "
-      f"params_avg {r['params_avg']:.1f}; the gait-naturalness claim is visual only and is "
-      f"{'consistent with' if r['kl_avg'] >= r['params_avg'] else 'NOT supported by'} this return comparison.")
+print(
+    f"Conclusion (reproduced, scale={SCALE}): at ξ = 0 the best kl_avg policy returns {r['kl_avg']:.1f} vs "
+    f"params_avg {r['params_avg']:.1f}; the gait-naturalness claim is visual only and is "
+    f"{'consistent with' if r['kl_avg'] >= r['params_avg'] else 'NOT supported by'} this return comparison."
+)

@@ -36,8 +36,16 @@ wind["source"] = "reproduced"
 fig, axes = plt.subplots(1, len(conds), figsize=(4 * len(conds), 3.5), sharey=True, squeeze=False)
 for j, cond in enumerate(conds):
     ax = axes[0, j]
-    sns.lineplot(data=wind[wind["panel"] == cond["panel"]], x="value", y="return", hue="algo",
-                 hue_order=settings["algos"], marker="o", ax=ax, legend=(j == 0))
+    sns.lineplot(
+        data=wind[wind["panel"] == cond["panel"]],
+        x="value",
+        y="return",
+        hue="algo",
+        hue_order=settings["algos"],
+        marker="o",
+        ax=ax,
+        legend=(j == 0),
+    )
     ax.axvspan(*cond["wind"], color="grey", alpha=0.15)
     ax.set_title(f"({cond['panel']}) {ex.label(cond)}")
     ax.set_xlabel("testing wind ξ")
@@ -57,5 +65,7 @@ table = ex.compare(wind, "return")
 print(table)
 lines, holds = ex.verdict(table, easy=("a",), what="mean testing return over winds")
 print("\n".join(lines))
-print(f"Conclusion (reproduced, scale={SCALE}): kl_avg generalising better across wind speeds in the harder "
-      f"conditions {'HOLDS' if holds else 'does NOT hold'} here.")
+print(
+    f"Conclusion (reproduced, scale={SCALE}): kl_avg generalising better across wind speeds in the harder "
+    f"conditions {'HOLDS' if holds else 'does NOT hold'} here."
+)

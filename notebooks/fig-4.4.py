@@ -31,8 +31,9 @@ settings = figure_settings("4.4", SCALE)
 conds = ex.conditions("4.4", settings["panels"])
 runs = ex.train_runs(settings, settings["algos"], conds, n_jobs=settings["n_jobs"])
 wind = ex.evaluate_runs(runs, "wind", settings["winds"], settings["test_rollouts"], n_jobs=settings["n_jobs"])
-grid = [{"body_mass": m, "friction": f} for m, f in itertools.product(settings["mass_ratios"],
-                                                                      settings["friction_ratios"])]
+grid = [
+    {"body_mass": m, "friction": f} for m, f in itertools.product(settings["mass_ratios"], settings["friction_ratios"])
+]
 heat = ex.evaluate_runs(runs, "shift", grid, settings["test_rollouts"], n_jobs=settings["n_jobs"])
 wind["source"] = heat["source"] = "reproduced"
 
@@ -46,8 +47,13 @@ axes[0].set_xlabel("testing wind ξ")
 axes[0].set_ylabel("testing return (reproduced)")
 vmin, vmax = heat["return"].min(), heat["return"].max()
 for i, algo in enumerate(algos):
-    mat = (heat[heat["algo"] == algo].groupby(["mass", "friction"])["return"].mean().unstack("friction")
-           .sort_index(ascending=False))
+    mat = (
+        heat[heat["algo"] == algo]
+        .groupby(["mass", "friction"])["return"]
+        .mean()
+        .unstack("friction")
+        .sort_index(ascending=False)
+    )
     sns.heatmap(mat, ax=axes[1 + i], vmin=vmin, vmax=vmax, cmap="viridis", cbar=(i == len(algos) - 1))
     axes[1 + i].set_title(f"(b) {algo}")
     axes[1 + i].set_xlabel("friction ratio")
@@ -66,6 +72,8 @@ off = heat[~(np.isclose(heat["mass"], 1.0) & np.isclose(heat["friction"], 1.0))]
 lines_a, holds_a = ex.verdict(ex.compare(wind, "return"), easy=(), what="mean return over winds")
 lines_b, holds_b = ex.verdict(ex.compare(off, "return"), easy=(), what="mean off-centre return")
 print("\n".join(["(a) " + s for s in lines_a] + ["(b) " + s for s in lines_b]))
-print(f"Conclusion (reproduced, scale={SCALE}): on Hopper kl_avg is more robust to wind "
-      f"{'(HOLDS)' if holds_a else '(does NOT hold)'} and to mass/friction changes "
-      f"{'(HOLDS)' if holds_b else '(does NOT hold)'}.")
+print(
+    f"Conclusion (reproduced, scale={SCALE}): on Hopper kl_avg is more robust to wind "
+    f"{'(HOLDS)' if holds_a else '(does NOT hold)'} and to mass/friction changes "
+    f"{'(HOLDS)' if holds_b else '(does NOT hold)'}."
+)

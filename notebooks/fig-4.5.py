@@ -31,8 +31,9 @@ from thesis_repro.scales import figure_settings
 settings = figure_settings("4.5", SCALE)
 conds = ex.conditions("4.5", settings["panels"])
 runs = ex.train_runs(settings, settings["algos"], conds, n_jobs=settings["n_jobs"])
-grid = [{"body_mass": m, "friction": f} for m, f in itertools.product(settings["mass_ratios"],
-                                                                      settings["friction_ratios"])]
+grid = [
+    {"body_mass": m, "friction": f} for m, f in itertools.product(settings["mass_ratios"], settings["friction_ratios"])
+]
 heat = ex.evaluate_runs(runs, "shift", grid, settings["test_rollouts"], n_jobs=settings["n_jobs"])
 heat["source"] = "reproduced"
 
@@ -64,5 +65,7 @@ table = ex.compare(off, "return")
 print(table)
 lines, holds = ex.verdict(table, easy=(), what="mean off-centre return")
 print("\n".join(lines))
-print(f"Conclusion (reproduced, scale={SCALE}): kl_avg being the most robust to mass/friction changes "
-      f"{'HOLDS' if holds else 'does NOT hold'} in every condition here.")
+print(
+    f"Conclusion (reproduced, scale={SCALE}): kl_avg being the most robust to mass/friction changes "
+    f"{'HOLDS' if holds else 'does NOT hold'} in every condition here."
+)

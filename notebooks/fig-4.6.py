@@ -30,8 +30,14 @@ from thesis_repro.scales import figure_settings
 settings = figure_settings("4.6", SCALE)
 conds = ex.conditions("4.6", settings["panels"])
 runs = ex.train_runs(settings, settings["algos"], conds, n_jobs=settings["n_jobs"])
-noise = pd.concat([ex.evaluate_runs(runs, kind, settings["sigmas"], settings["test_rollouts"],
-                                    n_jobs=settings["n_jobs"]).assign(noise=kind) for kind in ("obs", "act")])
+noise = pd.concat(
+    [
+        ex.evaluate_runs(runs, kind, settings["sigmas"], settings["test_rollouts"], n_jobs=settings["n_jobs"]).assign(
+            noise=kind
+        )
+        for kind in ("obs", "act")
+    ]
+)
 noise["source"] = "reproduced"
 
 # %%
@@ -40,8 +46,16 @@ for i, kind in enumerate(["obs", "act"]):
     for j, cond in enumerate(conds):
         ax = axes[i, j]
         sub = noise[(noise["noise"] == kind) & (noise["panel"] == cond["panel"])]
-        sns.lineplot(data=sub, x="value", y="return", hue="algo", hue_order=settings["algos"], marker="o", ax=ax,
-                     legend=(i == 0 and j == 0))
+        sns.lineplot(
+            data=sub,
+            x="value",
+            y="return",
+            hue="algo",
+            hue_order=settings["algos"],
+            marker="o",
+            ax=ax,
+            legend=(i == 0 and j == 0),
+        )
         ax.set_title(f"{kind} noise ({cond['panel']}) {ex.label(cond)}", fontsize=9)
         ax.set_xlabel("noise scale σ")
         ax.set_ylabel("testing return (reproduced)")
@@ -57,10 +71,12 @@ print("saved", out)
 
 # %%
 curve = noise.groupby(["noise", "panel", "algo", "value"])["return"].mean().reset_index()
-aucs = (curve.groupby(["noise", "panel", "algo"])
-        .apply(lambda g: float(auc(g.sort_values("value")["return"].to_numpy(), sorted(g["value"]))),
-               include_groups=False)
-        .rename("auc").reset_index())
+aucs = (
+    curve.groupby(["noise", "panel", "algo"])
+    .apply(lambda g: float(auc(g.sort_values("value")["return"].to_numpy(), sorted(g["value"]))), include_groups=False)
+    .rename("auc")
+    .reset_index()
+)
 holds_all = True
 for kind in ("obs", "act"):
     table = ex.compare(aucs[aucs["noise"] == kind], "auc")
@@ -68,5 +84,7 @@ for kind in ("obs", "act"):
     lines, holds = ex.verdict(table, easy=(), what=f"{kind}-noise AUC")
     print("\n".join(lines))
     holds_all &= holds
-print(f"Conclusion (reproduced, scale={SCALE}): kl_avg degrading more slowly under observation and action noise "
-      f"{'HOLDS' if holds_all else 'does NOT hold'} in every condition here.")
+print(
+    f"Conclusion (reproduced, scale={SCALE}): kl_avg degrading more slowly under observation and action noise "
+    f"{'HOLDS' if holds_all else 'does NOT hold'} in every condition here."
+)

@@ -33,8 +33,9 @@ curves["source"] = "reproduced"
 
 # %%
 fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-sns.lineplot(data=curves, x="iteration", y="entropy", hue="algo", hue_order=settings["algos"], errorbar="sd",
-             ax=axes[0])
+sns.lineplot(
+    data=curves, x="iteration", y="entropy", hue="algo", hue_order=settings["algos"], errorbar="sd", ax=axes[0]
+)
 axes[0].set_ylabel("policy entropy [nats] (reproduced)")
 axes[0].set_title(f"{ex.label(conds[0])}")
 kl = curves.dropna(subset=["kl_to_aggregate"])
@@ -56,5 +57,7 @@ table = ex.compare(final, "entropy")
 print(table)
 lines, holds = ex.verdict(table, easy=(), what="final entropy")
 print("\n".join(lines))
-print(f"Conclusion (reproduced, scale={SCALE}): kl_avg keeping the highest policy entropy "
-      f"{'HOLDS' if holds else 'does NOT hold'} here.")
+print(
+    f"Conclusion (reproduced, scale={SCALE}): kl_avg keeping the highest policy entropy "
+    f"{'HOLDS' if holds else 'does NOT hold'} here."
+)

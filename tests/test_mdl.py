@@ -165,8 +165,15 @@ def test_sb3_view_selects_actor_parameters():
 from thesis_repro.mdl import train as mt  # noqa: E402
 from thesis_repro.mdl.config import ALGORITHMS, mdl_config  # noqa: E402
 
-TINY = dict(n_domains=2, steps_per_domain=32, batch_size=32, max_episode_steps=20, n_epochs=2, wind=[-0.5, 0.5],
-            checkpoint_every=1)
+TINY = dict(
+    n_domains=2,
+    steps_per_domain=32,
+    batch_size=32,
+    max_episode_steps=20,
+    n_epochs=2,
+    wind=[-0.5, 0.5],
+    checkpoint_every=1,
+)
 
 
 def test_epopt_keeps_only_the_worst_epsilon_fraction():
@@ -231,8 +238,11 @@ def test_maml_gradient_is_taken_at_adapted_parameters_on_fresh_data():
         values, logp, ent = w.policy.evaluate_actions(data.observations, data.actions)
         assert torch.allclose(logp, data.old_log_prob, atol=1e-5)
         adv = (data.advantages - data.advantages.mean()) / (data.advantages.std() + 1e-8)
-        loss = -(adv * torch.exp(logp - data.old_log_prob)).mean() + cfg["vf_coef"] * torch.nn.functional.mse_loss(
-            data.returns, values.flatten()) - cfg["ent_coef"] * ent.mean()
+        loss = (
+            -(adv * torch.exp(logp - data.old_log_prob)).mean()
+            + cfg["vf_coef"] * torch.nn.functional.mse_loss(data.returns, values.flatten())
+            - cfg["ent_coef"] * ent.mean()
+        )
         loss.backward()
         for n, p in w.policy.named_parameters():
             assert torch.allclose(g[n], p.grad, atol=1e-5), n

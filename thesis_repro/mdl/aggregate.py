@@ -35,8 +35,13 @@ from thesis_repro.validation import check_nonneg
 DistFn = Callable[[nn.Module, Tensor], tuple[Tensor, Tensor]]
 
 #: SB3 ``ActorCriticPolicy`` parameter prefixes that shape the action distribution / the value.
-SB3_ACTOR_PREFIXES: tuple[str, ...] = ("features_extractor.", "pi_features_extractor.", "mlp_extractor.policy_net.",
-                                       "action_net.", "log_std")
+SB3_ACTOR_PREFIXES: tuple[str, ...] = (
+    "features_extractor.",
+    "pi_features_extractor.",
+    "mlp_extractor.policy_net.",
+    "action_net.",
+    "log_std",
+)
 SB3_CRITIC_PREFIXES: tuple[str, ...] = ("vf_features_extractor.", "mlp_extractor.value_net.", "value_net.")
 
 
@@ -48,8 +53,9 @@ class GaussianPolicy(nn.Module):
     ((5, 2), (5, 2))
     """
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: Sequence[int] = (64, 64), seed: int = 0,
-                 log_std_init: float = 0.0):
+    def __init__(
+        self, obs_dim: int, act_dim: int, hidden: Sequence[int] = (64, 64), seed: int = 0, log_std_init: float = 0.0
+    ):
         super().__init__()
         if obs_dim < 1 or act_dim < 1 or any(h < 1 for h in hidden):
             raise ValueError(f"dimensions must be >= 1, got obs_dim={obs_dim}, act_dim={act_dim}, hidden={hidden}")
@@ -203,8 +209,9 @@ def fisher_matrix(view: PolicyView, theta: Tensor, states: Tensor) -> Tensor:
 
 
 # ----------------------------------------------------------------------------------------- Eq 4.10/4.11
-def conjugate_gradient(avp: Callable[[Tensor], Tensor], b: Tensor, iters: int = 10,
-                       tol: float = 1e-10) -> tuple[Tensor, float]:
+def conjugate_gradient(
+    avp: Callable[[Tensor], Tensor], b: Tensor, iters: int = 10, tol: float = 1e-10
+) -> tuple[Tensor, float]:
     """Solve A x = b for symmetric positive (semi-)definite A given ``avp(v) = A v``; returns (x, ‖r‖)."""
     if iters < 1:
         raise ValueError(f"cg iters must be >= 1, got {iters}")
@@ -228,8 +235,15 @@ def conjugate_gradient(avp: Callable[[Tensor], Tensor], b: Tensor, iters: int = 
     return x, float(rr.sqrt())
 
 
-def kl_avg(view: PolicyView, thetas: Sequence[Tensor], states: Tensor, theta_old: Tensor | None = None,
-           cg_iters: int = 10, damping: float = 0.1, info: dict | None = None) -> Tensor:
+def kl_avg(
+    view: PolicyView,
+    thetas: Sequence[Tensor],
+    states: Tensor,
+    theta_old: Tensor | None = None,
+    cg_iters: int = 10,
+    damping: float = 0.1,
+    info: dict | None = None,
+) -> Tensor:
     """Eq 4.11: θ_new = θ_old + ḡ + [Σ I(θ_i) + λ·1]⁻¹ Σ I(θ_i)(g_i − ḡ), by CG with Fisher-vector products.
 
     g_i = θ_i − θ_old; the FIMs are estimated on ``states`` (the θ_old rollouts). θ_old cancels

@@ -42,8 +42,10 @@ def conditions(figure: str, panels: Sequence[str] | None = None) -> list[dict[st
         if unknown:
             raise ValueError(f"unknown panels {unknown} of figure {figure}; valid panels are: {list(rows['panel'])}")
         rows = rows[rows["panel"].isin(list(panels))]
-    return [{"panel": r.panel, "c_a": float(r.action_penalty), "wind": [float(r.wind_low), float(r.wind_high)]}
-            for r in rows.itertuples()]
+    return [
+        {"panel": r.panel, "c_a": float(r.action_penalty), "wind": [float(r.wind_low), float(r.wind_high)]}
+        for r in rows.itertuples()
+    ]
 
 
 def label(cond: dict[str, Any]) -> str:
@@ -54,12 +56,25 @@ def label(cond: dict[str, Any]) -> str:
 def run_config(settings: dict[str, Any], algo: str, cond: dict[str, Any], seed: int, env: str | None = None):
     """The training config of one run; depends only on the run's identity and the budget keys of ``settings``."""
     extra = {k: settings[k] for k in ("n_domains", "steps_per_domain") if k in settings}
-    return mdl_config(algo, env or settings["env"], seed, int(settings["timesteps"]), c_a=cond["c_a"],
-                      wind=list(cond["wind"]), max_episode_steps=settings["max_episode_steps"], **extra)
+    return mdl_config(
+        algo,
+        env or settings["env"],
+        seed,
+        int(settings["timesteps"]),
+        c_a=cond["c_a"],
+        wind=list(cond["wind"]),
+        max_episode_steps=settings["max_episode_steps"],
+        **extra,
+    )
 
 
-def train_runs(settings: dict[str, Any], algos: Sequence[str], conds: Sequence[dict[str, Any]],
-               env: str | None = None, n_jobs: int | None = None) -> pd.DataFrame:
+def train_runs(
+    settings: dict[str, Any],
+    algos: Sequence[str],
+    conds: Sequence[dict[str, Any]],
+    env: str | None = None,
+    n_jobs: int | None = None,
+) -> pd.DataFrame:
     """Train (or load) every (algo, condition, seed); one row per run with its config and cached result."""
     keys, jobs = [], []
     for cond in conds:
@@ -77,12 +92,22 @@ def curves_frame(runs: pd.DataFrame) -> pd.DataFrame:
     for row in runs.itertuples():
         r = row.result
         kl = np.asarray(r["kl"], dtype=float)
-        parts.append(pd.DataFrame({
-            "algo": row.algo, "panel": row.panel, "condition": row.condition, "seed": row.seed,
-            "iteration": r["iteration"], "timesteps": r["timesteps"], "return": r["ep_return"],
-            "length": r["ep_length"], "entropy": r["entropy"],
-            "kl_to_aggregate": np.nanmean(kl, axis=1) if np.isfinite(kl).any() else np.full(len(kl), np.nan),
-        }))
+        parts.append(
+            pd.DataFrame(
+                {
+                    "algo": row.algo,
+                    "panel": row.panel,
+                    "condition": row.condition,
+                    "seed": row.seed,
+                    "iteration": r["iteration"],
+                    "timesteps": r["timesteps"],
+                    "return": r["ep_return"],
+                    "length": r["ep_length"],
+                    "entropy": r["entropy"],
+                    "kl_to_aggregate": np.nanmean(kl, axis=1) if np.isfinite(kl).any() else np.full(len(kl), np.nan),
+                }
+            )
+        )
     return pd.concat(parts, ignore_index=True)
 
 
@@ -116,18 +141,36 @@ def evaluate_job(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
     return {"returns": out.returns, "lengths": out.lengths}
 
 
-def evaluate_runs(runs: pd.DataFrame, kind: str, values: Iterable[Any], n_rollouts: int, seed: int = 0,
-                  n_jobs: int | None = None) -> pd.DataFrame:
+def evaluate_runs(
+    runs: pd.DataFrame, kind: str, values: Iterable[Any], n_rollouts: int, seed: int = 0, n_jobs: int | None = None
+) -> pd.DataFrame:
     """Evaluate every run of ``runs`` under ``kind``; long frame with one row per (run, value) (mean return)."""
     values = list(values)
-    jobs = [Job(EVAL_FN, {"train": row.config, "kind": kind, "values": values, "n_rollouts": int(n_rollouts),
-                          "seed": seed, "c_a": row.config["c_a"]}) for row in runs.itertuples()]
+    jobs = [
+        Job(
+            EVAL_FN,
+            {
+                "train": row.config,
+                "kind": kind,
+                "values": values,
+                "n_rollouts": int(n_rollouts),
+                "seed": seed,
+                "c_a": row.config["c_a"],
+            },
+        )
+        for row in runs.itertuples()
+    ]
     results = run_jobs(jobs, n_jobs=n_jobs, desc=f"mdl eval {kind}")
     rows = []
     for row, res in zip(runs.itertuples(), results, strict=True):
         for v, ret in zip(values, np.asarray(res["returns"]), strict=True):
-            item = {"algo": row.algo, "panel": row.panel, "condition": row.condition, "seed": row.seed,
-                    "return": float(np.mean(ret))}
+            item = {
+                "algo": row.algo,
+                "panel": row.panel,
+                "condition": row.condition,
+                "seed": row.seed,
+                "return": float(np.mean(ret)),
+            }
             if kind == "shift":
                 item.update(mass=float(v["body_mass"]), friction=float(v["friction"]))
             else:
@@ -144,8 +187,9 @@ def compare(frame: pd.DataFrame, value: str, by: Sequence[str] = ("panel",), our
     return table
 
 
-def render_cycle(run_result: Any, env: str, c_a: float, n_frames: int = 5, steps: int = 300,
-                 seed: int = 0) -> tuple[list[np.ndarray], list[int]]:
+def render_cycle(
+    run_result: Any, env: str, c_a: float, n_frames: int = 5, steps: int = 300, seed: int = 0
+) -> tuple[list[np.ndarray], list[int]]:
     """Key frames of one gait cycle of the trained policy at ξ = 0, rendered offscreen (MUJOCO_GL=egl).
 
     The cycle period is the dominant period of the thigh-joint angle (FFT) over ``steps`` steps; the
@@ -180,8 +224,9 @@ def render_cycle(run_result: Any, env: str, c_a: float, n_frames: int = 5, steps
     return [frames[i] for i in idx], idx
 
 
-def verdict(table: pd.DataFrame, ours: str = "kl_avg", easy: Sequence[str] = ("a",), tol: float = 0.1,
-            what: str = "mean return") -> tuple[list[str], bool]:
+def verdict(
+    table: pd.DataFrame, ours: str = "kl_avg", easy: Sequence[str] = ("a",), tol: float = 0.1, what: str = "mean return"
+) -> tuple[list[str], bool]:
     """Sentences on the thesis's chapter-4 claim for a per-panel table of a higher-is-better metric.
 
     Claim: ``ours`` is similar (within ``tol`` relative to the best baseline) in the ``easy`` panels and
@@ -196,11 +241,14 @@ def verdict(table: pd.DataFrame, ours: str = "kl_avg", easy: Sequence[str] = ("a
         if panel in easy:
             good = mine >= base - tol * scale
             word = "similar or better" if good else "worse"
-            lines.append(f"panel {panel}: {ours} {what} {mine:.3g} vs best baseline {base:.3g} -> {word} "
-                         f"(thesis: similar)")
+            lines.append(
+                f"panel {panel}: {ours} {what} {mine:.3g} vs best baseline {base:.3g} -> {word} (thesis: similar)"
+            )
         else:
             good = mine > base
-            lines.append(f"panel {panel}: {ours} {what} {mine:.3g} vs best baseline {base:.3g} -> "
-                         f"{'better' if good else 'not better'} (thesis: better)")
+            lines.append(
+                f"panel {panel}: {ours} {what} {mine:.3g} vs best baseline {base:.3g} -> "
+                f"{'better' if good else 'not better'} (thesis: better)"
+            )
         ok &= good
     return lines, ok

@@ -181,30 +181,66 @@ class MultiDomainTrainer:
         for i in range(self.n):
 
             def make(i: int = i) -> Monitor:
-                env = make_mdl_env(cfg["env"], cfg["perturbation"], cfg["sigma"], c_a=cfg["c_a"], wind=wind,
-                                   max_episode_steps=cfg["max_episode_steps"], seed=seed * 1000 + i)
+                env = make_mdl_env(
+                    cfg["env"],
+                    cfg["perturbation"],
+                    cfg["sigma"],
+                    c_a=cfg["c_a"],
+                    wind=wind,
+                    max_episode_steps=cfg["max_episode_steps"],
+                    seed=seed * 1000 + i,
+                )
                 return Monitor(env)
 
-            venv = VecNormalize(DummyVecEnv([make]), norm_obs=bool(cfg["normalize_obs"]), norm_reward=False,
-                                clip_obs=float(cfg["clip_obs"]), gamma=float(cfg["gamma"]))
+            venv = VecNormalize(
+                DummyVecEnv([make]),
+                norm_obs=bool(cfg["normalize_obs"]),
+                norm_reward=False,
+                clip_obs=float(cfg["clip_obs"]),
+                gamma=float(cfg["gamma"]),
+            )
             if self.venvs:
                 venv.obs_rms = self.venvs[0].obs_rms  # one shared running-mean filter
             self.venvs.append(venv)
         meta = self.algo in ("ppo-maml-dg", "ppo-reptile-dg")
         worker_lr = float(cfg["inner_lr"]) if meta else float(cfg["learning_rate"])
-        kw = dict(batch_size=int(cfg["batch_size"]), gamma=float(cfg["gamma"]), gae_lambda=float(cfg["gae_lambda"]),
-                  clip_range=float(cfg["clip_range"]), ent_coef=float(cfg["ent_coef"]), vf_coef=float(cfg["vf_coef"]),
-                  max_grad_norm=float(cfg["max_grad_norm"]), device="cpu", verbose=0,
-                  policy_kwargs={"net_arch": {"pi": list(cfg["net_arch"]), "vf": list(cfg["net_arch"])},
-                                 "activation_fn": nn.Tanh})
-        self.main = PPO("MlpPolicy", self.venvs[0], n_steps=self.n * self.t, n_epochs=int(cfg["n_epochs"]),
-                        learning_rate=float(cfg["learning_rate"]), seed=seed, **kw)
+        kw = dict(
+            batch_size=int(cfg["batch_size"]),
+            gamma=float(cfg["gamma"]),
+            gae_lambda=float(cfg["gae_lambda"]),
+            clip_range=float(cfg["clip_range"]),
+            ent_coef=float(cfg["ent_coef"]),
+            vf_coef=float(cfg["vf_coef"]),
+            max_grad_norm=float(cfg["max_grad_norm"]),
+            device="cpu",
+            verbose=0,
+            policy_kwargs={
+                "net_arch": {"pi": list(cfg["net_arch"]), "vf": list(cfg["net_arch"])},
+                "activation_fn": nn.Tanh,
+            },
+        )
+        self.main = PPO(
+            "MlpPolicy",
+            self.venvs[0],
+            n_steps=self.n * self.t,
+            n_epochs=int(cfg["n_epochs"]),
+            learning_rate=float(cfg["learning_rate"]),
+            seed=seed,
+            **kw,
+        )
         self.main.set_logger(configure(None, []))
         self.workers: list[PPO] = []
         self.callbacks = []
         for i, venv in enumerate(self.venvs):
-            w = PPO("MlpPolicy", venv, n_steps=self.t, n_epochs=int(cfg["n_epochs"]), learning_rate=worker_lr,
-                    seed=seed * 1000 + i, **kw)
+            w = PPO(
+                "MlpPolicy",
+                venv,
+                n_steps=self.t,
+                n_epochs=int(cfg["n_epochs"]),
+                learning_rate=worker_lr,
+                seed=seed * 1000 + i,
+                **kw,
+            )
             _, cb = w._setup_learn(total_timesteps=10**12, callback=None, reset_num_timesteps=True)
             w.set_logger(configure(None, []))
             self.workers.append(w)
@@ -232,8 +268,8 @@ class MultiDomainTrainer:
         lens: list[int] = []
         for i, venv in enumerate(self.venvs):
             mon = _monitor(venv)
-            rets += mon.get_episode_rewards()[self._seen[i]:]
-            lens += mon.get_episode_lengths()[self._seen[i]:]
+            rets += mon.get_episode_rewards()[self._seen[i] :]
+            lens += mon.get_episode_lengths()[self._seen[i] :]
             self._seen[i] = len(mon.get_episode_rewards())
         return rets, lens
 
@@ -287,8 +323,15 @@ class MultiDomainTrainer:
                 params = dict(w.policy.named_parameters())
                 critics.append({n: params[n].detach().clone() for n in self.critic})
             if self.algo == "kl_avg":
-                new = agg.kl_avg(self.view, thetas, states, theta_old, cg_iters=int(self.cfg["cg_iters"]),
-                                 damping=float(self.cfg["damping"]), info=info)
+                new = agg.kl_avg(
+                    self.view,
+                    thetas,
+                    states,
+                    theta_old,
+                    cg_iters=int(self.cfg["cg_iters"]),
+                    damping=float(self.cfg["damping"]),
+                    info=info,
+                )
             else:
                 new = agg.params_avg(thetas)
             self.view.set_flat(new)
@@ -336,20 +379,30 @@ class MultiDomainTrainer:
             self._maml(row)
         rets, lens = self._new_episodes()
         self.iteration += 1
-        row.update(iteration=self.iteration, timesteps=self.timesteps, entropy=_entropy_of(self.main.policy),
-                   ep_return=float(np.mean(rets)) if rets else float("nan"),
-                   ep_length=float(np.mean(lens)) if lens else float("nan"), seconds=time.perf_counter() - t0)
+        row.update(
+            iteration=self.iteration,
+            timesteps=self.timesteps,
+            entropy=_entropy_of(self.main.policy),
+            ep_return=float(np.mean(rets)) if rets else float("nan"),
+            ep_length=float(np.mean(lens)) if lens else float("nan"),
+            seconds=time.perf_counter() - t0,
+        )
         self.rows.append(row)
         return row
 
     # -- checkpoint / artefacts
     def state(self) -> dict[str, Any]:
         return {
-            "iteration": self.iteration, "timesteps": self.timesteps, "rows": self.rows, "seen": self._seen,
-            "main": self.main.policy.state_dict(), "main_opt": self.main.policy.optimizer.state_dict(),
+            "iteration": self.iteration,
+            "timesteps": self.timesteps,
+            "rows": self.rows,
+            "seen": self._seen,
+            "main": self.main.policy.state_dict(),
+            "main_opt": self.main.policy.optimizer.state_dict(),
             "meta_opt": self.meta_opt.state_dict(),
             "workers": [(w.policy.state_dict(), w.policy.optimizer.state_dict()) for w in self.workers],
-            "obs_rms": pickle.dumps(self.venvs[0].obs_rms), "rng": self.rng.bit_generator.state,
+            "obs_rms": pickle.dumps(self.venvs[0].obs_rms),
+            "rng": self.rng.bit_generator.state,
         }
 
     def load_state(self, st: dict[str, Any]) -> None:
