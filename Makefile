@@ -1,5 +1,6 @@
 # thesis_repro: every target bootstraps .venv from this repo's own files on first use.
 SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -16,8 +17,8 @@ venv: $(STAMP)
 # torch==2.13.0 goes in first (a CPU wheel lies on these machines); the pin in pyproject keeps it there.
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install -q --disable-pip-version-check torch==2.13.0
-	$(BIN)/pip install -q --disable-pip-version-check -e ".[dev]"
+	$(BIN)/pip install -q --disable-pip-version-check torch==2.13.0 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	$(BIN)/pip install -q --disable-pip-version-check -e ".[dev]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
 	$(BIN)/python -m ipykernel install --sys-prefix --name python3 >/dev/null
 	touch $(STAMP)
 
@@ -39,7 +40,7 @@ book: $(STAMP)
 ## make test : unit tests + papermill smoke run of every notebook + book build at smoke scale
 test: $(STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
-	$(BIN)/python -m pytest -q; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests collected"; exit 1; fi; exit $$rc
+	$(BIN)/python -m pytest -q || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
 ## make bench : throughput benchmarks (batched evaluation, PPO training, ...), printed as ratios
 bench: $(STAMP)
