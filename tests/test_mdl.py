@@ -288,7 +288,8 @@ def test_train_job_curves_artefacts_and_resume(algo, tmp_path):
     assert np.isfinite(res["kl"]).all() == (algo in ("params_avg", "kl_avg"))
     if algo == "ppo-epopt":
         assert (res["kept_fraction"] < 1.0).all()
-    assert (tmp_path / "out" / "model.zip").exists() and (tmp_path / "out" / "vecnormalize.pkl").exists()
+    for name in ("model.zip", "vecnormalize.pkl", "policy.pth", "obs_norm.npz", "learner.json"):
+        assert (tmp_path / "out" / name).exists(), name
     act = mt.load_policy(tmp_path / "out")(np.zeros((4, 11)))
     assert act.shape == (4, 3) and np.abs(act).max() <= 1.0
     # resume: a checkpoint at the last iteration means nothing is left to do

@@ -421,9 +421,12 @@ class MultiDomainTrainer:
         self._seen = [0] * self.n
 
     def save(self, out: Path) -> None:
+        """Artefacts in the learners' format (``policy.pth``, ``obs_norm.npz``, ``learner.json``, ``model.zip``,
+        ``vecnormalize.pkl``), so ``thesis_repro.learners.load_policy`` loads these runs too."""
+        from thesis_repro.learners.train import save_artifacts
+
         out.mkdir(parents=True, exist_ok=True)
-        self.main.save(out / "model.zip")
-        self.venvs[0].save(str(out / "vecnormalize.pkl"))
+        save_artifacts(self.main, out, {"algorithm": self.algo, "class": "PPO", "env": self.cfg["env"]}, full=True)
 
     def close(self) -> None:
         for v in self.venvs:
@@ -467,10 +470,18 @@ def train_job(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
 
 
 def load_policy(result: Any):
-    """Deterministic batched policy ``obs[n, d] -> actions[n, a]`` of a finished :func:`train_job` result."""
+    """Deterministic batched policy ``obs[n, d] -> actions[n, a]`` of a finished :func:`train_job` result.
+
+    Delegates to ``thesis_repro.learners.load_policy`` (same artefact format); runs saved before that
+    format (only ``model.zip`` + ``vecnormalize.pkl``) are loaded through SB3 directly.
+    """
+    out = Path(result.out if hasattr(result, "out") else result)
+    if (out / "policy.pth").exists():
+        from thesis_repro.learners.policy import load_policy as _load
+
+        return _load(out)
     from thesis_repro.evaluation.score import sb3_policy
 
-    out = Path(result.out if hasattr(result, "out") else result)
     model = PPO.load(out / "model.zip", device="cpu")
     with open(out / "vecnormalize.pkl", "rb") as fh:
         vn = pickle.load(fh)
