@@ -276,7 +276,7 @@ def run_jobs(
             todo[job.key] = job
     bar = None
     if progress and todo:
-        from tqdm.auto import tqdm
+        from tqdm import tqdm
 
         bar = tqdm(total=len(todo), desc=f"{desc} ({len(jobs) - len(todo)} cached)")
     t0 = time.time()
