@@ -335,3 +335,15 @@ def test_joint_trains_on_chapter3_domain_randomisation():
         assert row["timesteps"] == 64 and not torch.allclose(tr.view.get_flat(), before)
     finally:
         tr.close()
+
+
+def test_line_search_never_worse_than_params_avg_on_true_kl():
+    view, states, t0, thetas = _setup(n=4, scale=0.1)
+
+    def total(t):
+        return sum(float(agg.mean_kl(view, ti, t, states)) for ti in thetas)
+
+    info: dict = {}
+    out = agg.kl_avg(view, thetas, states, t0, cg_iters=20, damping=0.01, info=info, line_search=True)
+    assert info["step_fraction"] in (1.0, 0.5, 0.25, 0.125, 0.0)
+    assert total(out) <= total(agg.params_avg(thetas)) + 1e-9

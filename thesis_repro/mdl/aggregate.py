@@ -243,32 +243,50 @@ def kl_avg(
     cg_iters: int = 10,
     damping: float = 0.1,
     info: dict | None = None,
+    line_search: bool = False,
 ) -> Tensor:
-    """Eq 4.11: θ_new = θ_old + ḡ + [Σ I(θ_i) + λ·1]⁻¹ Σ I(θ_i)(g_i − ḡ), by CG with Fisher-vector products.
+    """Eq 4.11: θ_new = θ_old + ḡ + [Ī + λ·1]⁻¹ (1/N) Σ I(θ_i)(g_i − ḡ), Ī = (1/N) Σ I(θ_i), by CG with FVPs.
 
-    g_i = θ_i − θ_old; the FIMs are estimated on ``states`` (the θ_old rollouts). θ_old cancels
-    (θ_old + ḡ = mean θ_i), so it only fixes the parametrisation of the correction, which the damping
-    λ ≥ 0 shrinks towards zero, i.e. towards :func:`params_avg` (λ → ∞ gives Eq 4.6 exactly). With λ = 0
-    and enough iterations this is Eq 4.10, the argmin of Σ_i (θ_i − θ)ᵀ I(θ_i) (θ_i − θ) (Eq 4.8).
-    ``info`` (if given) receives the CG residual norm.
+    g_i = θ_i − θ_old; the FIMs are estimated on ``states`` (the θ_old rollouts). Dividing both sides of
+    Eq 4.11 by N changes nothing at λ = 0; it makes the damping λ ≥ 0 act on the MEAN Fisher, like TRPO's
+    ``cg_damping`` (0.1, Appendix A). θ_old cancels (θ_old + ḡ = mean θ_i); λ shrinks the correction
+    towards zero, i.e. towards :func:`params_avg` (λ → ∞ gives Eq 4.6). With λ = 0 and enough iterations
+    this is Eq 4.10, the argmin of Σ_i (θ_i − θ)ᵀ I(θ_i) (θ_i − θ) (Eq 4.8).
+
+    ``line_search`` (off by default; not in the thesis) backtracks the correction (fractions 1, ½, ¼, ⅛, 0)
+    until the TRUE objective of Eq 4.7, Σ_i E_s KL(π_θi ‖ π_θ), is no larger than at the parameter mean.
+    ``info`` (if given) receives ``cg_residual`` and ``step_fraction``.
     """
     damping = check_nonneg(damping, "damping")
     if len(thetas) == 0:
         raise ValueError("kl_avg needs at least one sub-policy")
     thetas = [t.detach() for t in thetas]
+    n = len(thetas)
     mean = torch.stack(thetas).mean(0)
     base = mean if theta_old is None else theta_old.detach()
     gs = [t - base for t in thetas]
     gbar = mean - base
-    b = sum(fisher_vector_product(view, t, states, g - gbar) for t, g in zip(thetas, gs, strict=True))
+    b = sum(fisher_vector_product(view, t, states, g - gbar) for t, g in zip(thetas, gs, strict=True)) / n
 
     def avp(v: Tensor) -> Tensor:
-        return sum(fisher_vector_product(view, t, states, v) for t in thetas) + damping * v
+        return sum(fisher_vector_product(view, t, states, v) for t in thetas) / n + damping * v
 
     corr, res = conjugate_gradient(avp, b, cg_iters)  # type: ignore[arg-type]
+    frac = 1.0
+    if line_search:
+        with torch.no_grad():
+
+            def total(theta: Tensor) -> float:
+                return sum(float(mean_kl(view, t, theta, states)) for t in thetas)
+
+            ref = total(mean)
+            for frac in (1.0, 0.5, 0.25, 0.125, 0.0):
+                if frac == 0.0 or total(mean + frac * corr) <= ref:
+                    break
     if info is not None:
         info["cg_residual"] = res
-    return base + gbar + corr
+        info["step_fraction"] = frac
+    return base + gbar + frac * corr
 
 
 def kl_avg_dense(view: PolicyView, thetas: Sequence[Tensor], states: Tensor, damping: float = 0.0) -> Tensor:
@@ -277,6 +295,7 @@ def kl_avg_dense(view: PolicyView, thetas: Sequence[Tensor], states: Tensor, dam
     thetas = [t.detach().double() for t in thetas]
     mean = torch.stack(thetas).mean(0)
     fims = [fisher_matrix(view, t.float(), states).double() for t in thetas]
-    a = sum(fims) + damping * torch.eye(mean.numel(), dtype=torch.float64)
-    b = sum(f @ (t - mean) for f, t in zip(fims, thetas, strict=True))
+    n = len(thetas)
+    a = sum(fims) / n + damping * torch.eye(mean.numel(), dtype=torch.float64)
+    b = sum(f @ (t - mean) for f, t in zip(fims, thetas, strict=True)) / n
     return (mean + torch.linalg.solve(a, b)).float()

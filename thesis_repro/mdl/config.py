@@ -50,7 +50,9 @@ EXTRA: dict[str, dict[str, Any]] = {
     "ppo-maml-dg": {"inner_lr": 1.0e-3, "meta_lr": 1.0e-3, "inner_epochs": 1},
     "ppo-reptile-dg": {"inner_lr": 1.0e-3, "meta_lr": 1.0e-3, "inner_epochs": 1},
     "params_avg": {"aggregate_every_epoch": True},
-    "kl_avg": {"aggregate_every_epoch": True, "cg_iters": 10, "damping": 0.1, "fim_states": 1024},
+    # damping acts on the mean FIM (TRPO's cg_damping convention); line_search (not in the thesis) backtracks
+    # the Eq 4.11 correction until the true Eq 4.7 objective is no worse than at the parameter mean.
+    "kl_avg": {"aggregate_every_epoch": True, "cg_iters": 10, "damping": 0.1, "fim_states": 1024, "line_search": False},
 }
 
 

@@ -331,6 +331,7 @@ class MultiDomainTrainer:
                     cg_iters=int(self.cfg["cg_iters"]),
                     damping=float(self.cfg["damping"]),
                     info=info,
+                    line_search=bool(self.cfg["line_search"]),
                 )
             else:
                 new = agg.params_avg(thetas)
@@ -343,6 +344,7 @@ class MultiDomainTrainer:
         with torch.no_grad():
             row["kl"] = [float(agg.mean_kl(self.view, t, new, states)) for t in thetas]
         row["cg_residual"] = float(info.get("cg_residual", float("nan")))
+        row["step_fraction"] = float(info.get("step_fraction", float("nan")))
 
     def _reptile(self, row: dict[str, Any]) -> None:
         current = {k: v.clone() for k, v in self.main.policy.state_dict().items()}
@@ -368,7 +370,12 @@ class MultiDomainTrainer:
     def iterate(self) -> dict[str, Any]:
         """One training iteration; returns its log row (timesteps, returns, lengths, entropy, kl, ...)."""
         t0 = time.perf_counter()
-        row: dict[str, Any] = {"kl": [float("nan")] * self.n, "cg_residual": float("nan"), "kept_fraction": 1.0}
+        row: dict[str, Any] = {
+            "kl": [float("nan")] * self.n,
+            "cg_residual": float("nan"),
+            "step_fraction": float("nan"),
+            "kept_fraction": 1.0,
+        }
         if self.algo in ("joint", "ppo-epopt"):
             self._joint(row)
         elif self.algo in ("params_avg", "kl_avg"):
@@ -435,8 +442,18 @@ class MultiDomainTrainer:
 
 def curves(rows: list[dict[str, Any]]) -> dict[str, np.ndarray]:
     """Training-curve arrays from the log rows (``kl`` is iterations × domains)."""
-    keys = ("iteration", "timesteps", "ep_return", "ep_length", "entropy", "cg_residual", "kept_fraction", "seconds")
-    out = {k: np.array([r[k] for r in rows], dtype=float) for k in keys}
+    keys = (
+        "iteration",
+        "timesteps",
+        "ep_return",
+        "ep_length",
+        "entropy",
+        "cg_residual",
+        "step_fraction",
+        "kept_fraction",
+        "seconds",
+    )
+    out = {k: np.array([r.get(k, np.nan) for r in rows], dtype=float) for k in keys}
     out["kl"] = np.array([r["kl"] for r in rows], dtype=float)
     return out
 
