@@ -21,7 +21,9 @@
 # on s and on L (Algorithm 5 machinery; ELLA's own second-order updates need a gradient model that
 # CMA-ES policy search does not have). The closed-loop competitors run in the same simulator through an
 # adapter (`closed_loop_simulate`). Settings are shared with Fig 5.4, so the tensor runs are reused.
-# No numbers of this figure were transcribed (plot only): we compare against the claims.
+# No numbers of this figure were transcribed (plot only): we compare against the claims. Caveat: CMA-ES
+# uses the same σ0 for every policy class, so the competitors' input/output scalings (our choice, see
+# `ClosedLoopPolicy`) set their effective exploration; the thesis does not give its scalings.
 
 # %% tags=["parameters"]
 SCALE = "small"
