@@ -75,5 +75,4 @@ print(
     f"claim that kl_avg matches the baselines in the easy condition and beats them in the harder ones "
     f"{'HOLDS' if holds else 'does NOT hold'} here."
 )
-if SCALE != "full":
-    print("Note: at this scale training is far shorter than the thesis's, so this is not a test of the claim.")
+print(ex.caveat(settings))

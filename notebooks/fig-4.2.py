@@ -72,3 +72,4 @@ print(
     f"params_avg {r['params_avg']:.1f}; the gait-naturalness claim is visual only and is "
     f"{'consistent with' if r['kl_avg'] >= r['params_avg'] else 'NOT supported by'} this return comparison."
 )
+print(ex.caveat(settings))

@@ -69,3 +69,4 @@ print(
     f"Conclusion (reproduced, scale={SCALE}): kl_avg generalising better across wind speeds in the harder "
     f"conditions {'HOLDS' if holds else 'does NOT hold'} here."
 )
+print(ex.caveat(settings))

@@ -77,3 +77,4 @@ print(
     f"{'(HOLDS)' if holds_a else '(does NOT hold)'} and to mass/friction changes "
     f"{'(HOLDS)' if holds_b else '(does NOT hold)'}."
 )
+print(ex.caveat(settings))

@@ -69,3 +69,4 @@ print(
     f"Conclusion (reproduced, scale={SCALE}): kl_avg being the most robust to mass/friction changes "
     f"{'HOLDS' if holds else 'does NOT hold'} in every condition here."
 )
+print(ex.caveat(settings))

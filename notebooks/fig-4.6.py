@@ -88,3 +88,4 @@ print(
     f"Conclusion (reproduced, scale={SCALE}): kl_avg degrading more slowly under observation and action noise "
     f"{'HOLDS' if holds_all else 'does NOT hold'} in every condition here."
 )
+print(ex.caveat(settings))

@@ -61,3 +61,4 @@ print(
     f"Conclusion (reproduced, scale={SCALE}): kl_avg keeping the highest policy entropy "
     f"{'HOLDS' if holds else 'does NOT hold'} here."
 )
+print(ex.caveat(settings))

@@ -252,3 +252,15 @@ def verdict(
             )
         ok &= good
     return lines, ok
+
+
+def caveat(settings: dict[str, Any]) -> str:
+    """The honest fine print of a run: budget vs the thesis's, and seeds."""
+    it = int(settings["timesteps"]) // (int(settings.get("n_domains", 4)) * int(settings.get("steps_per_domain", 1024)))
+    text = (
+        f"Scale {settings['scale']}: {int(settings['timesteps'])} env steps (~{it} iterations) per run vs 4e6 in the "
+        f"thesis, {settings['train_seeds']} training seed(s) vs 6."
+    )
+    if int(settings["train_seeds"]) < 3:
+        text += " With so few seeds there are no error bars: small differences are not evidence either way."
+    return text
