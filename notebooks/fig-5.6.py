@@ -87,5 +87,18 @@ verdict = "reproduced" if cl_better else "NOT reproduced"
 print(f"curriculum beats no curriculum (lower cost and higher success): {verdict} at scale {SCALE!r}")
 print(f"curriculum solves BIC (final success >= 50 %): {'reproduced' if cl_solves else 'NOT reproduced'} "
       f"at scale {SCALE!r}")
+for r, res in zip(rows, results, strict=True):
+    stages = [k[len("pretrain_") : -len("_curve")] for k in res if k.startswith("pretrain_") and k.endswith("_curve")]
+    text = ", ".join(
+        f"{s}: cost {res[f'pretrain_{s}_curve'][-1]:.2f}, population success {res[f'pretrain_{s}_success'][-1]:.2f}"
+        for s in stages
+    )
+    print(f"reproduced pre-training, {r['condition']} seed {r['seed']} (end of each stage): {text}")
+nc_pre = [float(res["pretrain_bic_success"][-1]) for r, res in zip(rows, results, strict=True)
+          if r["condition"] == "NC"]
+if sum(nc_pre) / len(nc_pre) > 0.1:
+    print(f"Note (reproduced): without curriculum, MTL on BIC alone already reaches a population success rate of "
+          f"{sum(nc_pre) / len(nc_pre):.2f} during pre-training, i.e. in this simulator BIC is learnable from "
+          "scratch with the thesis's cost, which the thesis's premise (NC fails) assumes it is not.")
 if SCALE == "smoke":
     print("(smoke scale exercises the plumbing only; its numbers are meaningless)")
