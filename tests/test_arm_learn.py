@@ -221,3 +221,20 @@ def test_curriculum_job_shapes_and_conditions():
     assert "pretrain_reach_curve" in out or "pretrain_bic_curve" in out
     with pytest.raises(ValueError, match="'CL', 'NC'"):
         curriculum.curriculum_job({**cfg, "condition": "random"})
+
+
+def test_source_and_target_jobs_through_the_run_cache():
+    from thesis_repro.cache import Job, RunCache
+
+    src = learn.source_config("reach", n_tasks=3, generations=4, mtl_generations=3, popsize=6, ranks=[4, 2, 3])
+    assert src["sim_version"] >= 1 and src["algo_version"] == learn.ALGO_VERSION
+    res = RunCache().run(Job("thesis_repro.arm.learn:source_job", src))
+    assert res["W"].shape == (3, 12, 2) and res["tasks"].shape == (3, 2)
+    assert np.all(res["cost"] <= res["stage1_cost"] + 1e-9)  # MTL refinement is kept only where it helps
+    tgt = {"source": src, "target": "bic", "strategy": "tensor", "n_targets": 2, "rounds": 1,
+           "phase_generations": 2, "popsize": 5, "ranks": [4, 2, 3]}
+    out = RunCache().run(Job("thesis_repro.arm.baselines:target_job", tgt))
+    assert out["curve"].shape == (2, 4) and 0.0 <= out["success_rate"] <= 1.0
+    assert RunCache().run(Job("thesis_repro.arm.learn:source_job", src)).from_cache
+    with pytest.raises(ValueError, match="unknown source setting"):
+        learn.source_config("reach", n_task=3)
