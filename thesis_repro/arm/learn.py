@@ -12,11 +12,12 @@ Learning curves are arrays ``(n, generations)`` of the mean task cost of each ge
 Source tasks. The thesis learned its source tasks "with supervised demonstration followed by MTL RL
 refinement". We have no demonstrations, so the automatic equivalent used here is:
 
-1. per source task, CMA-ES from a zero policy with the shaped cost of the family
-   (``simulate(..., config={"shaped": True})`` if the simulator offers one, else the task cost),
+1. per source task, CMA-ES (σ0 = ``sigma``, 0.1 by default) from the zero-trajectory policy on the
+   simulator's shaped cost (``ArmConfig(shaped=True)``: Eq 5.12 + a dense ball-to-target distance term),
 2. the Tucker factors of the stacked solutions (HOSVD, Algorithm 4) as the MTL initial condition,
 3. constructive MTL refinement: CMA-ES on the flat vector of (G, U1, U2, U3) for all source tasks at
-   once, cost = mean task cost + ``l1 * |U3|_1 + l2 * (|G|² + |U1|² + |U2|²)``.
+   once, cost = mean shaped cost + ``l1 * |U3|_1 + l2 * (|G|² + |U1|² + |U2|²)``; a task keeps its
+   refined policy only if that is not worse than its stage-1 policy.
 
 >>> import numpy as np
 >>> res = cma_lockstep(lambda X: ((X - 1.0) ** 2).sum(-1), np.zeros((3, 4)), 0.5, generations=60, seed=1)
