@@ -176,7 +176,8 @@ class AlternateResult:
         return self.popsize * self.curve.sum(axis=1)
 
 
-#: ``objective(W (n, pop, D, A)) -> (cost, success)`` each (n, pop): task cost of each rollout.
+#: ``objective(W (n, pop, D, A))`` -> ``(cost, success)`` or ``(fitness, cost, success)``, each (n, pop):
+#: the optimised fitness (e.g. a shaped cost), the task cost recorded in the curves, and 0/1 success.
 Objective = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
@@ -198,7 +199,8 @@ def alternate(
 
     ``s`` starts at the coordinates of a random source task per target (+ ``init_noise`` Gaussian);
     ``L`` starts at the transferred subspace. Each phase runs ``generations`` CMA-ES generations; the
-    fitness is the task cost + ``l2 * |W|²`` (L2 on the output weights), the curves record the task cost.
+    fitness is the objective's fitness + ``l2 * |W|²`` (L2 on the output weights), the curves record the
+    task cost. Each generation evaluates ``n × popsize`` policies in one ``objective`` call.
     """
     check_nonneg(l2, "l2")
     if rounds < 1:
@@ -227,8 +229,9 @@ def alternate(
 
             def evaluate(X: np.ndarray, decode=decode) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 W = decode(X)
-                cost, success = objective(W)
-                return cost + l2 * (W**2).sum(axis=(-2, -1)), cost, success
+                out = objective(W)
+                fit, cost, success = out if len(out) == 3 else (out[0], *out)
+                return fit + l2 * (W**2).sum(axis=(-2, -1)), cost, success
 
             res: CMAResult = cma_lockstep(
                 evaluate, x0, sigma, generations, popsize=pop, seed=seed * 1000 + 2 * r + (phase == "L")
