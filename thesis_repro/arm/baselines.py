@@ -342,7 +342,8 @@ def run_grid(settings: dict[str, Any], strategies: tuple[str, ...] | list[str], 
 
     ``summary``: one row per (source, target, strategy, seed) with ``success_rate`` and ``total_cost``
     (mean over target tasks). ``curves``: long format ``trials``, ``cost``, ``success`` (means over the
-    target tasks) per (source, target, strategy, seed).
+    target tasks) and ``cost_successful`` (mean over the targets that succeeded at the end, the thesis's
+    convention for Fig 5.4a; NaN if none) per (source, target, strategy, seed).
     """
     import pandas as pd
 
@@ -356,6 +357,8 @@ def run_grid(settings: dict[str, Any], strategies: tuple[str, ...] | list[str], 
         key = {k: row[k] for k in ("source", "target", "strategy", "seed")}
         summary.append({**key, "success_rate": res["success_rate"], "total_cost": res["mean_total_cost"],
                         "final_cost": float(np.mean(res["final_cost"])), "label": "reproduced"})
+        ok = np.asarray(res["final_success"]) > 0
+        cost_ok = res["curve"][ok].mean(0) if ok.any() else np.full(res["curve"].shape[1], np.nan)
         curves.append(pd.DataFrame({**key, "trials": res["trials"], "cost": res["curve"].mean(0),
-                                    "success": res["success_curve"].mean(0)}))
+                                    "cost_successful": cost_ok, "success": res["success_curve"].mean(0)}))
     return pd.DataFrame(summary), pd.concat(curves, ignore_index=True)
