@@ -27,9 +27,7 @@ simulator with ``a_t = controller(t, pos, vel)`` (see its docstring).
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
-from functools import cache
 from typing import Any
 
 import numpy as np
@@ -42,25 +40,6 @@ COMPETITORS: tuple[str, ...] = ("ella", "rbf-ella", "fcnn")
 STRATEGIES: tuple[str, ...] = TRANSFER + COMPETITORS
 POLICY_CLASSES: tuple[str, ...] = COMPETITORS
 
-_ACTION_LINE = "a = kp * (xd[:, t] - p) + kd * (vd[:, t] - v)"
-_SIGNATURE_END = "record: bool = False,\n) -> Rollout:"
-
-
-@cache
-def _patched_simulate() -> Callable[..., Any]:
-    from thesis_repro.arm import tasks
-
-    src = inspect.getsource(tasks.simulate)
-    if _ACTION_LINE not in src or _SIGNATURE_END not in src:
-        raise RuntimeError(
-            "closed_loop_simulate: tasks.simulate changed shape (its PD action line or signature was not found); "
-            "add a `controller` argument to tasks.simulate and use it here instead"
-        )
-    src = src.replace(_SIGNATURE_END, "record: bool = False,\n    controller=None,\n) -> Rollout:")
-    src = src.replace(_ACTION_LINE, f"a = controller(t, p, v) if controller is not None else ({_ACTION_LINE[4:]})")
-    namespace = dict(vars(tasks))
-    exec(compile(src, tasks.__file__, "exec"), namespace)  # noqa: S102 - the simulator's own source, one line changed
-    return namespace["simulate"]
 
 
 def closed_loop_simulate(
@@ -69,13 +48,13 @@ def closed_loop_simulate(
 ) -> Any:
     """``tasks.simulate`` with the action ``a_t = controller(t, pos (B, 2), vel (B, 2))`` for B rollouts.
 
-    Adapter: tasks.simulate has no controller hook, so this executes the simulator's own source with its
-    single PD-action line replaced (an equivalence test checks it matches ``simulate`` for a PD
-    controller). Everything else - physics, costs, success - is the simulator's.
+    Physics, costs and success are the simulator's (``tasks.simulate(..., controller=...)``).
     """
+    from thesis_repro.arm import tasks
+
     dummy = np.zeros((B, 3, 2))
     dummy[:, 1:] = 1.0
-    return _patched_simulate()(family, task_params, dummy, config=config, controller=controller)
+    return tasks.simulate(family, task_params, dummy, config=config, controller=controller)
 
 
 class ClosedLoopPolicy:

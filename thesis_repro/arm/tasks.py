@@ -58,6 +58,7 @@ always the thesis's cost.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -337,9 +338,14 @@ def simulate(
     policy: RBFPolicy | None = None,
     config: ArmConfig | dict[str, Any] | None = None,
     record: bool = False,
+    controller: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> Rollout:
     """Roll out B policies on B tasks together (rows of 1 broadcast): ``task_params`` (B, k) or (k,),
     ``W`` (B, D, A) or (D, A). Returns a :class:`Rollout` with cost and success per row.
+
+    ``controller(t, pos (B, A), vel (B, A)) -> acc (B, A)`` replaces the RBF-PD action of Eq 5.8 (for
+    closed-loop policy classes such as the ELLA/FCNN baselines); ``W`` then only sets B (pass any
+    ``(B, 3, A)`` array).
     """
     check_family(family)
     cfg = ArmConfig.make(config)
@@ -407,7 +413,7 @@ def simulate(
 
     substep = 0
     for t in range(T):
-        a = kp * (xd[:, t] - p) + kd * (vd[:, t] - v)
+        a = controller(t, p, v) if controller is not None else kp * (xd[:, t] - p) + kd * (vd[:, t] - v)
         action_cost += cfg.alpha * np.sqrt(_dot(a, a))
         if record:
             act_rec[:, t] = a  # the policy's output (the penalised action), before the actuator limit
