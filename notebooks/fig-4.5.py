@@ -40,12 +40,13 @@ heat["source"] = "reproduced"
 # %%
 algos = settings["algos"]
 fig, axes = plt.subplots(len(algos), len(conds), figsize=(3.2 * len(conds), 2.8 * len(algos)), squeeze=False)
-vmin, vmax = heat["return"].min(), heat["return"].max()
 for j, cond in enumerate(conds):
+    col = heat[heat["panel"] == cond["panel"]]  # one colour scale per training condition (column)
+    vmin, vmax = col["return"].min(), col["return"].max()
     for i, algo in enumerate(algos):
         sub = heat[(heat["panel"] == cond["panel"]) & (heat["algo"] == algo)]
         mat = sub.groupby(["mass", "friction"])["return"].mean().unstack("friction").sort_index(ascending=False)
-        sns.heatmap(mat, ax=axes[i, j], vmin=vmin, vmax=vmax, cbar=(j == len(conds) - 1), cmap="viridis")
+        sns.heatmap(mat, ax=axes[i, j], vmin=vmin, vmax=vmax, cbar=True, cmap="viridis")
         axes[i, j].set_title(f"{algo} ({cond['panel']})", fontsize=9)
         axes[i, j].set_xlabel("friction ratio")
         axes[i, j].set_ylabel("mass ratio")
