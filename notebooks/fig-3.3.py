@@ -95,6 +95,11 @@ wide.round(3)
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?
+#
+# How to read a failure at `small`: the thesis's correlations are between *converged* policies (4e6
+# steps). Early in training, training and testing performance rise together (the first phase of
+# Fig 3.2), so under-trained variants tend to give *positive* correlations; the verdict below is computed
+# from the numbers either way.
 
 # %%
 merged = ours.merge(thesis, on=["env", "test"], suffixes=("_reproduced", "_thesis"))
