@@ -14,8 +14,15 @@ from thesis_repro.mdl.aggregate import (
     mean_kl,
     params_avg,
 )
+from thesis_repro.mdl.config import ALGORITHMS, mdl_config
+from thesis_repro.mdl.train import MultiDomainTrainer, load_policy, train_job
 
 __all__ = [
+    "ALGORITHMS",
+    "MultiDomainTrainer",
+    "load_policy",
+    "mdl_config",
+    "train_job",
     "GaussianPolicy",
     "PolicyView",
     "fisher_matrix",
