@@ -1,6 +1,6 @@
 """Chapter-4 environments: Eq 4.12 reward with action-penalty c_a, per-episode wind, test shifts.
 
-Built from the kit's wrappers (:mod:`thesis_repro.envs`); only the ``ctrl_cost_weight`` of the v5 task
+A thin alias of :func:`thesis_repro.envs.make_env`; only the ``ctrl_cost_weight`` of the v5 task
 (= c_a of Eq 4.12: r = v + 1 − c_a‖a‖², the v5 Walker2d/Hopper reward with healthy bonus 1) and the
 ``wind`` range are added. The signature matches ``make_env`` so the batched evaluator can use it.
 
@@ -15,18 +15,10 @@ from collections.abc import Mapping, Sequence
 
 import gymnasium as gym
 
-from thesis_repro.envs import (
-    ActionNoise,
-    DomainShift,
-    EnvironmentNoise,
-    ObservationNoise,
-    SystematicShift,
-    Wind,
-    resolve_env,
-)
-from thesis_repro.validation import check_choice, check_nonneg
+from thesis_repro.envs import PERTURBATIONS, make_env
+from thesis_repro.validation import check_nonneg
 
-PERTURBATIONS: tuple[str, ...] = ("none", "obs", "act", "env", "dom")
+__all__ = ["PERTURBATIONS", "make_mdl_env"]
 
 
 def make_mdl_env(
@@ -47,41 +39,26 @@ def make_mdl_env(
     (testing). ``ratios``: fixed factor ratios (e.g. ``{"body_mass": 1.2, "friction": 0.8}``).
     ``perturbation``/``sigma`` as in :func:`thesis_repro.envs.make_env` (obs, act, env, dom noise).
     """
-    check_choice(perturbation, PERTURBATIONS, "perturbation")
-    sigma = check_nonneg(sigma, "sigma")
-    if wind is not None and perturbation in ("env", "dom"):
-        raise ValueError(f"perturbation {perturbation!r} already samples the wind factor; do not also give wind")
-    kwargs: dict = {"disable_env_checker": True}
+    env_kwargs: dict = {}
     if c_a is not None:
-        kwargs["ctrl_cost_weight"] = check_nonneg(c_a, "c_a")
-    if max_episode_steps is not None:
-        kwargs["max_episode_steps"] = int(max_episode_steps)
+        env_kwargs["ctrl_cost_weight"] = check_nonneg(c_a, "c_a")
     if render_mode is not None:
-        kwargs.update(render_mode=render_mode, width=480, height=320)
-    out: gym.Env = gym.make(resolve_env(env), **kwargs)
+        env_kwargs.update(render_mode=render_mode, width=480, height=320)
     fixed = dict(ratios or {})
+    wind_range = None
     if wind is not None and not isinstance(wind, int | float):
-        low, high = (float(w) for w in wind)
         if "wind" in fixed:
             raise ValueError("give the wind either as a range (wind=...) or as a fixed ratio, not both")
+        wind_range = tuple(float(w) for w in wind)
     elif wind is not None:
         fixed["wind"] = float(wind)
-        low = high = None
-    else:
-        low = high = None
-    if fixed:
-        out = SystematicShift(out, fixed)
-    if low is not None:
-        out = Wind(out, low, high)
-    if perturbation == "obs":
-        out = ObservationNoise(out, sigma)
-    elif perturbation == "act":
-        out = ActionNoise(out, sigma)
-    elif perturbation == "env":
-        out = EnvironmentNoise(out, sigma)
-    elif perturbation == "dom":
-        out = DomainShift(out, sigma)
-    if seed is not None:
-        out.action_space.seed(int(seed))
-        out.reset(seed=int(seed))
-    return out
+    return make_env(
+        env,
+        perturbation,
+        sigma,
+        ratios=fixed or None,
+        wind=wind_range,
+        max_episode_steps=max_episode_steps,
+        env_kwargs=env_kwargs,
+        seed=seed,
+    )
