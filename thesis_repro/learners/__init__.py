@@ -7,12 +7,25 @@ True
 >>> job = Job("thesis_repro.learners:train_job", train_config("ppo", "Hopper", seed=0, timesteps=20_000))
 """
 
-from thesis_repro.learners.config import ALGORITHMS, PERTURBATIONS, algorithms, hyperparams, train_config
+from thesis_repro.learners.config import (
+    ALGORITHMS,
+    MULTI_DOMAIN,
+    PERTURBATIONS,
+    algorithms,
+    hyperparams,
+    train_config,
+)
 from thesis_repro.learners.policy import Policy, load_policy, snapshots
 
 
 def train_job(config, workdir, **kwargs):  # noqa: ANN001,ANN201 - thin lazy alias, see learners.train.train_job
-    """Lazy alias of :func:`thesis_repro.learners.train.train_job` (keeps ``import learners`` light)."""
+    """Train one run: :func:`thesis_repro.learners.train.train_job`, or for the multi-domain learners
+    (``MULTI_DOMAIN``: joint, params_avg, kl_avg, ppo-epopt, ppo-maml-dg, ppo-reptile-dg)
+    :func:`thesis_repro.mdl.train.train_job`. Imports lazily (keeps ``import learners`` light)."""
+    if config.get("algorithm") in MULTI_DOMAIN:
+        from thesis_repro.mdl.train import train_job as _mdl_train_job
+
+        return _mdl_train_job(config, workdir, **kwargs)
     from thesis_repro.learners.train import train_job as _train_job
 
     return _train_job(config, workdir, **kwargs)
@@ -20,6 +33,7 @@ def train_job(config, workdir, **kwargs):  # noqa: ANN001,ANN201 - thin lazy ali
 
 __all__ = [
     "ALGORITHMS",
+    "MULTI_DOMAIN",
     "PERTURBATIONS",
     "Policy",
     "algorithms",

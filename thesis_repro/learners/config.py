@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from thesis_repro import paths
+from thesis_repro.mdl.config import ALGORITHMS as MDL_ALGORITHMS
 from thesis_repro.validation import check_choice, check_nonneg
 
 PERTURBATIONS: tuple[str, ...] = ("none", "obs", "act", "env", "dom")
@@ -67,7 +68,11 @@ def algorithms() -> tuple[str, ...]:
     return tuple(_raw())
 
 
-ALGORITHMS: tuple[str, ...] = algorithms()
+#: Multi-domain learners of chapter 4 / Table 3.7 (configs from :func:`thesis_repro.mdl.mdl_config`,
+#: trained by :func:`thesis_repro.mdl.train_job`); ``train_config``/``train_job`` dispatch to them.
+MULTI_DOMAIN: tuple[str, ...] = MDL_ALGORITHMS
+
+ALGORITHMS: tuple[str, ...] = algorithms() + MULTI_DOMAIN
 
 
 def hyperparams(algo: str) -> dict[str, Any]:
@@ -82,6 +87,11 @@ def train_config(algo: str, env: str, seed: int, timesteps: int, **overrides: An
     ``snapshot_every``, ``max_episode_steps``, ...) or any key of the entry's ``sb3`` block (``n_steps``,
     ``ent_coef``, ...). A name that exists nowhere is an error, so typos never pass silently.
     """
+    check_choice(algo, ALGORITHMS, "algorithm")
+    if algo in MULTI_DOMAIN:
+        from thesis_repro.mdl.config import mdl_config
+
+        return mdl_config(algo, env, seed, timesteps, **overrides)
     entry = hyperparams(algo)
     if isinstance(seed, bool) or int(seed) != seed or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
