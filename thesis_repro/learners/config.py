@@ -18,7 +18,6 @@ from typing import Any
 import yaml
 
 from thesis_repro import paths
-from thesis_repro.mdl.config import ALGORITHMS as MDL_ALGORITHMS
 from thesis_repro.validation import check_choice, check_nonneg
 
 PERTURBATIONS: tuple[str, ...] = ("none", "obs", "act", "env", "dom")
@@ -70,9 +69,9 @@ def algorithms() -> tuple[str, ...]:
 
 #: Multi-domain learners of chapter 4 / Table 3.7 (configs from :func:`thesis_repro.mdl.mdl_config`,
 #: trained by :func:`thesis_repro.mdl.train_job`); ``train_config``/``train_job`` dispatch to them.
-MULTI_DOMAIN: tuple[str, ...] = MDL_ALGORITHMS
+MULTI_DOMAIN: tuple[str, ...] = tuple(n for n in algorithms() if _resolve(n).get("class") == "MultiDomain")
 
-ALGORITHMS: tuple[str, ...] = algorithms() + MULTI_DOMAIN
+ALGORITHMS: tuple[str, ...] = algorithms()
 
 
 def hyperparams(algo: str) -> dict[str, Any]:
