@@ -37,10 +37,12 @@ smoke: $(STAMP)
 book: $(STAMP)
 	$(BIN)/python -m thesis_repro book --scale $(SCALE)
 
-## make test : unit tests + papermill smoke run of every notebook + book build at smoke scale
+## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale
 test: $(STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
-	$(BIN)/python -m pytest -q || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
+	tmp=$$(mktemp -d); export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build; \
+	$(BIN)/python -m pytest -q --doctest-modules tests thesis_repro \
+	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
 ## make bench : throughput benchmarks (batched evaluation, PPO training, ...), printed as ratios
 bench: $(STAMP)
