@@ -201,6 +201,22 @@ def _conditions(
     ]
 
 
+def _run(
+    policy: Policy,
+    conds: list[dict[str, Any]],
+    n_rollouts: int,
+    seed: int,
+    max_episode_steps: int,
+    n_envs: int,
+    make: EnvMaker | None,
+    return_lengths: bool,
+) -> Any:
+    """Run every condition for the testing seeds of ``seed``; returns or the full :class:`Rollouts`."""
+    ev = BatchedEvaluator(policy, make or default_make(), n_envs=n_envs, max_episode_steps=max_episode_steps)
+    out = ev.run(conds, test_seeds(seed, n_rollouts))
+    return out if return_lengths else out.returns
+
+
 def evaluate(
     policy: Policy,
     env: str,
@@ -226,9 +242,7 @@ def evaluate(
     """
     n_rollouts = _check_count(n_rollouts, "n_rollouts")
     conds = _conditions(env, perturbation, sigmas, max_episode_steps, env_kwargs)
-    ev = BatchedEvaluator(policy, make or default_make(), n_envs=n_envs, max_episode_steps=max_episode_steps)
-    out = ev.run(conds, test_seeds(seed, n_rollouts))
-    return out if return_lengths else out.returns
+    return _run(policy, conds, n_rollouts, seed, max_episode_steps, n_envs, make, return_lengths)
 
 
 def evaluate_shift(
@@ -254,6 +268,4 @@ def evaluate_shift(
         raise ValueError("ratios must not be empty")
     base = _conditions(env, "none", [0.0], max_episode_steps, env_kwargs)[0]
     conds = [{**base, "ratios": r} for r in ratios]
-    ev = BatchedEvaluator(policy, make or default_make(), n_envs=n_envs, max_episode_steps=max_episode_steps)
-    out = ev.run(conds, test_seeds(seed, n_rollouts))
-    return out if return_lengths else out.returns
+    return _run(policy, conds, n_rollouts, seed, max_episode_steps, n_envs, make, return_lengths)
