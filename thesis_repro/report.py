@@ -1,0 +1,115 @@
+"""Verdicts: one wording for "does the thesis's claim reproduce at this scale?", for every figure and table.
+
+A figure's ``verdict()`` (in :mod:`thesis_repro.figures`) returns :class:`Verdict` objects; the notebook
+ends with ``report(figure, scale, verdicts)``, which prints one line per claim (the terminal and the
+executed notebook), displays each as a visible admonition in the book, and writes
+``build/<scale>/figures/<figure>.verdicts.json`` for the chapter summaries and the book's scoreboard.
+
+>>> v = Verdict("3.3", "Training return and testing AUC are negatively correlated",
+...             REPRODUCES, "15/20 cells negative (thesis: 18/20)")
+>>> print(v)
+[3.3] REPRODUCES - Training return and testing AUC are negatively correlated: 15/20 cells negative (thesis: 18/20)
+>>> decide(None, "smoke").status
+'not judged at this scale'
+>>> Verdict("3.3", "claim", "maybe", "")  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+...
+ValueError: unknown verdict status 'maybe'; valid verdict statuss are: 'reproduces', ...
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from thesis_repro import paths
+from thesis_repro.validation import check_choice
+
+REPRODUCES = "reproduces"
+PARTLY = "partly reproduces"
+DOES_NOT = "does not reproduce"
+NOT_RUN = "not run at this scale"  # the scale cannot afford this item (e.g. an off-policy row at small)
+NOT_JUDGED = "not judged at this scale"  # smoke: numbers only exercise the plumbing
+STATUSES: tuple[str, ...] = (REPRODUCES, PARTLY, DOES_NOT, NOT_RUN, NOT_JUDGED)
+
+#: Admonition class of each status in the book (MyST ``{admonition}`` with a class).
+_STYLE = {REPRODUCES: "tip", PARTLY: "note", DOES_NOT: "warning", NOT_RUN: "seealso", NOT_JUDGED: "seealso"}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One thesis claim judged from the kit's own numbers (``evidence``: the numbers, thesis beside ours)."""
+
+    figure: str
+    claim: str
+    status: str
+    evidence: str = ""
+
+    def __post_init__(self) -> None:
+        check_choice(self.status, STATUSES, "verdict status")
+
+    def __str__(self) -> str:
+        tail = f": {self.evidence}" if self.evidence else ""
+        return f"[{self.figure}] {self.status.upper()} - {self.claim}{tail}"
+
+    def _repr_markdown_(self) -> str:
+        title = f"{self.status.capitalize()}: {self.claim}"
+        body = self.evidence or ""
+        return f"```{{admonition}} {title}\n:class: {_STYLE[self.status]}\n{body}\n```\n"
+
+
+def decide(holds: bool | None, scale: str, partly: bool = False) -> Verdict:
+    """Status for a claim test: ``holds`` True/False, ``partly`` for a mixed outcome, None = not judged.
+
+    Smoke numbers are never judged. Returns a placeholder Verdict whose ``status`` field is the answer.
+    """
+    if scale == "smoke" or holds is None:
+        status = NOT_JUDGED
+    elif holds:
+        status = REPRODUCES
+    else:
+        status = PARTLY if partly else DOES_NOT
+    return Verdict("", "", status)
+
+
+def status(holds: bool | None, scale: str, partly: bool = False) -> str:
+    """The status string of :func:`decide`."""
+    return decide(holds, scale, partly).status
+
+
+def verdicts_path(figure: str, scale: str) -> Path:
+    """``build/<scale>/figures/<figure>.verdicts.json`` (``figure`` like ``fig-3.3`` or ``table-3.4``)."""
+    return paths.figures(scale) / f"{figure}.verdicts.json"
+
+
+def report(figure: str, scale: str, verdicts: Sequence[Verdict], display: bool = True) -> Path:
+    """Print, display (in a notebook) and save the verdicts of one figure run; returns the JSON path."""
+    for v in verdicts:
+        print(v)
+    if display:
+        try:
+            from IPython import get_ipython
+            from IPython.display import Markdown
+            from IPython.display import display as show
+
+            if get_ipython() is not None:
+                for v in verdicts:
+                    show(Markdown(v._repr_markdown_()))
+        except ImportError:  # pragma: no cover - IPython ships with the kit
+            pass
+    out = verdicts_path(figure, scale)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"figure": figure, "scale": scale, "verdicts": [asdict(v) for v in verdicts]}, indent=1))
+    tmp.replace(out)
+    return out
+
+
+def load(figure: str, scale: str) -> list[Verdict]:
+    """Verdicts saved by :func:`report` (empty if the figure was not run at ``scale``)."""
+    p = verdicts_path(figure, scale)
+    if not p.exists():
+        return []
+    return [Verdict(**v) for v in json.loads(p.read_text())["verdicts"]]
