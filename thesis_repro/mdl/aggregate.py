@@ -178,6 +178,33 @@ def mean_kl(view: PolicyView, theta_p: Tensor, theta_q: Tensor, states: Tensor) 
     return gaussian_kl(*view.dist(theta_p, states), *view.dist(theta_q, states)).mean()
 
 
+def eq47_kls(view: PolicyView, theta: Tensor, thetas: Sequence[Tensor], states: Tensor) -> Tensor:
+    """Per-sub-policy terms of Eq 4.7: ``[E_s KL(π_θi(·|s) ‖ π_θ(·|s)) for θ_i in thetas]``, shape (N,).
+
+    The thesis's direction: the sub-policy π_θi first, the aggregate π_θ second (Eq 4.7, 4.9).
+
+    >>> view = PolicyView(GaussianPolicy(2, 1, hidden=(3,)))
+    >>> t = view.get_flat()
+    >>> eq47_kls(view, t, [t, t + 0.1], torch.zeros(4, 2)).shape
+    torch.Size([2])
+    """
+    if len(thetas) == 0:
+        raise ValueError("Eq 4.7 needs at least one sub-policy")
+    with torch.no_grad():
+        return torch.stack([mean_kl(view, t.detach(), theta.detach(), states) for t in thetas])
+
+
+def eq47_objective(view: PolicyView, theta: Tensor, thetas: Sequence[Tensor], states: Tensor) -> float:
+    """Eq 4.7's objective F(θ) = Σ_i E_s KL(π_θi(·|s) ‖ π_θ(·|s)) (nats; the sum of :func:`eq47_kls`).
+
+    >>> view = PolicyView(GaussianPolicy(2, 1, hidden=(3,)))
+    >>> t = view.get_flat()
+    >>> eq47_objective(view, t, [t, t], torch.zeros(4, 2))
+    0.0
+    """
+    return float(eq47_kls(view, theta, thetas, states).sum())
+
+
 def entropy(view: PolicyView, theta: Tensor, states: Tensor) -> Tensor:
     """E_s[H(π_θ(·|s))] of the diagonal Gaussian (nats)."""
     _, log_std = view.dist(theta, states)
@@ -210,17 +237,28 @@ def fisher_matrix(view: PolicyView, theta: Tensor, states: Tensor) -> Tensor:
 
 # ----------------------------------------------------------------------------------------- Eq 4.10/4.11
 def conjugate_gradient(
-    avp: Callable[[Tensor], Tensor], b: Tensor, iters: int = 10, tol: float = 1e-10
+    avp: Callable[[Tensor], Tensor], b: Tensor, iters: int = 10, rtol: float = 1e-6
 ) -> tuple[Tensor, float]:
-    """Solve A x = b for symmetric positive (semi-)definite A given ``avp(v) = A v``; returns (x, ‖r‖)."""
+    """Solve A x = b for symmetric positive (semi-)definite A given ``avp(v) = A v``; returns (x, ‖r‖).
+
+    Stops after ``iters`` products or once ‖r‖ ≤ ``rtol``·‖b‖ (a RELATIVE tolerance: the same ``rtol``
+    means the same accuracy whatever the scale of ``b``).
+
+    >>> a = torch.tensor([[4.0, 1.0], [1.0, 3.0]])
+    >>> x, res = conjugate_gradient(lambda v: a @ v, torch.tensor([1.0, 2.0]), iters=5)
+    >>> [round(v, 4) for v in x.tolist()]
+    [0.0909, 0.6364]
+    """
     if iters < 1:
         raise ValueError(f"cg iters must be >= 1, got {iters}")
+    rtol = check_nonneg(rtol, "cg_rtol")
     x = torch.zeros_like(b)
     r = b.clone()
     p = r.clone()
     rr = r @ r
+    stop = (rtol * b.norm()) ** 2
     for _ in range(iters):
-        if rr <= tol:
+        if rr <= stop:
             break
         ap = avp(p)
         denom = p @ ap
@@ -244,6 +282,7 @@ def kl_avg(
     damping: float = 0.1,
     info: dict | None = None,
     line_search: bool = False,
+    cg_rtol: float = 1e-6,
 ) -> Tensor:
     """Eq 4.11: θ_new = θ_old + ḡ + [Ī + λ·1]⁻¹ (1/N) Σ I(θ_i)(g_i − ḡ), Ī = (1/N) Σ I(θ_i), by CG with FVPs.
 
@@ -255,7 +294,8 @@ def kl_avg(
 
     ``line_search`` (off by default; not in the thesis) backtracks the correction (fractions 1, ½, ¼, ⅛, 0)
     until the TRUE objective of Eq 4.7, Σ_i E_s KL(π_θi ‖ π_θ), is no larger than at the parameter mean.
-    ``info`` (if given) receives ``cg_residual`` and ``step_fraction``.
+    CG stops after ``cg_iters`` products or at relative residual ``cg_rtol`` (see :func:`conjugate_gradient`).
+    ``info`` (if given) receives ``cg_residual`` (‖r‖) and ``step_fraction``.
     """
     damping = check_nonneg(damping, "damping")
     if len(thetas) == 0:
@@ -271,17 +311,13 @@ def kl_avg(
     def avp(v: Tensor) -> Tensor:
         return sum(fisher_vector_product(view, t, states, v) for t in thetas) / n + damping * v
 
-    corr, res = conjugate_gradient(avp, b, cg_iters)  # type: ignore[arg-type]
+    corr, res = conjugate_gradient(avp, b, cg_iters, rtol=cg_rtol)  # type: ignore[arg-type]
     frac = 1.0
     if line_search:
         with torch.no_grad():
-
-            def total(theta: Tensor) -> float:
-                return sum(float(mean_kl(view, t, theta, states)) for t in thetas)
-
-            ref = total(mean)
+            ref = eq47_objective(view, mean, thetas, states)
             for frac in (1.0, 0.5, 0.25, 0.125, 0.0):
-                if frac == 0.0 or total(mean + frac * corr) <= ref:
+                if frac == 0.0 or eq47_objective(view, mean + frac * corr, thetas, states) <= ref:
                     break
     if info is not None:
         info["cg_residual"] = res
@@ -292,10 +328,138 @@ def kl_avg(
 def kl_avg_dense(view: PolicyView, thetas: Sequence[Tensor], states: Tensor, damping: float = 0.0) -> Tensor:
     """Dense reference of Eq 4.10 (with the same damping convention as :func:`kl_avg`): forms every FIM."""
     damping = check_nonneg(damping, "damping")
+    dtype = thetas[0].dtype
+    fims = [fisher_matrix(view, t.detach(), states).double() for t in thetas]
     thetas = [t.detach().double() for t in thetas]
     mean = torch.stack(thetas).mean(0)
-    fims = [fisher_matrix(view, t.float(), states).double() for t in thetas]
     n = len(thetas)
     a = sum(fims) / n + damping * torch.eye(mean.numel(), dtype=torch.float64)
     b = sum(f @ (t - mean) for f, t in zip(fims, thetas, strict=True)) / n
-    return (mean + torch.linalg.solve(a, b)).float()
+    return (mean + torch.linalg.solve(a, b)).to(dtype)
+
+
+# ------------------------------------------------------------------------------------ exact Eq 4.7
+def kl_exact(
+    view: PolicyView,
+    thetas: Sequence[Tensor],
+    states: Tensor,
+    *,
+    iters: int = 20,
+    cg_iters: int = 20,
+    cg_rtol: float = 1e-3,
+    damping: float = 1e-3,
+    tol: float = 1e-10,
+    info: dict | None = None,
+) -> Tensor:
+    """Minimise the TRUE Eq 4.7 objective F(θ) = Σ_i E_s KL(π_θi ‖ π_θ) from θ_0 = :func:`params_avg`.
+
+    Each of at most ``iters`` iterations takes a Newton-CG step on F/N with the Gauss-Newton matrix of the
+    KL sum, which is the Fisher of the AGGREGATE, I(θ) (Eq 4.9 at θ, not at the θ_i as Eq 4.8 uses):
+    solve (I(θ) + λ·1) d = −∇(F/N) by CG (``cg_iters`` products, relative tolerance ``cg_rtol``,
+    damping λ = ``damping`` on the mean Fisher as in :func:`kl_avg`), then backtrack (1, ½, ¼, ... 2⁻²⁰)
+    until the Armijo condition F(θ + t d) ≤ F(θ) + 10⁻⁴ t ∇F·d holds. So F never increases, and the result
+    is never worse than params_avg on Eq 4.7. Stops early when the predicted decrease ½|∇F·d| ≤ ``tol``
+    (nats) or no step decreases F. ``info`` (if given) receives ``objective`` (F at θ_0..θ_k),
+    ``step_sizes``, ``cg_residuals`` (relative) and ``iters`` (k).
+
+    >>> pol = GaussianPolicy(3, 2, hidden=(4,), seed=0)
+    >>> view = PolicyView(pol)
+    >>> s = torch.randn(32, 3, generator=torch.Generator().manual_seed(0))
+    >>> t0 = view.get_flat()
+    >>> thetas = [t0 + 0.3 * torch.randn(t0.shape, generator=torch.Generator().manual_seed(i)) for i in range(3)]
+    >>> info = {}
+    >>> new = kl_exact(view, thetas, s, iters=10, info=info)
+    >>> f = info["objective"]  # Eq 4.7 at params_avg, then after each iteration
+    >>> abs(f[0] - eq47_objective(view, params_avg(thetas), thetas, s)) < 1e-5, f[-1] < f[0]
+    (True, True)
+    >>> eq47_objective(view, new, thetas, s) <= eq47_objective(view, kl_avg(view, thetas, s), thetas, s)
+    True
+    """
+    if len(thetas) == 0:
+        raise ValueError("kl_exact needs at least one sub-policy")
+    if iters < 0:
+        raise ValueError(f"iters must be >= 0, got {iters}")
+    if cg_iters < 1:
+        raise ValueError(f"cg_iters must be >= 1, got {cg_iters}")
+    damping = check_nonneg(damping, "damping")
+    cg_rtol = check_nonneg(cg_rtol, "cg_rtol")
+    tol = check_nonneg(tol, "tol")
+    thetas = [t.detach() for t in thetas]
+    n = len(thetas)
+    with torch.no_grad():
+        targets = [view.dist(t, states) for t in thetas]
+
+    def mean_obj(theta: Tensor) -> Tensor:  # F(θ)/N
+        mean, log_std = view.dist(theta, states)
+        return sum(gaussian_kl(m, ls, mean, log_std).mean() for m, ls in targets) / n  # type: ignore[return-value]
+
+    theta = torch.stack(thetas).mean(0)
+    with torch.no_grad():
+        f = float(mean_obj(theta))
+    history, steps, residuals = [n * f], [], []
+    for _ in range(iters):
+        t = theta.detach().requires_grad_(True)
+        (grad,) = torch.autograd.grad(mean_obj(t), t)
+
+        def avp(v: Tensor, at: Tensor = theta) -> Tensor:
+            return fisher_vector_product(view, at, states, v) + damping * v
+
+        d, res = conjugate_gradient(avp, -grad, cg_iters, rtol=cg_rtol)
+        residuals.append(res / max(float(grad.norm()), 1e-30))
+        slope = float(grad @ d)
+        if not slope < 0 or -0.5 * slope <= tol / n:
+            break
+        step, accepted = 1.0, False
+        with torch.no_grad():
+            for _ in range(21):
+                f_new = float(mean_obj(theta + step * d))
+                if f_new <= f + 1e-4 * step * slope:
+                    accepted = True
+                    break
+                step *= 0.5
+        if not accepted:
+            break
+        theta, f = (theta + step * d).detach(), f_new
+        history.append(n * f)
+        steps.append(step)
+    if info is not None:
+        info.update(objective=history, step_sizes=steps, cg_residuals=residuals, iters=len(steps))
+    return theta.detach()
+
+
+def linear_gaussian_optima(view: PolicyView, thetas: Sequence[Tensor], states: Tensor) -> dict[str, Tensor]:
+    """Closed forms for a policy whose mean is LINEAR in θ and whose log-std is a parameter ``log_std``.
+
+    * ``"eq47"`` — the exact argmin of Eq 4.7: mean parameters = the plain average (the mean of π_θ is
+      then the average of the sub-policies' means), σ_a² = (1/N) Σ_i [σ_ia² + E_s (μ_ia(s) − μ̄_a(s))²]
+      (moment matching per action dimension);
+    * ``"eq410"`` — Eq 4.10 (undamped): the mean parameters of action dimension a are averaged with weights
+      σ_ia⁻² / Σ_j σ_ja⁻² (the Fisher's mean block is E_s[φφᵀ]/σ_ia², its log-std block 2·1), and log σ is
+      the plain average of the log σ_i.
+
+    Requires a view over ``log_std`` and the parameters of one linear layer mapping states to means
+    (e.g. ``GaussianPolicy(obs, act, hidden=())``).
+    """
+    if "log_std" not in view.names:
+        raise ValueError(f"linear_gaussian_optima needs a 'log_std' parameter; the view has {list(view.names)}")
+    thetas = [t.detach() for t in thetas]
+    avg = torch.stack(thetas).mean(0)
+    with torch.no_grad():
+        dists = [view.dist(t, states) for t in thetas]
+        mu_bar = torch.stack([m for m, _ in dists]).mean(0)
+        var = torch.stack([torch.exp(2 * ls) + (m - mu_bar) ** 2 for m, ls in dists]).mean(0).mean(0)  # (A,)
+    eq47 = view.params(avg)
+    eq47 = {k: v.clone() for k, v in eq47.items()}
+    eq47["log_std"] = 0.5 * torch.log(var).to(avg.dtype)
+    parts = [view.params(t) for t in thetas]
+    prec = torch.stack([torch.exp(-2 * p["log_std"]) for p in parts])  # (N, A)
+    w = prec / prec.sum(0)
+    eq410 = {}
+    for k in view.names:
+        vals = torch.stack([p[k] for p in parts])  # (N, A, ...) for the mean layer
+        if k == "log_std":
+            eq410[k] = vals.mean(0)
+        else:
+            eq410[k] = (w.view(w.shape + (1,) * (vals.dim() - 2)) * vals).sum(0)
+    flat = {name: torch.cat([d[k].reshape(-1) for k in view.names]) for name, d in (("eq47", eq47), ("eq410", eq410))}
+    return flat
