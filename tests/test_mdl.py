@@ -347,29 +347,3 @@ def test_line_search_never_worse_than_params_avg_on_true_kl():
     out = agg.kl_avg(view, thetas, states, t0, cg_iters=20, damping=0.01, info=info, line_search=True)
     assert info["step_fraction"] in (1.0, 0.5, 0.25, 0.125, 0.0)
     assert total(out) <= total(agg.params_avg(thetas)) + 1e-9
-
-
-def test_experiment_helpers_conditions_and_verdict():
-    import pandas as pd
-
-    from thesis_repro.mdl import experiments as ex
-
-    conds = ex.conditions("4.1")
-    assert [c["panel"] for c in conds] == ["a", "b", "c", "d"]
-    assert {(c["c_a"], c["wind"][1]) for c in conds} == {(0.001, 0.5), (0.001, 2.5), (1.0, 0.5), (1.0, 2.5)}
-    assert [c["panel"] for c in ex.conditions("4.1", ["a", "d"])] == ["a", "d"]
-    assert ex.conditions("4.7", ["a"])[0]["c_a"] == 0.1  # single-panel figures ignore the filter
-    with pytest.raises(ValueError, match="valid panels"):
-        ex.conditions("4.1", ["z"])
-    frame = pd.DataFrame(
-        {
-            "panel": ["a"] * 3 + ["b"] * 3,
-            "algo": ["kl_avg", "params_avg", "joint"] * 2,
-            "return": [95.0, 100.0, 90.0, 120.0, 100.0, 110.0],
-        }
-    )
-    table = ex.compare(frame, "return")
-    assert table.loc["b", "best"] == "kl_avg" and not table.loc["a", "kl_avg_best"]
-    lines, holds = ex.verdict(table, easy=("a",), tol=0.1)
-    assert holds and len(lines) == 2  # a: within 10 % of the best baseline; b: strictly better
-    assert not ex.verdict(table, easy=(), tol=0.1)[1]

@@ -1,0 +1,184 @@
+"""The figure layer: registry, job grids (shared runs), tables and verdicts of chapters 4 and 5."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from thesis_repro import figures, report
+from thesis_repro.cache import Job
+from thesis_repro.figures import ch4, ch5
+
+EXPECTED = ["3.2", "3.3", "4.1", "4.2", "4.3", "4.4", "4.5", "4.6", "4.7", "5.3", "5.4", "5.5", "5.6"]
+
+
+def _keys(jobs: list[Job], kind: str | None = None) -> set[str]:
+    return {j.key for j in jobs if kind is None or figures.kind_of(j) == kind}
+
+
+# ---------------------------------------------------------------- registry
+def test_registry_lists_every_figure_with_its_module():
+    assert set(EXPECTED) <= set(figures.FIGURES)
+    assert figures.ids()[: len(EXPECTED)] == EXPECTED
+    assert figures.get("fig-4.3") is figures.FIGURES["4.3"]
+    assert figures.get("4.3").module == "thesis_repro.figures.ch4"
+    assert figures.get("4.3").notebook_id == "fig-4.3"
+    with pytest.raises(ValueError, match="unknown figure '9.9'; valid figures are: '3.2'"):
+        figures.get("9.9")
+
+
+@pytest.mark.parametrize("figure_id", EXPECTED)
+def test_jobs_put_training_first_without_duplicates_and_use_declared_kinds(figure_id):
+    fig = figures.get(figure_id)
+    jobs = figures.jobs(figure_id, "smoke")
+    kinds = [figures.kind_of(j) for j in jobs]
+    assert jobs and len(_keys(jobs)) == len(jobs)
+    n_train = sum(k in figures.TRAINING_KINDS for k in kinds)
+    assert all(k in figures.TRAINING_KINDS for k in kinds[:n_train])
+    assert set(kinds) <= set(fig.kinds)
+    assert figures.training_jobs(figure_id, "smoke") == jobs[:n_train]
+
+
+def test_register_rejects_a_second_grid_for_an_id_and_overrides_reach_the_settings():
+    with pytest.raises(ValueError, match="already registered"):
+        figures.register("3.3", "again")(lambda s: [])
+    base = figures.training_jobs("4.1", "smoke")
+    more = figures.training_jobs("4.1", "smoke", train_seeds=2)
+    assert len(more) == 2 * len(base) and _keys(base) < _keys(more)
+    with pytest.raises(ValueError, match="valid setting of figure 4.1s"):
+        figures.jobs("4.1", "smoke", train_seed=2)
+
+
+def test_thesis_budget_is_read_from_the_full_scale():
+    assert figures.thesis_budget("3.3") == figures.settings("3.3", "full")["timesteps"]
+    assert figures.thesis_budget("4.1") == figures.settings("4.1", "full")["timesteps"]
+
+
+# ---------------------------------------------------------------- shared runs
+@pytest.mark.parametrize("scale", ["smoke", "small"])
+def test_chapter4_figures_share_training_runs(scale):
+    train = {f: _keys(figures.training_jobs(f, scale)) for f in ("4.1", "4.3", "4.5", "4.6")}
+    assert train["4.1"] == train["4.3"] == train["4.5"] == train["4.6"]
+    assert not train["4.1"] & _keys(figures.training_jobs("4.7", scale))  # c_a = 0.1: its own runs
+
+
+def test_chapter4_evaluations_train_through_the_same_key():
+    jobs = figures.jobs("4.3", "smoke")
+    train = _keys(jobs, "train")
+    evals = [j for j in jobs if figures.kind_of(j) == "evaluate"]
+    assert evals and {Job(figures.ch4.TRAIN_FN, j.config["train"]).key for j in evals} == train
+
+
+def test_figures_5_4_and_5_5_share_sources_and_tensor_runs():
+    a, b = figures.jobs("5.4", "smoke"), figures.jobs("5.5", "smoke")
+    assert _keys(a, "arm-source") == _keys(b, "arm-source")
+    tensor = {j.key for j in a if figures.kind_of(j) == "arm-target" and j.config["strategy"] == "tensor"}
+    assert tensor and tensor <= _keys(b, "arm-target")
+
+
+def test_fig_3_2_predicted_snapshots_match_the_evaluations():
+    jobs = figures.jobs("3.2", "smoke")
+    (train,) = [j for j in jobs if figures.kind_of(j) == "train"]
+    steps = [j.config["test"]["snapshot"] for j in jobs if figures.kind_of(j) == "evaluate"]
+    assert steps == figures.ch3.snapshot_steps(train.config)
+    assert steps[0] == 0 and steps[-1] >= train.config["timesteps"]
+
+
+# ---------------------------------------------------------------- chapter 4 tables and verdicts
+def test_conditions_come_from_the_thesis_table():
+    conds = ch4.conditions("4.1")
+    assert [c["panel"] for c in conds] == ["a", "b", "c", "d"]
+    assert {(c["c_a"], c["wind"][1]) for c in conds} == {(0.001, 0.5), (0.001, 2.5), (1.0, 0.5), (1.0, 2.5)}
+    assert [c["panel"] for c in ch4.conditions("4.1", ["a", "d"])] == ["a", "d"]
+    assert ch4.conditions("4.7", ["a"])[0]["c_a"] == 0.1  # single-panel figures ignore the filter
+    with pytest.raises(ValueError, match="valid panel of figure 4.1s are"):
+        ch4.conditions("4.1", ["z"])
+
+
+def _table() -> pd.DataFrame:
+    frame = pd.DataFrame(
+        {
+            "panel": ["a"] * 3 + ["b"] * 3,
+            "algo": ["kl_avg", "params_avg", "joint"] * 2,
+            "return": [95.0, 100.0, 90.0, 120.0, 100.0, 110.0],
+        }
+    )
+    return ch4.compare(frame, "return")
+
+
+def test_compare_and_panel_lines():
+    table = _table()
+    assert table.loc["b", "best"] == "kl_avg" and not table.loc["a", "kl_avg_best"]
+    lines, holds = ch4.panel_lines(table, easy=("a",), tol=0.1)
+    assert holds == [True, True] and len(lines) == 2  # a: within 10 % of the best baseline; b: strictly better
+    assert ch4.panel_lines(table, easy=(), tol=0.1)[1] == [False, True]
+
+
+def test_claim_verdict_status_follows_the_panels_and_the_scale():
+    small = figures.settings("4.1", "small")
+    assert ch4.claim_verdict("4.1", "c", _table(), small, easy=("a",)).status == report.REPRODUCES
+    assert ch4.claim_verdict("4.1", "c", _table(), small).status == report.PARTLY
+    smoke = figures.settings("4.1", "smoke")
+    v = ch4.claim_verdict("4.1", "c", _table(), smoke, easy=("a",))
+    assert v.status == report.NOT_JUDGED and "thesis: 4e+06" in v.evidence
+
+
+def test_noise_aucs_follow_eq_3_6():
+    noise = pd.DataFrame(
+        {"noise": "obs", "panel": "a", "algo": "kl_avg", "value": [0.0, 0.5, 1.0], "return": [10.0, 6.0, 2.0]}
+    )
+    out = ch4.noise_aucs(noise)
+    assert out["auc"].item() == pytest.approx(0.5 * (10 + 6 + 2))
+
+
+def test_cycle_frames_span_the_last_period():
+    t = np.arange(121)
+    idx = ch4.cycle_frames(np.sin(2 * np.pi * t / 30), 4)
+    assert idx[-1] == 120 and idx[-1] - idx[0] == 30 and len(idx) == 4
+
+
+# ---------------------------------------------------------------- chapter 5
+def test_grid_jobs_cover_all_pairs_and_share_sources():
+    settings = {"families": ["reach", "bic"], "seeds": [0], "source": {"n_tasks": 3}, "target": {"n_targets": 2}}
+    sources, rows = ch5.grid_jobs(settings, ["scratch", "tensor", "ella"])
+    assert len(rows) == 2 * 2 * 3
+    assert len(sources) == 2 * 2  # RBF sources shared by scratch/tensor, ELLA learns its own
+    with pytest.raises(ValueError, match="valid strategys"):
+        ch5.grid_jobs(settings, ["cp"])
+
+
+def test_transfer_verdict_judges_the_three_claims():
+    rows = []
+    for pair, tgt in (("reach→bic", "bic"), ("bic→cast", "cast")):
+        for strategy, cost, success in (
+            ("scratch", 9.0, 0.0),
+            ("direct", 5.0, 0.2),
+            ("matrix", 3.0, 0.4),
+            ("tensor", 1.0, 0.9),
+        ):
+            rows.append(
+                {"pair": pair, "target": tgt, "strategy": strategy, "total_cost": cost, "success_rate": success}
+            )
+    summary = pd.DataFrame(rows)
+    small = figures.settings("5.4", "small")
+    assert [v.status for v in ch5.transfer_verdict(summary, small)] == [report.REPRODUCES] * 3
+    summary.loc[summary.strategy == "matrix", "total_cost"] = 0.5  # matrix cheaper than tensor
+    assert ch5.transfer_verdict(summary, small)[1].status == report.PARTLY
+    assert {v.status for v in ch5.transfer_verdict(summary, figures.settings("5.4", "smoke"))} == {report.NOT_JUDGED}
+
+
+def test_curriculum_verdict():
+    curves = pd.DataFrame(
+        {
+            "condition": ["CL"] * 10 + ["NC"] * 10,
+            "seed": 0,
+            "cost": [1.0] * 10 + [2.0] * 10,
+            "success": [0.8] * 10 + [0.0] * 10,
+        }
+    )
+    final = pd.DataFrame({"condition": ["CL", "NC"], "seed": 0, "final_success": [0.9, 0.0]})
+    pre = pd.DataFrame({"condition": ["NC"], "seed": 0, "stage": ["bic"], "cost": [2.0], "population_success": [0.5]})
+    v = ch5.curriculum_verdict(curves, final, pre, figures.settings("5.6", "small"))
+    assert [x.status for x in v] == [report.REPRODUCES, report.REPRODUCES, report.DOES_NOT]
+    assert "0.50" in v[2].evidence

@@ -1,0 +1,346 @@
+"""Chapter 3, Figures 3.2 and 3.3: job grids, tidy result tables and verdicts.
+
+Arrays follow the kit's axis order ``(training seeds, tasks, algorithms, ...)``.
+
+>>> import numpy as np
+>>> tr = np.array([[[1.0, 5.0]], [[3.0, 4.0]]])   # (seeds=2, tasks=1, algos=2)
+>>> auc = np.array([[[10.0, 20.0]], [[30.0, 40.0]]])
+>>> best_seed(tr, auc).tolist()                     # seed with the best training return, per algo
+[[30.0, 20.0]]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from thesis_repro import reference, report
+from thesis_repro.cache import Job, Result, run_jobs
+from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
+from thesis_repro.evaluation.jobs import EVAL_FN, TRAIN_FN, check_test
+from thesis_repro.figures import budget_note, register
+from thesis_repro.learners import train_config
+from thesis_repro.validation import check_choice
+
+SELECTIONS: tuple[str, ...] = ("best", "mean")
+
+
+# ---------------------------------------------------------------- shared chapter-3 helpers
+def best_seed(train_return: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values[s*, task, algo]`` where ``s*`` maximises the training return of that task and algorithm.
+
+    The thesis (§3.3.1) represents each algorithm by "the learned policy with best training performance
+    among multiple random seeds". Inputs ``(seeds, tasks, algos)``; output ``(tasks, algos)``.
+    """
+    tr, v = np.asarray(train_return, float), np.asarray(values, float)
+    if tr.shape != v.shape or tr.ndim != 3:
+        raise ValueError(f"need two (seeds, tasks, algos) arrays of one shape, got {tr.shape} and {v.shape}")
+    idx = np.nanargmax(np.where(np.isnan(tr), -np.inf, tr), axis=0)
+    return np.take_along_axis(v, idx[None], axis=0)[0]
+
+
+def select(train_return: np.ndarray, values: np.ndarray, how: str = "best") -> tuple[np.ndarray, np.ndarray]:
+    """Per (task, algo) training return and value, by the best-training seed or the mean over seeds."""
+    check_choice(how, SELECTIONS, "selection")
+    if how == "best":
+        return best_seed(train_return, train_return), best_seed(train_return, values)
+    return np.nanmean(train_return, axis=0), np.nanmean(values, axis=0)
+
+
+def timesteps_for(timesteps: int | Mapping[str, int], env: str) -> int:
+    """Training budget of ``env`` from an int or a per-env mapping (``default`` key allowed)."""
+    if isinstance(timesteps, Mapping):
+        if env in timesteps:
+            return int(timesteps[env])
+        if "default" in timesteps:
+            return int(timesteps["default"])
+        raise ValueError(f"no training budget for env {env!r} in {dict(timesteps)}")
+    return int(timesteps)
+
+
+def iteration_steps(cfg: Mapping[str, Any]) -> int:
+    """Env steps of one on-policy iteration (rollout) of a training config: ``n_envs × n_steps``."""
+    if cfg["class"] not in ("PPO", "TRPO"):
+        raise ValueError(f"iterations are defined for the on-policy classes PPO and TRPO, not {cfg['class']!r}")
+    return int(cfg["n_envs"]) * int(cfg["sb3"]["n_steps"])
+
+
+# ---------------------------------------------------------------- Figure 3.2: overfitting during training
+def training_return_at(train: Result | Mapping[str, Any], timesteps: Sequence[int], window: int = 100) -> np.ndarray:
+    """Mean return of the last ``window`` training episodes finished by each of ``timesteps`` (NaN if none)."""
+    ep_t = np.asarray(train["episode_timesteps"])
+    ep_r = np.asarray(train["episode_returns"], float)
+    out = []
+    for t in timesteps:
+        done = ep_r[ep_t <= t]
+        out.append(float(done[-window:].mean()) if done.size else float("nan"))
+    return np.array(out)
+
+
+def snapshot_steps(cfg: Mapping[str, Any]) -> list[int]:
+    """Env steps at which an on-policy training run saves its policy snapshots.
+
+    Snapshots are taken at iteration starts once ``snapshot_every`` steps have passed since the last one
+    (the first at step 0) and at the end (``ceil(timesteps / batch)`` iterations).
+
+    >>> snapshot_steps({"class": "PPO", "n_envs": 2, "sb3": {"n_steps": 64}, "timesteps": 512, "snapshot_every": 200})
+    [0, 256, 512]
+    """
+    batch, every = iteration_steps(cfg), int(cfg["snapshot_every"])
+    if every <= 0:
+        return []
+    n_iter = -(-int(cfg["timesteps"]) // batch)
+    out: list[int] = []
+    for i in range(n_iter):
+        t = i * batch
+        if not out or t - out[-1] >= every:
+            out.append(t)
+    done = n_iter * batch
+    return out if out[-1] == done else [*out, done]
+
+
+def overfitting_configs(settings: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Fig 3.2's training configs (one per seed, with policy snapshots)."""
+    return [
+        train_config(
+            settings["algo"],
+            settings["env"],
+            seed,
+            int(settings["timesteps"]),
+            snapshot_every=int(settings["snapshot_every"]),
+            **dict(settings["train_overrides"] or {}),
+        )
+        for seed in range(int(settings["train_seeds"]))
+    ]
+
+
+def overfitting_test(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """Fig 3.2's test block: observation noise over the σ grid of the scale table."""
+    return check_test(
+        {
+            "perturbation": "obs",
+            "sigmas": list(settings["sigmas"]),
+            "n_rollouts": int(settings["test_rollouts"]),
+            "max_episode_steps": int(settings["max_episode_steps"]),
+        }
+    )
+
+
+def _snapshot_evals(cfg: Mapping[str, Any], test: Mapping[str, Any], steps: Sequence[int]) -> list[Job]:
+    return [Job(EVAL_FN, {"train": dict(cfg), "test": {**test, "snapshot": int(s)}}) for s in steps]
+
+
+@register("3.2", "Overfitting occurs in deep RL (PPO, Walker2d)")
+def overfitting_jobs(settings: Mapping[str, Any]) -> list[Job]:
+    """Train jobs (with snapshots), then one evaluation job per predicted snapshot."""
+    cfgs, test = overfitting_configs(settings), overfitting_test(settings)
+    evals = [j for c in cfgs for j in _snapshot_evals(c, test, snapshot_steps(c))]
+    return [Job(TRAIN_FN, c) for c in cfgs] + evals
+
+
+def overfitting_curve(settings: Mapping[str, Any], n_jobs: int | None = None) -> pd.DataFrame:
+    """Run (or load) Fig 3.2: one row per (seed, snapshot) with ``timesteps``, ``iteration``,
+    ``train_return`` (last 100 training episodes) and ``test_auc`` (obs noise, Eq 3.6)."""
+    cfgs, test = overfitting_configs(settings), overfitting_test(settings)
+    trained = run_jobs([Job(TRAIN_FN, c) for c in cfgs], n_jobs=n_jobs, desc="train (with snapshots)")
+    rows = []
+    for cfg, train in zip(cfgs, trained, strict=True):
+        steps = [int(s) for s in train["snapshots"]]
+        evals = run_jobs(
+            _snapshot_evals(cfg, test, steps), n_jobs=n_jobs, desc=f"evaluate snapshots (seed {cfg['seed']})"
+        )
+        tr = training_return_at(train, steps)
+        for s, r, e in zip(steps, tr, evals, strict=True):
+            rows.append(
+                {
+                    "seed": cfg["seed"],
+                    "timesteps": s,
+                    "iteration": s / iteration_steps(cfg),
+                    "train_return": r,
+                    "test_auc": e["auc"],
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def overfitting_summary(iterations: np.ndarray, train_return: np.ndarray, test_auc: np.ndarray) -> dict[str, Any]:
+    """Did testing AUC peak before the end while training return kept rising? (the claim of Fig 3.2).
+
+    ``overfits`` is True when the final AUC is at least 10 % below its peak and the final training
+    return is at least that at the AUC peak.
+    """
+    it, tr, auc = (np.asarray(a, float) for a in (iterations, train_return, test_auc))
+    k = int(np.nanargmax(auc))
+    drop = float((auc[k] - auc[-1]) / abs(auc[k])) if auc[k] != 0 else 0.0
+    overfits = bool(k < len(auc) - 1 and drop >= 0.10 and tr[-1] >= tr[k])
+    return {
+        "peak_iteration": float(it[k]),
+        "peak_auc": float(auc[k]),
+        "final_auc": float(auc[-1]),
+        "auc_drop_from_peak": drop,
+        "train_return_at_peak": float(tr[k]),
+        "final_train_return": float(tr[-1]),
+        "overfits": overfits,
+    }
+
+
+def overfitting_verdict(curve: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Fig 3.2's claim judged on the seed-mean curve of :func:`overfitting_curve`."""
+    claim = "Testing AUC peaks and then falls while the training return keeps rising (overfitting)"
+    mean = curve.groupby("iteration")[["train_return", "test_auc"]].mean().reset_index().dropna()
+    note = budget_note(settings)
+    if len(mean) < 3:
+        return [
+            report.Verdict(
+                "3.2", claim, report.status(None, settings["scale"]), f"{len(mean)} usable snapshots; {note}"
+            )
+        ]
+    s = overfitting_summary(mean.iteration.to_numpy(), mean.train_return.to_numpy(), mean.test_auc.to_numpy())
+    evidence = (
+        f"reproduced testing AUC peaks at iteration {s['peak_iteration']:.0f} ({s['peak_auc']:.1f}) and ends at "
+        f"{s['final_auc']:.1f} ({100 * s['auc_drop_from_peak']:.0f} % below the peak; the claim needs >= 10 %); "
+        f"training return {s['train_return_at_peak']:.1f} at the peak, {s['final_train_return']:.1f} at the end "
+        f"(thesis: the curve only, no numbers); {note}"
+    )
+    return [report.Verdict("3.2", claim, report.status(s["overfits"], settings["scale"]), evidence)]
+
+
+# ---------------------------------------------------------------- Figure 3.3: training return vs testing AUC
+def benchmark(
+    algos: Sequence[str],
+    envs: Sequence[str],
+    seeds: Sequence[int],
+    timesteps: int | Mapping[str, int],
+    tests: Sequence[str],
+    **kwargs: Any,
+) -> Benchmark:
+    """Like :func:`thesis_repro.evaluation.benchmark_jobs`, with a per-env training budget.
+
+    ``timesteps`` may be an int or ``{env: steps, "default": steps}``; jobs keep the
+    ``(seed, env, algo)`` order so :meth:`Benchmark.run` stacks them as ``(seeds, tasks, algos, ...)``.
+    """
+    parts = {e: benchmark_jobs(algos, [e], seeds, timesteps_for(timesteps, e), tests, **kwargs) for e in envs}
+    n_a = len(algos)
+
+    def order(get) -> list[Job]:  # noqa: ANN001
+        return [get(parts[e])[si * n_a + ai] for si in range(len(seeds)) for e in envs for ai in range(n_a)]
+
+    first = parts[envs[0]]
+    evals = {name: order(lambda b, n=name: b.eval_jobs[n]) for name in first.eval_jobs}
+    train = order(lambda b: b.train_jobs)
+    return Benchmark(list(algos), list(envs), [int(s) for s in seeds], first.tests, train, evals)
+
+
+def pareto_benchmark(settings: Mapping[str, Any]) -> Benchmark:
+    """Fig 3.3's grid (every variant × task × seed, tested under every test type) from its settings."""
+    return benchmark(
+        settings["algos"],
+        settings["envs"],
+        list(range(int(settings["train_seeds"]))),
+        settings["timesteps"],
+        settings["tests"],
+        sigmas=settings["sigmas"],
+        n_rollouts=int(settings["test_rollouts"]),
+        max_episode_steps=int(settings["max_episode_steps"]),
+        train_overrides=settings["train_overrides"],
+    )
+
+
+@register("3.3", "Training return does not reflect generalisation (Pareto frontier, correlation)")
+def pareto_jobs(settings: Mapping[str, Any]) -> list[Job]:
+    """Every training job of Fig 3.3, then every evaluation job."""
+    bench = pareto_benchmark(settings)
+    return [*bench.train_jobs, *(j for jobs in bench.eval_jobs.values() for j in jobs)]
+
+
+def correlation_table(res: BenchmarkResult, how: str = "best") -> pd.DataFrame:
+    """Fig 3.3(c): Pearson r of testing AUC vs training return across algorithms, per task and test type.
+
+    Returns a tidy frame ``env, test, value, p, n`` (``value`` NaN where undefined: < 3 algorithms or no
+    spread, as in a smoke run).
+    """
+    if res.train_return is None:
+        raise ValueError("the benchmark result has no training returns")
+    rows = []
+    for test, auc in res.auc.items():
+        tr, a = select(res.train_return, auc, how)
+        for j, env in enumerate(res.envs):
+            try:
+                r, p = correlation(tr[j], a[j])
+            except ValueError:
+                r, p = float("nan"), float("nan")
+            rows.append({"env": env, "test": test, "value": r, "p": p, "n": len(res.algos)})
+    return pd.DataFrame(rows)
+
+
+def points_table(res: BenchmarkResult, how: str = "best") -> pd.DataFrame:
+    """Tidy ``env, test, algo, train_return, auc`` (one point per algorithm: Fig 3.3(a,b))."""
+    rows = []
+    for test, auc in res.auc.items():
+        tr, a = select(res.train_return, auc, how)
+        for j, env in enumerate(res.envs):
+            for k, algo in enumerate(res.algos):
+                rows.append({"env": env, "test": test, "algo": algo, "train_return": tr[j, k], "auc": a[j, k]})
+    return pd.DataFrame(rows)
+
+
+def correlation_wide(ours: pd.DataFrame) -> pd.DataFrame:
+    """Fig 3.3(c) as ``env × (source, test)``: the thesis's coefficients beside ours (tasks run here)."""
+    thesis = reference.load("fig3_3c")
+    envs = [e for e in reference.ENVS if e in set(ours.env)]
+    table = pd.concat([thesis.assign(source="thesis"), ours.assign(source="reproduced")])
+    wide = table.pivot_table(index="env", columns=["source", "test"], values="value", dropna=False)
+    cols = pd.MultiIndex.from_product([["thesis", "reproduced"], list(reference.TESTS)])
+    return wide.reindex(index=envs, columns=cols)
+
+
+def frontier(points: pd.DataFrame) -> pd.DataFrame:
+    """The Pareto-optimal rows of one panel's points (finite values only), by increasing training return."""
+    ok = points[np.isfinite(points.train_return) & np.isfinite(points.auc)].reset_index(drop=True)
+    if ok.empty:
+        return ok
+    return ok.iloc[pareto_frontier(ok.train_return, ok.auc)]
+
+
+def pareto_verdict(
+    ours: pd.DataFrame, points: pd.DataFrame, settings: Mapping[str, Any], selection: str = "best"
+) -> list[report.Verdict]:
+    """Fig 3.3's two claims: (c) mostly negative correlations; (a, b) a trade-off frontier in each panel."""
+    scale, n_algos = settings["scale"], len(settings["algos"])
+    thesis = reference.load("fig3_3c")
+    merged = ours.merge(thesis, on=["env", "test"], suffixes=("_reproduced", "_thesis"))
+    defined = merged.dropna(subset=["value_reproduced"])
+    n_neg = int((defined.value_reproduced < 0).sum())
+    agree = int((np.sign(defined.value_reproduced) == np.sign(defined.value_thesis)).sum())
+    note = budget_note(settings, n_algos)
+    evidence = (
+        f"reproduced: {n_neg}/{len(defined)} defined cells negative, sign agrees with the thesis in "
+        f"{agree}/{len(defined)} (selection={selection}); thesis: {int((thesis.value < 0).sum())}/{len(thesis)} "
+        f"negative ({int((merged.value_thesis < 0).sum())}/{len(merged)} on the tasks run here); {note}"
+    )
+    holds = None if defined.empty else n_neg > len(defined) / 2
+    out = [
+        report.Verdict(
+            "3.3",
+            "Training return and testing AUC are mostly negatively correlated across variants (Fig 3.3c)",
+            report.status(holds, scale),
+            evidence,
+        )
+    ]
+    panels, trade = [], []
+    for env, test in settings["panels"]:
+        front = frontier(points[(points.env == env) & (points.test == test)])
+        trade.append(len(front) >= 2)
+        panels.append(f"{env}/{test}: {len(front)} variant(s) on the frontier ({', '.join(front.algo)})")
+    out.append(
+        report.Verdict(
+            "3.3",
+            "A Pareto frontier trades training return against testing AUC (Fig 3.3a,b: >= 2 variants on it)",
+            report.status(all(trade), scale, partly=any(trade)),
+            "reproduced: " + "; ".join(panels) + " (thesis: a frontier of several variants in both panels)",
+        )
+    )
+    return out

@@ -1,0 +1,424 @@
+"""Chapter 4, Figures 4.1-4.7 (kl_avg vs params_avg vs joint): job grids, tidy frames and verdicts.
+
+Training runs are ``train`` jobs of :func:`thesis_repro.learners.train_config` built by :func:`run_config`
+from a figure's settings; the config depends only on the run's identity (algorithm, condition, seed) and the
+budget keys of the settings, so figures with the same settings (4.1, 4.3, 4.5, 4.6) share one cached run.
+Evaluations are cached jobs too: wind sweeps, mass × friction grids and observation/action-noise sweeps of
+the deterministic (mean-action) policy under testing seeds.
+
+>>> conditions("4.1")[0]
+{'panel': 'a', 'c_a': 0.001, 'wind': [-0.5, 0.5]}
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from thesis_repro import reference, report
+from thesis_repro.cache import Job, run_jobs
+from thesis_repro.evaluation.jobs import TRAIN_FN
+from thesis_repro.evaluation.metrics import auc
+from thesis_repro.figures import budget_note, register
+from thesis_repro.learners import train_config
+from thesis_repro.validation import check_choice
+
+EVAL_FN = "thesis_repro.mdl.experiments:evaluate_job"
+EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
+#: The thesis's method (the claims of chapter 4 are about it).
+OURS = "kl_avg"
+
+
+# ---------------------------------------------------------------- conditions, configs, runs
+def conditions(figure: str, panels: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    """Training conditions (panel, c_a, wind range) of a chapter-4 figure, from the thesis table.
+
+    ``panels`` keeps only those panels (ignored for single-panel figures); ``None`` keeps all.
+    """
+    rows = reference.load("chapter4_conditions")
+    rows = rows[rows["figure"] == figure]
+    if rows.empty:
+        raise ValueError(f"no chapter-4 conditions for figure {figure!r}")
+    if panels is not None and len(rows) > 1:
+        for p in panels:
+            check_choice(p, list(rows["panel"]), f"panel of figure {figure}")
+        rows = rows[rows["panel"].isin(list(panels))]
+    return [
+        {"panel": r.panel, "c_a": float(r.action_penalty), "wind": [float(r.wind_low), float(r.wind_high)]}
+        for r in rows.itertuples()
+    ]
+
+
+def label(cond: Mapping[str, Any]) -> str:
+    """Panel title such as ``"c_a=0.001, ξ~U(-0.5,0.5)"``."""
+    return f"c_a={cond['c_a']:g}, ξ~U({cond['wind'][0]:g},{cond['wind'][1]:g})"
+
+
+def run_config(settings: Mapping[str, Any], algo: str, cond: Mapping[str, Any], seed: int) -> dict[str, Any]:
+    """The training config of one run; depends only on the run's identity and the budget keys of ``settings``."""
+    extra = {k: settings[k] for k in ("n_domains", "steps_per_domain") if k in settings}
+    return train_config(
+        algo,
+        settings["env"],
+        seed,
+        int(settings["timesteps"]),
+        c_a=cond["c_a"],
+        wind=list(cond["wind"]),
+        max_episode_steps=settings["max_episode_steps"],
+        **extra,
+    )
+
+
+def runs(settings: Mapping[str, Any]) -> pd.DataFrame:
+    """One row per (condition, algo, seed) of a figure: ``algo, panel, condition, seed, config``."""
+    rows = []
+    for cond in conditions(settings["figure"], settings["panels"]):
+        for algo in settings["algos"]:
+            for seed in range(int(settings["train_seeds"])):
+                rows.append(
+                    {
+                        "algo": algo,
+                        "panel": cond["panel"],
+                        "condition": label(cond),
+                        "seed": seed,
+                        "config": run_config(settings, algo, cond, seed),
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def train_runs(settings: Mapping[str, Any], n_jobs: int | None = None) -> pd.DataFrame:
+    """Train (or load) every run of :func:`runs`; adds the cached ``result`` column."""
+    table = runs(settings)
+    table["result"] = run_jobs([Job(TRAIN_FN, c) for c in table["config"]], n_jobs=n_jobs, desc="ch4 training")
+    return table
+
+
+def curves_frame(runs: pd.DataFrame) -> pd.DataFrame:
+    """Long frame of training curves: one row per (run, iteration) with return, length, entropy, mean KL."""
+    parts = []
+    for row in runs.itertuples():
+        r = row.result
+        kl = np.asarray(r["kl"], dtype=float)
+        parts.append(
+            pd.DataFrame(
+                {
+                    "algo": row.algo,
+                    "panel": row.panel,
+                    "condition": row.condition,
+                    "seed": row.seed,
+                    "iteration": r["iteration"],
+                    "timesteps": r["timesteps"],
+                    "return": r["ep_return"],
+                    "length": r["ep_length"],
+                    "entropy": r["entropy"],
+                    "kl_to_aggregate": np.nanmean(kl, axis=1) if np.isfinite(kl).any() else np.full(len(kl), np.nan),
+                }
+            )
+        )
+    return pd.concat(parts, ignore_index=True)
+
+
+# ---------------------------------------------------------------- evaluations
+def mass_friction_grid(settings: Mapping[str, Any]) -> list[dict[str, float]]:
+    """The ``{"body_mass": m, "friction": f}`` ratio settings of a heat map (mass × friction of the settings)."""
+    return [
+        {"body_mass": float(m), "friction": float(f)}
+        for m, f in itertools.product(settings["mass_ratios"], settings["friction_ratios"])
+    ]
+
+
+def eval_jobs(runs: pd.DataFrame, kind: str, values: Iterable[Any], n_rollouts: int, seed: int = 0) -> list[Job]:
+    """One evaluation job per run of ``runs`` under ``kind`` (wind | shift | obs | act) over ``values``."""
+    check_choice(kind, EVAL_KINDS, "evaluation kind")
+    values = list(values)
+    return [
+        Job(
+            EVAL_FN,
+            {
+                "train": row.config,
+                "kind": kind,
+                "values": values,
+                "n_rollouts": int(n_rollouts),
+                "seed": int(seed),
+                "c_a": row.config["c_a"],
+            },
+        )
+        for row in runs.itertuples()
+    ]
+
+
+def evaluate_runs(
+    runs: pd.DataFrame, kind: str, values: Iterable[Any], n_rollouts: int, seed: int = 0, n_jobs: int | None = None
+) -> pd.DataFrame:
+    """Evaluate every run of ``runs`` under ``kind``; long frame with one row per (run, value) (mean return)."""
+    values = list(values)
+    results = run_jobs(eval_jobs(runs, kind, values, n_rollouts, seed), n_jobs=n_jobs, desc=f"ch4 eval {kind}")
+    rows = []
+    for row, res in zip(runs.itertuples(), results, strict=True):
+        for v, ret in zip(values, np.asarray(res["returns"]), strict=True):
+            item = {
+                "algo": row.algo,
+                "panel": row.panel,
+                "condition": row.condition,
+                "seed": row.seed,
+                "return": float(np.mean(ret)),
+            }
+            if kind == "shift":
+                item.update(mass=float(v["body_mass"]), friction=float(v["friction"]))
+            else:
+                item["value"] = float(v)
+            rows.append(item)
+    return pd.DataFrame(rows)
+
+
+# ---------------------------------------------------------------- job grids of the figures
+def _values(kind: str, settings: Mapping[str, Any]) -> list[Any]:
+    """The evaluation grid of ``kind`` from a figure's settings (``wind0``: wind off, Fig 4.2)."""
+    if kind == "shift":
+        return mass_friction_grid(settings)
+    return {"wind": settings["winds"], "wind0": [0.0], "obs": settings["sigmas"], "act": settings["sigmas"]}[kind]
+
+
+def _grid(*evals: str) -> Any:
+    """Job grid: every training job, then for each kind of ``evals`` one evaluation job per run."""
+
+    def grid(settings: Mapping[str, Any]) -> list[Job]:
+        table = runs(settings)
+        jobs = [Job(TRAIN_FN, c) for c in table["config"]]
+        for kind in evals:
+            jobs += eval_jobs(table, kind.removesuffix("0"), _values(kind, settings), settings["test_rollouts"])
+        return jobs
+
+    return grid
+
+
+_TRAIN = ("train",)
+_BOTH = ("train", "evaluate")
+register("4.1", "Training curves of kl_avg, params_avg and joint under four conditions", _TRAIN)(_grid())
+register("4.2", "Key frames of a walking cycle, kl_avg vs params_avg", _BOTH)(_grid("wind0"))
+register("4.3", "Walker2d testing return vs wind speed", _BOTH)(_grid("wind"))
+register("4.4", "Hopper: testing return vs wind; mass × friction heat maps", _BOTH)(_grid("wind", "shift"))
+register("4.5", "Walker2d testing return over mass × friction", _BOTH)(_grid("shift"))
+register("4.6", "Testing return vs observation- and action-noise scale", _BOTH)(_grid("obs", "act"))
+register("4.7", "Policy entropy during training", _TRAIN)(_grid())
+
+
+# ---------------------------------------------------------------- tables behind the verdicts
+def compare(frame: pd.DataFrame, value: str, by: Sequence[str] = ("panel",), ours: str = OURS) -> pd.DataFrame:
+    """Mean of ``value`` per (by..., algo) and whether ``ours`` is the best algorithm in each group."""
+    table = frame.groupby([*by, "algo"])[value].mean().unstack("algo")
+    table["best"] = table.idxmax(axis=1)
+    table[f"{ours}_best"] = table["best"] == ours
+    return table
+
+
+def late_returns(curves: pd.DataFrame) -> pd.DataFrame:
+    """Fig 4.1: mean training return over the last third of the iterations, per panel and algorithm."""
+    n_it = int(curves["iteration"].max())
+    return compare(curves[curves["iteration"] > n_it - max(1, n_it // 3)], "return")
+
+
+def off_centre(heat: pd.DataFrame) -> pd.DataFrame:
+    """Heat-map rows except the training dynamics (mass = friction = 1)."""
+    return heat[~(np.isclose(heat["mass"], 1.0) & np.isclose(heat["friction"], 1.0))]
+
+
+def noise_aucs(noise: pd.DataFrame) -> pd.DataFrame:
+    """Fig 4.6: AUC (Eq 3.6) of the seed-mean return over σ, per noise type, panel and algorithm."""
+    curve = noise.groupby(["noise", "panel", "algo", "value"])["return"].mean().reset_index()
+    rows = []
+    for (kind, panel, algo), g in curve.groupby(["noise", "panel", "algo"]):
+        g = g.sort_values("value")
+        rows.append(
+            {
+                "noise": kind,
+                "panel": panel,
+                "algo": algo,
+                "auc": float(auc(g["return"].to_numpy(), g["value"].tolist())),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def best_seeds(runs: pd.DataFrame, last: int = 3) -> pd.DataFrame:
+    """Fig 4.2: per algorithm, the run with the best mean return over its ``last`` iterations (index: algo)."""
+    runs = runs.copy()
+    runs["final_return"] = [
+        float(np.nanmean(r["ep_return"][-last:])) if np.isfinite(r["ep_return"]).any() else -np.inf
+        for r in runs["result"]
+    ]
+    return runs.loc[runs.groupby("algo")["final_return"].idxmax()].set_index("algo")
+
+
+# ---------------------------------------------------------------- verdicts
+def panel_lines(
+    table: pd.DataFrame, easy: Sequence[str] = (), tol: float = 0.1, what: str = "mean return", ours: str = OURS
+) -> tuple[list[str], list[bool]]:
+    """Per panel of a higher-is-better ``table`` (from :func:`compare`): a sentence and whether the claim holds.
+
+    The claim: ``ours`` is similar (within ``tol`` relative to the best baseline) in the ``easy`` panels and
+    strictly better than every baseline in the others.
+    """
+    lines, holds = [], []
+    for panel, row in table.iterrows():
+        algos = [c for c in row.index if c not in ("best", f"{ours}_best")]
+        base = max(float(row[a]) for a in algos if a != ours)
+        mine = float(row[ours])
+        if panel in easy:
+            good = mine >= base - tol * max(abs(base), 1e-9)
+            word, thesis = ("similar or better" if good else "worse"), "similar"
+        else:
+            good = mine > base
+            word, thesis = ("better" if good else "not better"), "better"
+        lines.append(
+            f"panel {panel}: {ours} {what} {mine:.3g} vs best baseline {base:.3g} -> {word} (thesis: {thesis})"
+        )
+        holds.append(bool(good))
+    return lines, holds
+
+
+def caveat(settings: Mapping[str, Any]) -> str:
+    """The honest fine print of a chapter-4 run: budget in env steps and iterations vs the thesis's, seeds."""
+    it = int(settings["timesteps"]) // (int(settings["n_domains"]) * int(settings["steps_per_domain"]))
+    text = budget_note(settings) + f" (~{it} iterations)."
+    if int(settings["train_seeds"]) < 3:
+        text += " With so few seeds there are no error bars: small differences are not evidence either way."
+    return text
+
+
+def claim_verdict(
+    figure: str,
+    claim: str,
+    table: pd.DataFrame,
+    settings: Mapping[str, Any],
+    easy: Sequence[str] = (),
+    what: str = "mean return",
+    tol: float = 0.1,
+) -> report.Verdict:
+    """One :class:`~thesis_repro.report.Verdict` for a kl_avg-vs-baselines claim judged panel by panel."""
+    lines, holds = panel_lines(table, easy, tol, what)
+    status = report.status(all(holds), settings["scale"], partly=any(holds))
+    return report.Verdict(figure, claim, status, "reproduced: " + "; ".join(lines) + ". " + caveat(settings))
+
+
+def verdict_4_1(curves: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Fig 4.1: kl_avg learns as well in the easy condition (a) and better in the harder ones."""
+    claim = "kl_avg learns like the baselines in the easy condition (a) and better in the harder ones"
+    return [claim_verdict("4.1", claim, late_returns(curves), settings, easy=("a",), what="late training return")]
+
+
+def verdict_4_2(returns: pd.Series, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Fig 4.2 (visual gait claim): the measurable proxy, testing return at ξ = 0 of the best seeds."""
+    ours, base = float(returns[OURS]), float(returns["params_avg"])
+    evidence = (
+        f"reproduced testing return at ξ = 0 of the best seeds: {OURS} {ours:.1f}, params_avg {base:.1f}; "
+        f"naturalness itself is visual (see the key frames). {caveat(settings)}"
+    )
+    claim = "kl_avg's gait is more natural than params_avg's (proxy: higher testing return at ξ = 0)"
+    return [report.Verdict("4.2", claim, report.status(ours >= base, settings["scale"]), evidence)]
+
+
+def verdict_4_3(wind: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Fig 4.3: kl_avg extrapolates better over unseen wind speeds when training is harder."""
+    claim = "kl_avg is competitive in the easy condition (a) and more robust to unseen winds in the harder ones"
+    table = compare(wind, "return")
+    return [claim_verdict("4.3", claim, table, settings, easy=("a",), what="mean testing return over winds")]
+
+
+def verdict_4_4(wind: pd.DataFrame, heat: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Fig 4.4 (Hopper): kl_avg degrades less under unseen winds (a) and mass/friction changes (b)."""
+    return [
+        claim_verdict(
+            "4.4",
+            "(a) On Hopper kl_avg is the most robust to unseen wind speeds",
+            compare(wind, "return"),
+            settings,
+            what="mean return over winds",
+        ),
+        claim_verdict(
+            "4.4",
+            "(b) On Hopper kl_avg is the most robust to mass × friction changes",
+            compare(off_centre(heat), "return"),
+            settings,
+            what="mean off-centre return",
+        ),
+    ]
+
+
+def verdict_4_5(heat: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Fig 4.5: kl_avg stays robust over a wide range of mass × friction (off-centre mean return)."""
+    claim = "kl_avg is the most robust to unseen mass × friction combinations in every condition"
+    return [claim_verdict("4.5", claim, compare(off_centre(heat), "return"), settings, what="mean off-centre return")]
+
+
+def verdict_4_6(aucs: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Fig 4.6: kl_avg's testing return degrades more slowly under observation and action noise (AUC)."""
+    return [
+        claim_verdict(
+            "4.6",
+            f"kl_avg degrades more slowly than the baselines under {kind} noise (higher AUC, Eq 3.6)",
+            compare(aucs[aucs["noise"] == kind], "auc"),
+            settings,
+            what=f"{kind}-noise AUC",
+        )
+        for kind in ("obs", "act")
+    ]
+
+
+def verdict_4_7(curves: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Fig 4.7: kl_avg keeps the highest policy entropy (final iteration)."""
+    final = curves[curves["iteration"] == curves["iteration"].max()]
+    claim = "kl_avg keeps a higher policy entropy than params_avg and joint"
+    return [claim_verdict("4.7", claim, compare(final, "entropy"), settings, what="final entropy")]
+
+
+# ---------------------------------------------------------------- Figure 4.2: rendering
+def render_cycle(
+    run_result: Any, env: str, c_a: float, n_frames: int = 5, steps: int = 300, seed: int = 0
+) -> tuple[list[np.ndarray], list[int]]:
+    """Key frames of one gait cycle of the trained policy at ξ = 0, rendered offscreen (``MUJOCO_GL``).
+
+    The cycle period is the dominant period of the thigh-joint angle (FFT) over ``steps`` steps; the
+    frames are ``n_frames`` evenly spaced steps of the last full cycle (fallback: of the whole episode).
+    """
+    from thesis_repro.learners import load_policy  # torch-heavy: only when rendering
+    from thesis_repro.mdl.envs import make_mdl_env
+
+    policy = load_policy(run_result)
+    e = make_mdl_env(env, c_a=c_a, wind=0.0, max_episode_steps=steps, render_mode="rgb_array")
+    obs, _ = e.reset(seed=seed)
+    frames, angles = [e.render()], [float(obs[2])]
+    for _ in range(steps):
+        obs, _, term, trunc, _ = e.step(policy(obs[None])[0])
+        frames.append(e.render())
+        angles.append(float(obs[2]))
+        if term or trunc:
+            break
+    e.close()
+    idx = cycle_frames(np.asarray(angles), n_frames)
+    return [frames[i] for i in idx], idx
+
+
+def cycle_frames(angles: np.ndarray, n_frames: int) -> list[int]:
+    """Indices of ``n_frames`` evenly spaced steps over the last full period of ``angles`` (FFT period).
+
+    >>> t = np.arange(101)
+    >>> cycle_frames(np.sin(2 * np.pi * t / 20), 5)
+    [80, 85, 90, 95, 100]
+    """
+    n = len(angles)
+    period = n
+    if n >= 16:
+        a = np.asarray(angles, float) - np.mean(angles)
+        spec = np.abs(np.fft.rfft(a))
+        freqs = np.fft.rfftfreq(n)
+        k = int(np.argmax(spec[1:]) + 1)
+        period = int(round(1.0 / freqs[k])) if freqs[k] > 0 else n
+    period = max(min(period, n - 1), n_frames)
+    start = max(n - 1 - period, 0)
+    return np.linspace(start, min(start + period, n - 1), n_frames).round().astype(int).tolist()
