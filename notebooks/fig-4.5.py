@@ -9,65 +9,50 @@
 # %% [markdown]
 # # Figure 4.5 — Walker2d testing return over body-mass × friction ratios (heat maps)
 #
-# Thesis claim (§4.3.3): under unseen combinations of robot mass and friction (ratios to the training
-# values; the centre cell is the training dynamics), joint and params_avg degrade more away from the
-# centre while kl_avg stays robust over a wide range. Policies: the cached runs of Fig 4.1 (wind off
-# at test). All numbers are **reproduced**.
+# **Thesis claim** (§4.3.3): under unseen combinations of robot mass and friction, joint and params_avg
+# degrade more away from the centre while kl_avg stays robust over a wide range.
+#
+# > *Thesis caption:* Performance of policies under different combinations of body masses and friction
+# > coefficients in *Walker* task. The testing return are depicted as heat maps, of which the axes indicate
+# > the ratio of testing dynamic parameters to training ones. The centre of each heat map corresponds to the
+# > training dynamic parameters and the brightness of each cell indicates the testing return under each
+# > dynamic model instance. Four training conditions are (a): c_a = 0.001, ξ ~ U(−0.5, 0.5), (b): c_a = 0.001,
+# > ξ ~ U(−2.5, 2.5), (c): c_a = 1.0, ξ ~ U(−0.5, 0.5), (d): c_a = 1.0, ξ ~ U(−2.5, 2.5).
+#
+# Policies: the cached runs of Fig 4.1 (wind off at test). All numbers are **reproduced**.
 
 # %% tags=["parameters"]
 SCALE = "small"
 
 # %%
-import itertools
-
 import matplotlib.pyplot as plt
-import numpy as np
-import seaborn as sns
 
-from thesis_repro import paths
-from thesis_repro.mdl import experiments as ex
-from thesis_repro.scales import figure_settings
+from thesis_repro import figures, report
+from thesis_repro.figures import ch4, plot
 
-settings = figure_settings("4.5", SCALE)
-conds = ex.conditions("4.5", settings["panels"])
-runs = ex.train_runs(settings, settings["algos"], conds, n_jobs=settings["n_jobs"])
-grid = [
-    {"body_mass": m, "friction": f} for m, f in itertools.product(settings["mass_ratios"], settings["friction_ratios"])
-]
-heat = ex.evaluate_runs(runs, "shift", grid, settings["test_rollouts"], n_jobs=settings["n_jobs"])
-heat["source"] = "reproduced"
+settings = figures.settings("4.5", SCALE)
+print(figures.runs_summary("4.5", SCALE))
+conds = ch4.conditions("4.5", settings["panels"])
+runs = ch4.train_runs(settings, n_jobs=settings["n_jobs"])
+grid = ch4.mass_friction_grid(settings)
+heat = ch4.evaluate_runs(runs, "shift", grid, settings["test_rollouts"], n_jobs=settings["n_jobs"])
 
 # %%
 algos = settings["algos"]
 fig, axes = plt.subplots(len(algos), len(conds), figsize=(3.2 * len(conds), 2.8 * len(algos)), squeeze=False)
 for j, cond in enumerate(conds):
     col = heat[heat["panel"] == cond["panel"]]  # one colour scale per training condition (column)
-    vmin, vmax = col["return"].min(), col["return"].max()
     for i, algo in enumerate(algos):
-        sub = heat[(heat["panel"] == cond["panel"]) & (heat["algo"] == algo)]
-        mat = sub.groupby(["mass", "friction"])["return"].mean().unstack("friction").sort_index(ascending=False)
-        sns.heatmap(mat, ax=axes[i, j], vmin=vmin, vmax=vmax, cbar=True, cmap="viridis")
-        axes[i, j].set_title(f"{algo} ({cond['panel']})", fontsize=9)
-        axes[i, j].set_xlabel("friction ratio")
-        axes[i, j].set_ylabel("mass ratio")
+        title = f"{algo} ({cond['panel']}), reproduced"
+        plot.heatmap(axes[i, j], col[col["algo"] == algo], title, vmin=col["return"].min(), vmax=col["return"].max())
 fig.suptitle(f"Fig 4.5 reproduced — {settings['env']}, scale={SCALE}")
 fig.tight_layout()
-out = paths.figures(SCALE) / "fig-4.5.png"
-fig.savefig(out, dpi=100)
-print("saved", out)
+plot.save(fig, SCALE, "fig-4.5")
 
 # %% [markdown]
-# ## Does the claim hold at this scale?
+# ## Does the claim reproduce at this scale?
 # Mean testing return over the off-centre cells (every cell except mass = friction = 1), per condition.
 
 # %%
-off = heat[~(np.isclose(heat["mass"], 1.0) & np.isclose(heat["friction"], 1.0))]
-table = ex.compare(off, "return")
-print(table)
-lines, holds = ex.verdict(table, easy=(), what="mean off-centre return")
-print("\n".join(lines))
-print(
-    f"Conclusion (reproduced, scale={SCALE}): kl_avg being the most robust to mass/friction changes "
-    f"{'HOLDS' if holds else 'does NOT hold'} in every condition here."
-)
-print(ex.caveat(settings))
+print(ch4.compare(ch4.off_centre(heat), "return"))
+_ = report.report("fig-4.5", SCALE, ch4.verdict_4_5(heat, settings))

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from thesis_repro import scales
-from thesis_repro.cache import Job
+from thesis_repro.cache import Job, RunCache
 from thesis_repro.validation import check_choice
 
 #: Job kinds whose runs are *training* runs (shipped as reference runs at ``small``).
@@ -144,6 +144,25 @@ def training_jobs(figure_id: str, scale: str, **overrides: Any) -> list[Job]:
     return [j for j in jobs(figure_id, scale, **overrides) if kind_of(j) in TRAINING_KINDS]
 
 
+def runs_summary(figure_id: str, scale: str) -> str:
+    """One line: where the training runs of ``figure_id`` at ``scale`` come from (shipped / cached / to compute).
+
+    >>> runs_summary("4.1", "smoke")  # doctest: +ELLIPSIS
+    'fig-4.1 (smoke): 6 training runs: ...'
+    """
+    try:  # at call time: the run listing (thesis_repro.runs) imports this registry
+        from thesis_repro import runs as listing
+    except ImportError:
+        listing = None
+    fig, jobs = get(figure_id), training_jobs(figure_id, scale)
+    head = f"{fig.notebook_id} ({scale}): "
+    if hasattr(listing, "summary"):
+        return head + listing.summary(jobs)
+    cache = RunCache()
+    cached = sum(cache.entry(j).exists() for j in jobs)
+    return head + f"{len(jobs)} training runs: {cached} cached, {len(jobs) - cached} to compute"
+
+
 def ids() -> list[str]:
     """Registered ids in catalogue order (chapter, then number; tables and analyses after figures)."""
 
@@ -163,21 +182,25 @@ def thesis_budget(figure_id: str) -> int:
     return int(t["default"] if isinstance(t, Mapping) else t)
 
 
-def budget_note(settings: Mapping[str, Any], n_algos: int | None = None) -> str:
+def budget_note(settings: Mapping[str, Any], n_algos: int | None = None, extra: str = "") -> str:
     """One sentence: a scale's training budget and seeds beside the thesis's (both read from the scale table).
 
-    >>> budget_note(settings("4.1", "smoke"))
-    'scale smoke: 128 env steps per run (thesis: 4e+06), 1 training seed(s) (thesis: 6).'
+    >>> budget_note(settings("4.1", "smoke"), extra="~1 iteration")
+    'scale smoke: 128 env steps per run (thesis: 4,000,000), 1 training seed(s) (thesis: 6), ~1 iteration.'
     """
     figure = settings["figure"]
     ours = settings["timesteps"]
-    ours_text = ", ".join(f"{k}: {v}" for k, v in ours.items()) if isinstance(ours, Mapping) else str(ours)
+    ours_text = ", ".join(f"{k}: {v:,}" for k, v in ours.items()) if isinstance(ours, Mapping) else f"{ours:,}"
     thesis, seeds = thesis_budget(figure), get(figure).settings("full")["train_seeds"]
-    text = f"scale {settings['scale']}: {ours_text} env steps per run (thesis: {thesis:g}), "
-    text += f"{settings['train_seeds']} training seed(s) (thesis: {seeds})"
+    parts = [
+        f"scale {settings['scale']}: {ours_text} env steps per run (thesis: {thesis:,})",
+        f"{settings['train_seeds']} training seed(s) (thesis: {seeds})",
+    ]
     if n_algos is not None:
-        text += f", {n_algos} variants"
-    return text + "."
+        parts.append(f"{n_algos} variants")
+    if extra:
+        parts.append(extra)
+    return ", ".join(parts) + "."
 
 
 # Chapter modules register their items on import (add a new module's import here).
@@ -196,6 +219,7 @@ __all__ = [
     "jobs",
     "kind_of",
     "register",
+    "runs_summary",
     "settings",
     "thesis_budget",
     "training_jobs",

@@ -73,6 +73,11 @@ def run_config(settings: Mapping[str, Any], algo: str, cond: Mapping[str, Any], 
     )
 
 
+def iteration_steps(cfg: Mapping[str, Any]) -> int:
+    """Env steps of one multi-domain iteration (all domains): ``n_domains × steps_per_domain``."""
+    return int(cfg["n_domains"]) * int(cfg["steps_per_domain"])
+
+
 def runs(settings: Mapping[str, Any]) -> pd.DataFrame:
     """One row per (condition, algo, seed) of a figure: ``algo, panel, condition, seed, config``."""
     rows = []
@@ -284,8 +289,8 @@ def panel_lines(
 
 def caveat(settings: Mapping[str, Any]) -> str:
     """The honest fine print of a chapter-4 run: budget in env steps and iterations vs the thesis's, seeds."""
-    it = int(settings["timesteps"]) // (int(settings["n_domains"]) * int(settings["steps_per_domain"]))
-    text = budget_note(settings) + f" (~{it} iterations)."
+    it = int(settings["timesteps"]) // iteration_steps(settings)
+    text = budget_note(settings, extra=f"~{it} iteration(s) of {iteration_steps(settings):,} steps")
     if int(settings["train_seeds"]) < 3:
         text += " With so few seeds there are no error bars: small differences are not evidence either way."
     return text

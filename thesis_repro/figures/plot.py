@@ -1,0 +1,69 @@
+"""Plotting helpers shared by the figure notebooks (matplotlib / seaborn); no numbers are computed here.
+
+>>> import pandas as pd
+>>> heat = pd.DataFrame({"mass": [1.0, 1.0, 2.0, 2.0], "friction": [1.0, 2.0, 1.0, 2.0], "return": [1.0, 2, 3, 4]})
+>>> heat_matrix(heat).values.tolist()     # rows: mass (descending), columns: friction
+[[3.0, 4.0], [1.0, 2.0]]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import seaborn as sns
+
+from thesis_repro import paths
+
+
+def save(fig: plt.Figure, scale: str, name: str, dpi: int = 100) -> None:
+    """Save ``fig`` as ``build/<scale>/figures/<name>.png`` and print the path."""
+    out = paths.figures(scale) / f"{name}.png"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    print("saved", out)
+
+
+def heat_matrix(heat: pd.DataFrame, value: str = "return") -> pd.DataFrame:
+    """Mean ``value`` as a mass (rows, descending) × friction (columns) matrix."""
+    return heat.groupby(["mass", "friction"])[value].mean().unstack("friction").sort_index(ascending=False)
+
+
+def heatmap(ax: plt.Axes, heat: pd.DataFrame, title: str, **kwargs: Any) -> None:
+    """A mass × friction heat map of the testing return on ``ax`` (kwargs go to ``sns.heatmap``)."""
+    sns.heatmap(heat_matrix(heat), ax=ax, cmap="viridis", **kwargs)
+    ax.set(title=title, xlabel="friction ratio", ylabel="mass ratio")
+    ax.title.set_fontsize(9)
+
+
+def lines_by_panel(
+    data: pd.DataFrame,
+    conds: Sequence[Mapping[str, Any]],
+    x: str,
+    rows: Sequence[tuple[str, str]],
+    hue_order: Sequence[str],
+    title: Any = None,
+    shade_wind: bool = False,
+    **kwargs: Any,
+) -> tuple[plt.Figure, np.ndarray]:
+    """One column per training condition, one row per ``(column, ylabel)`` of ``rows``; lines by algorithm.
+
+    ``title(cond, row_index)`` gives each axis title; ``shade_wind`` shades each condition's training wind
+    range; kwargs go to ``sns.lineplot`` (e.g. ``errorbar="sd"``, ``marker="o"``).
+    """
+    fig, axes = plt.subplots(len(rows), len(conds), figsize=(4 * len(conds), 3.2 * len(rows) + 0.3), squeeze=False)
+    for j, cond in enumerate(conds):
+        sub = data[data["panel"] == cond["panel"]]
+        for i, (y, ylabel) in enumerate(rows):
+            ax = axes[i, j]
+            sns.lineplot(
+                data=sub, x=x, y=y, hue="algo", hue_order=list(hue_order), ax=ax, legend=(i == 0 and j == 0), **kwargs
+            )
+            if shade_wind:
+                ax.axvspan(*cond["wind"], color="grey", alpha=0.15)
+            ax.set_title(title(cond, i) if title else "", fontsize=9)
+            ax.set_ylabel(ylabel)
+    return fig, axes
