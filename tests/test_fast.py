@@ -1,0 +1,149 @@
+"""The fast training updates are SB3's updates: same data, same seed -> same parameters (to float tolerance).
+
+Tolerance: every parameter within ATOL = 1e-5 (absolute) of SB3's after the whole ``train()`` call
+(10 epochs x 4 minibatches here; the closed-form gradient differs from autograd only in float rounding,
+measured ~1e-7). The twins are also checked to have moved far more than ATOL, so equality is not vacuous.
+"""
+
+from __future__ import annotations
+
+import copy
+import io
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3 import PPO
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+from thesis_repro.envs import make_env
+from thesis_repro.learners.fast import FastPPO, _ManualActorCritic, ppo_epochs, rollout_tensors
+from thesis_repro.learners.policies import SCNPolicy
+
+ATOL = 1e-5
+STATS = ("policy_gradient_loss", "value_loss", "approx_kl", "clip_fraction", "entropy_loss", "loss", "n_updates")
+
+
+def _venv(n: int = 2) -> VecNormalize:
+    return VecNormalize(DummyVecEnv([lambda i=i: make_env("Hopper", seed=i) for i in range(n)]), norm_reward=False)
+
+
+def _twins(policy="MlpPolicy", activation=th.nn.Tanh, **kw) -> tuple[FastPPO, PPO]:
+    """A FastPPO after two training iterations (non-trivial Adam state, stale rollout -> clipping active),
+    and an SB3 PPO with identical parameters, optimiser state, buffer and progress."""
+    args = dict(n_steps=128, batch_size=64, n_epochs=10, seed=0, device="cpu")
+    args.update(kw)
+    pk = dict(net_arch=dict(pi=[32, 32], vf=[32, 32]), activation_fn=activation, optimizer_kwargs={"fused": True})
+    fast = FastPPO(policy, _venv(), policy_kwargs=pk, **args)
+    fast.learn(512)
+    sb3 = PPO(policy, _venv(), policy_kwargs=pk, **args)
+    sb3.set_logger(configure(None, [""]))
+    sb3.policy.load_state_dict(fast.policy.state_dict())
+    sb3.policy.optimizer.load_state_dict(copy.deepcopy(fast.policy.optimizer.state_dict()))
+    sb3.rollout_buffer = copy.deepcopy(fast.rollout_buffer)
+    sb3._current_progress_remaining = fast._current_progress_remaining
+    sb3._n_updates = fast._n_updates
+    return fast, sb3
+
+
+def _max_diff(a: th.nn.Module, b: th.nn.Module) -> float:
+    return max((p - q).abs().max().item() for p, q in zip(a.parameters(), b.parameters(), strict=True))
+
+
+CASES = {
+    "mlp": dict(),
+    "scn": dict(policy=SCNPolicy),
+    "scn+entropy": dict(policy=SCNPolicy, ent_coef=0.01),
+    "relu+no-adv-norm+vf-clip": dict(activation=th.nn.ReLU, normalize_advantage=False, clip_range_vf=0.1),
+    "target_kl": dict(target_kl=0.003),  # stops in epoch 9 of 10
+    "odd-batch": dict(batch_size=48),  # last minibatch smaller (256 = 5 x 48 + 16)
+}
+
+
+@pytest.mark.filterwarnings("ignore:You have specified a mini-batch size")
+@pytest.mark.parametrize("case", list(CASES))
+def test_fast_train_equals_sb3_train(case):
+    fast, sb3 = _twins(**CASES[case])
+    before = copy.deepcopy(fast.policy)
+    n_updates = fast._n_updates
+    np.random.seed(123)
+    sb3.train()
+    np.random.seed(123)
+    fast.train()
+    assert fast.fast_path is True
+    assert _max_diff(fast.policy, sb3.policy) < ATOL
+    assert _max_diff(fast.policy, before) > 100 * ATOL  # the update did move the parameters
+    for key in STATS:
+        ref, got = sb3.logger.name_to_value[f"train/{key}"], fast.logger.name_to_value[f"train/{key}"]
+        assert got == pytest.approx(ref, rel=1e-4, abs=1e-6), key
+    epochs = fast._n_updates - n_updates
+    assert (1 < epochs < fast.n_epochs) if case == "target_kl" else (epochs == fast.n_epochs)
+
+
+def test_generic_path_equals_sb3_train():
+    """``manual=False`` (autograd through ``evaluate_actions``, used for unusual policies) is SB3's update too."""
+    fast, sb3 = _twins(policy=SCNPolicy)
+    np.random.seed(7)
+    sb3.train()
+    np.random.seed(7)
+    kw = dict(n_epochs=fast.n_epochs, batch_size=fast.batch_size, clip_range=0.2, max_grad_norm=fast.max_grad_norm)
+    stats = ppo_epochs(fast.policy, fast.policy.optimizer, rollout_tensors(fast.rollout_buffer), manual=False, **kw)
+    assert stats["fast_path"] is False and stats["epochs"] == fast.n_epochs
+    assert _max_diff(fast.policy, sb3.policy) < ATOL
+
+
+def test_unusual_policy_falls_back_and_manual_true_refuses():
+    model = FastPPO("MlpPolicy", make_env("InvertedPendulum", seed=0), n_steps=64, batch_size=32, use_sde=True, seed=0)
+    assert _ManualActorCritic.build(model.policy) is None
+    model.learn(64)
+    assert model.fast_path is False
+    data = rollout_tensors(model.rollout_buffer)
+    with pytest.raises(ValueError, match="no closed-form PPO path"):
+        ppo_epochs(model.policy, model.policy.optimizer, data, n_epochs=1, batch_size=32, clip_range=0.2, manual=True)
+
+
+@pytest.mark.parametrize("algo", ["ppo", "ppo-16", "ppo-scn", "ppo-scn-16", "ppo-ent", "ppo-arpl", "ppo-obsnoise"])
+def test_kit_ppo_configs_train_with_the_closed_form_path(algo):
+    from thesis_repro.learners.config import train_config
+    from thesis_repro.learners.train import _wrap, build_model, make_train_venv
+
+    cfg = train_config(algo, "Hopper", 0, 1000, n_envs=1)
+    model = build_model(cfg, _wrap(cfg, make_train_venv(cfg), None))
+    assert isinstance(model, FastPPO)
+    assert _ManualActorCritic.build(model.policy) is not None
+
+
+def test_rollout_tensors_matches_sb3_get_order_and_selects_columns():
+    fast, _ = _twins(n_epochs=1)
+    buf = copy.deepcopy(fast.rollout_buffer)  # FastPPO never flattens the buffer: layout (T, n_envs, ...)
+    assert not buf.generator_ready
+    data = rollout_tensors(buf)
+    np.random.seed(0)
+    (batch,) = buf.get(None)  # SB3's own flattening (now in place), one batch with permuted rows
+    np.random.seed(0)
+    perm = th.as_tensor(np.random.permutation(256))
+    for name, ref in [("observations", batch.observations), ("advantages", batch.advantages)]:
+        assert th.equal(getattr(data.index(perm), name), ref)
+    flat = rollout_tensors(buf)  # after get(): same rows
+    assert all(th.equal(getattr(flat, f), getattr(data, f)) for f in ("observations", "old_log_prob", "returns"))
+    col = rollout_tensors(buf, env_index=1)
+    assert th.equal(col.returns, data.returns[128:])
+    mask = np.zeros((128, 2), dtype=bool)
+    mask[::3, 0] = mask[5:9, 1] = True
+    sub = rollout_tensors(buf, mask=mask)
+    assert th.equal(sub.actions, th.cat([data.actions[:128][mask[:, 0]], data.actions[128:][mask[:, 1]]]))
+    assert th.equal(rollout_tensors(buf, env_index=0, mask=mask[:, 0]).actions, data.actions[:128][mask[:, 0]])
+    with pytest.raises(ValueError, match="env_index must be in"):
+        rollout_tensors(buf, env_index=2)
+
+
+def test_fastppo_zip_loads_as_sb3_ppo():
+    model = FastPPO("MlpPolicy", make_env("InvertedPendulum", seed=0), n_steps=64, batch_size=32, seed=0)
+    model.learn(64)
+    blob = io.BytesIO()
+    model.save(blob)
+    blob.seek(0)
+    loaded = PPO.load(blob, device="cpu")
+    obs = np.random.default_rng(0).normal(size=(5, 4)).astype(np.float32)
+    np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])

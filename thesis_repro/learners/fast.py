@@ -1,0 +1,444 @@
+"""Leaner, equivalent training updates for SB3's PPO (and SAC/DDPG below): same algorithm, less overhead.
+
+SB3's ``PPO.train()`` spends most of its time on framework overhead for the kit's tiny networks: per
+minibatch it copies numpy slices to tensors, builds ``torch.distributions`` objects, runs autograd over
+~40 small nodes and walks ``policy.parameters()`` three times. :class:`FastPPO` overrides ``train()`` (SB3's
+own extension point) with :func:`ppo_epochs`, which computes the SAME loss and its gradient:
+
+* the rollout is flattened once into :class:`RolloutTensors` (:func:`rollout_tensors`, in the order of
+  SB3's ``RolloutBuffer.get``) and permuted once per epoch with the same ``np.random.permutation`` draw;
+* for the kit's policies (SB3 ``MlpExtractor`` or the SCN extractor, Linear+Tanh/ReLU layers, flat Box
+  observations, diagonal Gaussian without gSDE) the forward pass and the gradient of the clipped PPO
+  loss are written out in closed form (:class:`_ManualActorCritic`; tie and clip conventions of torch's
+  autograd for ``min``/``clamp``), so no graph is built; any other policy takes the generic path
+  (``policy.evaluate_actions`` + autograd) on the same tensors;
+* gradients are clipped with one ``_foreach_norm``, the optimiser is the policy's (fused Adam in the kit);
+  statistics stay tensors until the end (one sync per call, plus one per minibatch only if ``target_kl``).
+
+``tests/test_fast.py`` proves equivalence: from identical parameters, optimiser state, rollout buffer and
+numpy seed, ``FastPPO.train()`` and ``PPO.train()`` give the same parameters to atol 1e-5 after several
+epochs (MLP, SCN, normalised advantages, ``target_kl`` early stop, value clipping).
+
+A ``FastPPO`` zip is an ordinary SB3 PPO zip: ``PPO.load`` reads it (the class is not stored in the file).
+
+>>> import gymnasium as gym
+>>> m = FastPPO("MlpPolicy", gym.make("InvertedPendulum-v5"), n_steps=64, batch_size=32, n_epochs=2, seed=0)
+>>> _ = m.learn(64)
+>>> m.fast_path, m.logger.name_to_value["train/n_updates"]
+(True, 2)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import PPO
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.distributions import DiagGaussianDistribution
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import FlattenExtractor, MlpExtractor
+from stable_baselines3.common.utils import explained_variance
+from torch import nn
+
+_LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
+
+
+# ------------------------------------------------------------------------------------------- rollout data
+@dataclass
+class RolloutTensors:
+    """A flat on-policy batch (row ``i`` = one env step), the tensors SB3's ``RolloutBuffer.get`` yields."""
+
+    observations: th.Tensor  # (n, *obs_shape)
+    actions: th.Tensor  # (n, *act_shape)
+    old_values: th.Tensor  # (n,)
+    old_log_prob: th.Tensor  # (n,)
+    advantages: th.Tensor  # (n,)
+    returns: th.Tensor  # (n,)
+
+    def __len__(self) -> int:
+        return int(self.advantages.shape[0])
+
+    def index(self, idx: th.Tensor) -> RolloutTensors:
+        """Rows ``idx`` (a LongTensor) of every field."""
+        return RolloutTensors(*(getattr(self, f.name).index_select(0, idx) for f in fields(self)))
+
+    def slice(self, start: int, stop: int) -> RolloutTensors:
+        """Rows ``start:stop`` (views)."""
+        return RolloutTensors(*(getattr(self, f.name)[start:stop] for f in fields(self)))
+
+
+_BUFFER_FIELDS = ("observations", "actions", "values", "log_probs", "advantages", "returns")
+
+
+def rollout_tensors(
+    buffer: RolloutBuffer, env_index: int | None = None, mask: np.ndarray | None = None
+) -> RolloutTensors:
+    """Flatten a full ``RolloutBuffer`` env-major, exactly as ``RolloutBuffer.get`` does (row = env·T + t).
+
+    ``env_index`` keeps one env's column (T rows, in time order); ``mask`` (bool, shape
+    ``(buffer_size, n_envs)`` like the buffer, or ``(buffer_size,)`` with ``env_index``) keeps the
+    marked steps. The buffer is not modified (it may or may not have been flattened by ``get`` already).
+
+    >>> import gymnasium as gym
+    >>> buf = RolloutBuffer(3, gym.spaces.Box(-1, 1, (2,)), gym.spaces.Box(-1, 1, (1,)), n_envs=2)
+    >>> buf.observations[:] = np.arange(12).reshape(3, 2, 2); buf.full = True
+    >>> rollout_tensors(buf).observations[:, 0].tolist()  # env 0 (t = 0, 1, 2), then env 1
+    [0.0, 4.0, 8.0, 2.0, 6.0, 10.0]
+    >>> rollout_tensors(buf, env_index=1, mask=np.array([True, False, True])).observations[:, 0].tolist()
+    [2.0, 10.0]
+    """
+    if not buffer.full:
+        raise ValueError("rollout_tensors needs a full rollout buffer (collect_rollouts first)")
+    t_len, n_envs = buffer.buffer_size, buffer.n_envs
+    if env_index is not None and not 0 <= int(env_index) < n_envs:
+        raise ValueError(f"env_index must be in [0, {n_envs}), got {env_index!r}")
+    out = []
+    for name in _BUFFER_FIELDS:
+        arr = getattr(buffer, name)
+        if buffer.generator_ready:  # already flattened env-major by get(): (n_envs * T, ...)
+            arr = arr.reshape(n_envs, t_len, *arr.shape[1:])
+        else:  # (T, n_envs, ...)
+            arr = arr.swapaxes(0, 1)
+        if env_index is not None:
+            arr = arr[int(env_index)]
+            sel = None if mask is None else np.asarray(mask, dtype=bool).reshape(t_len)
+        else:
+            arr = arr.reshape(n_envs * t_len, *arr.shape[2:])
+            sel = None if mask is None else np.asarray(mask, dtype=bool).reshape(t_len, n_envs).swapaxes(0, 1).ravel()
+        if sel is not None:
+            arr = arr[sel]
+        t = th.tensor(np.ascontiguousarray(arr), device=buffer.device)
+        out.append(t.reshape(len(t)) if name not in ("observations", "actions") else t)
+    return RolloutTensors(*out)
+
+
+# ------------------------------------------------------------------------------- closed-form PPO gradient
+def _linear_layers(seq: nn.Sequential) -> tuple[list[nn.Linear], str] | None:
+    mods = list(seq)
+    if len(mods) % 2:
+        return None
+    linears, acts = mods[0::2], mods[1::2]
+    if not all(type(m) is nn.Linear for m in linears):
+        return None
+    kinds = {type(a) for a in acts}
+    if not kinds:
+        return [], "tanh"
+    if kinds == {nn.Tanh}:
+        return linears, "tanh"
+    if kinds == {nn.ReLU}:
+        return linears, "relu"
+    return None
+
+
+class _ManualActorCritic:
+    """Forward pass + closed-form gradient of the PPO loss for the kit's actor-critic policies."""
+
+    def __init__(self, policy: ActorCriticPolicy, pi: list[nn.Linear], vf: list[nn.Linear], act: str, scn: bool):
+        self.policy, self.pi, self.vf, self.act, self.scn = policy, pi, vf, act, scn
+        self.action_net: nn.Linear = policy.action_net
+        self.value_net: nn.Linear = policy.value_net
+        self.log_std: nn.Parameter = policy.log_std
+        # parameters in policy.parameters() order, each with the slot of its gradient
+        self.params = list(policy.parameters())
+
+    @staticmethod
+    def build(policy: nn.Module) -> _ManualActorCritic | None:
+        """The manual path for ``policy``, or None if its structure is not one the kit uses."""
+        from thesis_repro.learners.policies import SCNExtractor
+
+        if not isinstance(policy, ActorCriticPolicy) or type(policy.action_dist) is not DiagGaussianDistribution:
+            return None
+        if policy.use_sde or policy.squash_output or not isinstance(policy.observation_space, spaces.Box):
+            return None
+        if len(policy.observation_space.shape) != 1 or not isinstance(policy.action_space, spaces.Box):
+            return None
+        extractors = [policy.features_extractor, policy.pi_features_extractor, policy.vf_features_extractor]
+        if not all(type(e) is FlattenExtractor for e in extractors if e is not None):
+            return None
+        mlp = policy.mlp_extractor
+        if type(mlp) not in (MlpExtractor, SCNExtractor):
+            return None
+        pi, vf = _linear_layers(mlp.policy_net), _linear_layers(mlp.value_net)
+        if pi is None or vf is None or (pi[0] and vf[0] and pi[1] != vf[1]):
+            return None
+        act = pi[1] if pi[0] else vf[1]
+        manual = _ManualActorCritic(policy, pi[0], vf[0], act, type(mlp) is SCNExtractor)
+        known = {id(p) for layer in (*pi[0], *vf[0], policy.action_net, policy.value_net) for p in layer.parameters()}
+        known.add(id(policy.log_std))
+        if {id(p) for p in manual.params} != known or len(manual.params) != len(known):
+            return None
+        return manual
+
+    def _act(self, z: th.Tensor) -> th.Tensor:
+        return th.tanh(z) if self.act == "tanh" else th.relu(z)
+
+    def _act_grad(self, g: th.Tensor, h: th.Tensor) -> th.Tensor:
+        # tanh' = 1 - tanh^2 (autograd's tanh_backward); relu' = 1[h > 0] (threshold_backward)
+        return g * (1 - h * h) if self.act == "tanh" else g * (h > 0)
+
+    def _mlp(self, x: th.Tensor, layers: list[nn.Linear]) -> list[th.Tensor]:
+        hs = [x]
+        for lin in layers:
+            hs.append(self._act(th.addmm(lin.bias, hs[-1], lin.weight.t())))
+        return hs
+
+    def _mlp_backward(self, g: th.Tensor, hs: list[th.Tensor], layers: list[nn.Linear], grads: dict) -> None:
+        for i in range(len(layers) - 1, -1, -1):
+            gz = self._act_grad(g, hs[i + 1])
+            grads[id(layers[i].weight)] = gz.t().mm(hs[i])
+            grads[id(layers[i].bias)] = gz.sum(0)
+            if i:
+                g = gz.mm(layers[i].weight)
+
+    def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[dict[str, Any], th.Tensor, th.Tensor]:
+        """Cache of the forward pass, the log-prob of ``actions`` and the values (all without a graph)."""
+        x = obs.float()
+        hp = self._mlp(x, self.pi)
+        latent_pi = th.cat([x, hp[-1]], dim=1) if self.scn else hp[-1]
+        hv = self._mlp(x, self.vf)
+        mean = th.addmm(self.action_net.bias, latent_pi, self.action_net.weight.t())
+        values = th.addmm(self.value_net.bias, hv[-1], self.value_net.weight.t()).flatten()
+        log_std = self.log_std
+        inv_var = th.exp(-2 * log_std)
+        diff = actions - mean
+        sq = diff * diff * inv_var
+        log_prob = -0.5 * sq.sum(1) - (log_std.sum() + _LOG_SQRT_2PI * log_std.numel())
+        cache = {"x": x, "hp": hp, "hv": hv, "latent_pi": latent_pi, "diff": diff, "sq": sq, "inv_var": inv_var}
+        return cache, log_prob, values
+
+    def entropy(self) -> th.Tensor:
+        """Per-sample entropy of the diagonal Gaussian (the same for every sample)."""
+        return (0.5 + 0.5 * math.log(2 * math.pi) + self.log_std).sum()
+
+    def backward(self, cache: dict[str, Any], g_log_prob: th.Tensor, g_values: th.Tensor, g_log_std_extra: float):
+        """Set ``p.grad`` of every parameter from dLoss/dlog_prob (B,), dLoss/dvalues (B,) and a constant
+        dLoss/dlog_std term (entropy)."""
+        grads: dict[int, th.Tensor] = {}
+        # actor: d log_prob / d mean = diff / var; d log_prob / d log_std = diff^2 / var - 1
+        g_mean = g_log_prob[:, None] * cache["diff"] * cache["inv_var"]
+        grads[id(self.log_std)] = (g_log_prob[:, None] * (cache["sq"] - 1)).sum(0) + g_log_std_extra
+        grads[id(self.action_net.weight)] = g_mean.t().mm(cache["latent_pi"])
+        grads[id(self.action_net.bias)] = g_mean.sum(0)
+        if self.pi:
+            g_lat = g_mean.mm(self.action_net.weight)
+            if self.scn:
+                g_lat = g_lat[:, cache["x"].shape[1] :]
+            self._mlp_backward(g_lat, cache["hp"], self.pi, grads)
+        # critic
+        g_v = g_values[:, None]
+        grads[id(self.value_net.weight)] = g_v.t().mm(cache["hv"][-1])
+        grads[id(self.value_net.bias)] = g_v.sum(0)
+        if self.vf:
+            self._mlp_backward(g_v.mm(self.value_net.weight), cache["hv"], self.vf, grads)
+        for p in self.params:
+            p.grad = grads[id(p)]
+
+
+def _clip_grads(params: list[nn.Parameter], max_norm: float) -> None:
+    """``clip_grad_norm_(params, max_norm, foreach=True)`` on a known non-empty parameter list."""
+    grads = [p.grad for p in params if p.grad is not None]
+    if not grads:
+        return
+    total = th.linalg.vector_norm(th.stack(th._foreach_norm(grads, 2.0)), 2.0)
+    th._foreach_mul_(grads, th.clamp(max_norm / (total + 1e-6), max=1.0))
+
+
+def ppo_epochs(
+    policy: ActorCriticPolicy,
+    optimizer: th.optim.Optimizer,
+    data: RolloutTensors,
+    *,
+    n_epochs: int,
+    batch_size: int,
+    clip_range: float,
+    clip_range_vf: float | None = None,
+    ent_coef: float = 0.0,
+    vf_coef: float = 0.5,
+    max_grad_norm: float = 0.5,
+    normalize_advantage: bool = True,
+    target_kl: float | None = None,
+    permutation: Any = None,
+    manual: bool | None = None,
+) -> dict[str, Any]:
+    """SB3's PPO update (``PPO.train`` minus bookkeeping) on ``data``; returns its training statistics.
+
+    Per epoch: one ``permutation(len(data))`` (default ``np.random.permutation``, SB3's draw), minibatches of
+    ``batch_size`` in that order, the clipped surrogate + ``vf_coef``·value + ``ent_coef``·entropy loss,
+    grad-norm clipping at ``max_grad_norm``, ``optimizer.step()``; stops when the approximate KL of a
+    minibatch exceeds 1.5·``target_kl`` (before stepping it), as SB3. ``manual`` forces (True) or forbids
+    (False) the closed-form path; None: closed form when the policy supports it.
+
+    Returns the means SB3 logs (``policy_gradient_loss``, ``value_loss``, ``entropy_loss``, ``clip_fraction``
+    over all minibatches; ``approx_kl`` over the last epoch; ``loss`` of the last minibatch),
+    ``epochs`` (epochs started = SB3's ``_n_updates`` increment), ``continue_training`` and ``fast_path``.
+    """
+    n = len(data)
+    if n == 0:
+        raise ValueError("ppo_epochs needs a non-empty batch")
+    perm_fn = np.random.permutation if permutation is None else permutation
+    mac = _ManualActorCritic.build(policy) if manual is not False else None
+    if manual and mac is None:
+        raise ValueError(f"policy {type(policy).__name__} has no closed-form PPO path; use manual=None")
+    params = mac.params if mac is not None else list(policy.parameters())
+    policy.set_training_mode(True)
+    pg_l, v_l, ent_l, clip_l, kl_l = [], [], [], [], []
+    loss = th.zeros(())
+    continue_training = True
+    epochs = 0
+    for _ in range(n_epochs):
+        epochs += 1
+        kl_l = []
+        shuffled = data.index(th.as_tensor(perm_fn(n), dtype=th.long))
+        for start in range(0, n, batch_size):
+            mb = shuffled.slice(start, start + batch_size)
+            b = len(mb)
+            adv = mb.advantages
+            if normalize_advantage and b > 1:
+                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+            if mac is not None:
+                with th.no_grad():
+                    cache, log_prob, values = mac.forward(mb.observations, mb.actions)
+                    entropy = mac.entropy()
+                    stats = _losses(log_prob, values, entropy, adv, mb, clip_range, clip_range_vf, ent_coef, vf_coef)
+            else:
+                values, log_prob, entropy = policy.evaluate_actions(mb.observations, mb.actions)
+                values = values.flatten()
+                if entropy is None:
+                    entropy = -log_prob
+                stats = _losses(log_prob, values, entropy.mean(), adv, mb, clip_range, clip_range_vf, ent_coef, vf_coef)
+            loss = stats["loss"]
+            pg_l.append(stats["pg"])
+            v_l.append(stats["vloss"])
+            ent_l.append(stats["ent"])
+            clip_l.append(stats["clip"])
+            kl_l.append(stats["kl"])
+            if target_kl is not None and np.float32(stats["kl"].item()) > 1.5 * target_kl:
+                continue_training = False
+                break
+            if mac is not None:
+                with th.no_grad():
+                    g_lp, g_v = _loss_grads(log_prob, values, adv, mb, stats, clip_range, clip_range_vf, vf_coef)
+                    mac.backward(cache, g_lp, g_v, -float(ent_coef))
+            else:
+                optimizer.zero_grad()
+                loss.backward()
+            with th.no_grad():
+                _clip_grads(params, max_grad_norm)
+            optimizer.step()
+        if not continue_training:
+            break
+    mean = lambda xs: float(th.stack(xs).float().mean()) if xs else float("nan")  # noqa: E731
+    return {
+        "policy_gradient_loss": mean(pg_l),
+        "value_loss": mean(v_l),
+        "entropy_loss": mean(ent_l),
+        "clip_fraction": mean(clip_l),
+        "approx_kl": mean(kl_l),
+        "loss": float(loss.detach()),
+        "epochs": epochs,
+        "continue_training": continue_training,
+        "fast_path": mac is not None,
+    }
+
+
+def _losses(log_prob, values, entropy_mean, adv, mb, clip_range, clip_range_vf, ent_coef, vf_coef) -> dict:
+    log_ratio = log_prob - mb.old_log_prob
+    ratio = th.exp(log_ratio)
+    p1 = adv * ratio
+    p2 = adv * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
+    pg = -th.min(p1, p2).mean()
+    if clip_range_vf is None:
+        vpred = values
+    else:
+        vpred = mb.old_values + th.clamp(values - mb.old_values, -clip_range_vf, clip_range_vf)
+    vloss = th.nn.functional.mse_loss(mb.returns, vpred)
+    ent = -entropy_mean
+    with th.no_grad():
+        clip = th.mean((th.abs(ratio - 1) > clip_range).float())
+        kl = th.mean((ratio - 1) - log_ratio)
+    loss = pg + ent_coef * ent + vf_coef * vloss
+    return {
+        "loss": loss,
+        "pg": pg.detach(),
+        "vloss": vloss.detach(),
+        "ent": ent.detach(),
+        "clip": clip,
+        "kl": kl,
+        "ratio": ratio,
+        "p1": p1,
+        "p2": p2,
+        "vpred": vpred,
+    }
+
+
+def _loss_grads(log_prob, values, adv, mb, stats, clip_range, clip_range_vf, vf_coef) -> tuple[th.Tensor, th.Tensor]:
+    """dLoss/dlog_prob and dLoss/dvalues, with autograd's conventions (``min`` ties split the gradient
+    in half; ``clamp`` passes it on the closed interval)."""
+    b = len(adv)
+    ratio, p1, p2 = stats["ratio"], stats["p1"], stats["p2"]
+    half = (p1 == p2).to(ratio.dtype) * 0.5
+    w1 = (p1 < p2).to(ratio.dtype) + half
+    inside = ((ratio >= 1 - clip_range) & (ratio <= 1 + clip_range)).to(ratio.dtype)
+    w2 = ((p1 > p2).to(ratio.dtype) + half) * inside
+    g_ratio = adv * (w1 + w2) * (-1.0 / b)
+    g_log_prob = g_ratio * ratio
+    g_values = (stats["vpred"] - mb.returns) * (2.0 * vf_coef / b)
+    if clip_range_vf is not None:
+        d = values - mb.old_values
+        g_values = g_values * ((d >= -clip_range_vf) & (d <= clip_range_vf)).to(g_values.dtype)
+    return g_log_prob, g_values
+
+
+# ------------------------------------------------------------------------------------------------ FastPPO
+class FastPPO(PPO):
+    """SB3 ``PPO`` whose ``train()`` runs :func:`ppo_epochs` (same update, see module docstring).
+
+    ``fast_path`` tells whether the last ``train()`` used the closed-form gradient (True for the kit's
+    MLP and SCN policies).
+    """
+
+    fast_path: bool | None = None
+
+    def train(self) -> None:
+        """Update the policy on the current rollout buffer (drop-in for ``PPO.train``)."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
+        clip_range_vf = None
+        if self.clip_range_vf is not None:
+            clip_range_vf = self.clip_range_vf(self._current_progress_remaining)  # type: ignore[operator]
+        if not isinstance(self.action_space, spaces.Box):
+            self.fast_path = False
+            return super().train()
+        stats = ppo_epochs(
+            self.policy,
+            self.policy.optimizer,
+            rollout_tensors(self.rollout_buffer),
+            n_epochs=self.n_epochs,
+            batch_size=self.batch_size,
+            clip_range=clip_range,
+            clip_range_vf=clip_range_vf,
+            ent_coef=self.ent_coef,
+            vf_coef=self.vf_coef,
+            max_grad_norm=self.max_grad_norm,
+            normalize_advantage=self.normalize_advantage,
+            target_kl=self.target_kl,
+        )
+        self.fast_path = stats["fast_path"]
+        self._n_updates += stats["epochs"]
+        buf = self.rollout_buffer
+        explained_var = explained_variance(buf.values.flatten(), buf.returns.flatten())
+        for key in ("entropy_loss", "policy_gradient_loss", "value_loss", "approx_kl", "clip_fraction", "loss"):
+            self.logger.record(f"train/{key}", stats[key])
+        self.logger.record("train/explained_variance", explained_var)
+        if hasattr(self.policy, "log_std"):
+            self.logger.record("train/std", th.exp(self.policy.log_std).mean().item())
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/clip_range", clip_range)
+        if self.clip_range_vf is not None:
+            self.logger.record("train/clip_range_vf", clip_range_vf)
