@@ -1,12 +1,12 @@
-"""Chapter-3 figure logic: seed selection, correlation table, overfitting summary, budgets."""
+"""Chapter-3 figure logic (thesis_repro.figures.ch3): seed selection, correlation table, overfitting, budgets."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from thesis_repro import ch3
 from thesis_repro.evaluation import BenchmarkResult
+from thesis_repro.figures import ch3
 
 
 def _result(train_return: np.ndarray, auc: np.ndarray) -> BenchmarkResult:
@@ -65,11 +65,54 @@ def test_timesteps_for_per_env_budgets():
 
 
 def test_benchmark_orders_jobs_seed_env_algo():
-    b = ch3.benchmark(["ppo", "ppo-16"], ["Hopper", "InvertedPendulum"], [0, 1], {"Hopper": 300, "default": 200},
-                      ["obs"], sigmas=[0.0, 0.5], n_rollouts=2)
+    b = ch3.benchmark(
+        ["ppo", "ppo-16"],
+        ["Hopper", "InvertedPendulum"],
+        [0, 1],
+        {"Hopper": 300, "default": 200},
+        ["obs"],
+        sigmas=[0.0, 0.5],
+        n_rollouts=2,
+    )
     cfgs = [j.config for j in b.train_jobs]
     assert [(c["seed"], c["env"], c["algorithm"]) for c in cfgs][:4] == [
-        (0, "Hopper", "ppo"), (0, "Hopper", "ppo-16"), (0, "InvertedPendulum", "ppo"), (0, "InvertedPendulum", "ppo-16")
+        (0, "Hopper", "ppo"),
+        (0, "Hopper", "ppo-16"),
+        (0, "InvertedPendulum", "ppo"),
+        (0, "InvertedPendulum", "ppo-16"),
     ]
     assert {c["env"]: c["timesteps"] for c in cfgs} == {"Hopper": 300, "InvertedPendulum": 200}
     assert [j.config["train"] for j in b.eval_jobs["obs"]] == cfgs
+
+
+def test_snapshot_steps_follow_iteration_boundaries():
+    cfg = {"class": "PPO", "n_envs": 8, "sb3": {"n_steps": 256}, "timesteps": 10_000, "snapshot_every": 5000}
+    assert ch3.iteration_steps(cfg) == 2048
+    assert ch3.snapshot_steps(cfg) == [0, 6144, 10240]  # first iteration start >= 5000 after 0, then the end
+    assert ch3.snapshot_steps({**cfg, "snapshot_every": 0}) == []
+    with pytest.raises(ValueError, match="on-policy"):
+        ch3.iteration_steps({**cfg, "class": "SAC"})
+
+
+def test_pareto_verdict_counts_negative_cells_and_frontiers():
+    import pandas as pd
+
+    from thesis_repro import figures, report
+
+    settings = figures.settings("3.3", "small")
+    ours = pd.DataFrame(
+        {"env": ["Walker2d"] * 4, "test": ["obs", "act", "env", "dom"], "value": [-0.5, -0.2, 0.3, -0.1]}
+    )
+    points = pd.DataFrame(
+        {
+            "env": "Walker2d",
+            "test": "act",
+            "algo": ["a", "b", "c"],
+            "train_return": [1.0, 2.0, 3.0],
+            "auc": [3.0, 2.0, 1.0],
+        }
+    )
+    points = pd.concat([points, points.assign(env="HalfCheetah", test="obs", auc=[1.0, 2.0, 3.0])])
+    corr, front = ch3.pareto_verdict(ours, points, settings)
+    assert corr.status == report.REPRODUCES and "3/4 defined cells negative" in corr.evidence
+    assert front.status == report.PARTLY  # Walker2d/act trades off, HalfCheetah/obs has one dominant variant
