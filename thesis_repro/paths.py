@@ -1,7 +1,8 @@
 """Every location the kit reads or writes, in one place.
 
-Override the run cache with ``THESIS_REPRO_DATA`` (tests point it at a temporary folder) and the
-build folder with ``THESIS_REPRO_BUILD``.
+Override the run cache with ``THESIS_REPRO_DATA`` (tests point it at a temporary folder), the shipped
+reference runs with ``THESIS_REPRO_REFERENCE`` and the build folder with ``THESIS_REPRO_BUILD``;
+``THESIS_REPRO_RETRAIN=1`` (``make ... RETRAIN=1``) ignores the shipped runs.
 
 >>> from thesis_repro import paths
 >>> paths.notebook("3.3").name
@@ -28,6 +29,23 @@ def runs() -> Path:
     return Path(os.environ.get("THESIS_REPRO_DATA", ROOT / "data" / "runs"))
 
 
+def reference() -> Path:
+    """Shipped read-only layer of finished ``small`` training runs (``data/reference`` unless
+    ``THESIS_REPRO_REFERENCE`` is set); consulted after the local run cache."""
+    return Path(os.environ.get("THESIS_REPRO_REFERENCE", ROOT / "data" / "reference"))
+
+
+def retrain() -> bool:
+    """Whether ``THESIS_REPRO_RETRAIN`` asks to ignore the shipped runs and recompute them.
+
+    >>> import os; os.environ["THESIS_REPRO_RETRAIN"] = "1"; retrain()
+    True
+    >>> del os.environ["THESIS_REPRO_RETRAIN"]; retrain()
+    False
+    """
+    return os.environ.get("THESIS_REPRO_RETRAIN", "").strip().lower() in ("1", "true", "yes", "on")
+
+
 def build(scale: str) -> Path:
     """Root of generated artefacts for one scale: executed notebooks and figures."""
     return Path(os.environ.get("THESIS_REPRO_BUILD", ROOT / "build")) / scale
@@ -44,8 +62,8 @@ def figures(scale: str) -> Path:
 
 
 def notebook(figure: str) -> Path:
-    """Source (jupytext percent ``.py``) of the notebook for a figure id such as ``"3.3"``."""
-    name = figure if figure.startswith(("fig-", "table-")) else f"fig-{figure}"
+    """Source (jupytext percent ``.py``) of a notebook id: ``"3.3"``, ``"table-3.4"``, ``"analysis-4-kl"``."""
+    name = figure if figure.startswith(("fig-", "table-", "analysis-")) else f"fig-{figure}"
     return NOTEBOOKS / f"{name}.py"
 
 

@@ -1,0 +1,160 @@
+"""The job registry: every kind of cached job, the function that computes it and its folder label.
+
+A :class:`~thesis_repro.cache.Job` names its work by a short *kind* (``"train"``, ``"evaluate"``,
+``"arm-source"``, ...), never by a module path: the cache key is ``sha256(v<version>|<kind>|<config>)``,
+so moving or renaming a job function only changes its entry here (:func:`register`) and keeps every
+cached and shipped run. This module is the one place that imports the kit's own job functions by name
+(:func:`resolve`). Each kind has a *label* function giving a readable folder name from the config
+(``train/ppo-scn-16__Hopper__s0__<key>``); the label is decoration, lookups go by key.
+
+>>> KINDS["train"]
+'thesis_repro.learners:train_job'
+>>> kind_of("thesis_repro.mdl.train:train_job")  # the path form maps to its kind
+'train'
+>>> label("train", {"algorithm": "ppo-scn-16", "env": "Hopper", "seed": 0})
+'ppo-scn-16__Hopper__s0'
+>>> kind_of("trian")  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+...
+ValueError: unknown job kind 'trian'; valid job kinds are: ...
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+from collections.abc import Callable, Mapping
+from typing import Any
+
+#: kind -> ``"module:function"`` computing it (called as ``fn(config, workdir)``).
+KINDS: dict[str, str] = {}
+#: kind -> ``label(config) -> str`` (readable part of the run folder name).
+LABELS: dict[str, Callable[[Mapping[str, Any]], str]] = {}
+#: ``"module:function"`` -> kind, for jobs written in the path form ``Job("module:function", cfg)``
+#: (every path a kind was ever registered at, so a moved function keeps its old spelling working).
+PATHS: dict[str, str] = {}
+
+_KIND_RE = re.compile(r"^[a-z0-9][a-z0-9_-]*$")
+_UNSAFE = re.compile(r"[^A-Za-z0-9._+-]+")
+#: Longest label kept in a folder name (the key follows it).
+MAX_LABEL = 80
+
+
+def _seed(config: Mapping[str, Any]) -> str:
+    return f"s{config['seed']}" if "seed" in config else ""
+
+
+def default_label(config: Mapping[str, Any]) -> str:
+    """A few identifying values of ``config`` (algorithm, strategy, condition, family, env, seed), if present.
+
+    >>> default_label({"family": "bic", "seed": 2, "generations": 100})
+    'bic__s2'
+    >>> default_label({"x": 3})
+    ''
+    """
+    keys = ("algorithm", "policy", "strategy", "condition", "family", "env")
+    parts = [str(config[k]) for k in keys if isinstance(config.get(k), str | int) and not isinstance(config[k], bool)]
+    return "__".join(p for p in [*parts, _seed(config)] if p)
+
+
+def train_label(config: Mapping[str, Any]) -> str:
+    """``<algorithm>__<env>__s<seed>`` of a training config."""
+    return "__".join(str(p) for p in (config.get("algorithm"), config.get("env"), _seed(config)) if p not in (None, ""))
+
+
+def evaluate_label(config: Mapping[str, Any]) -> str:
+    """The train block's label, then the test: perturbation (or ``shift``) and the snapshot step if any."""
+    test = config.get("test", {})
+    parts = [train_label(config.get("train", {}))]
+    parts.append("shift" if "ratios" in test else str(test.get("perturbation", config.get("kind", ""))))
+    if test.get("snapshot") is not None:
+        parts.append(f"step{test['snapshot']}")
+    return "__".join(p for p in parts if p)
+
+
+def arm_target_label(config: Mapping[str, Any]) -> str:
+    """``<strategy>__<source family>-to-<target>__s<seed>`` of a chapter-5 transfer job."""
+    src = config.get("source", {})
+    pair = f"{src.get('family', '?')}-to-{config.get('target', '?')}"
+    return "__".join(p for p in (str(config.get("strategy", "")), pair, _seed(config)) if p)
+
+
+def sanitize(text: str) -> str:
+    """``text`` as a safe folder-name fragment: ``[A-Za-z0-9._+-]`` only, at most :data:`MAX_LABEL` chars.
+
+    >>> sanitize("a b/c:d")
+    'a-b-c-d'
+    """
+    return _UNSAFE.sub("-", text).strip("-.")[:MAX_LABEL]
+
+
+def register(
+    kind: str, target: str, label: Callable[[Mapping[str, Any]], str] | None = None, aliases: tuple[str, ...] = ()
+) -> str:
+    """Register (or move) job ``kind`` computed by ``target`` (``"module:function"``); returns ``kind``.
+
+    Re-registering a kind at another path *moves* it: keys do not change and the old path keeps mapping
+    to the kind. ``aliases`` are further paths computing the same kind (e.g. a dispatching wrapper).
+
+    >>> register("my-kind", "mypkg.jobs:my_job", label=lambda c: f"n{c['n']}")
+    'my-kind'
+    >>> kind_of("mypkg.jobs:my_job"), label("my-kind", {"n": 3})
+    ('my-kind', 'n3')
+    >>> _ = KINDS.pop("my-kind"), LABELS.pop("my-kind"), PATHS.pop("mypkg.jobs:my_job")
+    """
+    if not isinstance(kind, str) or not _KIND_RE.match(kind):
+        raise ValueError(f"job kind must be a short lowercase name like 'train' or 'arm-source', got {kind!r}")
+    for path in (target, *aliases):
+        if not isinstance(path, str) or path.count(":") != 1:
+            raise ValueError(f"job target must look like 'package.module:function', got {path!r}")
+        if PATHS.get(path, kind) != kind:
+            raise ValueError(f"{path} is already registered as job kind {PATHS[path]!r}, not {kind!r}")
+    KINDS[kind] = target
+    for path in (target, *aliases):
+        PATHS[path] = kind
+    if label is not None or kind not in LABELS:
+        LABELS[kind] = label or default_label
+    return kind
+
+
+def kind_of(name: str) -> str:
+    """The registered kind named by ``name`` (a kind or a ``"module:function"`` path); else a ``ValueError``."""
+    if name in KINDS:
+        return name
+    if name in PATHS:
+        return PATHS[name]
+    what = "job function path" if isinstance(name, str) and ":" in name else "job kind"
+    raise ValueError(f"unknown {what} {name!r}; valid job kinds are: {', '.join(sorted(KINDS))}")
+
+
+def label(kind: str, config: Mapping[str, Any]) -> str:
+    """Readable, filesystem-safe label of a ``kind`` job with ``config`` (``"job"`` if nothing identifies it)."""
+    try:
+        text = LABELS.get(kind_of(kind), default_label)(config)
+    except (KeyError, TypeError, AttributeError):
+        text = default_label(config) if isinstance(config, Mapping) else ""
+    return sanitize(text) or "job"
+
+
+def resolve(kind: str, target: str | None = None) -> Callable[[dict[str, Any]], Any]:
+    """The job function of ``kind`` (imported now). ``target`` is the path recorded when the job was made,
+    used when this process has not registered the kind (a user kind in a spawned worker)."""
+    path = KINDS.get(kind) or target
+    if path is None:
+        kind_of(kind)  # raises the ValueError listing the kinds
+    module, func = path.split(":")
+    return getattr(importlib.import_module(module), func)
+
+
+# The kit's job kinds. Training: every learner of chapters 3 and 4 (learners.train_job dispatches the
+# multi-domain ones to mdl.train). "evaluate-ch4" is the chapter-4 sweep evaluation until the one
+# evaluation job accepts wind / c_a / ratios.
+register("train", "thesis_repro.learners:train_job", train_label, aliases=("thesis_repro.mdl.train:train_job",))
+register("evaluate", "thesis_repro.evaluation:evaluate_job", evaluate_label)
+register("evaluate-ch4", "thesis_repro.mdl.experiments:evaluate_job", evaluate_label)
+register("arm-source", "thesis_repro.arm.learn:source_job")
+register("arm-competitor-source", "thesis_repro.arm.baselines:competitor_source_job")
+register("arm-target", "thesis_repro.arm.baselines:target_job", arm_target_label)
+register("arm-curriculum", "thesis_repro.arm.curriculum:curriculum_job")
+register("arm-solve", "thesis_repro.arm.bench:solve_task")
+register("square", "thesis_repro.cache:_square", lambda c: f"x{c['x']}")  # toy job of doctests and tests
