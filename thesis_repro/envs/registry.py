@@ -8,6 +8,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 from thesis_repro.validation import check_choice
 
 #: short name -> Gymnasium id (the thesis used the -v2 versions of the same tasks; v2 needs mujoco-py).
@@ -19,6 +22,11 @@ ENVS: dict[str, str] = {
     "HalfCheetah": "HalfCheetah-v5",
 }
 _BY_ID: dict[str, str] = {v: k for k, v in ENVS.items()}
+
+#: The kit's own copies of task models (passed as ``xml_file``). Gymnasium's half_cheetah.xml sets
+#: ``settotalmass="14"``, which MuJoCo 4 reports as deprecated on every model load; our copy gives the
+#: same masses and inertias with an explicit geom density (``tests/test_quiet.py`` checks they match).
+MODEL_XML: dict[str, Path] = {"HalfCheetah": Path(__file__).resolve().parent / "assets" / "half_cheetah.xml"}
 
 
 def short_name(env: str) -> str:
@@ -39,3 +47,13 @@ def short_name(env: str) -> str:
 def resolve_env(env: str) -> str:
     """Gymnasium id of a short name or a full id; ``ValueError`` listing the valid names otherwise."""
     return ENVS[short_name(env)]
+
+
+def model_kwargs(env: str) -> dict[str, Any]:
+    """Extra ``gymnasium.make`` keyword arguments of a task: the kit's own model file where it has one.
+
+    >>> model_kwargs("HalfCheetah")["xml_file"].endswith("half_cheetah.xml"), model_kwargs("Hopper")
+    (True, {})
+    """
+    xml = MODEL_XML.get(short_name(env))
+    return {"xml_file": str(xml)} if xml is not None else {}
