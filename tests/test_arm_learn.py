@@ -202,15 +202,6 @@ def test_every_strategy_gets_the_same_budget(strategy):
     assert out["final_success"].shape == (2,) and set(np.unique(out["final_success"])) <= {0.0, 1.0}
 
 
-def test_grid_jobs_cover_all_pairs_and_share_sources():
-    settings = {"families": ["reach", "bic"], "seeds": [0], "source": {"n_tasks": 3}, "target": {"n_targets": 2}}
-    sources, rows = baselines.grid_jobs(settings, ["scratch", "tensor", "ella"])
-    assert len(rows) == 2 * 2 * 3
-    assert len(sources) == 2 * 2  # RBF sources shared by scratch/tensor, ELLA learns its own
-    with pytest.raises(ValueError, match="valid strategys"):
-        baselines.grid_jobs(settings, ["cp"])
-
-
 def test_curriculum_job_shapes_and_conditions():
     cfg = {"n_tasks": 2, "pretrain_trials": 8, "bic_trials": 8, "popsize": 4, "ranks": [4, 2, 2], "seed": 0}
     for condition in curriculum.CONDITIONS:

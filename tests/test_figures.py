@@ -14,7 +14,7 @@ EXPECTED = ["3.2", "3.3", "4.1", "4.2", "4.3", "4.4", "4.5", "4.6", "4.7", "5.3"
 
 
 def _keys(jobs: list[Job], kind: str | None = None) -> set[str]:
-    return {j.key for j in jobs if kind is None or figures.kind_of(j) == kind}
+    return {j.key for j in jobs if kind is None or j.kind == kind}
 
 
 # ---------------------------------------------------------------- registry
@@ -32,7 +32,7 @@ def test_registry_lists_every_figure_with_its_module():
 def test_jobs_put_training_first_without_duplicates_and_use_declared_kinds(figure_id):
     fig = figures.get(figure_id)
     jobs = figures.jobs(figure_id, "smoke")
-    kinds = [figures.kind_of(j) for j in jobs]
+    kinds = [j.kind for j in jobs]
     assert jobs and len(_keys(jobs)) == len(jobs)
     n_train = sum(k in figures.TRAINING_KINDS for k in kinds)
     assert all(k in figures.TRAINING_KINDS for k in kinds[:n_train])
@@ -66,21 +66,21 @@ def test_chapter4_figures_share_training_runs(scale):
 def test_chapter4_evaluations_train_through_the_same_key():
     jobs = figures.jobs("4.3", "smoke")
     train = _keys(jobs, "train")
-    evals = [j for j in jobs if figures.kind_of(j) == "evaluate"]
-    assert evals and {Job(figures.ch4.TRAIN_FN, j.config["train"]).key for j in evals} == train
+    evals = [j for j in jobs if j.kind == "evaluate-ch4"]
+    assert evals and {Job("train", j.config["train"]).key for j in evals} == train
 
 
 def test_figures_5_4_and_5_5_share_sources_and_tensor_runs():
     a, b = figures.jobs("5.4", "smoke"), figures.jobs("5.5", "smoke")
     assert _keys(a, "arm-source") == _keys(b, "arm-source")
-    tensor = {j.key for j in a if figures.kind_of(j) == "arm-target" and j.config["strategy"] == "tensor"}
+    tensor = {j.key for j in a if j.kind == "arm-target" and j.config["strategy"] == "tensor"}
     assert tensor and tensor <= _keys(b, "arm-target")
 
 
 def test_fig_3_2_predicted_snapshots_match_the_evaluations():
     jobs = figures.jobs("3.2", "smoke")
-    (train,) = [j for j in jobs if figures.kind_of(j) == "train"]
-    steps = [j.config["test"]["snapshot"] for j in jobs if figures.kind_of(j) == "evaluate"]
+    (train,) = [j for j in jobs if j.kind == "train"]
+    steps = [j.config["test"]["snapshot"] for j in jobs if j.kind == "evaluate"]
     assert steps == figures.ch3.snapshot_steps(train.config)
     assert steps[0] == 0 and steps[-1] >= train.config["timesteps"]
 

@@ -105,17 +105,3 @@ def curriculum_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any
         success_rate=float(final["success"].mean()),
     )
     return out
-
-
-def curriculum_jobs(settings: dict[str, Any]) -> list[dict[str, Any]]:
-    """One row per (condition, seed) with its :class:`~thesis_repro.cache.Job` from a figure's settings."""
-    from thesis_repro.cache import Job
-
-    keys = [k for k in CURRICULUM_DEFAULTS if k in settings and k != "seed"]
-    rows = []
-    for seed in settings["seeds"]:
-        for condition in CONDITIONS:
-            cfg = {**CURRICULUM_DEFAULTS, **{k: settings[k] for k in keys}, "condition": condition, "seed": seed}
-            rows.append({"condition": condition, "seed": seed,
-                         "job": Job("thesis_repro.arm.curriculum:curriculum_job", cfg)})
-    return rows

@@ -10,7 +10,7 @@ runs without executing its notebook. Settings always come from the one scale tab
 >>> from thesis_repro import figures
 >>> figures.get("fig-3.3").module
 'thesis_repro.figures.ch3'
->>> [kind_of(j) for j in figures.training_jobs("3.3", "smoke")][:2]
+>>> [j.kind for j in figures.training_jobs("3.3", "smoke")][:2]
 ['train', 'train']
 >>> figures.get("9.9")  # doctest: +ELLIPSIS
 Traceback (most recent call last):
@@ -30,28 +30,6 @@ from thesis_repro.validation import check_choice
 
 #: Job kinds whose runs are *training* runs (shipped as reference runs at ``small``).
 TRAINING_KINDS: tuple[str, ...] = ("train",)
-
-#: Kind of each job function path, for jobs built with the path form ``Job("module:function", cfg)``.
-_PATH_KINDS: dict[str, str] = {
-    "thesis_repro.learners:train_job": "train",
-    "thesis_repro.mdl.train:train_job": "train",
-    "thesis_repro.evaluation:evaluate_job": "evaluate",
-    "thesis_repro.mdl.experiments:evaluate_job": "evaluate",
-    "thesis_repro.arm.learn:source_job": "arm-source",
-    "thesis_repro.arm.baselines:competitor_source_job": "arm-competitor-source",
-    "thesis_repro.arm.baselines:target_job": "arm-target",
-    "thesis_repro.arm.curriculum:curriculum_job": "arm-curriculum",
-    "thesis_repro.arm.bench:solve_task": "arm-solve",
-}
-
-
-def kind_of(job: Job) -> str:
-    """The registered kind of ``job`` (``"train"``, ``"evaluate"``, ``"arm-target"``, ...)."""
-    kind = getattr(job, "kind", None)
-    if kind:
-        return str(kind)
-    return _PATH_KINDS.get(job.fn, job.fn)
-
 
 JobGrid = Callable[[Mapping[str, Any]], list[Job]]
 
@@ -78,7 +56,7 @@ class Figure:
         for job in self.grid(settings):
             out.setdefault(job.key, job)
         jobs = list(out.values())
-        return sorted(jobs, key=lambda j: kind_of(j) not in TRAINING_KINDS)
+        return sorted(jobs, key=lambda j: j.kind not in TRAINING_KINDS)
 
     def settings(self, scale: str, **overrides: Any) -> dict[str, Any]:
         """Resolved settings of this figure at ``scale`` (:func:`thesis_repro.scales.figure_settings`)."""
@@ -102,9 +80,9 @@ def register(
 ) -> Callable[[JobGrid], JobGrid]:
     """Decorator registering ``grid(settings) -> list[Job]`` as the job grid of ``figure_id``.
 
-    >>> @register("_doc", "toy figure", kinds=["toy"], settings_id="_example")
+    >>> @register("_doc", "toy figure", kinds=["square"], settings_id="_example")
     ... def _grid(settings):
-    ...     return [Job("thesis_repro.cache:_square", {"x": settings["train_seeds"]})]
+    ...     return [Job("square", {"x": settings["train_seeds"]})]
     >>> [j.config for j in jobs("_doc", "smoke")]
     [{'x': 1}]
     >>> _ = FIGURES.pop("_doc")
@@ -141,7 +119,7 @@ def jobs(figure_id: str, scale: str, **overrides: Any) -> list[Job]:
 
 def training_jobs(figure_id: str, scale: str, **overrides: Any) -> list[Job]:
     """The training jobs (kinds :data:`TRAINING_KINDS`) of ``figure_id`` at ``scale``."""
-    return [j for j in jobs(figure_id, scale, **overrides) if kind_of(j) in TRAINING_KINDS]
+    return [j for j in jobs(figure_id, scale, **overrides) if j.kind in TRAINING_KINDS]
 
 
 def runs_summary(figure_id: str, scale: str) -> str:
@@ -158,9 +136,13 @@ def runs_summary(figure_id: str, scale: str) -> str:
     head = f"{fig.notebook_id} ({scale}): "
     if hasattr(listing, "summary"):
         return head + listing.summary(jobs)
-    cache = RunCache()
-    cached = sum(cache.entry(j).exists() for j in jobs)
-    return head + f"{len(jobs)} training runs: {cached} cached, {len(jobs) - cached} to compute"
+    states = [RunCache().state(j) for j in jobs]
+    done = {s: states.count(s) for s in ("shipped", "cached")}
+    return (
+        head
+        + f"{len(jobs)} training runs: {done['shipped']} shipped, {done['cached']} cached, "
+        + (f"{len(jobs) - sum(done.values())} to compute")
+    )
 
 
 def ids() -> list[str]:
@@ -217,7 +199,6 @@ __all__ = [
     "get",
     "ids",
     "jobs",
-    "kind_of",
     "register",
     "runs_summary",
     "settings",

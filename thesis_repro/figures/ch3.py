@@ -20,7 +20,7 @@ import pandas as pd
 from thesis_repro import reference, report
 from thesis_repro.cache import Job, Result, run_jobs
 from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
-from thesis_repro.evaluation.jobs import EVAL_FN, TRAIN_FN, check_test
+from thesis_repro.evaluation.jobs import check_test
 from thesis_repro.figures import budget_note, register
 from thesis_repro.learners import train_config
 from thesis_repro.validation import check_choice
@@ -130,7 +130,7 @@ def overfitting_test(settings: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _snapshot_evals(cfg: Mapping[str, Any], test: Mapping[str, Any], steps: Sequence[int]) -> list[Job]:
-    return [Job(EVAL_FN, {"train": dict(cfg), "test": {**test, "snapshot": int(s)}}) for s in steps]
+    return [Job("evaluate", {"train": dict(cfg), "test": {**test, "snapshot": int(s)}}) for s in steps]
 
 
 @register("3.2", "Overfitting occurs in deep RL (PPO, Walker2d)")
@@ -138,14 +138,14 @@ def overfitting_jobs(settings: Mapping[str, Any]) -> list[Job]:
     """Train jobs (with snapshots), then one evaluation job per predicted snapshot."""
     cfgs, test = overfitting_configs(settings), overfitting_test(settings)
     evals = [j for c in cfgs for j in _snapshot_evals(c, test, snapshot_steps(c))]
-    return [Job(TRAIN_FN, c) for c in cfgs] + evals
+    return [Job("train", c) for c in cfgs] + evals
 
 
 def overfitting_curve(settings: Mapping[str, Any], n_jobs: int | None = None) -> pd.DataFrame:
     """Run (or load) Fig 3.2: one row per (seed, snapshot) with ``timesteps``, ``iteration``,
     ``train_return`` (last 100 training episodes) and ``test_auc`` (obs noise, Eq 3.6)."""
     cfgs, test = overfitting_configs(settings), overfitting_test(settings)
-    trained = run_jobs([Job(TRAIN_FN, c) for c in cfgs], n_jobs=n_jobs, desc="train (with snapshots)")
+    trained = run_jobs([Job("train", c) for c in cfgs], n_jobs=n_jobs, desc="train (with snapshots)")
     rows = []
     for cfg, train in zip(cfgs, trained, strict=True):
         steps = [int(s) for s in train["snapshots"]]

@@ -21,13 +21,11 @@ import pandas as pd
 
 from thesis_repro import reference, report
 from thesis_repro.cache import Job, run_jobs
-from thesis_repro.evaluation.jobs import TRAIN_FN
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import budget_note, register
 from thesis_repro.learners import train_config
 from thesis_repro.validation import check_choice
 
-EVAL_FN = "thesis_repro.mdl.experiments:evaluate_job"
 EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
 #: The thesis's method (the claims of chapter 4 are about it).
 OURS = "kl_avg"
@@ -99,7 +97,7 @@ def runs(settings: Mapping[str, Any]) -> pd.DataFrame:
 def train_runs(settings: Mapping[str, Any], n_jobs: int | None = None) -> pd.DataFrame:
     """Train (or load) every run of :func:`runs`; adds the cached ``result`` column."""
     table = runs(settings)
-    table["result"] = run_jobs([Job(TRAIN_FN, c) for c in table["config"]], n_jobs=n_jobs, desc="ch4 training")
+    table["result"] = run_jobs([Job("train", c) for c in table["config"]], n_jobs=n_jobs, desc="ch4 training")
     return table
 
 
@@ -143,7 +141,7 @@ def eval_jobs(runs: pd.DataFrame, kind: str, values: Iterable[Any], n_rollouts: 
     values = list(values)
     return [
         Job(
-            EVAL_FN,
+            "evaluate-ch4",
             {
                 "train": row.config,
                 "kind": kind,
@@ -194,7 +192,7 @@ def _grid(*evals: str) -> Any:
 
     def grid(settings: Mapping[str, Any]) -> list[Job]:
         table = runs(settings)
-        jobs = [Job(TRAIN_FN, c) for c in table["config"]]
+        jobs = [Job("train", c) for c in table["config"]]
         for kind in evals:
             jobs += eval_jobs(table, kind.removesuffix("0"), _values(kind, settings), settings["test_rollouts"])
         return jobs
@@ -203,7 +201,7 @@ def _grid(*evals: str) -> Any:
 
 
 _TRAIN = ("train",)
-_BOTH = ("train", "evaluate")
+_BOTH = ("train", "evaluate-ch4")
 register("4.1", "Training curves of kl_avg, params_avg and joint under four conditions", _TRAIN)(_grid())
 register("4.2", "Key frames of a walking cycle, kl_avg vs params_avg", _BOTH)(_grid("wind0"))
 register("4.3", "Walker2d testing return vs wind speed", _BOTH)(_grid("wind"))

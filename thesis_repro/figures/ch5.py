@@ -27,19 +27,8 @@ from thesis_repro.cache import Job, Result, run_jobs
 from thesis_repro.figures import register
 from thesis_repro.validation import check_choice
 
-SOURCE_FN = "thesis_repro.arm.learn:source_job"
-COMPETITOR_SOURCE_FN = "thesis_repro.arm.baselines:competitor_source_job"
-TARGET_FN = "thesis_repro.arm.baselines:target_job"
-CURRICULUM_FN = "thesis_repro.arm.curriculum:curriculum_job"
-SOLVE_FN = "thesis_repro.arm.bench:solve_task"
-
 #: Methods compared in Fig 5.5: our tensor transfer and the competitors.
 FIG55_METHODS: tuple[str, ...] = ("tensor", *COMPETITORS)
-_SMOKE_NOTE = "smoke scale exercises the plumbing only; its numbers are meaningless"
-
-
-def _scale_note(settings: Mapping[str, Any]) -> str:
-    return f" ({_SMOKE_NOTE})" if settings["scale"] == "smoke" else ""
 
 
 # ---------------------------------------------------------------- Figure 5.3: one ball-in-cup movement
@@ -47,7 +36,7 @@ def solve_jobs(settings: Mapping[str, Any]) -> list[Job]:
     """One CMA-ES run on the single BIC task of the settings per seed (shaped cost)."""
     return [
         Job(
-            SOLVE_FN,
+            "arm-solve",
             {
                 "family": "bic",
                 "task": list(settings["task"]),
@@ -97,7 +86,6 @@ def catch_verdict(summary: pd.DataFrame, settings: Mapping[str, Any]) -> list[re
         f"alternate taut and slack string phases before the catch; {int(ok.moves_right_first.sum())} first move "
         "right as the thesis's movement does (thesis: one successful movement from demonstrations, shown as a "
         "figure; the discount γ^m of Eq 5.12 rewards early catches, so learned movements can be quicker flicks)"
-        + _scale_note(settings)
     )
     holds = bool(ok.taut_and_slack.any())
     claim = "A learned movement catches the ball after taut and slack string phases (Fig 5.3)"
@@ -126,10 +114,10 @@ def grid_jobs(settings: Mapping[str, Any], strategies: Sequence[str]) -> tuple[l
             cfg = source_settings(settings, src, seed)
             for strategy in strategies:
                 if strategy in COMPETITORS:
-                    job = Job(COMPETITOR_SOURCE_FN, {**cfg, "policy": strategy})
+                    source = Job("arm-competitor-source", {**cfg, "policy": strategy})
                 else:
-                    job = Job(SOURCE_FN, cfg)
-                sources.setdefault(job.key, job)
+                    source = Job("arm-source", cfg)
+                sources.setdefault(source.key, source)
                 for tgt in settings["families"]:
                     tcfg = {
                         **TARGET_DEFAULTS,
@@ -139,9 +127,8 @@ def grid_jobs(settings: Mapping[str, Any], strategies: Sequence[str]) -> tuple[l
                         "strategy": strategy,
                         "seed": seed,
                     }
-                    rows.append(
-                        {"source": src, "target": tgt, "strategy": strategy, "seed": seed, "job": Job(TARGET_FN, tcfg)}
-                    )
+                    job = Job("arm-target", tcfg)
+                    rows.append({"source": src, "target": tgt, "strategy": strategy, "seed": seed, "job": job})
     return list(sources.values()), rows
 
 
@@ -215,7 +202,7 @@ def pair_wins(summary: pd.DataFrame, methods: Sequence[str]) -> pd.Series:
 
 def transfer_verdict(summary: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
     """Fig 5.4's three claims: scratch fails on BIC/Cast; cost tensor < matrix < direct; tensor succeeds most."""
-    scale, note = settings["scale"], _scale_note(settings)
+    scale = settings["scale"]
     mean = strategy_means(summary, TRANSFER)
     hard = summary[summary.target.isin(["bic", "cast"]) & (summary.strategy == "scratch")]
     scratch_hard = float(hard.success_rate.mean()) if len(hard) else float("nan")
@@ -229,7 +216,7 @@ def transfer_verdict(summary: pd.DataFrame, settings: Mapping[str, Any]) -> list
             "5.4",
             "(i) Learning from scratch mostly fails on BIC and Cast targets",
             report.status(None if hard.empty else scratch_hard < 0.5, scale),
-            f"reproduced scratch success rate on BIC/Cast targets: {scratch_hard:.2f} (thesis: mostly fails){note}",
+            f"reproduced scratch success rate on BIC/Cast targets: {scratch_hard:.2f} (thesis: mostly fails)",
         ),
         report.Verdict(
             "5.4",
@@ -239,8 +226,7 @@ def transfer_verdict(summary: pd.DataFrame, settings: Mapping[str, Any]) -> list
                 scale,
                 partly=order.index("tensor") < order.index("direct"),
             ),
-            f"reproduced ordering by mean total cost: {' < '.join(order)} (mean total cost / success rate: "
-            f"{means}){note}",
+            f"reproduced ordering by mean total cost: {' < '.join(order)} (mean total cost / success rate: {means})",
         ),
         report.Verdict(
             "5.4",
@@ -251,7 +237,7 @@ def transfer_verdict(summary: pd.DataFrame, settings: Mapping[str, Any]) -> list
                 partly=best_success == "tensor" or tensor_pairs > n_pairs / 2,
             ),
             f"reproduced: highest mean success rate: {best_success}; tensor >= 50 % success on "
-            f"{tensor_pairs}/{n_pairs} pairs{note}",
+            f"{tensor_pairs}/{n_pairs} pairs",
         ),
     ]
 
@@ -267,7 +253,7 @@ def competitor_verdict(
     summary: pd.DataFrame, curves: pd.DataFrame, settings: Mapping[str, Any]
 ) -> list[report.Verdict]:
     """Fig 5.5's claims: (a) on Cast → BIC tensor starts and ends best; (b) best average cost, most pairs won."""
-    scale, note = settings["scale"], _scale_note(settings)
+    scale = settings["scale"]
     src, tgt, d = cast_to_bic(curves, settings["families"])
     start = d.groupby("strategy").cost.apply(lambda c: c.iloc[:5].mean()).reindex(list(FIG55_METHODS))
     end = d.groupby("strategy").cost.apply(lambda c: c.iloc[-5:].mean()).reindex(list(FIG55_METHODS))
@@ -281,13 +267,13 @@ def competitor_verdict(
             "5.5",
             f"(a) On {src} → {tgt} tensor transfer starts better and converges to a better cost",
             report.status(all(a), scale, partly=any(a)),
-            f"reproduced mean cost of the first 5 generations: {fmt(start)}; of the last 5: {fmt(end)}{note}",
+            f"reproduced mean cost of the first 5 generations: {fmt(start)}; of the last 5: {fmt(end)}",
         ),
         report.Verdict(
             "5.5",
             "(b) Tensor transfer has by far the best average total cost and wins most pairs",
             report.status(all(b), scale, partly=any(b)),
-            f"reproduced average total cost: {fmt(avg)}; % of pairs won: {fmt(wins)}{note}",
+            f"reproduced average total cost: {fmt(avg)}; % of pairs won: {fmt(wins)}",
         ),
     ]
 
@@ -300,7 +286,7 @@ def curriculum_jobs(settings: Mapping[str, Any]) -> list[dict[str, Any]]:
     for seed in settings["seeds"]:
         for condition in CONDITIONS:
             cfg = {**CURRICULUM_DEFAULTS, **{k: settings[k] for k in keys}, "condition": condition, "seed": seed}
-            rows.append({"condition": condition, "seed": seed, "job": Job(CURRICULUM_FN, cfg)})
+            rows.append({"condition": condition, "seed": seed, "job": Job("arm-curriculum", cfg)})
     return rows
 
 
@@ -361,7 +347,7 @@ def curriculum_verdict(
     curves: pd.DataFrame, final: pd.DataFrame, pretraining: pd.DataFrame, settings: Mapping[str, Any]
 ) -> list[report.Verdict]:
     """Fig 5.6: the curriculum beats no curriculum on BIC and solves it; NC fails (the thesis's premise)."""
-    scale, note = settings["scale"], _scale_note(settings)
+    scale = settings["scale"]
     end = curriculum_end(curves)
     fin = final.groupby("condition").final_success.mean().reindex(list(CONDITIONS))
     cl, nc = end.loc["CL"], end.loc["NC"]
@@ -373,19 +359,19 @@ def curriculum_verdict(
             "With the curriculum BIC is learned better than without (lower cost, higher success)",
             report.status(better, scale, partly=bool(cl["cost"] < nc["cost"] or cl["success"] > nc["success"])),
             f"reproduced, last 10 % of BIC trials: CL cost {cl['cost']:.3g} / success {cl['success']:.2f}, "
-            f"NC cost {nc['cost']:.3g} / success {nc['success']:.2f}{note}",
+            f"NC cost {nc['cost']:.3g} / success {nc['success']:.2f}",
         ),
         report.Verdict(
             "5.6",
             "The curriculum solves BIC (final success of the learned policies >= 50 %)",
             report.status(bool(fin["CL"] >= 0.5), scale),
-            f"reproduced final success rate: CL {fin['CL']:.2f}, NC {fin['NC']:.2f}{note}",
+            f"reproduced final success rate: CL {fin['CL']:.2f}, NC {fin['NC']:.2f}",
         ),
         report.Verdict(
             "5.6",
             "Without the curriculum BIC is not learned (the thesis's premise)",
             report.status(bool(nc_pre <= 0.1 and fin["NC"] < 0.5), scale),
             f"reproduced: MTL on BIC alone reaches a population success rate of {nc_pre:.2f} during pre-training "
-            f"and a final success rate of {fin['NC']:.2f}{note}",
+            f"and a final success rate of {fin['NC']:.2f}",
         ),
     ]

@@ -67,3 +67,20 @@ def lines_by_panel(
             ax.set_title(title(cond, i) if title else "", fontsize=9)
             ax.set_ylabel(ylabel)
     return fig, axes
+
+
+def ball_in_cup(ax: plt.Axes, rollout: Mapping[str, Any], title: str, cup_radius: float) -> None:
+    """Fig 5.3: cup path, string and ball every 0.04 s up to the catch (red: string taut, green: slack)."""
+    ee, ball, taut = np.asarray(rollout["ee"]), np.asarray(rollout["ball"]), np.asarray(rollout["taut"])
+    m = int(rollout["hit_step"]) if bool(rollout["success"]) else len(ee) - 1
+    for k in range(0, m + 1, 2):
+        c = "tab:red" if taut[k] else "tab:green"
+        ax.plot([ee[k, 0], ball[k, 0]], [ee[k, 1], ball[k, 1]], color=c, lw=0.6, alpha=0.7)
+        ax.plot(ball[k, 0], ball[k, 1], "o", color=c, ms=2.5)
+    ax.plot(ee[: m + 1, 0], ee[: m + 1, 1], "k-", lw=1.5, label="cup (end-effector) path")
+    ax.plot(0, 0, "ks", ms=5, label="start")
+    x, y, r = ee[m, 0], ee[m, 1], cup_radius
+    ax.plot([x - r, x - r * 0.7, x + r * 0.7, x + r], [y, y - 0.04, y - 0.04, y], "b-", lw=2, label="cup")
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("x (m)")

@@ -11,7 +11,6 @@ from typing import Any
 
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.evaluation.evaluator import BatchedEvaluator, test_seeds
-from thesis_repro.evaluation.jobs import TRAIN_FN
 from thesis_repro.learners import load_policy
 from thesis_repro.mdl.envs import make_mdl_env
 from thesis_repro.validation import check_choice
@@ -26,7 +25,7 @@ def evaluate_job(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
     "seed": s, "c_a": c}``; "shift" values are ``{"body_mass": r, "friction": r}`` dicts (no wind).
     """
     kind = check_choice(config["kind"], EVAL_KINDS, "evaluation kind")
-    policy = load_policy(RunCache().run(Job(TRAIN_FN, config["train"])))
+    policy = load_policy(RunCache().run(Job("train", config["train"])))
     train = config["train"]
     base = {"env": train["env"], "c_a": config["c_a"], "max_episode_steps": train["max_episode_steps"] or 1000}
     conds = []
