@@ -1,57 +1,196 @@
-"""Execute the figure notebooks (jupytext percent ``.py`` files) with papermill.
+"""Execute the figure notebooks (jupytext percent ``.py`` files) with papermill, quietly.
 
->>> sorted(n for n in notebook_ids() if n.startswith("3."))[:1]  # doctest: +SKIP
-['3.2']
+Notebook ids: ``"3.3"`` for ``notebooks/fig-3.3.py``, ``"table-3.4"`` for ``notebooks/table-3.4.py`` and
+``"analysis-4-kl"`` for ``notebooks/analysis-4-kl.py`` (an analysis page of chapter 4). The page id is the
+file stem (``fig-3.3``); it names the executed notebook, its figure files and its verdicts.
+
+A run's terminal output is the notebook's progress bars (its stderr, written as they come), one line per
+verdict, and a final line naming the executed notebook and the figure files written. The kernel talks
+over IPC sockets in the temp folder (removed at shutdown) instead of unencrypted TCP.
+
+Every executed notebook is stamped with an *execution key* (:func:`execution_key`): the notebook source,
+the scale, the parameters, ``THESIS_REPRO_RETRAIN`` and a hash of the kit itself (every file under
+``thesis_repro/`` and ``data/thesis/``). :func:`is_current` tells the book builder that an executed
+notebook can be reused. The run cache is not part of the key: after changing runs by hand, rebuild with
+``--force``.
+
+>>> page_id("3.3"), page_id("table-3.4"), page_id("analysis-4-kl")
+('fig-3.3', 'table-3.4', 'analysis-4-kl')
+>>> chapter("table-3.4"), chapter("analysis-4-kl")
+('3', '4')
+>>> sorted(["analysis-4-kl", "table-4.1", "4.10", "4.2"], key=sort_key)
+['4.2', '4.10', 'table-4.1', 'analysis-4-kl']
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
+import sys
+import tempfile
 import time
+from functools import cache
 from pathlib import Path
 from typing import Any
+
+from jupyter_client import AsyncKernelManager
 
 from thesis_repro import paths
 from thesis_repro.scales import check_scale
 from thesis_repro.validation import check_choice
 
+#: Page kinds in the order they appear in a chapter: figures, then tables, then analysis pages.
+KINDS: tuple[str, ...] = ("fig", "table", "analysis")
+
+
+def _kind(stem: str) -> str | None:
+    return next((k for k in KINDS if stem.startswith(f"{k}-")), None)
+
 
 def notebook_ids() -> list[str]:
-    """Ids of every notebook: ``"3.3"`` for ``notebooks/fig-3.3.py``, ``"table-3.4"`` for tables."""
+    """Ids of every notebook, in book order (chapter; figures, tables, analysis pages; number)."""
     ids = []
-    for p in sorted(paths.NOTEBOOKS.glob("*.py")):
-        stem = p.stem
-        if stem.startswith("fig-"):
-            ids.append(stem[4:])
-        elif stem.startswith("table-"):
-            ids.append(stem)
-    return sorted(ids, key=_sort_key)
+    for p in paths.NOTEBOOKS.glob("*.py"):
+        kind = _kind(p.stem)
+        if kind == "fig":
+            ids.append(p.stem[4:])
+        elif kind is not None:
+            ids.append(p.stem)
+    return sorted(ids, key=sort_key)
 
 
-def _sort_key(nid: str) -> tuple:
-    parts = nid.replace("table-", "").split(".")
-    return (nid.startswith("table-"), *[int(p) if p.isdigit() else 0 for p in parts], nid)
+def page_id(nid: str) -> str:
+    """File stem of a notebook id: ``"fig-3.3"``, ``"table-3.4"``, ``"analysis-4-kl"``."""
+    return nid if _kind(nid) else f"fig-{nid}"
+
+
+def chapter(nid: str) -> str:
+    """Chapter number (as a string) of a notebook id."""
+    stem = page_id(nid)
+    rest = stem.split("-", 1)[1]
+    return rest.split("-")[0].split(".")[0]
+
+
+def sort_key(nid: str) -> tuple:
+    """Book order: chapter, then figures before tables before analysis pages, then the number."""
+    stem = page_id(nid)
+    kind = _kind(stem)
+    rest = stem.split("-", 1)[1]
+    parts = rest.replace("-", ".").split(".")
+    nums = tuple(int(p) if p.isdigit() else 0 for p in parts)
+    return (nums[0], KINDS.index(kind), *nums[1:], stem)
 
 
 def check_notebook(nid: str) -> str:
-    """Normalise ``"fig-3.3"``/``"3.3"`` to ``"3.3"`` and check that the notebook exists."""
+    """Normalise ``"fig-3.3"``/``"3.3"`` to ``"3.3"`` and check that the notebook exists.
+
+    >>> check_notebook("fig-3.3")
+    '3.3'
+    >>> check_notebook("9.99")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown figure '9.99'; valid figures are: '3.2', ...
+    """
+    if not isinstance(nid, str):
+        raise ValueError(f"figure id must be a string such as '3.3', got {nid!r}")
     nid = nid[4:] if nid.startswith("fig-") else nid
     return check_choice(nid, notebook_ids(), "figure")
 
 
 def executed_path(nid: str, scale: str) -> Path:
-    name = nid if nid.startswith("table-") else f"fig-{nid}"
-    return paths.executed(scale) / f"{name}.ipynb"
+    """``build/<scale>/notebooks/<page id>.ipynb``."""
+    return paths.executed(scale) / f"{page_id(nid)}.ipynb"
+
+
+@cache
+def _kit_hash() -> str:
+    """SHA-256 over the kit's sources, configuration and thesis data (computed once per process)."""
+    h = hashlib.sha256()
+    roots = [paths.PACKAGE, paths.THESIS_DATA]
+    for root in roots:
+        for p in sorted(root.rglob("*")):
+            if p.is_file() and p.suffix in {".py", ".yaml", ".yml", ".csv", ".xml", ".json"}:
+                h.update(str(p.relative_to(paths.ROOT)).encode())
+                h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def execution_key(nid: str, scale: str, parameters: dict[str, Any] | None = None) -> str:
+    """Key of one execution: notebook source + scale + parameters + RETRAIN + the kit's own files."""
+    nid = check_notebook(nid)
+    payload = {
+        "notebook": hashlib.sha256(paths.notebook(page_id(nid)).read_bytes()).hexdigest(),
+        "scale": scale,
+        "parameters": parameters or {},
+        "retrain": os.environ.get("THESIS_REPRO_RETRAIN", ""),
+        "kit": _kit_hash(),
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def is_current(nid: str, scale: str, parameters: dict[str, Any] | None = None) -> bool:
+    """True if ``nid`` was executed at ``scale`` with today's sources (same :func:`execution_key`)."""
+    out = executed_path(nid, scale)
+    if not out.exists():
+        return False
+    try:
+        meta = json.loads(out.read_text())["metadata"].get("thesis_repro", {})
+    except (OSError, ValueError, KeyError):
+        return False
+    return meta.get("execution_key") == execution_key(nid, scale, parameters)
+
+
+class QuietKernelManager(AsyncKernelManager):
+    """Kernel manager whose kernel talks over IPC sockets in the temp folder (no unencrypted-TCP warning).
+
+    The socket files (``<tmp>/thesis-repro-kernel-<pid>-<n>-<port>``) are removed when the kernel shuts down.
+    """
+
+    _count = 0
+
+    def __init__(self, **kwargs: Any):
+        super().__init__(**kwargs)
+        QuietKernelManager._count += 1
+        self.transport = "ipc"
+        self.ip = str(Path(tempfile.gettempdir()) / f"thesis-repro-kernel-{os.getpid()}-{self._count}")
+
+
+def _stamp(out: Path, key: str, seconds: float) -> None:
+    nb = json.loads(out.read_text())
+    nb["metadata"]["thesis_repro"] = {"execution_key": key, "seconds": round(seconds, 1)}
+    tmp = out.with_suffix(".tmp")
+    tmp.write_text(json.dumps(nb, indent=1, ensure_ascii=False))
+    tmp.replace(out)
+
+
+def outputs_of(nid: str, scale: str, since: float = 0.0) -> list[Path]:
+    """Figure files of ``nid`` in ``build/<scale>/figures`` (``<page id>*``), written at or after ``since``."""
+    stem = page_id(nid)
+    found = []
+    for p in sorted(paths.figures(scale).glob(f"{stem}*")):
+        tail = p.name[len(stem) :]
+        if tail[:1].isdigit() or p.suffix in {".json", ".tmp"} or not p.is_file():
+            continue  # fig-3.3 must not claim fig-3.30's files; verdicts/run lists are not figures
+        if p.stat().st_mtime >= since:
+            found.append(p)
+    return found
 
 
 def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log: bool = True) -> Path:
-    """Execute notebook ``nid`` at ``scale`` and return the path of the executed ``.ipynb``."""
+    """Execute notebook ``nid`` at ``scale`` and return the path of the executed ``.ipynb``.
+
+    With ``log`` the notebook's stderr (progress bars) goes to this process's stderr as it comes, then
+    one line per verdict and a final line with the executed notebook and figure files are printed.
+    """
     import jupytext
     import papermill as pm
 
+    from thesis_repro import report
+
     nid = check_notebook(nid)
     check_scale(scale)
-    src = paths.notebook(nid)
+    src = paths.notebook(page_id(nid))
     out = executed_path(nid, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
     paths.figures(scale).mkdir(parents=True, exist_ok=True)
@@ -60,6 +199,7 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     staged = out.with_suffix(".source.ipynb")
     jupytext.write(nb, staged)
     params = {"SCALE": scale, **(parameters or {})}
+    key = execution_key(nid, scale, parameters)
     os.environ.setdefault("MUJOCO_GL", "egl")
     t0 = time.time()
     try:
@@ -70,10 +210,19 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
             cwd=str(paths.ROOT),
             kernel_name="python3",
             progress_bar=False,
-            log_output=log,
+            log_output=False,
+            stderr_file=sys.stderr if log else None,
+            kernel_manager_class=QuietKernelManager,
         )
     finally:
         staged.unlink(missing_ok=True)
+    seconds = time.time() - t0
+    _stamp(out, key, seconds)
     if log:
-        print(f"[thesis_repro] executed {src.name} at scale={scale} in {time.time() - t0:.1f}s -> {out}")
+        verdicts = report.verdicts_path(page_id(nid), scale)
+        if verdicts.exists() and verdicts.stat().st_mtime >= t0:
+            for v in report.load(page_id(nid), scale):
+                print(v)
+        figs = ", ".join(str(p) for p in outputs_of(nid, scale, since=t0)) or "none"
+        print(f"[thesis_repro] {page_id(nid)} ({scale}, {seconds:.0f} s): notebook {out}; figures: {figs}")
     return out
