@@ -182,3 +182,12 @@ def test_curriculum_verdict():
     v = ch5.curriculum_verdict(curves, final, pre, figures.settings("5.6", "small"))
     assert [x.status for x in v] == [report.REPRODUCES, report.REPRODUCES, report.DOES_NOT]
     assert "0.50" in v[2].evidence
+
+
+def test_a_run_shared_by_two_figures_is_computed_once():
+    from thesis_repro.cache import run_jobs
+
+    small = {"panels": ["a"], "algos": ["joint"]}
+    (first,) = run_jobs(figures.training_jobs("4.1", "smoke", **small), n_jobs=1, progress=False)
+    (second,) = run_jobs(figures.training_jobs("4.3", "smoke", **small), n_jobs=1, progress=False)
+    assert first.source == "computed" and second.source == "cached" and second.path == first.path
