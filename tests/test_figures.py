@@ -191,3 +191,16 @@ def test_a_run_shared_by_two_figures_is_computed_once():
     (first,) = run_jobs(figures.training_jobs("4.1", "smoke", **small), n_jobs=1, progress=False)
     (second,) = run_jobs(figures.training_jobs("4.3", "smoke", **small), n_jobs=1, progress=False)
     assert first.source == "computed" and second.source == "cached" and second.path == first.path
+
+
+@pytest.mark.parametrize("figure_id", EXPECTED)
+def test_notebooks_are_thin_and_end_with_the_shared_verdict(figure_id):
+    from thesis_repro import paths
+
+    fig = figures.get(figure_id)
+    code = "\n".join(line for line in paths.notebook(figure_id).read_text().splitlines() if not line.startswith("#"))
+    for literal in ("2048", "4096", "4e6", "4000000", "4_000_000", "Job(", "def "):
+        assert literal not in code, f"{fig.notebook_id}: {literal!r} belongs in the library or the scale table"
+    assert f'figures.settings("{figure_id}", SCALE)' in code
+    assert f'figures.runs_summary("{figure_id}", SCALE)' in code
+    assert f'report.report("{fig.notebook_id}", SCALE, ' in code.strip().splitlines()[-1]
