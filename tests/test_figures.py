@@ -204,3 +204,9 @@ def test_notebooks_are_thin_and_end_with_the_shared_verdict(figure_id):
     assert f'figures.settings("{figure_id}", SCALE)' in code
     assert f'figures.runs_summary("{figure_id}", SCALE)' in code
     assert f'report.report("{fig.notebook_id}", SCALE, ' in code.strip().splitlines()[-1]
+
+
+def test_register_checks_the_job_kinds():
+    with pytest.raises(ValueError, match="unknown job kind 'trian'; valid job kinds are"):
+        figures.register("_x", "typo", kinds=["trian"])
+    assert "_x" not in figures.FIGURES

@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from thesis_repro import jobs as job_kinds
 from thesis_repro import scales
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.validation import check_choice
@@ -88,10 +89,12 @@ def register(
     >>> _ = FIGURES.pop("_doc")
     """
 
+    kinds = tuple(check_choice(k, list(job_kinds.KINDS), "job kind") for k in kinds)
+
     def deco(grid: JobGrid) -> JobGrid:
         if figure_id in FIGURES and FIGURES[figure_id].grid is not grid:
             raise ValueError(f"figure {figure_id!r} is already registered by {FIGURES[figure_id].module}")
-        FIGURES[figure_id] = Figure(figure_id, title, grid.__module__, grid, tuple(kinds), settings_id)
+        FIGURES[figure_id] = Figure(figure_id, title, grid.__module__, grid, kinds, settings_id)
         return grid
 
     return deco
