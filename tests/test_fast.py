@@ -147,3 +147,62 @@ def test_fastppo_zip_loads_as_sb3_ppo():
     loaded = PPO.load(blob, device="cpu")
     obs = np.random.default_rng(0).normal(size=(5, 4)).astype(np.float32)
     np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
+
+
+# ---- cheaper stepping, same transitions ------------------------------------------------------------------
+def _same(a, b) -> bool:
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, np.ndarray):
+        return isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b)
+    return type(a) is type(b) and a == b
+
+
+@pytest.mark.parametrize("task", ["Hopper", "Walker2d", "HalfCheetah", "InvertedPendulum"])
+@pytest.mark.parametrize("perturbation", ["none", "obs", "act", "env", "dom"])
+def test_lean_env_steps_exactly_like_gymnasium(task, perturbation, monkeypatch):
+    import thesis_repro.envs.make as make_module
+    from thesis_repro.envs import make_env
+
+    kw = dict(perturbation=perturbation, sigma=0.3, max_episode_steps=40, seed=3)
+    lean = make_env(task, **kw)
+    monkeypatch.setattr(make_module, "lean_spec", lambda env_id: env_id)  # Gymnasium's own registered env
+    ref = make_env(task, **kw)
+    assert type(lean.unwrapped) is not type(ref.unwrapped) or task not in ("Hopper", "Walker2d")
+    rng = np.random.default_rng(0)
+    n_done = 0
+    for _ in range(300):
+        a = rng.uniform(-1.5, 1.5, size=lean.action_space.shape)  # also outside the bounds
+        out_lean, out_ref = lean.step(a.copy()), ref.step(a.copy())
+        assert all(_same(x, y) for x, y in zip(out_lean, out_ref, strict=True))
+        if out_ref[2] or out_ref[3]:
+            n_done += 1
+            assert all(_same(x, y) for x, y in zip(lean.reset(), ref.reset(), strict=True))
+    assert n_done >= 5  # episode ends (terminations and time limits) were exercised
+
+
+def test_lean_vec_env_matches_dummy_vec_env():
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from thesis_repro.envs import make_env
+    from thesis_repro.envs.vec import LeanVecEnv
+
+    def stack(cls):
+        fns = [lambda i=i: make_env("Hopper", "dom", 0.2, max_episode_steps=30, seed=i) for i in range(3)]
+        return VecNormalize(VecMonitor(cls(fns)), norm_reward=True)
+
+    lean, ref = stack(LeanVecEnv), stack(DummyVecEnv)
+    assert _same(lean.reset(), ref.reset())
+    rng = np.random.default_rng(1)
+    n_done = 0
+    for _ in range(200):
+        a = rng.uniform(-1, 1, size=(3, 3))
+        (o1, r1, d1, i1), (o2, r2, d2, i2) = lean.step(a), ref.step(a)
+        assert _same(o1, o2) and _same(r1, r2) and _same(d1, d2)
+        for x, y in zip(i1, i2, strict=True):
+            for info in (x, y):
+                info.get("episode", {}).pop("t", None)  # wall-clock time of VecMonitor
+            assert _same(x, y)
+        n_done += int(d1.sum())
+    assert n_done >= 10
+    assert _same(lean.venv.venv.reset_infos, ref.venv.venv.reset_infos)

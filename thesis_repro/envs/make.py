@@ -16,6 +16,7 @@ from typing import Any
 import gymnasium as gym
 
 from thesis_repro.envs.factors import check_factors, env_short_name
+from thesis_repro.envs.lean import lean_spec
 from thesis_repro.envs.registry import model_kwargs, resolve_env, short_name
 from thesis_repro.envs.wrappers import (
     ActionNoise,
@@ -100,7 +101,7 @@ def make_env(
     kwargs: dict[str, Any] = {**model_kwargs(task), **(env_kwargs or {})}
     if max_episode_steps is not None:
         kwargs["max_episode_steps"] = int(max_episode_steps)
-    out: gym.Env = gym.make(resolve_env(task), disable_env_checker=True, **kwargs)
+    out: gym.Env = gym.make(lean_spec(resolve_env(task)), disable_env_checker=True, **kwargs)  # = gym's transitions
     assert env_short_name(out) == task
     if ratios is not None:
         out = SystematicShift(out, ratios)

@@ -287,111 +287,83 @@ def ppo_epochs(
     params = mac.params if mac is not None else list(policy.parameters())
     policy.set_training_mode(True)
     pg_l, v_l, ent_l, clip_l, kl_l = [], [], [], [], []
-    loss = th.zeros(())
+    last: tuple[th.Tensor, th.Tensor, th.Tensor] | None = None  # (pg, value, entropy) losses of the last minibatch
     continue_training = True
     epochs = 0
-    for _ in range(n_epochs):
-        epochs += 1
-        kl_l = []
-        shuffled = data.index(th.as_tensor(perm_fn(n), dtype=th.long))
-        for start in range(0, n, batch_size):
-            mb = shuffled.slice(start, start + batch_size)
-            b = len(mb)
-            adv = mb.advantages
-            if normalize_advantage and b > 1:
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-            if mac is not None:
-                with th.no_grad():
+    lo, hi = 1 - clip_range, 1 + clip_range
+    with th.set_grad_enabled(mac is None):
+        for _ in range(n_epochs):
+            epochs += 1
+            kl_l = []
+            shuffled = data.index(th.as_tensor(perm_fn(n), dtype=th.long))
+            for start in range(0, n, batch_size):
+                mb = shuffled.slice(start, start + batch_size)
+                b = len(mb)
+                adv = mb.advantages
+                if normalize_advantage and b > 1:
+                    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+                if mac is not None:
                     cache, log_prob, values = mac.forward(mb.observations, mb.actions)
-                    entropy = mac.entropy()
-                    stats = _losses(log_prob, values, entropy, adv, mb, clip_range, clip_range_vf, ent_coef, vf_coef)
-            else:
-                values, log_prob, entropy = policy.evaluate_actions(mb.observations, mb.actions)
-                values = values.flatten()
-                if entropy is None:
-                    entropy = -log_prob
-                stats = _losses(log_prob, values, entropy.mean(), adv, mb, clip_range, clip_range_vf, ent_coef, vf_coef)
-            loss = stats["loss"]
-            pg_l.append(stats["pg"])
-            v_l.append(stats["vloss"])
-            ent_l.append(stats["ent"])
-            clip_l.append(stats["clip"])
-            kl_l.append(stats["kl"])
-            if target_kl is not None and np.float32(stats["kl"].item()) > 1.5 * target_kl:
-                continue_training = False
-                break
-            if mac is not None:
+                    ent = -mac.entropy()
+                else:
+                    values, log_prob, entropy = policy.evaluate_actions(mb.observations, mb.actions)
+                    values = values.flatten()
+                    ent = th.mean(-log_prob) if entropy is None else -th.mean(entropy)
+                log_ratio = log_prob - mb.old_log_prob
+                ratio = th.exp(log_ratio)
+                clipped = th.clamp(ratio, lo, hi)
+                p1, p2 = adv * ratio, adv * clipped
+                pg = -th.min(p1, p2).mean()
+                if clip_range_vf is None:
+                    vpred = values
+                else:
+                    vpred = mb.old_values + th.clamp(values - mb.old_values, -clip_range_vf, clip_range_vf)
+                vloss = th.nn.functional.mse_loss(mb.returns, vpred)
                 with th.no_grad():
-                    g_lp, g_v = _loss_grads(log_prob, values, adv, mb, stats, clip_range, clip_range_vf, vf_coef)
-                    mac.backward(cache, g_lp, g_v, -float(ent_coef))
-            else:
-                optimizer.zero_grad()
-                loss.backward()
-            with th.no_grad():
-                _clip_grads(params, max_grad_norm)
-            optimizer.step()
-        if not continue_training:
-            break
-    mean = lambda xs: float(th.stack(xs).float().mean()) if xs else float("nan")  # noqa: E731
+                    kl = th.mean((ratio - 1) - log_ratio)
+                    clip_l.append(th.mean((th.abs(ratio - 1) > clip_range).float()))
+                pg_l.append(pg.detach())
+                v_l.append(vloss.detach())
+                ent_l.append(ent.detach())
+                kl_l.append(kl)
+                last = (pg, vloss, ent)
+                if target_kl is not None and np.float32(kl.item()) > 1.5 * target_kl:
+                    continue_training = False
+                    break
+                if mac is not None:
+                    # d loss / d ratio with autograd's conventions: clamp passes the gradient on [lo, hi]
+                    # (there ratio == clipped, p1 == p2 and min's two halves add up to 1); outside, min
+                    # sends it to the smaller term (half each on an exact tie) and clamp blocks p2's half.
+                    w = th.where(ratio == clipped, 1.0, (p1 < p2) + 0.5 * (p1 == p2))
+                    g_log_prob = adv * w * ratio * (-1.0 / b)
+                    g_values = (vpred - mb.returns) * (2.0 * vf_coef / b)
+                    if clip_range_vf is not None:
+                        d = values - mb.old_values
+                        g_values = g_values * ((d >= -clip_range_vf) & (d <= clip_range_vf))
+                    mac.backward(cache, g_log_prob, g_values, -float(ent_coef))
+                else:
+                    loss = pg + ent_coef * ent + vf_coef * vloss
+                    optimizer.zero_grad()
+                    loss.backward()
+                with th.no_grad():
+                    _clip_grads(params, max_grad_norm)
+                optimizer.step()
+            if not continue_training:
+                break
+    with th.no_grad():
+        mean = lambda xs: float(th.stack(xs).double().mean()) if xs else float("nan")  # noqa: E731
+        loss = float(last[0] + ent_coef * last[2] + vf_coef * last[1]) if last is not None else float("nan")
     return {
         "policy_gradient_loss": mean(pg_l),
         "value_loss": mean(v_l),
         "entropy_loss": mean(ent_l),
         "clip_fraction": mean(clip_l),
         "approx_kl": mean(kl_l),
-        "loss": float(loss.detach()),
+        "loss": loss,
         "epochs": epochs,
         "continue_training": continue_training,
         "fast_path": mac is not None,
     }
-
-
-def _losses(log_prob, values, entropy_mean, adv, mb, clip_range, clip_range_vf, ent_coef, vf_coef) -> dict:
-    log_ratio = log_prob - mb.old_log_prob
-    ratio = th.exp(log_ratio)
-    p1 = adv * ratio
-    p2 = adv * th.clamp(ratio, 1 - clip_range, 1 + clip_range)
-    pg = -th.min(p1, p2).mean()
-    if clip_range_vf is None:
-        vpred = values
-    else:
-        vpred = mb.old_values + th.clamp(values - mb.old_values, -clip_range_vf, clip_range_vf)
-    vloss = th.nn.functional.mse_loss(mb.returns, vpred)
-    ent = -entropy_mean
-    with th.no_grad():
-        clip = th.mean((th.abs(ratio - 1) > clip_range).float())
-        kl = th.mean((ratio - 1) - log_ratio)
-    loss = pg + ent_coef * ent + vf_coef * vloss
-    return {
-        "loss": loss,
-        "pg": pg.detach(),
-        "vloss": vloss.detach(),
-        "ent": ent.detach(),
-        "clip": clip,
-        "kl": kl,
-        "ratio": ratio,
-        "p1": p1,
-        "p2": p2,
-        "vpred": vpred,
-    }
-
-
-def _loss_grads(log_prob, values, adv, mb, stats, clip_range, clip_range_vf, vf_coef) -> tuple[th.Tensor, th.Tensor]:
-    """dLoss/dlog_prob and dLoss/dvalues, with autograd's conventions (``min`` ties split the gradient
-    in half; ``clamp`` passes it on the closed interval)."""
-    b = len(adv)
-    ratio, p1, p2 = stats["ratio"], stats["p1"], stats["p2"]
-    half = (p1 == p2).to(ratio.dtype) * 0.5
-    w1 = (p1 < p2).to(ratio.dtype) + half
-    inside = ((ratio >= 1 - clip_range) & (ratio <= 1 + clip_range)).to(ratio.dtype)
-    w2 = ((p1 > p2).to(ratio.dtype) + half) * inside
-    g_ratio = adv * (w1 + w2) * (-1.0 / b)
-    g_log_prob = g_ratio * ratio
-    g_values = (stats["vpred"] - mb.returns) * (2.0 * vf_coef / b)
-    if clip_range_vf is not None:
-        d = values - mb.old_values
-        g_values = g_values * ((d >= -clip_range_vf) & (d <= clip_range_vf)).to(g_values.dtype)
-    return g_log_prob, g_values
 
 
 # ------------------------------------------------------------------------------------------------ FastPPO
