@@ -88,7 +88,7 @@ def test_path_and_kind_forms_are_one_entry(tmp_path):
 
 def test_unknown_kind_is_one_line_error_listing_kinds():
     for name in ("trian", "thesis_repro.nowhere:job"):
-        with pytest.raises(ValueError, match=r"valid job kinds are: .*arm-source.*train") as err:
+        with pytest.raises(ValueError, match=r"valid job kinds are: .*'arm-source'.*'train'") as err:
             Job(name, {})
         assert "\n" not in str(err.value)
     with pytest.raises(ValueError, match="short lowercase name"):

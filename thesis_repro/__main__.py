@@ -1,4 +1,5 @@
-"""Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list``."""
+"""Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
+``reference-runs --scale small``."""
 
 from __future__ import annotations
 
@@ -21,6 +22,17 @@ def main(argv: list[str] | None = None) -> int:
     book.add_argument("--jobs", type=int, default=None)
     book.add_argument("--reuse", action="store_true", help="reuse already executed notebooks")
     sub.add_parser("list", help="list the notebooks and scales")
+    runs_p = sub.add_parser("runs", help="where a figure's runs are: kind, label, key, state, path")
+    runs_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all'")
+    runs_p.add_argument("--scale", default="small", help="smoke | small | full")
+    runs_p.add_argument("--json", action="store_true", help="print the rows as JSON")
+    runs_p.add_argument("--check", action="store_true", help="report stale or corrupt shipped runs instead")
+    ref = sub.add_parser("reference-runs", help="train the figures' training runs and ship them in data/reference")
+    ref.add_argument("--scale", default="small", help="smoke | small | full")
+    ref.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
+    ref.add_argument("--kind", nargs="+", default=None, help="job kinds to ship (default: train)")
+    ref.add_argument("--commit", action="store_true", help="git-commit each run as it lands")
+    ref.add_argument("--jobs", type=int, default=1, help="runs trained at once (1 or 2)")
     args = parser.parse_args(argv)
 
     if getattr(args, "jobs", None):
@@ -34,6 +46,8 @@ def main(argv: list[str] | None = None) -> int:
             ids = notebooks.notebook_ids() if args.figure == "all" else [notebooks.check_notebook(args.figure)]
             for nid in ids:
                 notebooks.execute(nid, args.scale)
+        elif args.cmd in ("runs", "reference-runs"):
+            return _runs_command(args)
         elif args.cmd == "book":
             from thesis_repro import book as book_mod
 
@@ -41,6 +55,36 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    return 0
+
+
+def _runs_command(args: argparse.Namespace) -> int:
+    import json
+
+    from thesis_repro import figures, runs
+
+    scales.check_scale(args.scale)
+    if args.cmd == "reference-runs":
+        kinds = args.kind or figures.TRAINING_KINDS
+        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs)
+        return 0
+    if args.check:
+        stale, corrupt = runs.check_shipped(args.scale), runs.verify_shipped()
+        for s in stale:
+            print(s.message)
+        for path, err in corrupt.items():
+            print(f"corrupt shipped run {path}: {err}")
+        print(f"{len(runs.shipped_entries())} shipped runs: {len(stale)} stale, {len(corrupt)} corrupt")
+        return 1 if stale or corrupt else 0
+    ids = figures.ids() if args.figure == "all" else [args.figure]
+    for fid in ids:
+        rows = runs.rows(fid, args.scale)
+        if args.json:
+            print(json.dumps({"figure": fid, "scale": args.scale, "runs": rows}, indent=1))
+            continue
+        train = [j for j in figures.jobs(fid, args.scale) if j.kind in figures.TRAINING_KINDS]
+        print(f"{figures.get(fid).notebook_id} ({args.scale}): {runs.summary(train) if train else 'no training runs'}")
+        print(runs.table(rows) + "\n")
     return 0
 
 

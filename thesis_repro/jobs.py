@@ -26,6 +26,8 @@ import re
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from thesis_repro.validation import check_choice
+
 #: kind -> ``"module:function"`` computing it (called as ``fn(config, workdir)``).
 KINDS: dict[str, str] = {}
 #: kind -> ``label(config) -> str`` (readable part of the run folder name).
@@ -123,8 +125,10 @@ def kind_of(name: str) -> str:
         return name
     if name in PATHS:
         return PATHS[name]
-    what = "job function path" if isinstance(name, str) and ":" in name else "job kind"
-    raise ValueError(f"unknown {what} {name!r}; valid job kinds are: {', '.join(sorted(KINDS))}")
+    if isinstance(name, str) and ":" in name:
+        listed = ", ".join(repr(k) for k in sorted(KINDS))
+        raise ValueError(f"unknown job function path {name!r}; valid job kinds are: {listed}")
+    return check_choice(name, sorted(KINDS), "job kind")
 
 
 def label(kind: str, config: Mapping[str, Any]) -> str:

@@ -218,6 +218,9 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
         staged.unlink(missing_ok=True)
     seconds = time.time() - t0
     _stamp(out, key, seconds)
+    from thesis_repro import runs  # local: the run listing imports the whole figure layer
+
+    runs.record(nid, scale)  # build/<scale>/figures/fig-X.Y.runs.json: where this figure's runs are
     if log:
         verdicts = report.verdicts_path(page_id(nid), scale)
         if verdicts.exists() and verdicts.stat().st_mtime >= t0:

@@ -1,0 +1,194 @@
+"""Findable runs, the shipped layer (export, stale/corrupt checks, policy comparison) and the generator."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thesis_repro import figures, paths, runs
+from thesis_repro import jobs as registry
+from thesis_repro.__main__ import main
+from thesis_repro.cache import CorruptEntryWarning, Job, RunCache, read_entry
+
+INTERRUPT_ONCE = "THESIS_REPRO_TEST_INTERRUPT"
+
+
+def toy_train(config: dict, workdir: Path) -> dict:
+    """A 'training' job: checkpoints every step in its workdir, can be interrupted once, writes artefacts
+    of every sort (a full model that must not be shipped, a policy, snapshots) and a curve."""
+    ckpt = workdir / "ckpt-state.json"
+    step = json.loads(ckpt.read_text())["step"] if ckpt.exists() else 0
+    resumed = step > 0
+    while step < config["timesteps"]:
+        step += 1
+        ckpt.write_text(json.dumps({"step": step}))
+        marker = Path(config.get("interrupt", "/nonexistent"))
+        if step == 2 and marker.exists():
+            marker.unlink()
+            raise KeyboardInterrupt("simulated Ctrl-C")
+    out = workdir / "out"
+    (out / "model.zip").write_bytes(b"optimizer state" * 100)
+    (out / "replay_buffer.pkl").write_bytes(b"buffer")
+    (out / "policy.txt").write_text(f"w={config['seed']}")
+    (out / "snapshots" / "step_1").mkdir(parents=True, exist_ok=True)
+    (out / "snapshots" / "step_1" / "policy.txt").write_text("w=0")
+    return {"resumed": resumed, "curve": np.arange(float(step))}
+
+
+registry.register("toy-train", "tests.test_runs:toy_train")
+
+
+def _cfg(name: str, timesteps: int, seed: int = 0, **kw) -> dict:
+    return {"algorithm": name, "env": "Toy", "seed": seed, "timesteps": timesteps, **kw}
+
+
+@pytest.fixture
+def fake_figures(monkeypatch, tmp_path):
+    """Two fake figures sharing one training run, plus an evaluation-like job; a private shipped layer."""
+    monkeypatch.setattr(figures, "FIGURES", {})
+    monkeypatch.setattr(figures, "TRAINING_KINDS", ("train", "toy-train"))
+    shared = Job("toy-train", _cfg("b", 20, interrupt=str(tmp_path / "interrupt")))
+    grids = {
+        "9.1": lambda s: [Job("toy-train", _cfg("c", 30)), shared, Job("square", {"x": 1})],
+        "9.2": lambda s: [shared, Job("toy-train", _cfg("a", 10))],
+    }
+    for fid, grid in grids.items():
+        figures.register(fid, f"toy figure {fid}", kinds=["toy-train", "square"], settings_id="_example")(grid)
+    layer = tmp_path / "reference"
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
+    return layer
+
+
+def test_generator_end_to_end(fake_figures, tmp_path):
+    layer, lines = fake_figures, []
+    (tmp_path / "interrupt").write_text("")  # the shared run (20 steps) will be interrupted once
+    with pytest.raises(KeyboardInterrupt):
+        runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append)
+    assert "3 toy-train jobs, 0 already shipped, 3 to produce (60 env steps" in lines[0]
+    assert [p.name.split("__")[0] for p in runs.shipped_entries(layer)] == ["a"]  # cheapest first, shipped
+    assert RunCache().state(Job("toy-train", _cfg("b", 20, interrupt=str(tmp_path / "interrupt")))) == "partial"
+
+    lines.clear()
+    done = runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append)
+    assert "1 already shipped, 2 to produce" in lines[0]
+    assert [e.path.name.split("__")[0] for e in done] == ["b", "c"]
+    assert [p.name.split("__")[0] for p in runs.shipped_entries(layer)] == ["a", "b", "c"]
+    shipped = RunCache(reference=layer).load(Job("toy-train", _cfg("b", 20, interrupt=str(tmp_path / "interrupt"))))
+    assert shipped is not None and shipped["resumed"] is True  # resumed from the workdir checkpoint
+    entry = done[0].path
+    files = {str(p.relative_to(entry)) for p in entry.rglob("*") if p.is_file()}
+    assert {"out/policy.txt", "out/snapshots/step_1/policy.txt", "arrays.npz", "provenance.json"} <= files
+    assert not {"out/model.zip", "out/replay_buffer.pkl"} & files
+    assert set(done[0].dropped) == {"out/model.zip", "out/replay_buffer.pkl"}
+    read_entry(entry)  # fresh manifest verifies
+    assert runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append) == []
+
+
+def test_generator_commits_each_run(fake_figures, tmp_path, monkeypatch):
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    for args in (["init", "-q"], ["config", "user.email", "t@t"], ["config", "user.name", "t"]):
+        subprocess.run(["git", "-C", str(repo), *args], check=True)
+    monkeypatch.setattr(paths, "ROOT", repo)
+    done = runs.generate("smoke", ["9.2"], ["toy-train"], commit=True, layer_root=repo / "data" / "reference", log=str)
+    log = subprocess.run(["git", "-C", str(repo), "log", "--format=%s"], capture_output=True, text=True).stdout
+    subjects = log.splitlines()[::-1]
+    assert len(subjects) == 2 and subjects[0].startswith("reference run: a__Toy__s0 (toy-train, key ")
+    assert subjects[0].endswith(" s)") and done[0].path.name.split("__")[-1] in subjects[0]
+    tracked = subprocess.run(["git", "-C", str(repo), "ls-files"], capture_output=True, text=True).stdout
+    assert "data/reference/toy-train/a__Toy__s0__" in tracked and "model.zip" not in tracked
+
+
+def test_plan_dedupes_and_orders_by_cost(fake_figures):
+    plan = runs.plan("smoke", kinds=["toy-train"])
+    assert [p.job.config["algorithm"] for p in plan] == ["a", "b", "c"]
+    assert [p.cost for p in plan] == [10.0, 20.0, 30.0]
+    assert plan[1].figures == ["fig-9.1", "fig-9.2"]
+    with pytest.raises(ValueError, match="valid job kinds are"):
+        runs.generate("smoke", kinds=["trian"], log=str)
+
+
+def test_rows_states_summary_and_runs_json(fake_figures, tmp_path):
+    layer = fake_figures
+    cache = RunCache(reference=layer)
+    jobs = figures.jobs("9.1", "smoke")
+    assert [j.kind for j in jobs] == ["toy-train", "toy-train", "square"]  # training first
+    runs.export(RunCache(tmp_path / "maker", reference=False).run(jobs[0]), layer)  # ship c
+    cache.run(jobs[2])  # cache the square job locally
+    rows = {r["label"]: r for r in runs.rows("9.1", "smoke", cache)}
+    assert {k: r["state"] for k, r in rows.items()} == {
+        "c__Toy__s0": "shipped",
+        "b__Toy__s0": "missing",
+        "x1": "cached",
+    }
+    assert rows["c__Toy__s0"]["path"].endswith(f"toy-train/c__Toy__s0__{jobs[0].key}")
+    assert "c__Toy__s0" in runs.table(list(rows.values())).splitlines()[1]
+    training = [j for j in jobs if j.kind in figures.TRAINING_KINDS]
+    assert runs.summary(training, cache) == "2 training runs: 1 shipped, 0 cached, 1 to compute"
+    path = runs.record("9.1", "smoke", cache)
+    assert path == paths.figures("smoke") / "fig-9.1.runs.json"
+    doc = json.loads(path.read_text())
+    assert doc["summary"].startswith("2 training runs: 1 shipped") and len(doc["runs"]) == 3
+    assert runs.record("table-9.9", "smoke") is None  # not a registered figure: nothing to record
+
+
+def test_check_shipped_reports_stale_runs_with_the_fix(fake_figures, tmp_path):
+    layer = fake_figures
+    maker = RunCache(tmp_path / "maker", reference=False)
+    runs.export(maker.run(Job("toy-train", _cfg("a", 10))), layer)
+    assert runs.check_shipped("smoke", layer) == []
+    old = runs.export(maker.run(Job("toy-train", _cfg("a", 11))), layer)  # a config no figure makes any more
+    stale = runs.check_shipped("smoke", layer)
+    assert [s.path for s in stale] == [old.path]
+    assert "make reference-runs SCALE=smoke" in stale[0].message and "git rm -r" in stale[0].message
+
+
+def test_verify_shipped_and_cache_refuse_a_corrupt_file(fake_figures, tmp_path):
+    layer = fake_figures
+    job = Job("toy-train", _cfg("a", 10))
+    ex = runs.export(RunCache(tmp_path / "maker", reference=False).run(job), layer)
+    assert runs.verify_shipped(layer) == {}
+    (ex.path / "out" / "policy.txt").write_text("w=666")
+    assert "out/policy.txt" in runs.verify_shipped(layer)[ex.path]
+    with pytest.warns(CorruptEntryWarning, match="corrupt shipped run"):
+        res = RunCache(reference=layer).run(job)
+    assert res.source == "computed" and (res.out / "policy.txt").read_text() == "w=0"
+    assert (ex.path / "out" / "policy.txt").read_text() == "w=666"  # never deleted or repaired silently
+
+
+def test_export_of_a_real_training_run_keeps_what_evaluation_needs(tmp_path):
+    from thesis_repro.learners import load_policy, snapshots, train_config
+
+    tiny = {"n_steps": 64, "n_envs": 2, "batch_size": 32, "n_epochs": 2, "max_episode_steps": 50}
+    cfg = train_config("ppo", "InvertedPendulum", 0, 256, snapshot_every=128, **tiny)
+    local = RunCache(reference=False).run(Job("train", cfg))
+    assert (local.out / "model.zip").exists()
+    ex = runs.export(local, tmp_path / "reference")
+    assert not (ex.path / "out" / "model.zip").exists() and "out/model.zip" in ex.dropped
+    assert ex.bytes < runs.TARGET_BYTES
+    shipped = RunCache(tmp_path / "empty", reference=tmp_path / "reference").run(Job("train", cfg))
+    assert shipped.source == "shipped" and shipped.path == ex.path
+    obs = np.zeros((3, load_policy(local).obs_dim))
+    np.testing.assert_array_equal(load_policy(shipped)(obs), load_policy(local)(obs))
+    assert snapshots(shipped) == snapshots(local) != []
+    assert runs.max_abs_diff(local, shipped) == 0.0
+    other = RunCache(reference=False).run(Job("train", {**cfg, "seed": 1}))
+    assert runs.max_abs_diff(local, other) > 0.0
+    (tmp_path / "bare" / "out").mkdir(parents=True)
+    (tmp_path / "bare" / "config.json").write_text(json.dumps({"kind": "train"}))
+    with pytest.raises(ValueError, match="lacks out/policy.pth"):
+        runs.export(type("R", (), {"path": tmp_path / "bare"})(), tmp_path / "reference")
+
+
+def test_runs_command(fake_figures, capsys):
+    assert main(["runs", "9.2", "--scale", "smoke"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("fig-9.2 (smoke): 2 training runs: 0 shipped, 0 cached, 2 to compute")
+    assert "a__Toy__s0" in out and "missing" in out
+    assert main(["runs", "9.9", "--scale", "smoke"]) == 2
+    assert "valid figures are: '9.1', '9.2'" in capsys.readouterr().err
+    assert main(["runs", "--check", "--scale", "smoke"]) == 0

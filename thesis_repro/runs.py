@@ -1,0 +1,428 @@
+"""Where every figure's runs are, the shipped layer of reference runs, and the generator that fills it.
+
+* :func:`rows` / :func:`table`: a figure's jobs with their kind, label, key, state (``cached`` in the
+  local cache, ``shipped`` in ``data/reference``, ``partial`` = interrupted and resumable, ``missing``)
+  and path — ``python -m thesis_repro runs 3.3 --scale small``; :func:`record` writes the same rows to
+  ``build/<scale>/figures/fig-3.3.runs.json`` after a notebook ran; :func:`summary` is the one line a
+  notebook prints.
+* :func:`export`: compact copy of a finished training entry into the shipped layer (policy weights,
+  obs filter, curves, snapshots, config, provenance; never optimiser state, full SB3 models or replay
+  buffers) with a fresh manifest.
+* :func:`generate`: ``make reference-runs SCALE=small`` — trains the training jobs of every figure
+  (cheapest first, resumable), exports each into the layer and optionally commits it as it lands.
+* :func:`check_shipped` (stale shipped runs), :func:`verify_shipped` (corrupt ones) and
+  :func:`max_abs_diff` (compare two runs' policies) back the provenance tests.
+
+>>> from thesis_repro.cache import Job
+>>> summary([Job("square", {"x": 1}), Job("square", {"x": 2})], RunCache(reference=False))
+'2 runs: 0 shipped, 0 cached, 2 to compute'
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import json
+import os
+import shutil
+import subprocess
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from thesis_repro import figures, paths
+from thesis_repro import jobs as registry
+from thesis_repro.cache import Job, Result, RunCache, execute, find_entry, read_entry, write_manifest
+from thesis_repro.validation import check_choice
+
+#: States of a job in :func:`rows`.
+STATES: tuple[str, ...] = ("cached", "shipped", "partial", "missing")
+#: Artefacts never shipped (glob patterns on file or folder names): full SB3 models and VecNormalize
+#: pickles (optimiser state, env references), replay buffers, resumable checkpoints, optimiser dumps.
+EXCLUDE: tuple[str, ...] = (
+    "model.zip",
+    "vecnormalize.pkl",
+    "*replay_buffer*",
+    "ckpt*",
+    "checkpoint*",
+    "*optimizer*",
+    "*optimiser*",
+    ".ckpt-tmp",
+)
+#: Files a shipped entry of a kind must hold for evaluation to work (``load_policy(result)``).
+REQUIRED: dict[str, tuple[str, ...]] = {"train": ("out/policy.pth", "out/learner.json")}
+#: Size a shipped run should stay under (snapshots included); larger ones are reported.
+TARGET_BYTES = 1_000_000
+
+
+def _rel(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(paths.ROOT))
+    except ValueError:
+        return str(path)
+
+
+# ---------------------------------------------------------------- findable runs
+def job_row(job: Job, cache: RunCache) -> dict[str, str]:
+    """``kind``, ``label``, ``key``, ``state`` and ``path`` of one job (no verification, no computing)."""
+    state = cache.state(job)
+    if state == "cached":
+        path = cache.entry(job)
+    elif state == "shipped":
+        path = cache.shipped(job)
+    elif state == "partial":
+        path = cache.workdir(job)
+    else:
+        path = cache.root / job.kind / job.folder
+    return {"kind": job.kind, "label": job.label, "key": job.key, "state": state, "path": _rel(path)}
+
+
+def rows(figure_id: str, scale: str, cache: RunCache | None = None) -> list[dict[str, str]]:
+    """One row per job figure ``figure_id`` runs at ``scale`` (training jobs first)."""
+    cache = cache or RunCache()
+    return [job_row(job, cache) for job in figures.jobs(figure_id, scale)]
+
+
+def table(rows: Sequence[Mapping[str, str]], columns: Sequence[str] = ("kind", "label", "key", "state", "path")) -> str:
+    """Plain-text table of ``rows`` (what ``python -m thesis_repro runs`` prints).
+
+    >>> print(table([{"kind": "train", "label": "ppo__Hopper__s0", "key": "ab12", "state": "shipped", "path": "p"}]))
+    kind   label            key   state    path
+    train  ppo__Hopper__s0  ab12  shipped  p
+    """
+    widths = [max([len(c), *(len(str(r[c])) for r in rows)]) for c in columns]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)).rstrip()]
+    lines += ["  ".join(str(r[c]).ljust(w) for c, w in zip(columns, widths, strict=True)).rstrip() for r in rows]
+    return "\n".join(lines)
+
+
+def summary(jobs: Iterable[Job], cache: RunCache | None = None) -> str:
+    """One line: how many of ``jobs`` are shipped, cached locally or still to compute.
+
+    ``"35 training runs: 35 shipped, 0 cached, 0 to compute"`` (``runs`` when not all are training jobs;
+    interrupted runs that will resume are counted as to compute and named).
+    """
+    cache = cache or RunCache()
+    jobs = list({j.key: j for j in jobs}.values())
+    states = [cache.state(j) for j in jobs]
+    noun = "training runs" if jobs and all(j.kind in figures.TRAINING_KINDS for j in jobs) else "runs"
+    todo = states.count("partial") + states.count("missing")
+    text = f"{len(jobs)} {noun}: {states.count('shipped')} shipped, {states.count('cached')} cached, {todo} to compute"
+    return text + (f" ({states.count('partial')} interrupted, will resume)" if states.count("partial") else "")
+
+
+def runs_json(figure_id: str, scale: str) -> Path:
+    """``build/<scale>/figures/fig-X.Y.runs.json``."""
+    return paths.figures(scale) / f"{figures.get(figure_id).notebook_id}.runs.json"
+
+
+def record(figure_id: str, scale: str, cache: RunCache | None = None) -> Path | None:
+    """Write the run rows of ``figure_id`` at ``scale`` to :func:`runs_json`; ``None`` if it is not a registered
+    figure (nothing to record)."""
+    try:
+        figures.get(figure_id)
+    except ValueError:
+        return None
+    cache = cache or RunCache()
+    jobs = figures.jobs(figure_id, scale)
+    training = [j for j in jobs if j.kind in figures.TRAINING_KINDS]
+    doc = {
+        "figure": figures.get(figure_id).notebook_id,
+        "scale": scale,
+        "summary": summary(training, cache) if training else summary(jobs, cache),
+        "runs": [job_row(j, cache) for j in jobs],
+    }
+    out = runs_json(figure_id, scale)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps(doc, indent=1))
+    os.replace(tmp, out)
+    return out
+
+
+# ---------------------------------------------------------------- the shipped layer
+@dataclass(frozen=True)
+class Exported:
+    """A run copied into the shipped layer: its folder, size in bytes and the files left out."""
+
+    path: Path
+    bytes: int
+    dropped: tuple[str, ...] = ()
+
+    @property
+    def megabytes(self) -> float:
+        return self.bytes / 1e6
+
+
+def _excluded(name: str) -> bool:
+    return any(fnmatch.fnmatch(name, pat) for pat in EXCLUDE)
+
+
+def _size(folder: Path) -> int:
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+
+
+def export(result: Result, layer_root: str | Path | None = None) -> Exported:
+    """Compact copy of the finished entry ``result`` into the shipped layer (``paths.reference()`` by default).
+
+    Keeps ``config.json``, ``provenance.json``, ``result.json``, ``arrays.npz`` and ``out/`` minus
+    :data:`EXCLUDE`; writes a fresh manifest; replaces an older copy atomically. A training entry without
+    the files evaluation needs (:data:`REQUIRED`) is a ``ValueError``.
+    """
+    layer = Path(layer_root) if layer_root is not None else paths.reference()
+    src = Path(result.path)
+    kind = json.loads((src / "config.json").read_text())["kind"]
+    missing = [f for f in REQUIRED.get(kind, ()) if not (src / f).exists()]
+    if missing:
+        raise ValueError(f"cannot ship {src}: it lacks {', '.join(missing)} (what load_policy needs)")
+    dest = layer / kind / src.name
+    if dest.resolve() == src.resolve():
+        return Exported(dest, _size(dest))
+    dropped: list[str] = []
+
+    def ignore(folder: str, names: list[str]) -> list[str]:
+        out = [n for n in names if _excluded(n)]
+        dropped.extend(_rel(Path(folder) / n).split(f"{src.name}/", 1)[-1] for n in out)
+        return out
+
+    tmp = dest.parent / f".tmp-export-{src.name}-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for name in ("config.json", "provenance.json", "result.json", "arrays.npz"):
+        if (src / name).exists():
+            shutil.copy2(src / name, tmp / name)
+    if (src / "out").is_dir():
+        shutil.copytree(src / "out", tmp / "out", ignore=ignore)
+    write_manifest(tmp)
+    read_entry(tmp)  # the copy verifies before it replaces anything
+    if dest.exists():
+        shutil.rmtree(dest)
+    os.replace(tmp, dest)
+    return Exported(dest, _size(dest), tuple(sorted(dropped)))
+
+
+def shipped_entries(layer_root: str | Path | None = None) -> list[Path]:
+    """Every entry folder (``<kind>/<label>__<key>``) of the shipped layer."""
+    layer = Path(layer_root) if layer_root is not None else paths.reference()
+    if not layer.is_dir():
+        return []
+    return sorted(
+        p for p in layer.glob("*/*__*") if p.is_dir() and not p.name.startswith(".") and not p.name.endswith(".partial")
+    )
+
+
+@dataclass(frozen=True)
+class StaleRun:
+    """A shipped entry whose key no figure produces any more at ``scale``."""
+
+    path: Path
+    kind: str
+    key: str
+    scale: str
+
+    @property
+    def message(self) -> str:
+        return (
+            f"stale shipped run {_rel(self.path)}: no figure's current {self.scale} config produces key {self.key} "
+            f"({self.kind}); regenerate with `make reference-runs SCALE={self.scale}` and remove it with "
+            f"`git rm -r {_rel(self.path)}`"
+        )
+
+
+def current_keys(scale: str, kinds: Iterable[str] | None = None, figure_ids: Iterable[str] | None = None) -> set[str]:
+    """Keys of every job (of ``kinds``, default all) of every figure (or ``figure_ids``) at ``scale``."""
+    kinds = None if kinds is None else set(kinds)
+    keys = set()
+    for fid in figure_ids or figures.ids():
+        keys.update(j.key for j in figures.jobs(fid, scale) if kinds is None or j.kind in kinds)
+    return keys
+
+
+def check_shipped(scale: str = "small", layer_root: str | Path | None = None) -> list[StaleRun]:
+    """Shipped entries whose key is no longer produced by any figure's current config at ``scale`` (stale).
+
+    An empty list means every shipped run is still used; otherwise each :attr:`StaleRun.message` says how
+    to regenerate.
+    """
+    keys = current_keys(scale)
+    stale = []
+    for path in shipped_entries(layer_root):
+        key = path.name.rsplit("__", 1)[1]
+        if key not in keys:
+            stale.append(StaleRun(path, path.parent.name, key, scale))
+    return stale
+
+
+def verify_shipped(layer_root: str | Path | None = None) -> dict[Path, str]:
+    """Shipped entries that fail their manifest (or cannot be read), with the reason."""
+    bad = {}
+    for path in shipped_entries(layer_root):
+        try:
+            read_entry(path)
+        except Exception as err:  # noqa: BLE001 - any failure to read means the entry is unusable
+            bad[path] = str(err)
+    return bad
+
+
+def _policy_arrays(result_or_path: Result | str | Path) -> dict[str, np.ndarray]:
+    import torch as th  # local: keep the listing importable without torch
+
+    folder = Path(getattr(result_or_path, "out", result_or_path))
+    if not (folder / "policy.pth").exists() and (folder / "out" / "policy.pth").exists():
+        folder = folder / "out"
+    saved = th.load(folder / "policy.pth", map_location="cpu", weights_only=False)
+    arrays = {f"policy.{k}": v.detach().numpy() for k, v in saved["state_dict"].items()}
+    if (folder / "obs_norm.npz").exists():
+        with np.load(folder / "obs_norm.npz") as z:
+            arrays.update({f"obs_norm.{k}": z[k] for k in ("mean", "var")})
+    return arrays
+
+
+def max_abs_diff(result_a: Result | str | Path, result_b: Result | str | Path) -> float:
+    """Largest absolute difference between two training runs' policy weights and observation filters
+    (``0.0``: bit-identical); ``ValueError`` if they do not have the same parameters."""
+    a, b = _policy_arrays(result_a), _policy_arrays(result_b)
+    if a.keys() != b.keys() or any(a[k].shape != b[k].shape for k in a):
+        diff = sorted(a.keys() ^ b.keys()) or [k for k in a if a[k].shape != b[k].shape]
+        raise ValueError(f"the two runs have different parameters: {', '.join(diff[:5])}")
+    return max((float(np.max(np.abs(a[k].astype(np.float64) - b[k]))) for k in a if a[k].size), default=0.0)
+
+
+# ---------------------------------------------------------------- the reference-run generator
+def cost(job: Job) -> float:
+    """Rough cost of a job for ordering: its env steps (``timesteps``), or CMA-ES evaluations, else 0."""
+    c = job.config
+    t = c.get("timesteps")
+    if isinstance(t, int | float):
+        return float(t)
+    if isinstance(t, Mapping):
+        return float(sum(v for v in t.values() if isinstance(v, int | float)))
+    return float(c.get("generations", 0) or 0) * float(c.get("popsize", 1) or 1)
+
+
+@dataclass
+class Planned:
+    """One reference run to produce: its job, the figures that use it and its estimated cost."""
+
+    job: Job
+    figures: list[str] = field(default_factory=list)
+
+    @property
+    def cost(self) -> float:
+        return cost(self.job)
+
+
+def plan(
+    scale: str, figure_ids: Iterable[str] | None = None, kinds: Iterable[str] = figures.TRAINING_KINDS
+) -> list[Planned]:
+    """The jobs of ``kinds`` of every figure (or ``figure_ids``) at ``scale``, deduplicated by key, cheapest first."""
+    kinds = set(kinds)
+    out: dict[str, Planned] = {}
+    for fid in figure_ids or figures.ids():
+        notebook_id = figures.get(fid).notebook_id
+        for job in figures.jobs(fid, scale):
+            if job.kind in kinds:
+                out.setdefault(job.key, Planned(job)).figures.append(notebook_id)
+    return sorted(out.values(), key=lambda p: (p.cost, p.job.kind, p.job.label, p.job.key))
+
+
+def _wall(result: Result) -> float:
+    try:
+        return float(json.loads((result.path / "provenance.json").read_text())["wall_seconds"])
+    except (OSError, KeyError, ValueError):
+        return float("nan")
+
+
+def git_commit(path: Path, message: str, attempts: int = 20) -> str:
+    """``git add <path> && git commit -m <message> -- <path>`` in the repository; returns the new commit.
+
+    Retries while another process holds the index lock (several people/agents commit in one tree).
+    """
+    rel = _rel(path)
+    for attempt in range(attempts):
+        add = subprocess.run(["git", "-C", str(paths.ROOT), "add", "--", rel], capture_output=True, text=True)
+        com = None
+        if add.returncode == 0:
+            com = subprocess.run(
+                ["git", "-C", str(paths.ROOT), "commit", "-q", "-m", message, "--", rel], capture_output=True, text=True
+            )
+            if com.returncode == 0:
+                head = subprocess.run(
+                    ["git", "-C", str(paths.ROOT), "rev-parse", "--short", "HEAD"], capture_output=True
+                )
+                return head.stdout.decode().strip()
+        err = (com or add).stderr
+        if "index.lock" not in err or attempt == attempts - 1:
+            raise RuntimeError(f"git commit of {rel} failed: {err.strip()}")
+        time.sleep(1 + attempt)
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def generate(
+    scale: str = "small",
+    figure_ids: Iterable[str] | None = None,
+    kinds: Iterable[str] = figures.TRAINING_KINDS,
+    commit: bool = False,
+    n_jobs: int = 1,
+    layer_root: str | Path | None = None,
+    cache: RunCache | None = None,
+    log: Callable[[str], None] = print,
+) -> list[Exported]:
+    """Produce the shipped reference runs of ``scale`` (``make reference-runs``).
+
+    Collects the jobs of ``kinds`` of every figure (deduplicated, cheapest first), skips those already
+    shipped with a verified entry, runs the rest through the local cache ``n_jobs`` at a time (an
+    interrupted run resumes from its workdir checkpoint on the next call), exports each finished one into
+    the layer and, with ``commit``, commits it as it lands. Returns the exported runs.
+    """
+    layer = Path(layer_root) if layer_root is not None else paths.reference()
+    cache = cache or RunCache(reference=False)
+    kinds = tuple(check_choice(k, sorted(registry.KINDS), "job kind") for k in kinds)
+    planned = plan(scale, figure_ids, kinds)
+    todo, shipped = [], 0
+    for p in planned:
+        where = find_entry(layer, p.job)
+        if where is not None:
+            try:
+                read_entry(where)
+            except Exception as err:  # noqa: BLE001
+                log(f"shipped run {_rel(where)} is corrupt ({err}); regenerating it")
+            else:
+                shipped += 1
+                continue
+        todo.append(p)
+    total = sum(p.cost for p in todo)
+    log(
+        f"reference runs ({scale}): {len(planned)} {'/'.join(kinds)} jobs, {shipped} already shipped, "
+        f"{len(todo)} to produce ({total:,.0f} env steps in all) -> {_rel(layer)}"
+    )
+    done: list[Exported] = []
+
+    def land(i: int, p: Planned, result: Result) -> None:
+        ex = export(result, layer)
+        wall = _wall(result)
+        note = "" if ex.bytes <= TARGET_BYTES else f" (over the {TARGET_BYTES / 1e6:.0f} MB target)"
+        line = f"[{i}/{len(todo)}] {p.job.kind} {p.job.label}: {wall:.0f} s, shipped {ex.megabytes:.2f} MB{note}"
+        if commit:
+            msg = f"reference run: {p.job.label} ({p.job.kind}, key {p.job.key}, {wall:.0f} s)"
+            line += f", committed {git_commit(ex.path, msg)}"
+        log(line + f" -> {_rel(ex.path)}")
+        done.append(ex)
+
+    if n_jobs <= 1 or len(todo) <= 1:
+        for i, p in enumerate(todo, 1):
+            state, used_by = cache.state(p.job), ", ".join(p.figures)
+            log(f"[{i}/{len(todo)}] {p.job.kind} {p.job.label} ({p.cost:,.0f} steps; {state}) for {used_by}")
+            land(i, p, cache.run(p.job))
+    else:
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(max_workers=n_jobs, mp_context=mp.get_context("spawn")) as ex:
+            futures = {ex.submit(execute, p.job, str(cache.root), False): p for p in todo}
+            log(f"running {len(todo)} jobs, {n_jobs} at a time (cheapest first)")
+            for i, fut in enumerate(as_completed(futures), 1):
+                land(i, futures[fut], fut.result())
+    return done
