@@ -3,7 +3,7 @@
 Usable as ``Job("thesis_repro.learners:train_job", train_config(...))``. The job
 
 * builds ``n_envs`` copies of ``make_env(env, perturbation, sigma, seed=seed + i)`` in one process
-  (``DummyVecEnv`` -> ``VecMonitor`` (raw returns) -> ``VecNormalize`` (obs filter) [-> ``ARPLVecEnv``]);
+  (``LeanVecEnv`` -> ``VecMonitor`` (raw returns) -> ``VecNormalize`` (obs filter) [-> ``ARPLVecEnv``]);
 * seeds SB3 (torch, numpy, env ``i`` with ``seed + i``) with the config's training ``seed``;
 * checkpoints model + VecNormalize statistics (+ replay buffer off-policy) + bookkeeping into
   ``workdir/ckpt-<steps>`` at iteration boundaries at least ``checkpoint_every`` steps apart, and resumes
@@ -33,9 +33,10 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise, VectorizedActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from thesis_repro.envs import make_env
+from thesis_repro.envs.vec import LeanVecEnv
 from thesis_repro.learners.algos import DDPGSplit
 from thesis_repro.learners.arpl import ARPLVecEnv
 from thesis_repro.learners.fast import FastPPO  # PPO with a leaner, equivalent train() (tests/test_fast.py)
@@ -53,7 +54,7 @@ def _algo_class(name: str) -> type[BaseAlgorithm]:
 
 
 def make_train_venv(cfg: dict[str, Any]) -> VecEnv:
-    """The ``VecMonitor(DummyVecEnv([...]))`` training env of a resolved config (before normalisation)."""
+    """The ``VecMonitor(LeanVecEnv([...]))`` training env of a resolved config (before normalisation)."""
     fns = [
         partial(
             make_env,
@@ -65,7 +66,7 @@ def make_train_venv(cfg: dict[str, Any]) -> VecEnv:
         )
         for i in range(cfg["n_envs"])
     ]
-    return VecMonitor(DummyVecEnv(fns))
+    return VecMonitor(LeanVecEnv(fns))  # = DummyVecEnv without per-step deep copies
 
 
 def _wrap(cfg: dict[str, Any], inner: VecEnv, vecnorm_path: Path | None) -> VecEnv:
