@@ -8,9 +8,13 @@ STAMP := $(VENV)/.installed
 SCALE ?= small
 JOBS ?=
 export MUJOCO_GL ?= egl
+# RETRAIN=1 ignores the shipped reference runs (data/reference) and retrains them into data/runs.
+ifdef RETRAIN
+export THESIS_REPRO_RETRAIN := $(RETRAIN)
+endif
 export PYTHONUNBUFFERED := 1
 
-.PHONY: venv test smoke book bench lint clean-build figure-% table-%
+.PHONY: venv test smoke book bench lint clean-build figure-% table-% reference-runs runs-%
 
 venv: $(STAMP)
 
@@ -43,6 +47,16 @@ test: $(STAMP)
 	tmp=$$(mktemp -d); export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build; \
 	$(BIN)/python -m pytest -q --doctest-modules tests thesis_repro \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
+
+## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] : train every figure's training runs (cheapest
+## first, resumable: re-run after an interruption) and ship them in data/reference; COMMIT=1 commits each as it lands
+reference-runs: $(STAMP)
+	nice -n 10 $(BIN)/python -m thesis_repro reference-runs --scale $(SCALE) $(if $(FIGURES),--figures $(FIGURES)) \
+	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS))
+
+## make runs-3.3 SCALE=small : where Figure 3.3's runs are (kind, label, key, cached / shipped / missing, path)
+runs-%: $(STAMP)
+	$(BIN)/python -m thesis_repro runs $* --scale $(SCALE)
 
 ## make bench : throughput benchmarks (batched evaluation, PPO training, ...), printed as ratios
 bench: $(STAMP)
