@@ -147,6 +147,21 @@ def test_check_shipped_reports_stale_runs_with_the_fix(fake_figures, tmp_path):
     assert "make reference-runs SCALE=smoke" in stale[0].message and "git rm -r" in stale[0].message
 
 
+def test_shipped_job_and_cheapest_shipped(fake_figures, tmp_path, monkeypatch):
+    layer = fake_figures
+    assert runs.cheapest_shipped("toy-train", layer) is None
+    maker = RunCache(tmp_path / "maker", reference=False)
+    for job in (Job("toy-train", _cfg("c", 30)), Job("toy-train", _cfg("a", 10))):
+        runs.export(maker.run(job), layer)
+    cheapest = runs.cheapest_shipped("toy-train", layer)
+    assert cheapest == Job("toy-train", _cfg("a", 10))
+    fresh = RunCache(tmp_path / "fresh", reference=False).run(cheapest)  # the retrain-and-compare check
+    assert fresh.source == "computed" and (fresh.out / "policy.txt").read_text() == "w=0"
+    monkeypatch.setattr("thesis_repro.cache.CACHE_VERSION", 99)  # keys changed: the shipped run is unusable
+    with pytest.raises(ValueError, match="no longer hashes to its key.*make reference-runs"):
+        runs.cheapest_shipped("toy-train", layer)
+
+
 def test_verify_shipped_and_cache_refuse_a_corrupt_file(fake_figures, tmp_path):
     layer = fake_figures
     job = Job("toy-train", _cfg("a", 10))

@@ -110,6 +110,7 @@ def summary(jobs: Iterable[Job], cache: RunCache | None = None) -> str:
     states = [cache.state(j) for j in jobs]
     noun = "training runs" if jobs and all(j.kind in figures.TRAINING_KINDS for j in jobs) else "runs"
     todo = states.count("partial") + states.count("missing")
+    noun = noun[:-1] if len(jobs) == 1 else noun
     text = f"{len(jobs)} {noun}: {states.count('shipped')} shipped, {states.count('cached')} cached, {todo} to compute"
     return text + (f" ({states.count('partial')} interrupted, will resume)" if states.count("partial") else "")
 
@@ -239,6 +240,26 @@ def current_keys(scale: str, kinds: Iterable[str] | None = None, figure_ids: Ite
     for fid in figure_ids or figures.ids():
         keys.update(j.key for j in figures.jobs(fid, scale) if kinds is None or j.kind in kinds)
     return keys
+
+
+def shipped_job(path: str | Path) -> Job:
+    """The :class:`Job` a shipped (or cached) entry was made from, rebuilt from its ``config.json``;
+    ``ValueError`` if it no longer hashes to the entry's key (e.g. after a ``CACHE_VERSION`` bump)."""
+    path = Path(path)
+    meta = json.loads((path / "config.json").read_text())
+    job = Job(meta["kind"], meta["config"])
+    if job.key != meta["key"] or not path.name.endswith(f"__{job.key}"):
+        raise ValueError(
+            f"{_rel(path)} no longer hashes to its key ({meta['key']} -> {job.key}); regenerate the shipped runs "
+            "with `make reference-runs SCALE=small`"
+        )
+    return job
+
+
+def cheapest_shipped(kind: str = "train", layer_root: str | Path | None = None) -> Job | None:
+    """The shipped ``kind`` job with the smallest :func:`cost` (for the retrain-and-compare check), or ``None``."""
+    jobs = [shipped_job(p) for p in shipped_entries(layer_root) if p.parent.name == kind]
+    return min(jobs, key=lambda j: (cost(j), j.label, j.key), default=None)
 
 
 def check_shipped(scale: str = "small", layer_root: str | Path | None = None) -> list[StaleRun]:
