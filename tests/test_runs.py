@@ -207,3 +207,8 @@ def test_runs_command(fake_figures, capsys):
     assert main(["runs", "9.9", "--scale", "smoke"]) == 2
     assert "valid figures are: '9.1', '9.2'" in capsys.readouterr().err
     assert main(["runs", "--check", "--scale", "smoke"]) == 0
+    assert main(["reference-runs", "--scale", "smoke", "--figures", "9.2", "--kind", "toy-train"]) == 0
+    assert "[2/2] toy-train b__Toy__s0" in capsys.readouterr().out
+    assert len(runs.shipped_entries(fake_figures)) == 2
+    assert main(["runs", "9.2", "--scale", "smoke", "--json"]) == 0
+    assert {r["state"] for r in json.loads(capsys.readouterr().out)["runs"]} == {"cached"}

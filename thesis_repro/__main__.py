@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     ref.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
     ref.add_argument("--kind", nargs="+", default=None, help="job kinds to ship (default: train)")
     ref.add_argument("--commit", action="store_true", help="git-commit each run as it lands")
-    ref.add_argument("--jobs", type=int, default=1, help="runs trained at once (1 or 2)")
+    ref.add_argument("--jobs", type=int, default=None, help="runs trained at once (default 1; 2 on two idle cores)")
     args = parser.parse_args(argv)
 
     if getattr(args, "jobs", None):
@@ -66,7 +66,7 @@ def _runs_command(args: argparse.Namespace) -> int:
     scales.check_scale(args.scale)
     if args.cmd == "reference-runs":
         kinds = args.kind or figures.TRAINING_KINDS
-        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs)
+        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1)
         return 0
     if args.check:
         stale, corrupt = runs.check_shipped(args.scale), runs.verify_shipped()
