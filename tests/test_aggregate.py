@@ -226,3 +226,76 @@ def test_kl_avg_cg_rtol_controls_accuracy():
     assert tight["cg_residual"] < loose["cg_residual"]
     assert (b - dense).norm() < (a - dense).norm()
     assert torch.allclose(b, dense, atol=1e-4)
+
+
+# ------------------------------------------------------------------- analysis page computations
+def test_analysis_problems_and_tables():
+    from thesis_repro.mdl import kl_analysis as ka
+
+    with pytest.raises(ValueError, match="valid problem kinds are: 'perturb', 'update'"):
+        ka.make_problem(0, kind="shuffle")
+    with pytest.raises(ValueError, match="n_domains"):
+        ka.make_problem(0, n_domains=1)
+    p = ka.make_problem(0, hidden=(4,), n_states=32)
+    assert len(p.thetas) == 4 and all(t.dtype == torch.float64 for t in p.thetas)
+    # "update" sub-policies moved from θ_old, by a modest KL, and differently per domain
+    kls = agg.eq47_kls(p.view, p.theta_old, p.thetas, p.states)
+    assert (kls > 1e-4).all() and (kls < 1.0).all() and len(set(kls.tolist())) == 4
+    table = ka.compare_aggregates([p], reference_iters=30)
+    by = table.set_index("aggregate")
+    assert (by["excess"] >= -1e-10).all()  # θ* is at least as good as every aggregate
+    assert by.loc["params_avg", "dist_ratio"] == pytest.approx(1.0)
+    assert by.loc["params_avg", "eq47"] == pytest.approx(p.objective(agg.params_avg(p.thetas)))
+    s = ka.summarise(table)
+    assert list(s.index) == list(ka.AGGREGATES)
+    assert s.loc["params_avg", "beats_params_avg"] == 0.0 and s.loc["kl_exact", "beats_params_avg"] == 1.0
+    assert s.loc["params_avg", "median_eq47_vs_avg"] == pytest.approx(1.0)
+
+
+def test_analysis_linear_gaussian_table_and_slopes():
+    from thesis_repro.mdl import kl_analysis as ka
+
+    lin = ka.linear_gaussian(0, n_states=64)
+    assert lin.loc["kl_exact", "dist_to_closed_form"] < 1e-5
+    assert lin.loc["eq4.10", "eq47"] == pytest.approx(lin.loc["closed form (Eq 4.10)", "eq47"], rel=1e-9)
+    assert lin.loc["params_avg", "mean_params_minus_plain_avg"] == 0.0
+    assert lin.loc["closed form (Eq 4.10)", "mean_params_minus_plain_avg"] > 1e-3
+    assert lin.loc["closed form (Eq 4.7)", "eq47"] < lin.loc["params_avg", "eq47"] < lin.loc["eq4.10", "eq47"]
+    assert ka.equal_fisher_check() < 1e-10
+    # the true correction is O(δ²) (checked in the asymptotic range)
+    sc = ka.spread_scaling([1e-3, 1e-2], hidden=(4,), n_states=32, reference_iters=30)
+    assert ka.loglog_slopes(sc, ["true_step"])["true_step"] == pytest.approx(2.0, abs=0.2)
+    with pytest.raises(ValueError, match="two spreads"):
+        ka.loglog_slopes(sc.iloc[:1], ["true_step"])
+
+
+def test_analysis_verdict_statuses():
+    import pandas as pd
+
+    from thesis_repro import report
+    from thesis_repro.mdl import kl_analysis as ka
+
+    lin = pd.DataFrame(
+        {"eq47": [1.0, 3.0, 2.0, 2.5, 3.0, 1.0]},
+        index=["closed form (Eq 4.7)", "closed form (Eq 4.10)", "params_avg", "kl_avg", "eq4.10", "kl_exact"],
+    )
+
+    def summary(beats_kl_avg: float) -> pd.DataFrame:
+        return pd.DataFrame(
+            {
+                "beats_params_avg": [0.0, beats_kl_avg, 0.0, 1.0],
+                "problems": [4] * 4,
+                "median_dist_ratio": [1.0, 3.0, 100.0, 0.3],
+                "median_excess": [1e-3, 2e-3, 1.0, 1e-9],
+            },
+            index=list(ka.AGGREGATES),
+        )
+
+    got = [v.status for v in ka.verdict(summary(0.0), lin, "small")]
+    assert got == [report.DOES_NOT, report.DOES_NOT, report.REPRODUCES]
+    assert ka.verdict(summary(0.5), lin, "small")[0].status == report.PARTLY
+    assert ka.verdict(summary(1.0), lin, "small")[0].status == report.REPRODUCES
+    assert {v.status for v in ka.verdict(summary(1.0), lin, "smoke")} == {report.NOT_JUDGED}
+    bad = lin.copy()
+    bad.loc["kl_exact", "eq47"] = 1.5  # did not reach the closed form
+    assert ka.verdict(summary(0.0), bad, "small")[2].status == report.DOES_NOT

@@ -344,7 +344,7 @@ def kl_exact(
     thetas: Sequence[Tensor],
     states: Tensor,
     *,
-    iters: int = 20,
+    iters: int = 10,
     cg_iters: int = 20,
     cg_rtol: float = 1e-3,
     damping: float = 1e-3,
