@@ -206,3 +206,61 @@ def test_lean_vec_env_matches_dummy_vec_env():
         n_done += int(d1.sum())
     assert n_done >= 10
     assert _same(lean.venv.venv.reset_infos, ref.venv.venv.reset_infos)
+
+
+# ---- SAC / DDPG: same replay samples -> same parameters ---------------------------------------------------
+def _off_policy_twin(model):
+    """A deep copy of ``model`` (parameters, optimisers, replay buffer, counters) sharing its envs."""
+    env, vn = model.env, model._vec_normalize_env
+    model.env = model._vec_normalize_env = None
+    try:
+        twin = copy.deepcopy(model)
+    finally:
+        model.env, model._vec_normalize_env = env, vn
+    twin.env, twin._vec_normalize_env = env, vn
+    twin.set_logger(configure(None, [""]))
+    return twin
+
+
+def _off_policy_model(kind: str):
+    from thesis_repro.envs import make_env
+    from thesis_repro.learners.algos import DDPGSplit
+    from thesis_repro.learners.fast import FastDDPG, FastSAC
+
+    pk = {"net_arch": [32, 32], "activation_fn": th.nn.ReLU, "optimizer_kwargs": {"fused": True}}
+    common = dict(buffer_size=5000, learning_starts=200, train_freq=50, gradient_steps=50, seed=0, device="cpu")
+    if kind.startswith("sac"):
+        ent = "auto" if kind == "sac-auto" else 0.2
+        return FastSAC(
+            "MlpPolicy", make_env("Hopper", seed=0), batch_size=128, ent_coef=ent, policy_kwargs=pk, **common
+        )
+    venv = VecNormalize(DummyVecEnv([lambda: make_env("Hopper", seed=0)]), norm_reward=False)
+    if kind == "ddpg":  # the kit's DDPG: split learning rates and critic L2 (Adam weight decay)
+        return DDPGSplit("MlpPolicy", venv, actor_lr=1e-4, critic_lr=1e-3, critic_l2=0.01, policy_kwargs=pk, **common)
+    model = FastDDPG("MlpPolicy", venv, policy_kwargs={**pk, "n_critics": 2}, **common)
+    model.policy_delay, model.target_policy_noise, model.target_noise_clip = 2, 0.2, 0.5  # TD3 settings
+    return model
+
+
+@pytest.mark.parametrize("kind", ["sac", "sac-auto", "ddpg", "td3-settings"])
+def test_fast_off_policy_train_equals_sb3_train(kind):
+    from stable_baselines3 import SAC, TD3
+
+    model = _off_policy_model(kind)
+    model.learn(400)  # 200 random steps, then 4 x 50 fast gradient steps
+    assert model.fast_path is True
+    ref, before = _off_policy_twin(model), _off_policy_twin(model)
+    sb3_train = SAC.train if kind.startswith("sac") else TD3.train
+    np.random.seed(11)
+    th.manual_seed(11)
+    sb3_train(ref, 50, model.batch_size)
+    np.random.seed(11)
+    th.manual_seed(11)
+    model.train(50, model.batch_size)
+    assert _max_diff(model.policy, ref.policy) < ATOL  # actor, critic and target networks
+    assert _max_diff(model.policy, before.policy) > 100 * ATOL
+    if kind == "sac-auto":
+        assert model.log_ent_coef.item() == pytest.approx(ref.log_ent_coef.item(), abs=ATOL)
+        assert model.log_ent_coef.item() != before.log_ent_coef.item()
+    for key, value in ref.logger.name_to_value.items():
+        assert model.logger.name_to_value[key] == pytest.approx(value, rel=1e-4, abs=1e-6), key

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3 import PPO
+from stable_baselines3 import DDPG, PPO, SAC
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.distributions import DiagGaussianDistribution
 from stable_baselines3.common.policies import ActorCriticPolicy
@@ -414,3 +414,310 @@ class FastPPO(PPO):
         self.logger.record("train/clip_range", clip_range)
         if self.clip_range_vf is not None:
             self.logger.record("train/clip_range_vf", clip_range_vf)
+
+
+# ------------------------------------------------------------------------------- SAC / DDPG (TD3 family)
+_ACTS = {nn.ReLU: "relu", nn.Tanh: "tanh"}
+
+
+class _Net:
+    """A ``Sequential`` of Linear layers, each optionally followed by ReLU/Tanh, run and differentiated in
+    closed form (SB3's ``create_mlp`` bodies: actor latents, TD3 actors, Q-networks)."""
+
+    def __init__(self, layers: list[tuple[nn.Linear, str | None]]):
+        self.layers = layers
+        self.params = [p for lin, _ in layers for p in (lin.weight, lin.bias)]
+
+    @staticmethod
+    def of(seq: nn.Module) -> _Net | None:
+        """The closed-form view of ``seq``; None if it holds anything but biased Linear + ReLU/Tanh."""
+        if type(seq) is not nn.Sequential:
+            return None
+        mods, layers, i = list(seq), [], 0
+        while i < len(mods):
+            lin = mods[i]
+            if type(lin) is not nn.Linear or lin.bias is None:
+                return None
+            act = _ACTS.get(type(mods[i + 1])) if i + 1 < len(mods) else None
+            layers.append((lin, act))
+            i += 2 if act is not None else 1
+        return _Net(layers) if layers else None
+
+    def forward(self, x: th.Tensor) -> list[th.Tensor]:
+        """``[x, h1, ..., out]``: the input and every layer's (activated) output."""
+        hs = [x]
+        for lin, act in self.layers:
+            z = th.addmm(lin.bias, hs[-1], lin.weight.t())
+            hs.append(z if act is None else th.tanh(z) if act == "tanh" else th.relu(z))
+        return hs
+
+    def backward(self, g: th.Tensor, hs: list[th.Tensor], grads: dict | None, need_input: bool = False):
+        """Store dLoss/dparams in ``grads`` (unless None) given dLoss/dout ``g``; return dLoss/dinput if asked."""
+        for i in range(len(self.layers) - 1, -1, -1):
+            lin, act = self.layers[i]
+            h = hs[i + 1]
+            if act == "tanh":
+                g = g * (1 - h * h)
+            elif act == "relu":
+                g = g * (h > 0)
+            if grads is not None:
+                grads[id(lin.weight)] = g.t().mm(hs[i])
+                grads[id(lin.bias)] = g.sum(0)
+            if i == 0:
+                return g.mm(lin.weight) if need_input else None
+            g = g.mm(lin.weight)
+        return None
+
+
+def _flat_box(model: Any) -> bool:
+    space = model.observation_space
+    mods = [model.policy, model.actor, model.critic]
+    extractors = [getattr(m, "features_extractor", None) for m in mods]
+    flat = all(e is None or type(e) is FlattenExtractor for e in extractors)
+    return (
+        flat and isinstance(space, spaces.Box) and len(space.shape) == 1 and isinstance(model.action_space, spaces.Box)
+    )
+
+
+def _q_nets(critic: nn.Module) -> list[_Net] | None:
+    nets = [_Net.of(q) for q in critic.q_networks]
+    if any(n is None for n in nets):
+        return None
+    if {id(p) for n in nets for p in n.params} != {id(p) for p in critic.parameters()}:
+        return None
+    return nets  # type: ignore[return-value]
+
+
+def _q_forward(nets: list[_Net], obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, list[list[th.Tensor]]]:
+    """Q-values (B, n_critics) of ``ContinuousCritic.forward`` and the per-net caches."""
+    x = th.cat([obs, actions], dim=1)
+    caches = [n.forward(x) for n in nets]
+    return th.cat([c[-1] for c in caches], dim=1), caches
+
+
+def _set_grads(params: list[nn.Parameter], grads: dict[int, th.Tensor]) -> None:
+    for p in params:
+        p.grad = grads[id(p)]
+
+
+def _polyak(params: list[th.Tensor], targets: list[th.Tensor], tau: float) -> None:
+    """SB3's ``polyak_update`` in two foreach kernels: target <- (1 - tau) target + tau param."""
+    th._foreach_mul_(targets, 1 - tau)
+    th._foreach_add_(targets, params, alpha=tau)
+
+
+def _mean(xs: list[th.Tensor]) -> float:
+    return float(th.stack([x.reshape(()) for x in xs]).double().mean())
+
+
+class _SACNets:
+    """Closed-form view of an SB3 ``SACPolicy`` (MLP latent, Linear mu / log_std heads, MLP Q-networks)."""
+
+    def __init__(self, model: SAC, latent: _Net, critic: list[_Net], target: list[_Net]):
+        self.latent, self.critic, self.target = latent, critic, target
+        self.mu: nn.Linear = model.actor.mu
+        self.log_std: nn.Linear = model.actor.log_std
+        self.actor_params = list(model.actor.parameters())
+        self.critic_params = list(model.critic.parameters())
+        self.target_params = list(model.critic_target.parameters())
+
+    @staticmethod
+    def build(model: SAC) -> _SACNets | None:
+        actor = model.actor
+        if model.use_sde or not _flat_box(model) or model.batch_norm_stats:
+            return None
+        if type(actor.mu) is not nn.Linear or type(actor.log_std) is not nn.Linear:
+            return None
+        latent = _Net.of(actor.latent_pi)
+        critic, target = _q_nets(model.critic), _q_nets(model.critic_target)
+        if latent is None or critic is None or target is None or latent.layers[-1][1] is None:
+            return None
+        heads = [*actor.mu.parameters(), *actor.log_std.parameters()]
+        if {id(p) for p in (*latent.params, *heads)} != {id(p) for p in actor.parameters()}:
+            return None
+        return _SACNets(model, latent, critic, target)
+
+    def actor_forward(self, obs: th.Tensor) -> dict[str, Any]:
+        """SB3's ``actor.action_log_prob(obs)``: same torch RNG draw, same formulas, plus a cache."""
+        hs = self.latent.forward(obs)
+        latent = hs[-1]
+        mean = th.addmm(self.mu.bias, latent, self.mu.weight.t())
+        raw_ls = th.addmm(self.log_std.bias, latent, self.log_std.weight.t())
+        std = th.ones_like(mean) * th.clamp(raw_ls, -20, 2).exp()  # SB3's LOG_STD_MIN, LOG_STD_MAX
+        eps = th.empty(mean.shape, dtype=mean.dtype, device=mean.device).normal_()  # Normal.rsample's draw
+        u = mean + eps * std
+        a = th.tanh(u)
+        diff, var = u - mean, std**2
+        log_prob = (-(diff**2) / (2 * var) - std.log() - _LOG_SQRT_2PI).sum(dim=1)
+        squash = 1 - a**2 + 1e-6
+        log_prob = log_prob - th.sum(th.log(squash), dim=1)
+        return dict(hs=hs, raw_ls=raw_ls, std=std, var=var, eps=eps, a=a, diff=diff, squash=squash, log_prob=log_prob)
+
+    def actor_grads(self, f: dict[str, Any], g_a: th.Tensor, g_lp: th.Tensor) -> dict[int, th.Tensor]:
+        """dLoss/dactor-params from dLoss/daction (B, A) and dLoss/dlog_prob (B,) (reparameterised sample)."""
+        a, diff, var, std = f["a"], f["diff"], f["var"], f["std"]
+        gl = g_lp[:, None]
+        g_a = g_a + gl * (2 * a / f["squash"])  # from -sum log(1 - a^2 + eps)
+        g_u = g_a * (1 - a * a)  # through tanh
+        dens_u = gl * (diff / var)  # the Gaussian density: d/du = -diff/var, d/dmean = +diff/var
+        g_mean = (g_u - dens_u) + dens_u
+        g_std = (g_u - dens_u) * f["eps"] + gl * (diff * diff / (var * std) - 1 / std)
+        raw = f["raw_ls"]
+        g_ls = g_std * std * ((raw >= -20) & (raw <= 2))
+        latent = f["hs"][-1]
+        grads = {
+            id(self.mu.weight): g_mean.t().mm(latent),
+            id(self.mu.bias): g_mean.sum(0),
+            id(self.log_std.weight): g_ls.t().mm(latent),
+            id(self.log_std.bias): g_ls.sum(0),
+        }
+        self.latent.backward(g_mean.mm(self.mu.weight) + g_ls.mm(self.log_std.weight), f["hs"], grads)
+        return grads
+
+
+class FastSAC(SAC):
+    """SB3 ``SAC`` whose ``train()`` computes the same losses and gradients in closed form (no autograd graph,
+    foreach Polyak update, no per-step ``.item()``); SB3's own ``train()`` for unusual policies.
+
+    >>> import gymnasium as gym
+    >>> m = FastSAC("MlpPolicy", gym.make("InvertedPendulum-v5"), learning_starts=10, seed=0)
+    >>> _ = m.learn(20)
+    >>> m.fast_path
+    True
+    """
+
+    fast_path: bool | None = None
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        """Drop-in for ``SAC.train``: ``gradient_steps`` updates of critic, actor (and entropy coefficient)."""
+        nets = _SACNets.build(self)
+        self.fast_path = nets is not None
+        if nets is None:
+            return super().train(gradient_steps, batch_size)
+        self.policy.set_training_mode(True)
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None:
+            optimizers += [self.ent_coef_optimizer]
+        self._update_learning_rate(optimizers)
+        ent_coef_losses, ent_coefs, actor_losses, critic_losses = [], [], [], []
+        n_obs = int(self.observation_space.shape[0])
+        with th.no_grad():
+            for gradient_step in range(gradient_steps):
+                data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+                discounts = data.discounts if data.discounts is not None else self.gamma
+                obs, next_obs = data.observations.float(), data.next_observations.float()  # = preprocess_obs
+                b = len(obs)
+                f = nets.actor_forward(obs)
+                log_prob = f["log_prob"].reshape(-1, 1)
+                if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                    ent_coef = th.exp(self.log_ent_coef)
+                    shifted = log_prob + self.target_entropy
+                    ent_coef_losses.append(-(self.log_ent_coef * shifted).mean())
+                    self.log_ent_coef.grad = (shifted.sum() * (-1.0 / shifted.numel())).reshape(1)
+                    self.ent_coef_optimizer.step()
+                else:
+                    ent_coef = self.ent_coef_tensor
+                ent_coefs.append(ent_coef)
+                nf = nets.actor_forward(next_obs)
+                next_q, _ = _q_forward(nets.target, next_obs, nf["a"])
+                next_q, _ = th.min(next_q, dim=1, keepdim=True)
+                next_q = next_q - ent_coef * nf["log_prob"].reshape(-1, 1)
+                target_q = data.rewards + (1 - data.dones) * discounts * next_q
+                # critic: 0.5 * sum_k mean((q_k - y)^2)
+                q, caches = _q_forward(nets.critic, obs, data.actions)
+                critic_losses.append(0.5 * ((q - target_q) ** 2).mean(0).sum())
+                g_q = (q - target_q) * (1.0 / b)
+                grads: dict[int, th.Tensor] = {}
+                for k, net in enumerate(nets.critic):
+                    net.backward(g_q[:, k : k + 1], caches[k], grads)
+                _set_grads(nets.critic_params, grads)
+                self.critic.optimizer.step()
+                # actor: mean(alpha * log_prob - min_k q_k(s, a~pi)) with the updated critic
+                q_pi, caches = _q_forward(nets.critic, obs, f["a"])
+                min_q, idx = th.min(q_pi, dim=1, keepdim=True)
+                actor_losses.append((ent_coef * log_prob - min_q).mean())
+                g_a = th.zeros_like(f["a"])
+                for k, net in enumerate(nets.critic):
+                    g_k = (idx == k).to(q_pi.dtype) * (-1.0 / b)
+                    g_a = g_a + net.backward(g_k, caches[k], None, need_input=True)[:, n_obs:]
+                g_lp = (ent_coef * (1.0 / b)).expand(b)
+                _set_grads(nets.actor_params, nets.actor_grads(f, g_a, g_lp))
+                self.actor.optimizer.step()
+                if gradient_step % self.target_update_interval == 0:
+                    _polyak(nets.critic_params, nets.target_params, self.tau)
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/ent_coef", _mean(ent_coefs))
+        self.logger.record("train/actor_loss", _mean(actor_losses))
+        self.logger.record("train/critic_loss", _mean(critic_losses))
+        if ent_coef_losses:
+            self.logger.record("train/ent_coef_loss", _mean(ent_coef_losses))
+
+
+class FastDDPG(DDPG):
+    """SB3 ``DDPG`` (= TD3 with one critic, no target smoothing, no policy delay) whose ``train()`` computes
+    the same update in closed form; SB3's own ``train()`` for unusual policies. Any TD3 setting of the
+    parent is honoured (``policy_delay``, ``target_policy_noise``, ``n_critics``)."""
+
+    fast_path: bool | None = None
+
+    def _fast_nets(self) -> tuple[_Net, _Net, list[_Net], list[_Net]] | None:
+        if not _flat_box(self) or self.actor_batch_norm_stats or self.critic_batch_norm_stats:
+            return None
+        actor, actor_t = _Net.of(self.actor.mu), _Net.of(self.actor_target.mu)
+        critic, critic_t = _q_nets(self.critic), _q_nets(self.critic_target)
+        if actor is None or actor_t is None or critic is None or critic_t is None:
+            return None
+        if {id(p) for p in actor.params} != {id(p) for p in self.actor.parameters()}:
+            return None
+        return actor, actor_t, critic, critic_t
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        """Drop-in for ``TD3.train``."""
+        nets = self._fast_nets()
+        self.fast_path = nets is not None
+        if nets is None:
+            return super().train(gradient_steps, batch_size)
+        actor, actor_t, critic, critic_t = nets
+        actor_params, critic_params = list(self.actor.parameters()), list(self.critic.parameters())
+        actor_targets, critic_targets = list(self.actor_target.parameters()), list(self.critic_target.parameters())
+        self.policy.set_training_mode(True)
+        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        actor_losses, critic_losses = [], []
+        n_obs = int(self.observation_space.shape[0])
+        with th.no_grad():
+            for _ in range(gradient_steps):
+                self._n_updates += 1
+                data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+                discounts = data.discounts if data.discounts is not None else self.gamma
+                obs, next_obs = data.observations.float(), data.next_observations.float()  # = preprocess_obs
+                b = len(obs)
+                noise = data.actions.clone().normal_(0, self.target_policy_noise)  # SB3's draw, even if 0
+                noise = noise.clamp(-self.target_noise_clip, self.target_noise_clip)
+                next_actions = (actor_t.forward(next_obs)[-1] + noise).clamp(-1, 1)
+                next_q, _ = _q_forward(critic_t, next_obs, next_actions)
+                next_q, _ = th.min(next_q, dim=1, keepdim=True)
+                target_q = data.rewards + (1 - data.dones) * discounts * next_q
+                q, caches = _q_forward(critic, obs, data.actions)
+                critic_losses.append(((q - target_q) ** 2).mean(0).sum())  # sum_k mean((q_k - y)^2)
+                g_q = (q - target_q) * (2.0 / b)
+                grads: dict[int, th.Tensor] = {}
+                for k, net in enumerate(critic):
+                    net.backward(g_q[:, k : k + 1], caches[k], grads)
+                _set_grads(critic_params, grads)
+                self.critic.optimizer.step()
+                if self._n_updates % self.policy_delay == 0:
+                    hs = actor.forward(obs)
+                    q1_cache = critic[0].forward(th.cat([obs, hs[-1]], dim=1))
+                    actor_losses.append(-q1_cache[-1].mean())
+                    g_in = critic[0].backward(th.full_like(q1_cache[-1], -1.0 / b), q1_cache, None, need_input=True)
+                    grads = {}
+                    actor.backward(g_in[:, n_obs:], hs, grads)
+                    _set_grads(actor_params, grads)
+                    self.actor.optimizer.step()
+                    _polyak(critic_params, critic_targets, self.tau)
+                    _polyak(actor_params, actor_targets, self.tau)
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        if actor_losses:
+            self.logger.record("train/actor_loss", _mean(actor_losses))
+        self.logger.record("train/critic_loss", _mean(critic_losses))
