@@ -28,7 +28,6 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise, VectorizedActionNoise
@@ -39,7 +38,7 @@ from thesis_repro.envs import make_env
 from thesis_repro.envs.vec import LeanVecEnv
 from thesis_repro.learners.algos import DDPGSplit
 from thesis_repro.learners.arpl import ARPLVecEnv
-from thesis_repro.learners.fast import FastPPO  # PPO with a leaner, equivalent train() (tests/test_fast.py)
+from thesis_repro.learners.fast import FastPPO, FastSAC  # leaner, equivalent train() (tests/test_fast.py)
 from thesis_repro.learners.policies import SCNPolicy
 
 RETURN_WINDOW = 100  # training episodes averaged into train_return and the curve
@@ -50,7 +49,7 @@ def _algo_class(name: str) -> type[BaseAlgorithm]:
         from sb3_contrib import TRPO
 
         return TRPO
-    return {"PPO": FastPPO, "SAC": SAC, "DDPG": DDPGSplit}[name]
+    return {"PPO": FastPPO, "SAC": FastSAC, "DDPG": DDPGSplit}[name]
 
 
 def make_train_venv(cfg: dict[str, Any]) -> VecEnv:
