@@ -195,10 +195,42 @@ def test_reach_cost_with_motion_matches_the_formula():
     goal = np.array([0.1, 0.2])
     r = simulate("reach", goal, _random_W(rng, 1, scale=0.2), record=True)
     disc = cfg.gamma ** np.arange(cfg.horizon + 1)
-    dist2 = ((r.ee[0] - goal) ** 2).sum(-1)
+    # squared distance to the target state (goal, zero velocity), velocity weighted by w_v
+    dist2 = ((r.ee[0] - goal) ** 2).sum(-1) + cfg.reach_velocity_weight * (r.ee_vel[0] ** 2).sum(-1)
     act = cfg.alpha * np.linalg.norm(r.actions[0], axis=-1).sum()
     assert r.cost[0] == pytest.approx(np.sum(disc * (dist2 - cfg.reach_baseline)) + act, rel=1e-10)
     assert r.action_cost[0] == pytest.approx(act, rel=1e-12)
+
+
+def test_reach_cost_penalises_velocity():
+    """§5.3.1: Reach penalises large velocities (|v_t|² term, weight w_v) and accelerations (α|a_t|)."""
+    rng = np.random.default_rng(3)
+    goals = sample_tasks("reach", 6, rng)
+    W = _random_W(rng, 6, scale=0.1)
+    cfg = ArmConfig()
+    moving = simulate("reach", goals, W, record=True)
+    old = simulate("reach", goals, W, config={"reach_velocity_weight": 0.0}, record=True)
+    double = simulate("reach", goals, W, config={"reach_velocity_weight": 2 * cfg.reach_velocity_weight})
+    # same motion; the cost difference is exactly Σ_t γ^t w_v |v_t|² (v_0 = 0)
+    np.testing.assert_array_equal(moving.ee, old.ee)
+    disc = cfg.gamma ** np.arange(cfg.horizon + 1)
+    vel_term = cfg.reach_velocity_weight * (disc * (moving.ee_vel**2).sum(-1)).sum(-1)
+    assert cfg.reach_velocity_weight > 0 and (vel_term > 1e-5).all()
+    np.testing.assert_allclose(moving.cost - old.cost, vel_term, rtol=1e-10)
+    np.testing.assert_allclose(double.cost - old.cost, 2 * vel_term, rtol=1e-10)
+    # recorded velocities are the integrated (clipped) accelerations: Δv = a·dt away from the walls
+    dv = np.diff(moving.ee_vel, axis=1)
+    acc = np.clip(moving.actions, -cfg.accel_limit, cfg.accel_limit) * cfg.dt
+    lo, hi = np.array(cfg.workspace)[:, 0], np.array(cfg.workspace)[:, 1]
+    inside = ((moving.ee[:, 1:] > lo + 0.05) & (moving.ee[:, 1:] < hi - 0.05)).all(-1)
+    inside &= ((moving.ee[:, :-1] > lo + 0.05) & (moving.ee[:, :-1] < hi - 0.05)).all(-1)
+    assert inside.mean() > 0.5
+    np.testing.assert_allclose(dv[inside], acc[inside], atol=1e-9)
+    # a still arm pays no velocity cost (its cost is the position-only formula of the test above)
+    still = simulate("reach", goals[0], np.zeros((12, 2)), record=True)
+    assert np.all(still.ee_vel == 0.0)
+    with pytest.raises(ValueError, match="reach_velocity_weight"):
+        ArmConfig(reach_velocity_weight=-1.0)
 
 
 def test_throw_cost_matches_eq_5_12_for_a_dropped_ball():
@@ -226,8 +258,9 @@ def test_string_cost_is_bonus_plus_action_penalty():
         r = simulate(family, tasks, _random_W(rng, 300), record=True)
         act = cfg.alpha * np.linalg.norm(r.actions, axis=-1).sum(1)
         np.testing.assert_allclose(r.action_cost, act, rtol=1e-12)
-        bonus = np.where(r.hit, cfg.gamma ** r.hit_step * np.minimum(cfg.cost_b1 * np.nan_to_num(r.hit_dx) ** 2
-                                                                      - cfg.cost_b, 0), 0)
+        bonus = np.where(
+            r.hit, cfg.gamma**r.hit_step * np.minimum(cfg.cost_b1 * np.nan_to_num(r.hit_dx) ** 2 - cfg.cost_b, 0), 0
+        )
         np.testing.assert_allclose(r.cost, bonus + act, rtol=1e-12)
         assert r.hit.any() and (~r.hit).any()
         np.testing.assert_array_equal(r.success, r.hit & (np.abs(np.nan_to_num(r.hit_dx, nan=9)) < cfg.cup_radius))
@@ -347,10 +380,35 @@ def test_bench_arm_reports_ratio_and_cma_generation():
 def test_solve_task_job_returns_a_recorded_rollout(tmp_path):
     from thesis_repro.arm.bench import solve_task
 
-    cfg = {"family": "bic", "task": [0.3, 0.05], "n_basis": 6, "generations": 2, "sigma": 0.3,
-           "popsize": 4, "shaped": True, "seed": 0}
+    cfg = {
+        "family": "bic",
+        "task": [0.3, 0.05],
+        "n_basis": 6,
+        "generations": 2,
+        "sigma": 0.3,
+        "popsize": 4,
+        "shaped": True,
+        "seed": 0,
+    }
     r = solve_task(cfg, tmp_path)
     assert r["W"].shape == (8, 2) and r["curve"].shape == (2,) and r["popsize"] == 4
     assert r["ee"].shape == (101, 2) and r["ball"].shape == (101, 2) and r["taut"].shape == (101,)
     again = simulate("bic", cfg["task"], r["W"])
     assert again.task_cost[0] == pytest.approx(r["cost"]) and bool(again.success[0]) == r["success"]
+
+
+def test_reach_velocity_penalty_keeps_reach_learnable_and_slows_the_arm():
+    """The chosen w_v (τ = √w_v = 0.2 s) penalises speed without making the goals unreachable in 2 s."""
+    from thesis_repro.arm.learn import learn_independent
+
+    tasks = sample_tasks("reach", 4, np.random.default_rng(0))
+    W0 = np.zeros((4, 12, 2))
+    W0[:, 10:] = 1.0
+    peak = {}
+    for w in (0.0, ArmConfig().reach_velocity_weight):
+        cfg = {"reach_velocity_weight": w}
+        W, _ = learn_independent("reach", tasks, W0, generations=150, sigma=0.1, config=cfg, seed=0)
+        r = simulate("reach", tasks, W, config=cfg, record=True)
+        assert r.success.all()
+        peak[w] = np.linalg.norm(r.ee_vel, axis=-1).max(1).mean()
+    assert peak[ArmConfig().reach_velocity_weight] < 0.8 * peak[0.0]

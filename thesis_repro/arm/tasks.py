@@ -7,8 +7,20 @@ has a workspace box (``workspace``, like joint limits) that it cannot leave: its
 distance d is capped at ``sqrt(2 accel_limit d)``, i.e. it brakes within the actuator limit (no infinite
 deceleration at a wall to exploit); positions are also clipped as a safeguard. Four families:
 
-* ``reach`` (goal_x, goal_y): cost ``Σ_{t=0}^{T} γ^t (|x_t - g|² - b_reach) + Σ_t α|a_t|``; success if the
-  final distance is below ``reach_tolerance``.
+* ``reach`` (goal_x, goal_y): cost ``Σ_{t=0}^{T} γ^t (|x_t - g|² + w_v |v_t|² - b_reach) + Σ_t α|a_t|``
+  (x_t, v_t: end-effector position and velocity at control step t); success if the final distance is
+  below ``reach_tolerance``. Reading of §5.3.1: the thesis writes the reach cost as
+  ``Σ_t [γ^t ((x - x_target)² - b) + α|a_t|]``, "quadratic functions with respect to the distance to
+  target STATE", and says Reach penalises "large velocities and accelerations". The agent's state is
+  position and velocity, so we read x = (position, velocity) and x_target = (goal, 0); the accelerations
+  are penalised by the α|a_t| term (the actions ARE accelerations). The thesis gives no weight between
+  metres and m/s. Minimising Σ (d² + w_v ḋ²) gives d̈ = d / w_v, i.e. the cost-optimal approach is
+  d(t) = d_0 e^{-t/τ} with τ = √w_v seconds. The units-blind w_v = 1 (τ = 1 s) leaves e^{-2} ≈ 14 % of
+  the start distance after the 2 s episode — more than ``reach_tolerance`` for goals beyond 0.37 m, so
+  the cost would punish the reaches the task calls successful. We use w_v = ``reach_velocity_weight``
+  = 0.04 (τ = 0.2 s, a tenth of the episode): large velocities are penalised and the cost-optimal reach
+  still settles well inside the episode. ``reach_velocity_weight=0`` is the kit's earlier,
+  position-only cost (SIM_VERSION 2).
 * ``throw`` (basket_x, basket_y): the ball is held until ``release_time`` then flies ballistically.
 * ``bic`` (string_length, ball_mass): the cup is on the end-effector; the ball hangs on a string of length
   L at rest below it and must be caught in the cup.
@@ -68,7 +80,7 @@ from thesis_repro.arm.policy import A, RBFPolicy
 from thesis_repro.validation import check_choice, check_nonneg, check_positive
 
 #: Bump whenever the simulated physics or costs change; put it in every cached job's config that simulates.
-SIM_VERSION: int = 2
+SIM_VERSION: int = 3  # 3: reach cost penalises velocity (|v_t|² in the target-state distance)
 FAMILIES: tuple[str, ...] = ("reach", "throw", "bic", "cast")
 TASK_PARAM_NAMES: dict[str, tuple[str, ...]] = {
     "reach": ("goal_x", "goal_y"),
@@ -105,6 +117,7 @@ class ArmConfig:
     cast_cup: tuple[float, float] = (0.65, 0.0)
     reach_baseline: float = 0.01
     reach_tolerance: float = 0.05
+    reach_velocity_weight: float = 0.04  # (0.2 s)²: see the reach bullet of the module docstring
     cost_b: float = 10.0
     cost_r0: float = 0.3
     shaped: bool = False
@@ -113,7 +126,16 @@ class ArmConfig:
     def __post_init__(self) -> None:
         for name in ("dt", "gravity", "accel_limit", "cup_radius", "basket_radius", "reach_tolerance", "cost_r0"):
             setattr(self, name, check_positive(getattr(self, name), name))
-        nonneg = ("alpha", "cup_restitution", "release_time", "drag_coef", "reach_baseline", "cost_b", "shaping_weight")
+        nonneg = (
+            "alpha",
+            "cup_restitution",
+            "release_time",
+            "drag_coef",
+            "reach_baseline",
+            "reach_velocity_weight",
+            "cost_b",
+            "shaping_weight",
+        )
         for name in nonneg:
             setattr(self, name, check_nonneg(getattr(self, name), name))
         for name in ("horizon", "n_substeps"):
@@ -172,7 +194,8 @@ class Rollout:
     cost, ``success`` (B,) bool, ``action_cost`` (B,) the ``Σ α|a|`` part, ``hit`` (B,) bool (heights
     matched), ``hit_step`` (B,) control step m (-1 if none), ``hit_dx`` (B,) x_b - x_c at m (nan if none),
     ``min_dist`` (B,) closest ball–target distance (nan for reach). With ``record``: ``ee`` and ``ball``
-    (B, T+1, 2) positions at control steps, ``taut`` (B, T+1) string taut flags, ``actions`` (B, T, 2).
+    (B, T+1, 2) positions at control steps, ``ee_vel`` (B, T+1, 2) end-effector velocities, ``taut``
+    (B, T+1) string taut flags, ``actions`` (B, T, 2).
     """
 
     cost: np.ndarray
@@ -184,6 +207,7 @@ class Rollout:
     hit_dx: np.ndarray
     min_dist: np.ndarray
     ee: np.ndarray | None = None
+    ee_vel: np.ndarray | None = None
     ball: np.ndarray | None = None
     taut: np.ndarray | None = None
     actions: np.ndarray | None = None
@@ -211,8 +235,9 @@ def validate_tasks(family: str, params: np.ndarray) -> np.ndarray:
     if p.ndim == 1:
         p = p[None]
     if p.ndim != 2 or p.shape[1] != len(names) or p.shape[0] < 1:
-        raise ValueError(f"{family} task parameters must have shape (n, {len(names)}) with columns {names}; "
-                         f"got {np.shape(params)}")
+        raise ValueError(
+            f"{family} task parameters must have shape (n, {len(names)}) with columns {names}; got {np.shape(params)}"
+        )
     bad = ~np.isfinite(p)
     if bad.any():
         i, j = np.argwhere(bad)[0]
@@ -325,8 +350,10 @@ def _broadcast(family: str, task_params: np.ndarray, W: np.ndarray, policy: RBFP
     B = max(params.shape[0], W.shape[0])
     for name, arr in (("task_params", params), ("W", W)):
         if arr.shape[0] not in (1, B):
-            raise ValueError(f"cannot broadcast {name} with {arr.shape[0]} rows against B = {B} rollouts "
-                             f"(task_params has {params.shape[0]}, W has {W.shape[0]}; use 1 or B rows)")
+            raise ValueError(
+                f"cannot broadcast {name} with {arr.shape[0]} rows against B = {B} rollouts "
+                f"(task_params has {params.shape[0]}, W has {W.shape[0]}; use 1 or B rows)"
+            )
     return params, W, B
 
 
@@ -355,8 +382,10 @@ def simulate(
     if policy is None:
         policy = RBFPolicy(n_basis=Wa.shape[-2] - 2, horizon=cfg.horizon, dt=cfg.dt)
     elif policy.horizon != cfg.horizon or not np.isclose(policy.dt, cfg.dt):
-        raise ValueError(f"policy (horizon={policy.horizon}, dt={policy.dt}) does not match the config "
-                         f"(horizon={cfg.horizon}, dt={cfg.dt})")
+        raise ValueError(
+            f"policy (horizon={policy.horizon}, dt={policy.dt}) does not match the config "
+            f"(horizon={cfg.horizon}, dt={cfg.dt})"
+        )
     params, Wa, B = _broadcast(family, task_params, Wa, policy)
     params = np.broadcast_to(params, (B, params.shape[1]))
     xd, vd = policy.desired(Wa)
@@ -402,6 +431,7 @@ def simulate(
 
     if record:
         ee_rec = np.zeros((B, T + 1, A))
+        vel_rec = np.zeros((B, T + 1, A))
         ball_rec = np.zeros((B, T + 1, A))
         taut_rec = np.zeros((B, T + 1), dtype=bool)
         act_rec = np.zeros((B, T, A))
@@ -409,7 +439,7 @@ def simulate(
         taut_rec[:, 0] = taut
     if family == "reach":
         goal = params
-        reach_cost += _dot(p - goal, p - goal) - cfg.reach_baseline
+        reach_cost += _dot(p - goal, p - goal) + cfg.reach_velocity_weight * _dot(v, v) - cfg.reach_baseline
 
     substep = 0
     for t in range(T):
@@ -474,17 +504,27 @@ def simulate(
                 dx = (1 - f) * (q_prev[:, 0] - cup_prev[:, 0]) + f * (q[:, 0] - cup[:, 0])
                 blocked = up & (np.abs(dx) < radius)
                 if blocked.any():
-                    q, u = _bounce_below(q, u, cup, v if family == "bic" else np.zeros_like(v), blocked,
-                                         cfg.cup_restitution, p if string else None, length)
+                    q, u = _bounce_below(
+                        q,
+                        u,
+                        cup,
+                        v if family == "bic" else np.zeros_like(v),
+                        blocked,
+                        cfg.cup_restitution,
+                        p if string else None,
+                        length,
+                    )
                     if string:
                         dist = np.sqrt(_dot(q - p, q - p))
                         taut = np.where(blocked, dist >= length * (1 - 1e-9), taut)
             min_dist = np.minimum(min_dist, np.sqrt(_dot(q - cup, q - cup)))
             substep += 1
         if family == "reach":
-            reach_cost += cfg.gamma ** (t + 1) * (_dot(p - goal, p - goal) - cfg.reach_baseline)
+            sq = _dot(p - goal, p - goal) + cfg.reach_velocity_weight * _dot(v, v)
+            reach_cost += cfg.gamma ** (t + 1) * (sq - cfg.reach_baseline)
         if record:
             ee_rec[:, t + 1] = p
+            vel_rec[:, t + 1] = v
             ball_rec[:, t + 1] = q if has_ball else np.nan
             taut_rec[:, t + 1] = taut
 
@@ -503,9 +543,16 @@ def simulate(
         shaping = cfg.shaping_weight * min_dist
     cost = task_cost + shaping if cfg.shaped else task_cost.copy()
     out = Rollout(
-        cost=cost, task_cost=task_cost, success=success, action_cost=action_cost, hit=decided.copy(),
-        hit_step=hit_step, hit_dx=hit_dx, min_dist=min_dist,
+        cost=cost,
+        task_cost=task_cost,
+        success=success,
+        action_cost=action_cost,
+        hit=decided.copy(),
+        hit_step=hit_step,
+        hit_dx=hit_dx,
+        min_dist=min_dist,
     )
     if record:
-        out.ee, out.ball, out.taut, out.actions = ee_rec, (ball_rec if has_ball else None), taut_rec, act_rec
+        out.ee, out.ee_vel, out.taut, out.actions = ee_rec, vel_rec, taut_rec, act_rec
+        out.ball = ball_rec if has_ball else None
     return out
