@@ -353,11 +353,13 @@ def kl_exact(
 ) -> Tensor:
     """Minimise the TRUE Eq 4.7 objective F(θ) = Σ_i E_s KL(π_θi ‖ π_θ) from θ_0 = :func:`params_avg`.
 
-    Each of at most ``iters`` iterations takes a Newton-CG step on F/N with the Gauss-Newton matrix of the
-    KL sum, which is the Fisher of the AGGREGATE, I(θ) (Eq 4.9 at θ, not at the θ_i as Eq 4.8 uses):
-    solve (I(θ) + λ·1) d = −∇(F/N) by CG (``cg_iters`` products, relative tolerance ``cg_rtol``,
-    damping λ = ``damping`` on the mean Fisher as in :func:`kl_avg`), then backtrack (1, ½, ¼, ... 2⁻²⁰)
-    until the Armijo condition F(θ + t d) ≤ F(θ) + 10⁻⁴ t ∇F·d holds. So F never increases, and the result
+    Each of at most ``iters`` iterations takes a Newton-CG step on F/N whose curvature is the Fisher of the
+    AGGREGATE, I(θ) (Eq 4.9 at θ, not at the θ_i as Eq 4.8 uses): the Gauss-Newton matrix of the KL sum
+    with the Hessian of the KL in the aggregate's (μ, log σ) replaced by its value at moment matching,
+    diag(σ⁻², 2) — positive semi-definite everywhere, and the exact Hessian at the optimum of a
+    linear-Gaussian policy (Fisher scoring). Solve (I(θ) + λ·1) d = −∇(F/N) by CG (``cg_iters`` products,
+    relative tolerance ``cg_rtol``, damping λ = ``damping`` on the mean Fisher as in :func:`kl_avg`), then
+    backtrack (1, ½, ¼, ... 2⁻²⁰) until the Armijo condition F(θ + t d) ≤ F(θ) + 10⁻⁴ t ∇F·d holds. So F never increases, and the result
     is never worse than params_avg on Eq 4.7. Stops early when the predicted decrease ½|∇F·d| ≤ ``tol``
     (nats) or no step decreases F. ``info`` (if given) receives ``objective`` (F at θ_0..θ_k),
     ``step_sizes``, ``cg_residuals`` (relative) and ``iters`` (k).
