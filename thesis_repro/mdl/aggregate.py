@@ -359,10 +359,10 @@ def kl_exact(
     diag(σ⁻², 2) — positive semi-definite everywhere, and the exact Hessian at the optimum of a
     linear-Gaussian policy (Fisher scoring). Solve (I(θ) + λ·1) d = −∇(F/N) by CG (``cg_iters`` products,
     relative tolerance ``cg_rtol``, damping λ = ``damping`` on the mean Fisher as in :func:`kl_avg`), then
-    backtrack (1, ½, ¼, ... 2⁻²⁰) until the Armijo condition F(θ + t d) ≤ F(θ) + 10⁻⁴ t ∇F·d holds. So F never increases, and the result
-    is never worse than params_avg on Eq 4.7. Stops early when the predicted decrease ½|∇F·d| ≤ ``tol``
-    (nats) or no step decreases F. ``info`` (if given) receives ``objective`` (F at θ_0..θ_k),
-    ``step_sizes``, ``cg_residuals`` (relative) and ``iters`` (k).
+    backtrack (1, ½, ¼, ... 2⁻²⁰) until the Armijo condition F(θ + t d) ≤ F(θ) + 10⁻⁴ t ∇F·d holds. So F
+    never increases, and the result is never worse than params_avg on Eq 4.7. Stops early when the
+    predicted decrease ½|∇F·d| ≤ ``tol`` (nats) or no step decreases F. ``info`` (if given) receives
+    ``objective`` (F at θ_0..θ_k), ``step_sizes``, ``cg_residuals`` (relative) and ``iters`` (k).
 
     >>> pol = GaussianPolicy(3, 2, hidden=(4,), seed=0)
     >>> view = PolicyView(pol)
