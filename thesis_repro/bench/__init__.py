@@ -24,9 +24,27 @@ from thesis_repro.validation import check_choice
 BENCHMARKS: dict[str, str] = {
     "evaluation": "thesis_repro.bench.evaluation:bench_evaluation",  # chapter 3: batched evaluator vs predict/raw
     "training": "thesis_repro.learners.bench:bench_training",  # chapter 3: PPO training throughput
-    "kl_avg": "thesis_repro.mdl.bench:bench_kl_avg",  # chapter 4: KL-weighted averaging iteration cost
+    "multidomain": "thesis_repro.mdl.bench:bench_multidomain",  # chapter 4: multi-domain iteration vs PPO
     "arm": "thesis_repro.arm.bench:bench_arm",  # chapter 5: vectorised arm simulator
 }
+
+
+#: the target lines (:func:`target_line`) printed during the current :func:`run`, repeated as its summary
+TARGET_LINES: list[str] = []
+
+
+def target_line(label: str, measured: str, ratio: float, target: float) -> float:
+    """Print and record one ``label: measured = ratio (target >= t: met | NOT met)`` line; returns ``ratio``.
+
+    >>> r = target_line("PPO", "30 vs 10 steps/s", 3.0, 3.0)
+      PPO: 30 vs 10 steps/s = 3.00x (target >= 3x: met)
+    >>> _ = TARGET_LINES.pop()
+    """
+    met = "met" if ratio >= target else "NOT met"
+    line = f"{label}: {measured} = {ratio:.2f}x (target >= {target:g}x: {met})"
+    print(f"  {line}", flush=True)
+    TARGET_LINES.append(line)
+    return float(ratio)
 
 
 def register(name: str, target: str) -> None:
@@ -54,6 +72,7 @@ def run(names: Iterable[str] | None = None) -> dict[str, Mapping[str, Any] | Non
     for n in names:
         check_choice(n, BENCHMARKS, "benchmark")
     results: dict[str, Mapping[str, Any] | None] = {}
+    TARGET_LINES.clear()
     for name in names:
         fn = resolve(name)
         if fn is None:
@@ -67,4 +86,8 @@ def run(names: Iterable[str] | None = None) -> dict[str, Mapping[str, Any] | Non
             text = f"{value:,.3f}" if isinstance(value, float) else str(value)
             print(f"  {name}.{key} = {text}")
         print(f"[{name}] done in {time.perf_counter() - t0:.1f}s\n", flush=True)
+    if TARGET_LINES:
+        print("Targets (issue 7; steps per CPU-second, ratios):")
+        for line in TARGET_LINES:
+            print(f"  {line}")
     return results
