@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -73,3 +75,34 @@ def test_kernel_uses_ipc_transport_and_cleans_up():
     assert Path(info["ip"]).parent == Path(tempfile.gettempdir())
     assert len(during) >= 5, during  # shell, iopub, stdin, control, heartbeat
     assert after == []
+
+
+@pytest.mark.slow
+def test_a_smoke_figure_run_is_quiet_and_leaves_no_litter(tmp_path):
+    """`python -m thesis_repro figure 4.1 --scale smoke`: progress bars, verdict lines and one final line with
+    the executed notebook and figures; no warnings; nothing left in the temp folder (no SB3-* logger dirs,
+    no kernel sockets)."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {
+        **os.environ,
+        "TMPDIR": str(tmp),
+        "THESIS_REPRO_DATA": str(tmp_path / "runs"),
+        "THESIS_REPRO_BUILD": str(tmp_path / "build"),
+        "THESIS_REPRO_JOBS": "2",
+    }
+    cmd = [sys.executable, "-m", "thesis_repro", "figure", "4.1", "--scale", "smoke"]
+    out = subprocess.run(cmd, cwd=notebooks.paths.ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    lines = [ln for ln in (out.stdout + "\n" + out.stderr).replace("\r", "\n").splitlines() if ln.strip()]
+    verdict = re.compile(r"\[4\.1\] [A-Z ]+ - ")
+    noise = [ln for ln in lines if re.search(r"warn|deprecat|TCP|Traceback|error", ln, re.I) and not verdict.match(ln)]
+    assert not noise, noise
+    stdout = out.stdout.strip().splitlines()
+    assert stdout[-1].startswith("[thesis_repro] fig-4.1 (smoke, ")
+    assert str(tmp_path / "build" / "smoke" / "notebooks" / "fig-4.1.ipynb") in stdout[-1]
+    assert "figures: " + str(tmp_path / "build" / "smoke" / "figures" / "fig-4.1") in stdout[-1]
+    assert all(verdict.match(ln) for ln in stdout[:-1]), stdout
+    assert sorted(p.name for p in tmp.iterdir() if p.name.startswith("SB3-")) == []
+    left = sorted(p.name for p in tmp.iterdir() if not p.name.startswith("torchinductor_"))  # torch's one cache dir
+    assert left == [], "the figure run left files in the temp folder"

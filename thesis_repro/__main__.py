@@ -20,7 +20,8 @@ def main(argv: list[str] | None = None) -> int:
     book = sub.add_parser("book", help="execute every notebook at a scale and build the HTML book")
     book.add_argument("--scale", default="small")
     book.add_argument("--jobs", type=int, default=None)
-    book.add_argument("--reuse", action="store_true", help="reuse already executed notebooks")
+    book.add_argument("--reuse", action="store_true", help="reuse executed notebooks even if their sources changed")
+    book.add_argument("--force", action="store_true", help="re-execute every notebook (default: only changed ones)")
     sub.add_parser("list", help="list the notebooks and scales")
     runs_p = sub.add_parser("runs", help="where a figure's runs are: kind, label, key, state, path")
     runs_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all'")
@@ -51,10 +52,13 @@ def main(argv: list[str] | None = None) -> int:
         elif args.cmd == "book":
             from thesis_repro import book as book_mod
 
-            book_mod.build(args.scale, reuse=args.reuse)
+            book_mod.build(args.scale, reuse=args.reuse, force=args.force)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except RuntimeError as err:  # e.g. notebooks that failed while the book was built
+        print(f"error: {err}", file=sys.stderr)
+        return 1
     return 0
 
 

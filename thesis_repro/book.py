@@ -1,37 +1,258 @@
-"""Build the Jupyter Book (1.x, offline) from notebooks executed at one scale.
+"""Build the Jupyter Book (1.x, offline) of one scale: the thesis's claims, each page with its verdict.
 
-The table of contents is generated: ``book/intro.md`` is the root, each ``book/chapter-N.md`` a
-part whose sections are the executed notebooks of figures ``N.*`` (and ``table-N.*``).
+``build(scale)`` stages a copy of ``book/`` in ``build/<scale>/book/`` and generates, in the copy only:
+
+* one page per executed notebook (``executed/<page id>.ipynb``), *cleaned for readers*: progress bars,
+  stderr and log lines removed, the parameters cells dropped, code inputs collapsed, and the thesis's
+  caption and claims (``data/thesis/claims.yaml``) inserted under the page title;
+* at the end of each ``chapter-N.md`` a table of the chapter's verdicts (from the notebooks'
+  ``build/<scale>/figures/<page id>.verdicts.json``), and at the end of ``intro.md`` a scoreboard of the
+  whole thesis at that scale;
+* the table of contents (``_toc.yml``): chapter pages, each with its figures, then tables, then analyses.
+
+Execution cache: a notebook whose executed copy carries today's execution key (notebook source, scale,
+parameters, ``THESIS_REPRO_RETRAIN`` and the kit's own files, see :func:`thesis_repro.notebooks.execution_key`)
+is not executed again; ``force=True`` re-executes everything, ``reuse=True`` takes any executed copy.
+
+>>> clean_stream("train:  50%|#####     | 1/2 [00:01<00:01, 1.0it/s]\\rtrain: 100%|##########| 2/2\\nAUC 3.2\\n")
+'AUC 3.2\\n'
+>>> md_cell("x")["cell_type"]
+'markdown'
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import re
 import shutil
 import subprocess
 import sys
+import time
+from collections import Counter
+from functools import cache
 from pathlib import Path
+from typing import Any
 
 import yaml
 
-from thesis_repro import notebooks, paths
+from thesis_repro import notebooks, paths, report
 from thesis_repro.scales import check_scale
 
+#: Lines of a stream output that are progress or log, not content (tqdm bars, file logs, verdict echo).
+_NOISE = re.compile(
+    r"(\d+%\|)|(\bit/s\])|(\bs/it\])|(^\s*saved\s+/)|(^\[thesis_repro\])"
+    r"|(^\[[^\]]+\] (" + "|".join(re.escape(s.upper()) for s in report.STATUSES) + r") - )"
+)
+#: ``text/plain``-only reprs of matplotlib objects left by a cell's last expression.
+_MPL_REPR = re.compile(r"^[\[(]?\s*<(matplotlib|Figure|Axes|seaborn)")
+_LABELS = {"fig": "Figure", "table": "Table", "analysis": "Analysis"}
+_SHORT = {
+    report.REPRODUCES: "reproduces",
+    report.PARTLY: "partly",
+    report.DOES_NOT: "does not",
+    report.NOT_RUN: "not run",
+    report.NOT_JUDGED: "not judged",
+}
+NO_VERDICT = "no verdict"
 
-def _chapter(nid: str) -> str:
-    return nid.replace("table-", "").split(".")[0]
+
+@cache
+def claims() -> dict[str, dict[str, Any]]:
+    """The thesis's caption and claims per page id, from ``data/thesis/claims.yaml``."""
+    return yaml.safe_load((paths.THESIS_DATA / "claims.yaml").read_text())
 
 
-def write_toc(executed: list[str], root: Path = paths.BOOK) -> Path:
-    """Write ``<root>/_toc.yml`` (generated, not committed) for the given executed notebook ids."""
+def title(page: str) -> str:
+    """Reader-facing name of a page id: ``"Figure 3.3"``, ``"Table 3.4"``, ``"Analysis 4-kl"``."""
+    kind, rest = page.split("-", 1)
+    return f"{_LABELS.get(kind, kind)} {rest}"
+
+
+def md_cell(text: str, tags: list[str] | None = None) -> dict[str, Any]:
+    """A markdown notebook cell (nbformat 4.5 dict, with a content-derived id)."""
+    cid = "tr-" + hashlib.sha1(text.encode()).hexdigest()[:12]
+    return {"cell_type": "markdown", "id": cid, "metadata": {"tags": tags or []}, "source": text}
+
+
+def clean_stream(text: str) -> str:
+    """Drop progress-bar, log and verdict-echo lines; a carriage return keeps only the text after it."""
+    kept = []
+    for line in text.split("\n"):
+        line = line.rsplit("\r", 1)[-1]
+        if _NOISE.search(line):
+            continue
+        kept.append(line)
+    out = "\n".join(kept)
+    return "" if not out.strip() else re.sub(r"\n{3,}", "\n\n", out.lstrip("\n"))
+
+
+def _text(x: Any) -> str:
+    return "".join(x) if isinstance(x, list) else str(x)
+
+
+def clean_outputs(outputs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Outputs fit for a reader: no stderr, no progress/log lines, no bare matplotlib reprs."""
+    kept: list[dict[str, Any]] = []
+    for o in outputs:
+        kind = o.get("output_type")
+        if kind == "stream":
+            if o.get("name") == "stderr":
+                continue
+            text = clean_stream(_text(o.get("text", "")))
+            if not text:
+                continue
+            if kept and kept[-1].get("output_type") == "stream":  # one block per run of prints
+                kept[-1] = {**kept[-1], "text": _text(kept[-1]["text"]) + text}
+                continue
+            o = {**o, "text": text}
+        elif kind in ("execute_result", "display_data"):
+            data = o.get("data", {})
+            if set(data) == {"text/plain"} and _MPL_REPR.match(_text(data["text/plain"])):
+                continue
+        kept.append(o)
+    return kept
+
+
+def thesis_cell(page: str, scale: str) -> dict[str, Any]:
+    """The page's opening: the thesis's caption and claims, quoted with line references, and the scale."""
+    entry = claims().get(page)
+    label = title(page)
+    lines = []
+    if entry is None:
+        lines.append(f"```{{admonition}} {label} in the thesis\n:class: note\n")
+        lines.append("This page has no entry in `data/thesis/claims.yaml` yet.\n```\n")
+    else:
+        lines.append(f"```{{admonition}} {label} in the thesis: {entry['title']}\n:class: note\n")
+        if entry.get("caption"):
+            lines.append(f"**Caption** (thesis, line {entry['caption_line']}): *{entry['caption']}*\n")
+        for c in entry.get("claims", []):
+            where = ", ".join(str(n) for n in c["lines"])
+            lines.append(f"- **Claim** (thesis, line {where}): “{c['text']}”")
+        lines.append("```\n")
+    cmd = f"make {page if not page.startswith('fig-') else 'figure-' + page[4:]} SCALE={scale}"
+    if page.startswith("analysis-"):
+        cmd = f"python -m thesis_repro figure {page} --scale {scale}"
+    lines.append(
+        f"Executed at scale **`{scale}`** (`{cmd}`). Numbers labelled *thesis* are the thesis's own; "
+        "numbers labelled *reproduced* were computed by the kit. The verdicts are at the end of the page."
+    )
+    return md_cell("\n".join(lines))
+
+
+def prepare_page(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
+    """A reader's copy of an executed notebook (see the module docstring)."""
+    page = notebooks.page_id(nid)
+    cells = []
+    for cell in nb["cells"]:
+        tags = cell.get("metadata", {}).get("tags", [])
+        if "parameters" in tags or "injected-parameters" in tags:
+            continue
+        cell = dict(cell)
+        if cell["cell_type"] == "code":
+            cell["outputs"] = clean_outputs(cell.get("outputs", []))
+            meta = dict(cell.get("metadata", {}))
+            meta["tags"] = [*tags, "hide-input"] if "hide-input" not in tags else tags
+            cell["metadata"] = meta
+        cells.append(cell)
+    first = next((i for i, c in enumerate(cells) if c["cell_type"] == "markdown"), None)
+    at = 0
+    if first is not None and _text(cells[first]["source"]).lstrip().startswith("# "):
+        at = first + 1
+    else:
+        cells.insert(0, md_cell(f"# {title(page)}"))
+        at = 1
+    cells.insert(at, thesis_cell(page, scale))
+    if not report.load(page, scale):
+        cells.append(
+            md_cell(
+                f"```{{admonition}} No computed verdict\n:class: warning\n"
+                f"This page wrote no `{page}.verdicts.json` at scale `{scale}`.\n```\n"
+            )
+        )
+    out = dict(nb)
+    out["cells"] = cells
+    return out
+
+
+def _status_counts(verdicts: list[report.Verdict]) -> Counter:
+    return Counter(v.status for v in verdicts)
+
+
+def _escape(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ").strip()
+
+
+def chapter_summary(chapter: str, executed: list[str], scale: str) -> str:
+    """Markdown table of the verdicts of a chapter's pages at ``scale`` (pages without one are listed too)."""
+    pages = [notebooks.page_id(n) for n in executed if notebooks.chapter(n) == chapter]
+    known = [p for p in claims() if p.split("-", 1)[1].split("-")[0].split(".")[0] == chapter]
+    rows = ["| page | claim | verdict | evidence |", "|---|---|---|---|"]
+    for page in pages:
+        verdicts = report.load(page, scale)
+        link = f"{{doc}}`{title(page)} <executed/{page}>`"
+        if not verdicts:
+            rows.append(f"| {link} | (no verdict written) | {NO_VERDICT} | |")
+        for v in verdicts:
+            rows.append(f"| {link} | {_escape(v.claim)} | **{v.status}** | {_escape(v.evidence)} |")
+    missing = [p for p in known if p not in pages]
+    for page in missing:
+        rows.append(f"| {title(page)} | {_escape(claims()[page]['title'])} | {NO_VERDICT} | not in this build |")
+    head = f"\n\n## Verdicts at scale `{scale}`\n\n"
+    note = (
+        "\n\nOne row per claim judged by the kit; *thesis* numbers come from `data/thesis/`, *reproduced* "
+        "ones from this build's runs. Pages of the thesis with no notebook (or not executed) are listed "
+        "as *no verdict*.\n"
+    )
+    return head + "\n".join(rows) + note
+
+
+def scoreboard(executed: list[str], scale: str) -> str:
+    """One-screen scoreboard: verdict counts per chapter at ``scale``, plus pages without a verdict."""
+    pages = {notebooks.page_id(n): notebooks.chapter(n) for n in executed}
+    for page in claims():
+        pages.setdefault(page, page.split("-", 1)[1].split("-")[0].split(".")[0])
+    chapters = sorted(set(pages.values()), key=int)
+    cols = [*report.STATUSES, NO_VERDICT]
+    rows = [
+        "| chapter | " + " | ".join(_SHORT.get(c, c) for c in cols) + " |",
+        "|---|" + "---|" * len(cols),
+    ]
+    total: Counter = Counter()
+    for ch in chapters:
+        counts: Counter = Counter()
+        for page, c in pages.items():
+            if c != ch:
+                continue
+            verdicts = report.load(page, scale) if page in {notebooks.page_id(n) for n in executed} else []
+            counts += _status_counts(verdicts) if verdicts else Counter({NO_VERDICT: 1})
+        total += counts
+        cells = " | ".join(str(counts.get(c, 0)) for c in cols)
+        rows.append(f"| {{doc}}`Chapter {ch} <chapter-{ch}>` | {cells} |")
+    rows.append("| **all** | " + " | ".join(f"**{total.get(c, 0)}**" for c in cols) + " |")
+    judged = sum(total.get(s, 0) for s in (report.REPRODUCES, report.PARTLY, report.DOES_NOT))
+    lead = (
+        f"\n\n## Scoreboard at scale `{scale}`\n\n"
+        f"Claims of the thesis judged by this build: **{total.get(report.REPRODUCES, 0)} reproduce**, "
+        f"**{total.get(report.PARTLY, 0)} partly**, **{total.get(report.DOES_NOT, 0)} do not** "
+        f"({judged} judged); {total.get(report.NOT_RUN, 0)} not run and {total.get(report.NOT_JUDGED, 0)} "
+        f"not judged at this scale; {total.get(NO_VERDICT, 0)} page(s) of the thesis without a verdict.\n\n"
+    )
+    tail = "\n\nCounts are claims (one verdict each), except *no verdict*, which counts pages.\n"
+    if scale == "smoke":
+        tail += "At `smoke` nothing is judged: the runs only exercise the plumbing.\n"
+    return lead + "\n".join(rows) + tail
+
+
+def write_toc(executed: list[str], root: Path) -> Path:
+    """Write ``<root>/_toc.yml``: each ``chapter-N.md`` with its pages (figures, tables, analyses)."""
     chapters = []
-    for md in sorted(paths.BOOK.glob("chapter-*.md")):
+    for md in sorted(root.glob("chapter-*.md"), key=lambda p: int(p.stem.split("-", 1)[1])):
         num = md.stem.split("-", 1)[1]
-        sections = [
-            {"file": f"executed/{notebooks.executed_path(n, 'x').stem}"} for n in executed if _chapter(n) == num
-        ]
+        ids = sorted((n for n in executed if notebooks.chapter(n) == num), key=notebooks.sort_key)
         entry: dict = {"file": md.stem}
-        if sections:
-            entry["sections"] = sections
+        if ids:
+            entry["sections"] = [{"file": f"executed/{notebooks.page_id(n)}"} for n in ids]
         chapters.append(entry)
     toc = {"format": "jb-book", "root": "intro", "chapters": chapters}
     out = root / "_toc.yml"
@@ -39,29 +260,107 @@ def write_toc(executed: list[str], root: Path = paths.BOOK) -> Path:
     return out
 
 
-def build(scale: str, reuse: bool = False, ids: list[str] | None = None, root: Path | None = None) -> Path:
-    """Execute (or with ``reuse``, reuse) every notebook at ``scale``; build HTML into ``<root>/_build``.
+def stage(root: Path) -> None:
+    """Copy the book's sources (everything in ``book/`` but build products) into ``root``; keep ``_build``."""
+    root.mkdir(parents=True, exist_ok=True)
+    for p in root.iterdir():
+        if p.name != "_build":
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+    skip = {"_build", "executed", "_toc.yml"}
+    for src in paths.BOOK.iterdir():
+        if src.name in skip or src.name.startswith("."):
+            continue
+        dst = root / src.name
+        shutil.copytree(src, dst) if src.is_dir() else shutil.copy(src, dst)
 
-    ``root`` defaults to ``book/``; another folder gets a copy of the book's sources (tests use this).
+
+def _git_rev() -> str:
+    try:
+        out = subprocess.run(
+            ["git", "-C", str(paths.ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
+        )
+        return out.stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def build(
+    scale: str,
+    reuse: bool = False,
+    ids: list[str] | None = None,
+    root: Path | None = None,
+    force: bool = False,
+) -> Path:
+    """Execute (or reuse up-to-date) notebooks at ``scale`` and build the HTML book; returns ``index.html``.
+
+    ``root`` (default ``build/<scale>/book``) receives the staged sources and ``_build/html``.
     """
     check_scale(scale)
-    ids = notebooks.notebook_ids() if ids is None else ids
-    root = Path(root) if root is not None else paths.BOOK
-    if root != paths.BOOK:
-        root.mkdir(parents=True, exist_ok=True)
-        for src in [*paths.BOOK.glob("*.md"), paths.BOOK / "_config.yml"]:
-            shutil.copy(src, root / src.name)
-    executed_dir = root / "executed"
-    shutil.rmtree(executed_dir, ignore_errors=True)
-    executed_dir.mkdir(parents=True)
+    t0 = time.time()
+    ids = notebooks.notebook_ids() if ids is None else [notebooks.check_notebook(n) for n in ids]
+    root = Path(root) if root is not None else paths.build(scale) / "book"
+    stage(root)
+    (root / "executed").mkdir()
+    ran, kept, failed = [], [], {}
     for nid in ids:
         src = notebooks.executed_path(nid, scale)
-        if not (reuse and src.exists()):
-            src = notebooks.execute(nid, scale)
-        shutil.copy(src, executed_dir / src.name)
+        fresh = src.exists() and (reuse or notebooks.is_current(nid, scale))
+        try:
+            if force or not fresh:
+                ran.append(nid)
+                src = notebooks.execute(nid, scale)
+            else:
+                kept.append(nid)
+            page = prepare_page(json.loads(src.read_text()), nid, scale)
+        except Exception as err:  # one broken notebook must not sink an hour-long build: report it at the end
+            failed[nid] = f"{type(err).__name__}: {_last_line(err)}"
+            print(f"[thesis_repro] {notebooks.page_id(nid)} FAILED at scale {scale}: {failed[nid]}", file=sys.stderr)
+            page = failed_page(nid, scale, failed[nid])
+        (root / "executed" / f"{notebooks.page_id(nid)}.ipynb").write_text(
+            json.dumps(page, indent=1, ensure_ascii=False)
+        )
+    for md in root.glob("chapter-*.md"):
+        with md.open("a") as f:
+            f.write(chapter_summary(md.stem.split("-", 1)[1], ids, scale))
+    with (root / "intro.md").open("a") as f:
+        f.write(scoreboard(ids, scale))
+        f.write(f"\n_Built at scale `{scale}` from commit `{_git_rev()}` on {time.strftime('%Y-%m-%d %H:%M')}._\n")
     write_toc(ids, root)
     jb = Path(sys.executable).parent / "jupyter-book"
-    subprocess.run([str(jb), "build", str(root), "--quiet"], check=True)
+    done = subprocess.run([str(jb), "build", str(root), "--quiet"], capture_output=True, text=True)
+    warnings = [ln for ln in (done.stdout + done.stderr).splitlines() if "WARNING" in ln or "ERROR" in ln]
+    if done.returncode != 0:
+        print(done.stdout + done.stderr, file=sys.stderr)
+        raise RuntimeError(f"jupyter-book build of {root} failed (exit {done.returncode}); its output is above")
+    for ln in warnings:
+        print(ln, file=sys.stderr)
     index = root / "_build" / "html" / "index.html"
-    print(f"[thesis_repro] book ({scale}) built: {index}")
+    print(
+        f"[thesis_repro] book ({scale}) built in {time.time() - t0:.0f} s "
+        f"({len(ran)} notebook(s) executed, {len(kept)} up to date): {index}"
+    )
+    if failed:
+        names = ", ".join(notebooks.page_id(n) for n in failed)
+        raise RuntimeError(f"{len(failed)} notebook(s) failed at scale {scale} ({names}); their pages say so: {index}")
     return index
+
+
+def _last_line(err: BaseException) -> str:
+    """The last non-empty line of an error (papermill's errors carry the whole traceback)."""
+    ename, evalue = getattr(err, "ename", None), getattr(err, "evalue", None)
+    if ename:
+        return f"{ename}: {evalue}".splitlines()[0]
+    lines = [ln for ln in str(err).splitlines() if ln.strip()]
+    return lines[-1] if lines else repr(err)
+
+
+def failed_page(nid: str, scale: str, error: str) -> dict[str, Any]:
+    """Page of a notebook that failed to execute: its title, the thesis's claims and the error's last line."""
+    page = notebooks.page_id(nid)
+    body = (
+        f"```{{admonition}} Execution failed at scale {scale}\n:class: error\n"
+        f"`{error}`\n\nRun `python -m thesis_repro figure {page} --scale {scale}` to see the full error.\n```\n"
+    )
+    cells = [md_cell(f"# {title(page)}"), thesis_cell(page, scale), md_cell(body)]
+    meta = {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}}
+    return {"cells": cells, "metadata": meta, "nbformat": 4, "nbformat_minor": 5}

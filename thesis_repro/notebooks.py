@@ -10,9 +10,10 @@ over IPC sockets in the temp folder (removed at shutdown) instead of unencrypted
 
 Every executed notebook is stamped with an *execution key* (:func:`execution_key`): the notebook source,
 the scale, the parameters, ``THESIS_REPRO_RETRAIN`` and a hash of the kit itself (every file under
-``thesis_repro/`` and ``data/thesis/``). :func:`is_current` tells the book builder that an executed
-notebook can be reused. The run cache is not part of the key: after changing runs by hand, rebuild with
-``--force``.
+``thesis_repro/`` but the book builder and benchmarks, and ``data/thesis/``). :func:`is_current` tells
+the book builder that an executed notebook can be reused. The run cache is not part of the key (runs are
+content-addressed by their configs, which the kit's files determine): after changing runs by hand,
+rebuild with ``--force``.
 
 >>> page_id("3.3"), page_id("table-3.4"), page_id("analysis-4-kl")
 ('fig-3.3', 'table-3.4', 'analysis-4-kl')
@@ -108,8 +109,11 @@ def _kit_hash() -> str:
     """SHA-256 over the kit's sources, configuration and thesis data (computed once per process)."""
     h = hashlib.sha256()
     roots = [paths.PACKAGE, paths.THESIS_DATA]
+    skip = {paths.PACKAGE / "book.py", paths.PACKAGE / "bench"}  # never run inside a notebook
     for root in roots:
         for p in sorted(root.rglob("*")):
+            if skip & {p, *p.parents}:
+                continue
             if p.is_file() and p.suffix in {".py", ".yaml", ".yml", ".csv", ".xml", ".json"}:
                 h.update(str(p.relative_to(paths.ROOT)).encode())
                 h.update(p.read_bytes())
@@ -145,6 +149,8 @@ class QuietKernelManager(AsyncKernelManager):
     """Kernel manager whose kernel talks over IPC sockets in the temp folder (no unencrypted-TCP warning).
 
     The socket files (``<tmp>/thesis-repro-kernel-<pid>-<n>-<port>``) are removed when the kernel shuts down.
+    Shutdown skips jupyter_client's preliminary SIGINT (papermill shuts down an idle kernel), which made
+    the kernel log "KeyboardInterrupt caught in kernel" now and then.
     """
 
     _count = 0
@@ -154,6 +160,18 @@ class QuietKernelManager(AsyncKernelManager):
         QuietKernelManager._count += 1
         self.transport = "ipc"
         self.ip = str(Path(tempfile.gettempdir()) / f"thesis-repro-kernel-{os.getpid()}-{self._count}")
+        self._closing = False
+
+    async def _async_interrupt_kernel(self) -> None:
+        if not self._closing:
+            await super()._async_interrupt_kernel()
+
+    async def shutdown_kernel(self, now: bool = False, restart: bool = False) -> None:  # type: ignore[override]
+        self._closing = True
+        try:
+            await super()._async_shutdown_kernel(now=now, restart=restart)
+        finally:
+            self._closing = False
 
 
 def _stamp(out: Path, key: str, seconds: float) -> None:

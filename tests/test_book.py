@@ -1,0 +1,252 @@
+"""The book as a reader sees it: built at smoke scale and opened page by page in headless Chromium.
+
+The browser part needs Debian's ``chromium``; the set-up installs it with apt-get when it is missing and
+this process may (root), and skips with the reason otherwise. The smoke runs and executed notebooks live
+in one session folder shared with ``tests/test_notebooks.py`` (whichever runs first executes them).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+from urllib.parse import unquote, urlparse
+
+import pytest
+import yaml
+
+from thesis_repro import book, notebooks, paths, report
+
+THESIS_TXT = Path(os.environ.get("THESIS_TXT", "/work/shared/thesis.txt"))
+PROGRESS = re.compile(r"it/s\]|s/it\]|\d%\|")
+STATUS_TITLE = re.compile(
+    r'<p class="admonition-title">(' + "|".join(re.escape(s.capitalize()) for s in report.STATUSES) + r"):"
+)
+
+
+def shared_smoke_dirs(tmp_path_factory) -> dict[str, str]:
+    """Run cache and build folder shared by every smoke notebook run of this pytest session."""
+    base = tmp_path_factory.getbasetemp() / "smoke-shared"
+    (base / "runs").mkdir(parents=True, exist_ok=True)
+    (base / "build").mkdir(parents=True, exist_ok=True)
+    return {"THESIS_REPRO_DATA": str(base / "runs"), "THESIS_REPRO_BUILD": str(base / "build")}
+
+
+def chromium() -> str:
+    """Path of a headless-capable Chromium; installs Debian's package if possible, else skips the test."""
+    for name in ("chromium", "chromium-browser"):
+        if shutil.which(name):
+            return shutil.which(name)
+    if shutil.which("apt-get") is None or os.geteuid() != 0:
+        pytest.skip("browser test needs 'chromium' (apt-get install -y chromium): not installed and cannot install")
+    try:
+        subprocess.run(["apt-get", "update", "-qq"], check=True, capture_output=True, timeout=300)
+        subprocess.run(
+            ["apt-get", "install", "-y", "-qq", "chromium"],
+            check=True,
+            capture_output=True,
+            timeout=900,
+            env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"},
+        )
+    except (subprocess.SubprocessError, OSError) as err:
+        pytest.skip(f"browser test needs 'chromium'; 'apt-get install -y chromium' failed: {err}")
+    found = shutil.which("chromium")
+    if not found:
+        pytest.skip("browser test needs 'chromium'; apt-get ran but no chromium binary appeared")
+    return found
+
+
+def _browser_args(exe: str) -> list[str]:
+    return [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--hide-scrollbars"]
+
+
+def dump_dom(exe: str, page: Path) -> str:
+    """The page's DOM after Chromium has loaded it and run its scripts."""
+    out = subprocess.run(
+        [*_browser_args(exe), "--dump-dom", page.as_uri()], capture_output=True, text=True, timeout=60, check=True
+    )
+    return out.stdout
+
+
+def local_refs(html: str, attr: str) -> list[str]:
+    """Values of ``attr`` (``src``/``href``) that point into the book (no scheme, not a pure fragment).
+
+    >>> local_refs('<a href="x.html#a"></a><a href="https://y"></a><a href="#top"></a>', "href")
+    ['x.html']
+    """
+    out = []
+    for value in re.findall(rf'\b{attr}="([^"]*)"', html):
+        parsed = urlparse(value)
+        if parsed.scheme or parsed.netloc or not parsed.path:
+            continue
+        out.append(unquote(parsed.path))
+    return out
+
+
+@pytest.fixture(scope="module")
+def smoke_book(tmp_path_factory) -> Path:
+    """The smoke book, built from the session's shared smoke runs (executing only what is missing)."""
+    with pytest.MonkeyPatch.context() as mp:
+        for k, v in shared_smoke_dirs(tmp_path_factory).items():
+            mp.setenv(k, v)
+        root = tmp_path_factory.mktemp("smoke-book")
+        index = book.build("smoke", root=root)
+    return index.parent
+
+
+# --- claims data and the builder's pure functions (fast) ---------------------------------------------
+
+
+def test_every_notebook_has_its_thesis_claims():
+    entries = book.claims()
+    for nid in notebooks.notebook_ids():
+        page = notebooks.page_id(nid)
+        assert page in entries, f"add {page} to data/thesis/claims.yaml"
+        assert entries[page]["claims"], page
+
+
+def test_claims_quote_the_thesis_verbatim():
+    if not THESIS_TXT.exists():
+        pytest.skip(f"thesis text not found at {THESIS_TXT} (set THESIS_TXT)")
+    lines = THESIS_TXT.read_text().splitlines()
+    data = yaml.safe_load((paths.THESIS_DATA / "claims.yaml").read_text())
+    for page, entry in data.items():
+        if "caption" in entry:
+            assert entry["caption"] in lines[entry["caption_line"] - 1], page
+        for c in entry["claims"]:
+            assert c["text"] in " ".join(lines[n - 1] for n in c["lines"]), (page, c["text"])
+
+
+def test_clean_outputs_keeps_content_and_drops_noise():
+    outputs = [
+        {"output_type": "stream", "name": "stdout", "text": "fig-3.3 (smoke): 6 runs\n"},
+        {"output_type": "stream", "name": "stderr", "text": "train:  17%|#   | 1/6 [00:02<00:13, 2.6s/it]"},
+        {"output_type": "stream", "name": "stdout", "text": "evaluate: 100%|####| 6/6 [00:01, 7.9it/s]\nAUC 3.1\n"},
+        {
+            "output_type": "stream",
+            "name": "stdout",
+            "text": "saved /tmp/x/fig.png\n[3.3] NOT JUDGED AT THIS SCALE - c\n",
+        },
+        {"output_type": "execute_result", "data": {"text/plain": "<Figure size 640x480 with 2 Axes>"}},
+        {"output_type": "display_data", "data": {"image/png": "AAAA", "text/plain": "<Figure size 640x480>"}},
+        {"output_type": "display_data", "data": {"text/markdown": "```{admonition} Reproduces: c\n```"}},
+    ]
+    out = book.clean_outputs(outputs)
+    assert [o["output_type"] for o in out] == ["stream", "display_data", "display_data"]
+    assert out[0]["text"] == "fig-3.3 (smoke): 6 runs\nAUC 3.1\n"
+    assert "image/png" in out[1]["data"] and "text/markdown" in out[2]["data"]
+
+
+def test_prepare_page_drops_parameters_and_opens_with_the_thesis(monkeypatch, tmp_path):
+    nb = {
+        "cells": [
+            {"cell_type": "markdown", "metadata": {}, "source": "# Figure 3.3 - title\ntext"},
+            {"cell_type": "code", "metadata": {"tags": ["parameters"]}, "source": "SCALE = 'small'", "outputs": []},
+            {
+                "cell_type": "code",
+                "metadata": {"tags": ["injected-parameters"]},
+                "source": "SCALE = 's'",
+                "outputs": [],
+            },
+            {"cell_type": "code", "metadata": {}, "source": "x", "outputs": []},
+        ],
+        "metadata": {},
+    }
+    page = book.prepare_page(nb, "3.3", "smoke")
+    sources = [c["source"] for c in page["cells"]]
+    assert not any("SCALE =" in s for s in sources)
+    assert sources[0].startswith("# Figure 3.3")
+    assert "Figure 3.3 in the thesis" in sources[1] and "line 555" in sources[1]
+    assert page["cells"][2]["metadata"]["tags"] == ["hide-input"]
+    assert "No computed verdict" in sources[-1]  # nothing was reported at this (empty) build
+
+
+def test_summaries_count_verdicts(monkeypatch, tmp_path):
+    report.report("fig-3.3", "small", [report.Verdict("3.3", "a", report.REPRODUCES, "e|1")], display=False)
+    report.report("fig-3.2", "small", [report.Verdict("3.2", "b", report.DOES_NOT)], display=False)
+    board = book.scoreboard(["3.2", "3.3"], "small")
+    row3 = next(r for r in board.splitlines() if r.startswith("| {doc}`Chapter 3"))
+    n_other_ch3 = sum(
+        1 for p in book.claims() if p.split("-", 1)[1].startswith("3") and p not in ("fig-3.2", "fig-3.3")
+    )
+    assert row3.split("|")[2:-1] == [" 1 ", " 0 ", " 1 ", " 0 ", " 0 ", f" {n_other_ch3} "]
+    assert "**1 reproduce**" in board and "**1 do not**" in board
+    table = book.chapter_summary("3", ["3.2", "3.3"], "small")
+    assert "e\\|1" in table and "**reproduces**" in table and "**does not reproduce**" in table
+
+
+@pytest.mark.slow
+def test_a_failing_notebook_gets_an_error_page_and_fails_the_build(monkeypatch, tmp_path):
+    def boom(nid, scale, **kwargs):
+        raise RuntimeError("Traceback (most recent call last):\n  ...\nKeyError: 'sigmas'")
+
+    monkeypatch.setattr(notebooks, "execute", boom)
+    with pytest.raises(RuntimeError, match=r"1 notebook\(s\) failed at scale smoke \(fig-3.3\)"):
+        book.build("smoke", ids=["3.3"], root=tmp_path / "book")
+    html = (tmp_path / "book" / "_build" / "html" / "executed" / "fig-3.3.html").read_text()
+    assert "Execution failed at scale smoke" in html and "KeyError" in html
+    assert "Traceback" not in html and "Figure 3.3 in the thesis" in html
+
+
+# --- the built book in a real browser -------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_smoke_book_in_headless_chromium(smoke_book, tmp_path):
+    exe = chromium()
+    html_root = smoke_book
+    pages = sorted(html_root.glob("*.html")) + sorted((html_root / "executed").glob("*.html"))
+    pages = [p for p in pages if p.name not in ("genindex.html", "search.html")]
+    expected = {f"{notebooks.page_id(n)}.html" for n in notebooks.notebook_ids()}
+    assert expected <= {p.name for p in pages}
+    problems = []
+    for page in pages:
+        dom = dump_dom(exe, page)
+        assert "</html>" in dom, page
+        for src in local_refs(dom, "src"):
+            if not (page.parent / src).resolve().exists():
+                problems.append(f"{page.name}: broken image/script {src}")
+        for href in local_refs(dom, "href"):
+            if not (page.parent / href).resolve().exists():
+                problems.append(f"{page.name}: broken link {href}")
+        if PROGRESS.search(dom):
+            problems.append(f"{page.name}: progress-bar text {PROGRESS.search(dom).group(0)!r}")
+        if "Traceback (most recent call last)" in dom:
+            problems.append(f"{page.name}: Python traceback")
+        if page.parent.name == "executed":
+            if "in the thesis" not in dom:
+                problems.append(f"{page.name}: no thesis caption/claim block")
+            if not STATUS_TITLE.search(dom):
+                problems.append(f"{page.name}: no verdict admonition")
+            if page.name.startswith("fig-") and not re.search(r'<img[^>]+src="[^"]*_images/[^"]+\.png"', dom):
+                problems.append(f"{page.name}: no figure image")
+    assert not problems, "\n".join(problems)
+    intro = dump_dom(exe, html_root / "intro.html")
+    assert "Scoreboard at scale" in intro
+    for ch in sorted({notebooks.chapter(n) for n in notebooks.notebook_ids()}):
+        assert "Verdicts at scale" in dump_dom(exe, html_root / f"chapter-{ch}.html"), ch
+    shot = tmp_path / "page.png"
+    subprocess.run(
+        [*_browser_args(exe), f"--screenshot={shot}", "--window-size=1280,1600", (html_root / "intro.html").as_uri()],
+        capture_output=True,
+        timeout=60,
+        check=True,
+    )
+    assert shot.stat().st_size > 20_000  # a rendered page, not a blank one
+
+
+def test_executed_pages_are_cached(smoke_book, tmp_path_factory, capsys):
+    """An unchanged notebook is not executed again: a second build executes nothing."""
+    with pytest.MonkeyPatch.context() as mp:
+        for k, v in shared_smoke_dirs(tmp_path_factory).items():
+            mp.setenv(k, v)
+        nid = notebooks.notebook_ids()[0]
+        assert notebooks.is_current(nid, "smoke")
+        before = json.loads(notebooks.executed_path(nid, "smoke").read_text())["metadata"]["thesis_repro"]
+        book.build("smoke", ids=[nid], root=tmp_path_factory.mktemp("book-again"))
+        after = json.loads(notebooks.executed_path(nid, "smoke").read_text())["metadata"]["thesis_repro"]
+    assert before == after
+    assert "0 notebook(s) executed, 1 up to date" in capsys.readouterr().out
