@@ -84,6 +84,35 @@ def default_make() -> EnvMaker:
         raise ImportError("thesis_repro.envs.make_env is not available; pass make=... explicitly") from err
 
 
+def check_shapes(
+    task: str,
+    task_obs: tuple[int, ...],
+    task_act: tuple[int, ...],
+    policy_obs: tuple[int, ...] | None,
+    policy_act: tuple[int, ...] | None,
+) -> None:
+    """``ValueError`` naming the task and both shapes if a policy's observation/action shapes do not fit the task.
+
+    ``None`` skips a side (unknown for a plain callable).
+
+    >>> check_shapes("Hopper", (11,), (3,), (4,), (1,))
+    Traceback (most recent call last):
+    ...
+    ValueError: policy does not fit task 'Hopper': it takes observations of shape (4,) and gives actions of \
+shape (1,), the task has observations of shape (11,) and actions of shape (3,)
+    """
+    obs_ok = policy_obs is None or tuple(policy_obs) == tuple(task_obs)
+    act_ok = policy_act is None or tuple(policy_act) == tuple(task_act)
+    if obs_ok and act_ok:
+        return
+    ours = "?" if policy_obs is None else tuple(policy_obs)
+    acts = "?" if policy_act is None else tuple(policy_act)
+    raise ValueError(
+        f"policy does not fit task {task!r}: it takes observations of shape {ours} and gives actions of "
+        f"shape {acts}, the task has observations of shape {tuple(task_obs)} and actions of shape {tuple(task_act)}"
+    )
+
+
 @dataclass(frozen=True)
 class Rollouts:
     """Undiscounted returns and episode lengths, both shaped ``(n_conditions, n_rollouts)``."""
@@ -123,6 +152,21 @@ class BatchedEvaluator:
         self.max_episode_steps = _check_count(max_episode_steps, "max_episode_steps")
         self.clip_actions = bool(clip_actions)
 
+    def _first_call(self, obs: np.ndarray, env: gym.Env, task: str) -> np.ndarray:
+        """Call the policy once and check its action shape; a failure on the task's observations names both."""
+        act_shape = tuple(env.action_space.shape or ())
+        obs_shape = tuple(env.observation_space.shape or ())
+        try:
+            actions = np.asarray(self.policy(obs))
+        except (RuntimeError, ValueError, IndexError) as err:  # e.g. torch's "shape '[-1, 4]' is invalid"
+            raise ValueError(
+                f"policy failed on task {task!r}'s observations (batch of shape {obs.shape[1:]}; the policy may "
+                f"expect another task's observations): {type(err).__name__}: {(str(err).splitlines() or [''])[0]}"
+            ) from err
+        if act_shape and actions.ndim >= 1 and tuple(actions.shape[1:]) != act_shape:
+            check_shapes(task, obs_shape, act_shape, None, tuple(actions.shape[1:]))
+        return actions
+
     def run(self, conditions: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> Rollouts:
         """One episode per (condition, seed); returns ``Rollouts`` shaped ``(len(conditions), len(seeds))``."""
         if len(conditions) == 0 or len(seeds) == 0:
@@ -159,11 +203,17 @@ class BatchedEvaluator:
             ret[k], steps[k] = 0.0, 0
             return True
 
+        task_name = str(conditions[0].get("env", "?"))
+        checked = False
         try:
             active = [k for k in range(n) if start(k)]
             while active:
                 obs = np.stack([obs_rows[k] for k in active])
-                actions = np.asarray(self.policy(obs))
+                if checked:
+                    actions = np.asarray(self.policy(obs))
+                else:
+                    actions = self._first_call(obs, envs[active[0]], task_name)
+                    checked = True
                 if actions.shape[0] != len(active):
                     raise ValueError(f"policy returned {actions.shape[0]} actions for {len(active)} observations")
                 if self.clip_actions and low is not None:

@@ -10,7 +10,7 @@ import numpy as np
 import yaml
 
 from thesis_repro import paths
-from thesis_repro.evaluation.evaluator import PERTURBATIONS, EnvMaker, Policy, evaluate
+from thesis_repro.evaluation.evaluator import PERTURBATIONS, EnvMaker, Policy, check_shapes, default_make, evaluate
 from thesis_repro.evaluation.metrics import auc, expected_return, sigma_step
 from thesis_repro.validation import check_choice
 
@@ -90,6 +90,32 @@ def _fast_forward(policy: Any) -> Any:
     return forward
 
 
+def check_model_fits(model: Any, env: str, make: EnvMaker | None = None) -> None:
+    """``ValueError`` naming the task and the shapes if an SB3 model's spaces do not match task ``env``'s.
+
+    >>> from stable_baselines3 import PPO  # doctest: +SKIP
+    >>> check_model_fits(PPO("MlpPolicy", "InvertedPendulum-v5"), "Hopper")  # doctest: +SKIP
+    Traceback (most recent call last):
+    ValueError: policy does not fit task 'Hopper': it takes observations of shape (4,) and gives actions of ...
+    """
+    policy = getattr(model, "policy", model)
+    obs_space = getattr(model, "observation_space", None) or getattr(policy, "observation_space", None)
+    act_space = getattr(model, "action_space", None) or getattr(policy, "action_space", None)
+    if obs_space is None and act_space is None:
+        return
+    task_env = (make or default_make())(env)
+    try:
+        check_shapes(
+            env,
+            task_env.observation_space.shape,
+            task_env.action_space.shape,
+            None if obs_space is None else obs_space.shape,
+            None if act_space is None else act_space.shape,
+        )
+    finally:
+        task_env.close()
+
+
 def score_model(
     model: Any,
     env: str,
@@ -121,6 +147,7 @@ def score_model(
         tests = (tests,)
     for t in tests:
         check_choice(t, PERTURBATIONS, "test type")
+    check_model_fits(model, env, make)
     policy = sb3_policy(model, vecnormalize)
     out: dict[str, dict[str, Any]] = {}
     for t in tests:
