@@ -287,6 +287,7 @@ def test_analysis_verdict_statuses():
                 "problems": [4] * 4,
                 "median_dist_ratio": [1.0, 3.0, 100.0, 0.3],
                 "median_excess": [1e-3, 2e-3, 1.0, 1e-9],
+                "median_eq47_vs_avg": [1.0, 1.01, 100.0, 0.99],
             },
             index=list(ka.AGGREGATES),
         )
