@@ -11,6 +11,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from thesis_repro.cache import Job, RunCache, canonical_json
 from thesis_repro.learners import ALGORITHMS, load_policy, snapshots, train_config, train_job
+from thesis_repro.learners import train as lt
 from thesis_repro.learners.arpl import ARPLVecEnv, arpl_perturbation, mean_action
 from thesis_repro.learners.train import _wrap, build_model, make_train_venv
 
@@ -248,7 +249,7 @@ def test_resume_after_interruption_continues_from_checkpoint(tmp_path):
 
 def test_train_job_through_cache_and_load_policy():
     cfg = tiny(timesteps=512, snapshot_every=256)
-    res = RunCache().run(Job("thesis_repro.learners:train_job", cfg))
+    res = RunCache().run(Job("train", cfg))
     assert res["timesteps_done"] == 512 and res["n_episodes"] > 0
     assert res["train_return"] == pytest.approx(np.mean(res["episode_returns"][-100:]))
     assert res["curve_timesteps"].tolist() == [128, 256, 384, 512]
@@ -315,3 +316,37 @@ def test_other_learners_train_and_load(tmp_path, algo, kw):
     a = pol(np.random.default_rng(0).normal(size=(3, 4)))
     assert a.shape == (3, 1) and np.all(np.abs(a) <= 3.0)
     assert np.array_equal(a, pol(np.random.default_rng(0).normal(size=(3, 4))))
+
+
+def test_training_env_seeds_stay_below_the_testing_range_also_after_a_resume(tmp_path, monkeypatch):
+    """Training env seeds are < 2**32 (testing seeds are >= 2**32), however large the run seed; SB3's own rule
+    (seed + i, and a resumed run's SeedSequence draw + i) could reach 2**32."""
+    seen: list[int] = []
+    original = lt.TrainingVecEnv.seed
+
+    def recording(self, seed=None):
+        out = original(self, seed)
+        seen.extend(out)
+        return out
+
+    monkeypatch.setattr(lt.TrainingVecEnv, "seed", recording)
+    cfg = tiny(timesteps=384, seed=2**32 - 1, checkpoint_every=128)
+    with pytest.raises(KeyboardInterrupt):
+        train_job(cfg, tmp_path, callback=_Interrupt(at=200))
+    first = len(seen)
+    assert train_job(cfg, tmp_path)["resumed_from"] == 128
+    assert len(seen) > first  # the resumed session re-seeded its envs
+    assert seen and all(0 <= s < 2**32 for s in seen)
+    resumed = seen[-cfg["n_envs"] :]  # the last seeding wins (applied at the next reset)
+    assert len(set(resumed)) == cfg["n_envs"] and not set(resumed) & set(seen[:first])
+    assert all(lt.env_seed(s, i) < 2**32 for s in (0, 2**32 - 1, 2**63) for i in range(16))
+
+
+def test_training_leaves_no_logger_folders(tmp_path, monkeypatch):
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", None)  # re-read TMPDIR
+    train_job(tiny(timesteps=128), tmp_path / "run")
+    assert not list((tmp_path / "tmp").glob("SB3-*"))

@@ -3,7 +3,7 @@
 >>> env = make_env("Walker2d", "env", 0.2, max_episode_steps=10, seed=0)
 >>> type(env).__name__
 'EnvironmentNoise'
->>> env = make_env("Walker2d", wind=(-0.5, 0.5), env_kwargs={"ctrl_cost_weight": 1.0})
+>>> env = make_env("Walker2d", wind=(-0.5, 0.5), c_a=1.0)
 >>> type(env).__name__, env.unwrapped._ctrl_cost_weight
 ('Wind', 1.0)
 """
@@ -62,6 +62,7 @@ def make_env(
     factors: Iterable[str] | None = None,
     ratios: Mapping[str, float] | None = None,
     wind: tuple[float, float] | None = None,
+    c_a: float | None = None,
     max_episode_steps: int | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
     seed: int | None = None,
@@ -70,8 +71,9 @@ def make_env(
 
     ``factors`` restricts "env"/"dom" to some factors of Table 3.2 (default all). ``ratios`` adds a
     :class:`SystematicShift` and ``wind=(low, high)`` a chapter-4 :class:`Wind` underneath the
-    perturbation; no two of them may set the same factor. ``env_kwargs`` go to ``gymnasium.make``
-    (e.g. ``{"ctrl_cost_weight": 1.0}``, chapter 4's c_a). ``seed`` seeds the action space and calls
+    perturbation; no two of them may set the same factor. ``c_a`` is chapter 4's action penalty (Eq 4.12,
+    r = v + 1 − c_a‖a‖², the v5 ``ctrl_cost_weight``; None: the task's own). ``env_kwargs`` go to
+    ``gymnasium.make``. ``seed`` seeds the action space and calls
     ``reset(seed=seed)`` once. Unknown names, clashing factors and negative σ raise ``ValueError``.
     """
     task = short_name(env)
@@ -99,6 +101,8 @@ def make_env(
             owners[n] = who
 
     kwargs: dict[str, Any] = {**model_kwargs(task), **(env_kwargs or {})}
+    if c_a is not None:
+        kwargs["ctrl_cost_weight"] = check_nonneg(c_a, "c_a")
     if max_episode_steps is not None:
         kwargs["max_episode_steps"] = int(max_episode_steps)
     out: gym.Env = gym.make(lean_spec(resolve_env(task)), disable_env_checker=True, **kwargs)  # = gym's transitions

@@ -1,8 +1,15 @@
 """Cached evaluation jobs and figure-level benchmark grids (train jobs first, then evaluation jobs).
 
-An evaluation config is ``{"train": <train_config(...)>, "test": {"perturbation", "sigmas" | "ratios",
-"n_rollouts", "seed", "max_episode_steps", "snapshot" (optional), "env_kwargs" (optional)}}``; the
-trained model comes from the run cache (the same train job is trained once and shared by every test).
+An evaluation config (the ``"evaluate"`` job) is ``{"train": <train_config(...)>, "test": <test block>}``;
+the trained model comes from the run cache (the same train job is trained once and shared by every test).
+A test block is ``{"perturbation", "sigmas" | "ratios", "n_rollouts", "seed", "max_episode_steps",
+"c_a", "snapshot" (optional), "env" (optional), "env_kwargs" (optional)}``:
+
+* ``sigmas``: a noise grid of ``perturbation`` (obs | act | env | dom; Eq 3.6's AUC over it), or
+* ``ratios``: a list of fixed env settings, one per point: factor ratios (``{"body_mass": 1.2, "friction":
+  0.8}``, heat maps) and/or a fixed wind ξ in m/s² (``{"wind": -2.0}``, chapter 4's wind sweeps);
+* ``c_a``: the action penalty of Eq 4.12 during testing; by default the training run's (so the reward is
+  the one trained for); the training ``wind`` range is NOT applied: the test block says which wind blows.
 
 Arrays of :class:`BenchmarkResult` have axes ``(training seeds, tasks, algorithms, points, rollouts)``
 (points = sigmas, or ratio settings of a shift grid); ``auc``/``train_return`` drop the last two axes.
@@ -16,7 +23,6 @@ Arrays of :class:`BenchmarkResult` have axes ``(training seeds, tasks, algorithm
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,41 +33,53 @@ import numpy as np
 from thesis_repro.cache import Job, Result, RunCache, run_jobs
 from thesis_repro.evaluation.evaluator import PERTURBATIONS, evaluate, evaluate_shift
 from thesis_repro.evaluation.metrics import auc, expected_return, sigma_step
-from thesis_repro.validation import check_choice
+from thesis_repro.learners import load_policy, train_config
+from thesis_repro.validation import check_choice, check_nonneg
 
-TRAIN_FN = "thesis_repro.learners:train_job"
-EVAL_FN = "thesis_repro.evaluation:evaluate_job"
-
-
-def _learners() -> Any:
-    return importlib.import_module("thesis_repro.learners")
+#: Job kinds of training and evaluation runs (``thesis_repro.jobs``).
+TRAIN_KIND = "train"
+EVAL_KIND = "evaluate"
 
 
 def check_test(test: Mapping[str, Any]) -> dict[str, Any]:
-    """Validate a test block and fill defaults (``seed=0``, ``max_episode_steps=1000``, ``n_rollouts=20``)."""
-    t = {"seed": 0, "max_episode_steps": 1000, "n_rollouts": 20, **dict(test)}
+    """Validate a test block and fill defaults (``seed=0``, ``max_episode_steps=1000``, ``n_rollouts=20``,
+    ``c_a=None``: the training run's).
+
+    >>> check_test({"perturbation": "none", "ratios": [{"wind": -1.0}], "c_a": 1.0})["c_a"]
+    1.0
+    >>> check_test({"perturbation": "obs"})
+    Traceback (most recent call last):
+    ...
+    ValueError: a test needs exactly one of 'sigmas' (noise grid) or 'ratios' (systematic shifts)
+    """
+    t = {"seed": 0, "max_episode_steps": 1000, "n_rollouts": 20, "c_a": None, **dict(test)}
     check_choice(t.get("perturbation"), PERTURBATIONS, "perturbation")
     if ("sigmas" in t) == ("ratios" in t):
         raise ValueError("a test needs exactly one of 'sigmas' (noise grid) or 'ratios' (systematic shifts)")
     if "ratios" in t and t["perturbation"] != "none":
         raise ValueError("systematic-shift tests ('ratios') use perturbation 'none'")
+    if t["c_a"] is not None:
+        t["c_a"] = check_nonneg(t["c_a"], "c_a")
     return t
 
 
 def evaluate_job(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
     """Job function: train (through the cache) or reuse the model of ``config["train"]``, evaluate ``["test"]``.
 
-    Returns ``returns`` and ``lengths`` ``(points, n_rollouts)``, ``expected_return`` ``(points,)``, ``auc``
-    (Eq. 3.6; ``None`` for shift grids or a single sigma) and ``train_return`` if the train job reports one.
+    Any kit learner's run (chapter 3 or 4) is evaluated the same way. Returns ``returns`` and ``lengths``
+    ``(points, n_rollouts)``, ``expected_return`` ``(points,)``, ``auc`` (Eq. 3.6; ``None`` for shift grids or a
+    single sigma) and ``train_return`` if the train job reports one.
     """
     test = check_test(config["test"])
-    train = RunCache().run(Job(TRAIN_FN, config["train"]))
-    policy = _learners().load_policy(train, snapshot=test.get("snapshot"))
+    train = RunCache().run(Job(TRAIN_KIND, config["train"]))
+    policy = load_policy(train, snapshot=test.get("snapshot"))
     env = test.get("env", config["train"]["env"])
+    c_a = test["c_a"] if test["c_a"] is not None else config["train"].get("c_a")
+    extra = {**(test.get("env_kwargs") or {}), **({"c_a": c_a} if c_a is not None else {})}
     kw = {
         "seed": int(test["seed"]),
         "max_episode_steps": int(test["max_episode_steps"]),
-        "env_kwargs": test.get("env_kwargs"),
+        "env_kwargs": extra or None,
         "return_lengths": True,
     }
     if "ratios" in test:
@@ -206,13 +224,12 @@ def benchmark_jobs(
         if name in blocks:
             raise ValueError(f"duplicate test name {name!r}")
         blocks[name] = check_test(t)
-    learners = _learners()
     train_cfgs = [
-        learners.train_config(a, e, int(s), int(timesteps), **dict(train_overrides or {}))
+        train_config(a, e, int(s), int(timesteps), **dict(train_overrides or {}))
         for s in seeds
         for e in envs
         for a in algos
     ]
-    train_jobs = [Job(TRAIN_FN, c) for c in train_cfgs]
-    eval_jobs = {name: [Job(EVAL_FN, {"train": c, "test": b}) for c in train_cfgs] for name, b in blocks.items()}
+    train_jobs = [Job(TRAIN_KIND, c) for c in train_cfgs]
+    eval_jobs = {name: [Job(EVAL_KIND, {"train": c, "test": b}) for c in train_cfgs] for name, b in blocks.items()}
     return Benchmark(list(algos), list(envs), [int(s) for s in seeds], blocks, train_jobs, eval_jobs)

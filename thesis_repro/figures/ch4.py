@@ -21,14 +21,16 @@ import pandas as pd
 
 from thesis_repro import reference, report
 from thesis_repro.cache import Job, run_jobs
+from thesis_repro.envs import make_env
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import budget_note, register
-from thesis_repro.learners import train_config
+from thesis_repro.learners import iteration_steps as learner_iteration_steps
+from thesis_repro.learners import load_policy, train_config
 from thesis_repro.validation import check_choice
 
 EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
 #: The thesis's method (the claims of chapter 4 are about it).
-OURS = "kl_avg"
+OURS = "kl-avg"
 
 
 # ---------------------------------------------------------------- conditions, configs, runs
@@ -58,7 +60,8 @@ def label(cond: Mapping[str, Any]) -> str:
 
 def run_config(settings: Mapping[str, Any], algo: str, cond: Mapping[str, Any], seed: int) -> dict[str, Any]:
     """The training config of one run; depends only on the run's identity and the budget keys of ``settings``."""
-    extra = {k: settings[k] for k in ("n_domains", "steps_per_domain") if k in settings}
+    # one env per domain: n_envs = N domains, n_steps = T steps per domain (learners.multidomain)
+    extra = {k: settings[s] for k, s in (("n_envs", "n_domains"), ("n_steps", "steps_per_domain")) if s in settings}
     return train_config(
         algo,
         settings["env"],
@@ -106,7 +109,8 @@ def curves_frame(runs: pd.DataFrame) -> pd.DataFrame:
     parts = []
     for row in runs.itertuples():
         r = row.result
-        kl = np.asarray(r["kl"], dtype=float)
+        n = len(r["curve_timesteps"])
+        kl = np.asarray(r["curve_kl"], dtype=float) if "curve_kl" in r else np.full((n, 1), np.nan)
         parts.append(
             pd.DataFrame(
                 {
@@ -114,11 +118,11 @@ def curves_frame(runs: pd.DataFrame) -> pd.DataFrame:
                     "panel": row.panel,
                     "condition": row.condition,
                     "seed": row.seed,
-                    "iteration": r["iteration"],
-                    "timesteps": r["timesteps"],
-                    "return": r["ep_return"],
-                    "length": r["ep_length"],
-                    "entropy": r["entropy"],
+                    "iteration": np.asarray(r["curve_timesteps"]) // learner_iteration_steps(row.config),
+                    "timesteps": r["curve_timesteps"],
+                    "return": r["curve_return"],
+                    "length": r["curve_length"],
+                    "entropy": r["curve_entropy"],
                     "kl_to_aggregate": np.nanmean(kl, axis=1) if np.isfinite(kl).any() else np.full(len(kl), np.nan),
                 }
             )
@@ -139,16 +143,22 @@ def eval_jobs(runs: pd.DataFrame, kind: str, values: Iterable[Any], n_rollouts: 
     """One evaluation job per run of ``runs`` under ``kind`` (wind | shift | obs | act) over ``values``."""
     check_choice(kind, EVAL_KINDS, "evaluation kind")
     values = list(values)
+    if kind in ("obs", "act"):
+        points: dict[str, Any] = {"perturbation": kind, "sigmas": [float(v) for v in values]}
+    else:  # fixed wind ξ per point, or mass × friction ratios (no wind)
+        points = {"perturbation": "none", "ratios": [{"wind": float(v)} if kind == "wind" else dict(v) for v in values]}
     return [
         Job(
-            "evaluate-ch4",
+            "evaluate",
             {
                 "train": row.config,
-                "kind": kind,
-                "values": values,
-                "n_rollouts": int(n_rollouts),
-                "seed": int(seed),
-                "c_a": row.config["c_a"],
+                "test": {
+                    **points,
+                    "n_rollouts": int(n_rollouts),
+                    "seed": int(seed),
+                    "max_episode_steps": int(row.config["max_episode_steps"] or 1000),
+                    "c_a": row.config["c_a"],
+                },
             },
         )
         for row in runs.itertuples()
@@ -201,7 +211,7 @@ def _grid(*evals: str) -> Any:
 
 
 _TRAIN = ("train",)
-_BOTH = ("train", "evaluate-ch4")
+_BOTH = ("train", "evaluate")
 register("4.1", "Training curves of kl_avg, params_avg and joint under four conditions", _TRAIN)(_grid())
 register("4.2", "Key frames of a walking cycle, kl_avg vs params_avg", _BOTH)(_grid("wind0"))
 register("4.3", "Walker2d testing return vs wind speed", _BOTH)(_grid("wind"))
@@ -252,7 +262,7 @@ def best_seeds(runs: pd.DataFrame, last: int = 3) -> pd.DataFrame:
     """Fig 4.2: per algorithm, the run with the best mean return over its ``last`` iterations (index: algo)."""
     runs = runs.copy()
     runs["final_return"] = [
-        float(np.nanmean(r["ep_return"][-last:])) if np.isfinite(r["ep_return"]).any() else -np.inf
+        float(np.nanmean(r["curve_return"][-last:])) if np.isfinite(r["curve_return"]).any() else -np.inf
         for r in runs["result"]
     ]
     return runs.loc[runs.groupby("algo")["final_return"].idxmax()].set_index("algo")
@@ -317,7 +327,7 @@ def verdict_4_1(curves: pd.DataFrame, settings: Mapping[str, Any]) -> list[repor
 
 def verdict_4_2(returns: pd.Series, settings: Mapping[str, Any]) -> list[report.Verdict]:
     """Fig 4.2 (visual gait claim): the measurable proxy, testing return at ξ = 0 of the best seeds."""
-    ours, base = float(returns[OURS]), float(returns["params_avg"])
+    ours, base = float(returns[OURS]), float(returns["params-avg"])
     evidence = (
         f"reproduced testing return at ξ = 0 of the best seeds: {OURS} {ours:.1f}, params_avg {base:.1f}; "
         f"naturalness itself is visual (see the key frames). {caveat(settings)}"
@@ -389,11 +399,9 @@ def render_cycle(
     The cycle period is the dominant period of the thigh-joint angle (FFT) over ``steps`` steps; the
     frames are ``n_frames`` evenly spaced steps of the last full cycle (fallback: of the whole episode).
     """
-    from thesis_repro.learners import load_policy  # torch-heavy: only when rendering
-    from thesis_repro.mdl.envs import make_mdl_env
-
     policy = load_policy(run_result)
-    e = make_mdl_env(env, c_a=c_a, wind=0.0, max_episode_steps=steps, render_mode="rgb_array")
+    render = {"render_mode": "rgb_array", "width": 480, "height": 320}
+    e = make_env(env, ratios={"wind": 0.0}, c_a=c_a, max_episode_steps=steps, env_kwargs=render)
     obs, _ = e.reset(seed=seed)
     frames, angles = [e.render()], [float(obs[2])]
     for _ in range(steps):

@@ -1,8 +1,17 @@
 """Hyperparameters as data (``config/hyperparams.yaml``) and the resolved training config of one run.
 
+Every learner of the kit, chapter 3's and the multi-domain ones of chapters 3-4, resolves through the one
+:func:`train_config` into one schema: identity (``algorithm``, ``class``, ``env``, ``seed``, ``timesteps``),
+the env settings (``perturbation``, ``sigma``, ``c_a``, ``wind``, ``max_episode_steps``), the entry's
+settings (``n_envs``, ``net_arch``, ...), the run settings (``checkpoint_every``, ``snapshot_every``,
+``curve_every``, all in env steps) and ``sb3``, the keyword arguments of the algorithm class.
+
 >>> cfg = train_config("ppo-16", "InvertedPendulum", seed=0, timesteps=4096, n_steps=64)
->>> cfg["net_arch"], cfg["sb3"]["n_steps"], cfg["perturbation"]
-({'pi': [16, 16], 'vf': [16, 16]}, 64, 'none')
+>>> cfg["net_arch"], cfg["sb3"]["n_steps"], cfg["perturbation"], cfg["c_a"]
+({'pi': [16, 16], 'vf': [16, 16]}, 64, 'none', None)
+>>> cfg = train_config("kl-avg", "Walker2d", 0, 8192, c_a=1.0, wind=[-2.5, 2.5])
+>>> cfg["class"], cfg["n_envs"], iteration_steps(cfg), cfg["sb3"]["aggregate"]
+('SubPolicyAggregation', 4, 4096, 'kl_avg')
 >>> train_config("ppo", "Hopper", 0, 1000, n_step=64)
 Traceback (most recent call last):
 ...
@@ -12,25 +21,34 @@ ValueError: unknown hyperparameter of 'ppo' 'n_step'; valid hyperparameter of 'p
 from __future__ import annotations
 
 import copy
+from collections.abc import Mapping
 from functools import cache
 from typing import Any
 
 import yaml
 
 from thesis_repro import paths
+from thesis_repro.envs.make import PERTURBATIONS
 from thesis_repro.validation import check_choice, check_nonneg
 
-PERTURBATIONS: tuple[str, ...] = ("none", "obs", "act", "env", "dom")
-CLASSES: tuple[str, ...] = ("PPO", "TRPO", "DDPG", "SAC")
+#: Algorithm classes (the ``class`` of an entry): SB3's, and the multi-domain PPOs of ``learners.multidomain``.
+ON_POLICY: tuple[str, ...] = ("PPO", "TRPO", "EPOpt", "MAMLDG", "ReptileDG", "SubPolicyAggregation")
+CLASSES: tuple[str, ...] = (*ON_POLICY, "DDPG", "SAC")
+#: Classes that train one sub-policy / one batch per domain (one env per domain: ``n_envs`` = N domains).
+MULTI_DOMAIN_CLASSES: tuple[str, ...] = ("EPOpt", "MAMLDG", "ReptileDG", "SubPolicyAggregation")
+#: Aggregation steps of :class:`~thesis_repro.learners.multidomain.SubPolicyAggregation` (``mdl.aggregate``).
+AGGREGATES: tuple[str, ...] = ("params_avg", "kl_avg", "kl_exact")
 POLICIES: tuple[str, ...] = ("mlp", "scn")
 ACTIVATIONS: tuple[str, ...] = ("tanh", "relu")
 
 #: Run settings every config carries (besides the entry's hyperparameters); all may be overridden.
 RUN_DEFAULTS: dict[str, Any] = {
+    "c_a": None,  # action penalty of Eq 4.12 (ctrl_cost_weight); None: the task's own (v5 Hopper/Walker2d 1e-3)
+    "wind": None,  # [low, high]: wind xi ~ U(low, high) m/s² once per episode (chapter 4); None: no wind
     "max_episode_steps": None,  # None: the environment's own limit (1000 for the MuJoCo tasks)
     "checkpoint_every": 100_000,  # env steps between resumable checkpoints in the job's workdir
     "snapshot_every": 0,  # env steps between policy snapshots in out/snapshots (0: none)
-    "curve_every": 0,  # env steps between training-curve points (0: one per PPO/TRPO batch, 1000 off-policy)
+    "curve_every": 0,  # env steps between training-curve points (0: one per on-policy iteration, 1000 off-policy)
 }
 #: Keys that identify the run; not overridable.
 IDENTITY = ("algorithm", "class", "env", "seed", "timesteps")
@@ -67,11 +85,12 @@ def algorithms() -> tuple[str, ...]:
     return tuple(_raw())
 
 
-#: Multi-domain learners of chapter 4 / Table 3.7 (configs from :func:`thesis_repro.mdl.mdl_config`,
-#: trained by :func:`thesis_repro.mdl.train_job`); ``train_config``/``train_job`` dispatch to them.
-MULTI_DOMAIN: tuple[str, ...] = tuple(n for n in algorithms() if _resolve(n).get("class") == "MultiDomain")
-
+#: Every learner id, in the order of ``hyperparams.yaml``.
 ALGORITHMS: tuple[str, ...] = algorithms()
+#: Learners that train on several domains with one env per domain (joint is plain PPO on the merged batch).
+MULTI_DOMAIN: tuple[str, ...] = tuple(
+    n for n in ALGORITHMS if n == "joint" or _resolve(n).get("class") in MULTI_DOMAIN_CLASSES
+)
 
 
 def hyperparams(algo: str) -> dict[str, Any]:
@@ -80,17 +99,14 @@ def hyperparams(algo: str) -> dict[str, Any]:
 
 
 def train_config(algo: str, env: str, seed: int, timesteps: int, **overrides: Any) -> dict[str, Any]:
-    """Full resolved, JSON-plain config of one training run (the input of :func:`train_job`).
+    """Full resolved, JSON-plain config of one training run (the input of the ``"train"`` job).
 
-    ``overrides`` may name any top-level setting (``n_envs``, ``perturbation``, ``sigma``, ``net_arch``,
-    ``snapshot_every``, ``max_episode_steps``, ...) or any key of the entry's ``sb3`` block (``n_steps``,
-    ``ent_coef``, ...). A name that exists nowhere is an error, so typos never pass silently.
+    ``overrides`` may name any top-level setting (``n_envs``, ``perturbation``, ``sigma``, ``c_a``, ``wind``,
+    ``net_arch``, ``snapshot_every``, ``max_episode_steps``, ...) or any key of the entry's ``sb3`` block
+    (``n_steps``, ``ent_coef``, ``epsilon``, ``damping``, ...). A name that exists nowhere is an error, so
+    typos never pass silently.
     """
     check_choice(algo, ALGORITHMS, "algorithm")
-    if algo in MULTI_DOMAIN:
-        from thesis_repro.mdl.config import mdl_config
-
-        return mdl_config(algo, env, seed, timesteps, **overrides)
     entry = hyperparams(algo)
     if isinstance(seed, bool) or int(seed) != seed or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
@@ -98,7 +114,7 @@ def train_config(algo: str, env: str, seed: int, timesteps: int, **overrides: An
         raise ValueError(f"timesteps must be an integer > 0, got {timesteps!r}")
     cfg: dict[str, Any] = {"algorithm": algo, "env": str(env), "seed": int(seed), "timesteps": int(timesteps)}
     cfg.update(copy.deepcopy(RUN_DEFAULTS))
-    cfg.update({k: v for k, v in entry.items()})
+    cfg.update(entry)
     cfg.setdefault("sb3", {})
     top = [k for k in cfg if k not in IDENTITY and k != "sb3"]
     for key, value in overrides.items():
@@ -111,8 +127,21 @@ def train_config(algo: str, env: str, seed: int, timesteps: int, **overrides: An
             cfg["sb3"][key] = value
         else:
             check_choice(key, sorted(top) + sorted(cfg["sb3"]), f"hyperparameter of {algo!r}")
+    if cfg["wind"] is not None:
+        cfg["wind"] = [float(w) for w in cfg["wind"]] if isinstance(cfg["wind"], list | tuple) else cfg["wind"]
     _validate(cfg)
     return cfg
+
+
+def iteration_steps(cfg: Mapping[str, Any]) -> int:
+    """Env steps of one on-policy iteration of a training config: ``n_envs × n_steps`` (MAMLDG: twice that,
+    it collects D_i and then D'_i in every domain). Off-policy classes have no iterations: ``ValueError``.
+
+    >>> [iteration_steps(train_config(a, "Hopper", 0, 1)) for a in ("ppo", "joint", "ppo-maml-dg")]
+    [2048, 4096, 8192]
+    """
+    check_choice(cfg["class"], ON_POLICY, "on-policy learner class")
+    return int(cfg["n_envs"]) * int(cfg["sb3"]["n_steps"]) * (2 if cfg["class"] == "MAMLDG" else 1)
 
 
 def _validate(cfg: dict[str, Any]) -> None:
@@ -121,8 +150,8 @@ def _validate(cfg: dict[str, Any]) -> None:
     cfg["sigma"] = check_nonneg(cfg["sigma"], "sigma")
     check_choice(cfg.get("policy", "mlp"), POLICIES, "policy")
     check_choice(cfg.get("activation", "tanh"), ACTIVATIONS, "activation")
-    if cfg["policy"] == "scn" and cfg["class"] not in ("PPO", "TRPO"):
-        raise ValueError("policy 'scn' is implemented for the on-policy classes PPO and TRPO only")
+    if cfg["policy"] == "scn" and cfg["class"] not in ON_POLICY:
+        raise ValueError("policy 'scn' is implemented for the on-policy classes only")
     if cfg.get("arpl") is not None and cfg["class"] != "PPO":
         raise ValueError("arpl is implemented for PPO only")
     for key in ("n_envs",):
@@ -133,8 +162,21 @@ def _validate(cfg: dict[str, Any]) -> None:
             raise ValueError(f"{key} must be an integer >= 0, got {cfg[key]!r}")
     if cfg["max_episode_steps"] is not None and (int(cfg["max_episode_steps"]) < 1):
         raise ValueError(f"max_episode_steps must be None or >= 1, got {cfg['max_episode_steps']!r}")
+    if cfg["c_a"] is not None:
+        check_nonneg(cfg["c_a"], "c_a")
+    wind = cfg["wind"]
+    if wind is not None and (not isinstance(wind, list) or len(wind) != 2 or wind[0] > wind[1]):
+        raise ValueError(f"wind must be None or [low, high] with low <= high, got {wind!r}")
     if cfg.get("arpl") is not None:
         check_nonneg(cfg["arpl"]["epsilon"], "arpl.epsilon")
         p = check_nonneg(cfg["arpl"]["prob"], "arpl.prob")
         if p > 1:
             raise ValueError(f"arpl.prob must be in [0, 1], got {p}")
+    sb3 = cfg["sb3"]
+    if "epsilon" in sb3 and not 0.0 < sb3["epsilon"] <= 1.0:
+        raise ValueError(f"epsilon must be in (0, 1], got {sb3['epsilon']!r}")
+    if "aggregate" in sb3:
+        check_choice(sb3["aggregate"], AGGREGATES, "aggregate")
+    for key in ("damping", "cg_rtol", "inner_lr"):
+        if key in sb3:
+            check_nonneg(sb3[key], key)

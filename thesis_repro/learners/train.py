@@ -1,19 +1,23 @@
-"""``train_job``: one resumable, cached training run of a chapter-3 learner.
+"""``train_job``: one resumable, cached training run of ANY kit learner (chapters 3 and 4).
 
-Usable as ``Job("thesis_repro.learners:train_job", train_config(...))``. The job
+Usable as ``Job("train", train_config(...))``. The job
 
-* builds ``n_envs`` copies of ``make_env(env, perturbation, sigma, seed=seed + i)`` in one process
-  (``LeanVecEnv`` -> ``VecMonitor`` (raw returns) -> ``VecNormalize`` (obs filter) [-> ``ARPLVecEnv``]);
-* seeds SB3 (torch, numpy, env ``i`` with ``seed + i``) with the config's training ``seed``;
+* builds ``n_envs`` copies of ``make_env(env, perturbation, sigma, c_a=..., wind=...)`` in one process
+  (:class:`TrainingVecEnv` -> ``VecMonitor`` (raw returns) -> ``VecNormalize`` (obs filter) [-> ``ARPLVecEnv``]);
+  for the multi-domain learners env ``i`` is domain ``i`` (:mod:`thesis_repro.learners.multidomain`);
+* seeds SB3 (torch, numpy, the action space) with the config's ``seed`` and env ``i`` with
+  :func:`env_seed` ``(seed, i)`` — the kit's ONE seeding rule, always ``< 2**32`` and so disjoint from the
+  testing seeds (``>= 2**32``, :func:`thesis_repro.evaluation.test_seeds`), also after a resume;
 * checkpoints model + VecNormalize statistics (+ replay buffer off-policy) + bookkeeping into
-  ``workdir/ckpt-<steps>`` at iteration boundaries at least ``checkpoint_every`` steps apart, and resumes
-  from the newest checkpoint when rerun after an interruption (the timestep counter continues);
+  ``workdir/ckpt-<steps>`` at iteration boundaries at least ``checkpoint_every`` env steps apart, and resumes
+  from the newest checkpoint when rerun after an interruption (the timestep counter continues; the remaining
+  steps get fresh randomness seeded by :func:`resume_seed`);
 * writes ``out/model.zip``, ``out/vecnormalize.pkl`` (if the obs filter is on), ``out/policy.pth`` +
-  ``out/obs_norm.npz`` (what :func:`thesis_repro.learners.load_policy` reads) and, every
-  ``snapshot_every`` steps at iteration boundaries, ``out/snapshots/step_<t>/`` (policy + obs filter).
+  ``out/obs_norm.npz`` + ``out/learner.json`` (what :func:`thesis_repro.learners.load_policy` reads) and,
+  every ``snapshot_every`` env steps at iteration boundaries, ``out/snapshots/step_<t>/`` (policy + obs filter).
 
-Training return (Fig. 3.3's x-axis) := mean undiscounted return of the last 100 training episodes,
-measured in the training environment (with its training perturbation), i.e. SB3's ``ep_rew_mean``.
+Training return (Fig. 3.3's x-axis, Fig. 4.1's y-axis) := mean undiscounted return of the last 100 training
+episodes, measured in the training environment (with its training perturbation), i.e. SB3's ``ep_rew_mean``.
 """
 
 from __future__ import annotations
@@ -22,50 +26,86 @@ import json
 import os
 import shutil
 import time
+from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch as th
+from sb3_contrib import TRPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise, VectorizedActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 
 from thesis_repro.envs import make_env
 from thesis_repro.envs.vec import LeanVecEnv
 from thesis_repro.learners.algos import DDPGSplit
 from thesis_repro.learners.arpl import ARPLVecEnv
+from thesis_repro.learners.config import iteration_steps
 from thesis_repro.learners.fast import FastPPO, FastSAC  # leaner, equivalent train() (tests/test_fast.py)
+from thesis_repro.learners.multidomain import CLASSES as MULTI_DOMAIN_CLASSES
 from thesis_repro.learners.policies import SCNPolicy
 
 RETURN_WINDOW = 100  # training episodes averaged into train_return and the curve
+#: Algorithm class of each ``class`` name of ``hyperparams.yaml``.
+ALGORITHM_CLASSES: dict[str, type[BaseAlgorithm]] = {
+    "PPO": FastPPO,
+    "TRPO": TRPO,
+    "SAC": FastSAC,
+    "DDPG": DDPGSplit,
+    **MULTI_DOMAIN_CLASSES,
+}
 
 
-def _algo_class(name: str) -> type[BaseAlgorithm]:
-    if name == "TRPO":
-        from sb3_contrib import TRPO
+def env_seed(seed: int, i: int) -> int:
+    """Seed of env ``i`` of a training run with seed ``seed``: one draw of ``SeedSequence([seed, i])``.
 
-        return TRPO
-    return {"PPO": FastPPO, "SAC": FastSAC, "DDPG": DDPGSplit}[name]
+    Always in ``[0, 2**32)`` (testing seeds are ``>= 2**32``), and independent across runs and envs (unlike
+    SB3's default ``seed + i``, which gives run 0's env 1 the stream of run 1's env 0).
+
+    >>> env_seed(0, 1) != env_seed(1, 0), all(0 <= env_seed(s, i) < 2**32 for s in (0, 2**40) for i in range(8))
+    (True, True)
+    """
+    return int(np.random.SeedSequence([int(seed), int(i)]).generate_state(1, dtype=np.uint32)[0])
+
+
+def resume_seed(seed: int, timesteps: int) -> int:
+    """Seed of the randomness after resuming a run at ``timesteps`` (fresh, reproducible, ``< 2**32``)."""
+    return int(np.random.SeedSequence([int(seed), int(timesteps)]).generate_state(1, dtype=np.uint32)[0])
+
+
+class TrainingVecEnv(LeanVecEnv):
+    """The training VecEnv: :class:`~thesis_repro.envs.vec.LeanVecEnv` whose ``seed(s)`` seeds env ``i``
+    with :func:`env_seed` ``(s, i)`` instead of SB3's ``s + i``."""
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        if seed is None:
+            return super().seed(None)
+        self._seeds = [env_seed(seed, i) for i in range(self.num_envs)]
+        return self._seeds
 
 
 def make_train_venv(cfg: dict[str, Any]) -> VecEnv:
-    """The ``VecMonitor(LeanVecEnv([...]))`` training env of a resolved config (before normalisation)."""
+    """The ``VecMonitor(TrainingVecEnv([...]))`` training env of a resolved config (before normalisation)."""
     fns = [
         partial(
             make_env,
             cfg["env"],
             cfg["perturbation"],
             cfg["sigma"],
-            seed=cfg["seed"] + i,
+            c_a=cfg["c_a"],
+            wind=cfg["wind"],
+            seed=env_seed(cfg["seed"], i),
             max_episode_steps=cfg["max_episode_steps"],
         )
         for i in range(cfg["n_envs"])
     ]
-    return VecMonitor(LeanVecEnv(fns))  # = DummyVecEnv without per-step deep copies
+    return VecMonitor(TrainingVecEnv(fns))
 
 
 def _wrap(cfg: dict[str, Any], inner: VecEnv, vecnorm_path: Path | None) -> VecEnv:
@@ -87,8 +127,8 @@ def _wrap(cfg: dict[str, Any], inner: VecEnv, vecnorm_path: Path | None) -> VecE
 
 
 def build_model(cfg: dict[str, Any], venv: VecEnv) -> BaseAlgorithm:
-    """A fresh SB3 model for a resolved config (``train_config``) on ``venv``."""
-    cls = _algo_class(cfg["class"])
+    """A fresh model of the config's algorithm class (``train_config``) on ``venv``, logging nowhere."""
+    cls = ALGORITHM_CLASSES[cfg["class"]]
     act = {"tanh": th.nn.Tanh, "relu": th.nn.ReLU}[cfg["activation"]]
     kwargs: dict[str, Any] = dict(cfg["sb3"])
     if cfg["class"] == "DDPG":
@@ -101,7 +141,7 @@ def build_model(cfg: dict[str, Any], venv: VecEnv) -> BaseAlgorithm:
         base = OrnsteinUhlenbeckActionNoise(np.zeros(dim), float(noise["sigma"]) * np.ones(dim))
         kwargs["action_noise"] = base if venv.num_envs == 1 else VectorizedActionNoise(base, venv.num_envs)
     policy = SCNPolicy if cfg["policy"] == "scn" else "MlpPolicy"
-    return cls(
+    model = cls(
         policy,
         venv,
         seed=cfg["seed"],
@@ -110,6 +150,8 @@ def build_model(cfg: dict[str, Any], venv: VecEnv) -> BaseAlgorithm:
         policy_kwargs={"net_arch": cfg["net_arch"], "activation_fn": act, **_optimizer(cfg)},
         **kwargs,
     )
+    model.set_logger(Logger(None, []))  # SB3's default logger would create an SB3-<timestamp> temp folder
+    return model
 
 
 def _optimizer(cfg: dict[str, Any]) -> dict[str, Any]:
@@ -117,10 +159,9 @@ def _optimizer(cfg: dict[str, Any]) -> dict[str, Any]:
     return {} if kw is None else {"optimizer_kwargs": dict(kw)}
 
 
-def _batch_steps(cfg: dict[str, Any]) -> int:
-    if cfg["class"] in ("PPO", "TRPO"):
-        return int(cfg["sb3"]["n_steps"]) * int(cfg["n_envs"])
-    return 1000
+def _curve_step(cfg: dict[str, Any]) -> int:
+    """Default spacing of training-curve points: one per on-policy iteration, 1000 steps off-policy."""
+    return iteration_steps(cfg) if cfg["class"] not in ("SAC", "DDPG") else 1000
 
 
 def _checkpoints(workdir: Path) -> list[Path]:
@@ -151,8 +192,17 @@ def save_artifacts(model: BaseAlgorithm, folder: Path, cfg: dict[str, Any], full
             vn.save(str(folder / "vecnormalize.pkl"))
 
 
+def _entropy(model: BaseAlgorithm) -> float:
+    """Entropy (nats) of a state-independent diagonal Gaussian policy (PPO/TRPO and the multi-domain learners)."""
+    log_std = getattr(model.policy, "log_std", None)
+    if not isinstance(log_std, th.Tensor):
+        return float("nan")
+    return float((log_std.detach() + 0.5 * np.log(2 * np.pi * np.e)).sum())
+
+
 class _Bookkeeper(BaseCallback):
-    """Records finished episodes; checkpoints and snapshots at iteration boundaries (rollout starts)."""
+    """Records finished episodes and, per on-policy iteration, the policy entropy and the learner's own
+    statistics (``model.last_train_stats``); checkpoints and snapshots at iteration boundaries."""
 
     def __init__(self, cfg: dict[str, Any], workdir: Path, state: dict[str, Any]):
         super().__init__()
@@ -162,17 +212,28 @@ class _Bookkeeper(BaseCallback):
     def _on_step(self) -> bool:
         for info in self.locals.get("infos", []):
             if "episode" in info:
-                self.state["episodes"].append([int(self.num_timesteps), float(info["episode"]["r"])])
+                ep = info["episode"]
+                self.state["episodes"].append([int(self.num_timesteps), float(ep["r"]), int(ep["l"])])
         return True
 
     def _on_rollout_start(self) -> None:
         t = int(self.model.num_timesteps)
+        self.log_iteration()
         every = self.cfg["snapshot_every"]
         last = self.state["last_snapshot"]
         if every > 0 and (last is None or t - last >= every):
             self.snapshot()
         if self.cfg["checkpoint_every"] > 0 and t - self.state["last_checkpoint"] >= self.cfg["checkpoint_every"]:
             self.checkpoint()
+
+    def log_iteration(self) -> None:
+        """One row of per-iteration statistics after each on-policy update (none before the first)."""
+        t = int(self.model.num_timesteps)
+        rows = self.state["iterations"]
+        if not isinstance(self.model, OnPolicyAlgorithm) or t == 0 or (rows and rows[-1]["timesteps"] == t):
+            return
+        stats = dict(getattr(self.model, "last_train_stats", None) or {})
+        rows.append({"timesteps": t, "entropy": _entropy(self.model), **stats})
 
     def snapshot(self) -> None:
         t = int(self.model.num_timesteps)
@@ -200,32 +261,59 @@ class _Bookkeeper(BaseCallback):
                 shutil.rmtree(p, ignore_errors=True)
 
 
-def _curve(episodes: np.ndarray, every: int, end: int) -> tuple[np.ndarray, np.ndarray]:
+def _grid(every: int, end: int) -> np.ndarray:
     grid = np.arange(every, end + every, every, dtype=np.int64)
-    grid[-1] = min(grid[-1], end) if len(grid) else end
+    if len(grid):
+        grid[-1] = min(grid[-1], end)
+    return grid
+
+
+def _window_means(episodes: np.ndarray, grid: np.ndarray, column: int) -> np.ndarray:
+    """Mean of ``episodes[:, column]`` over the last :data:`RETURN_WINDOW` episodes finished by each grid point."""
     out = np.full(len(grid), np.nan)
     if len(episodes):
         n_done = np.searchsorted(episodes[:, 0], grid, side="right")
         for i, n in enumerate(n_done):
             if n:
-                out[i] = episodes[max(0, n - RETURN_WINDOW) : n, 1].mean()
-    return grid, out
+                out[i] = episodes[max(0, n - RETURN_WINDOW) : n, column].mean()
+    return out
+
+
+def _iteration_curves(rows: list[dict[str, Any]], grid: np.ndarray) -> dict[str, np.ndarray]:
+    """``curve_<stat>`` arrays on ``grid``: the last per-iteration row at or before each point (NaN before any)."""
+    if not rows:
+        return {}
+    ts = np.array([r["timesteps"] for r in rows])
+    idx = np.searchsorted(ts, grid, side="right") - 1
+    out: dict[str, np.ndarray] = {}
+    for key in dict.fromkeys(k for r in rows for k in r if k != "timesteps"):
+        values = [np.asarray(r.get(key, np.nan), dtype=float) for r in rows]
+        shape = max((v.shape for v in values), key=len)
+        values = [v if v.shape == shape else np.full(shape, np.nan) for v in values]
+        table = np.stack(values)
+        arr = np.full((len(grid), *shape), np.nan)
+        arr[idx >= 0] = table[idx[idx >= 0]]
+        out[f"curve_{key}"] = arr
+    return out
 
 
 def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback | None = None) -> dict[str, Any]:
     """Train (or resume) the run described by ``config`` (from :func:`train_config`); see module docstring.
 
     ``callback`` is an extra SB3 callback (tests use it to simulate an interruption); the cache never
-    passes it. Returns ``train_return`` (None if no episode finished), the training curve
-    (``curve_timesteps``, ``curve_return``), every finished episode (``episode_timesteps``,
-    ``episode_returns``), ``timesteps_done``, ``resumed_from``, ``snapshots`` (steps), ``wall_time``
-    (seconds over all sessions) and ``steps_per_s`` (env steps per second in this session).
+    passes it. Returns ``train_return`` (None if no episode finished), every finished episode
+    (``episode_timesteps``, ``episode_returns``, ``episode_lengths``), the training curve on a grid of
+    ``curve_every`` env steps (default: one point per iteration): ``curve_timesteps``, ``curve_return`` and
+    ``curve_length`` (means over the last 100 episodes), and for on-policy learners one ``curve_<stat>`` per
+    per-iteration statistic (``curve_entropy``; the multi-domain learners' own, e.g. ``curve_eq47``,
+    ``curve_kl`` (points × domains), ``curve_kept_fraction``); ``timesteps_done``, ``resumed_from``,
+    ``snapshots`` (steps), ``wall_time`` (seconds over all sessions) and ``steps_per_s`` (this session).
     """
     th.set_num_threads(1)
     cfg = config
     workdir = Path(workdir)
     (workdir / "out").mkdir(parents=True, exist_ok=True)
-    cls = _algo_class(cfg["class"])
+    cls = ALGORITHM_CLASSES[cfg["class"]]
     ckpts = _checkpoints(workdir)
     inner = make_train_venv(cfg)
     if ckpts:
@@ -234,10 +322,11 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
         vn_path = ckpt / "vecnormalize.pkl"
         venv = _wrap(cfg, inner, vn_path if vn_path.exists() else None)
         model = cls.load(str(ckpt / "model.zip"), env=venv, device="cpu")
+        model.set_logger(Logger(None, []))
         if isinstance(model, OffPolicyAlgorithm):
             model.load_replay_buffer(str(ckpt / "replay_buffer.pkl"))
         # fresh, reproducible randomness for the remaining steps (not a replay of the first session's)
-        model.set_random_seed(int(np.random.SeedSequence([cfg["seed"], state["last_checkpoint"]]).generate_state(1)[0]))
+        model.set_random_seed(resume_seed(cfg["seed"], state["last_checkpoint"]))
         resumed_from = int(model.num_timesteps)
         snaps = workdir / "out" / "snapshots"
         for p in snaps.glob("step_*") if snaps.exists() else []:
@@ -250,7 +339,14 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
         venv = _wrap(cfg, inner, None)
         model = build_model(cfg, venv)
         resumed_from = 0
-        state = {"episodes": [], "last_snapshot": None, "last_checkpoint": 0, "wall_time": 0.0, "wall_time_before": 0.0}
+        state = {
+            "episodes": [],
+            "iterations": [],
+            "last_snapshot": None,
+            "last_checkpoint": 0,
+            "wall_time": 0.0,
+            "wall_time_before": 0.0,
+        }
     if isinstance(venv, ARPLVecEnv):
         venv.policy = model.policy
     book = _Bookkeeper(cfg, workdir, state)
@@ -263,14 +359,14 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
         book.init_callback(model)
     elapsed = time.time() - t0
     done = int(model.num_timesteps)
+    book.log_iteration()
     if cfg["snapshot_every"] > 0 and state["last_snapshot"] != done:
         book.snapshot()
     save_artifacts(model, workdir / "out", cfg, full=True)
     venv.close()
 
-    episodes = np.asarray(state["episodes"], dtype=np.float64).reshape(-1, 2)
-    every = cfg["curve_every"] or _batch_steps(cfg)
-    grid, curve = _curve(episodes, every, done)
+    episodes = np.asarray(state["episodes"], dtype=np.float64).reshape(-1, 3)
+    grid = _grid(cfg["curve_every"] or _curve_step(cfg), done)
     last = episodes[-RETURN_WINDOW:, 1]
     snaps = workdir / "out" / "snapshots"
     return {
@@ -280,9 +376,12 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
         "timesteps_done": done,
         "resumed_from": resumed_from,
         "curve_timesteps": grid,
-        "curve_return": curve,
+        "curve_return": _window_means(episodes, grid, 1),
+        "curve_length": _window_means(episodes, grid, 2),
+        **_iteration_curves(state["iterations"], grid),
         "episode_timesteps": episodes[:, 0].astype(np.int64),
         "episode_returns": episodes[:, 1],
+        "episode_lengths": episodes[:, 2].astype(np.int64),
         "snapshots": sorted(int(p.name.split("_")[1]) for p in snaps.glob("step_*")) if snaps.exists() else [],
         "wall_time": float(state["wall_time_before"] + elapsed),
         "steps_per_s": float((done - resumed_from) / elapsed) if elapsed > 0 and done > resumed_from else None,

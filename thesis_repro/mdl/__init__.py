@@ -1,34 +1,33 @@
-"""Multi-domain learners of chapters 3-4: joint (PPO-MDL), EPOpt, MAML-DG, Reptile-DG, params_avg, kl_avg.
+"""Aggregation math of multi-domain learning (thesis §4.2, Eq 4.6-4.11 and the exact Eq 4.7 minimiser).
 
-The aggregation math (Eq 4.6-4.11) lives in :mod:`thesis_repro.mdl.aggregate`; the SB3-based trainers in
-:mod:`thesis_repro.mdl.train` (``train_job(config, workdir)``, the run-cache contract of the kit).
+The learners that use it (joint, EPOpt, MAML-DG, Reptile-DG and Alg 3 with params_avg / kl_avg / kl_exact)
+are SB3 algorithms in :mod:`thesis_repro.learners.multidomain`, trained by the kit's one ``"train"`` job.
 """
 
 from thesis_repro.mdl.aggregate import (
     GaussianPolicy,
     PolicyView,
+    eq47_kls,
+    eq47_objective,
     fisher_matrix,
     fisher_vector_product,
     kl_avg,
     kl_avg_dense,
+    kl_exact,
     mean_kl,
     params_avg,
 )
-from thesis_repro.mdl.config import ALGORITHMS, mdl_config
-from thesis_repro.mdl.train import MultiDomainTrainer, load_policy, train_job
 
 __all__ = [
-    "ALGORITHMS",
-    "MultiDomainTrainer",
-    "load_policy",
-    "mdl_config",
-    "train_job",
     "GaussianPolicy",
     "PolicyView",
+    "eq47_kls",
+    "eq47_objective",
     "fisher_matrix",
     "fisher_vector_product",
     "kl_avg",
     "kl_avg_dense",
+    "kl_exact",
     "mean_kl",
     "params_avg",
 ]

@@ -1,0 +1,514 @@
+"""Multi-domain learners as SB3 on-policy algorithms: EPOpt, MAML-DG, Reptile-DG and Alg 3 (params/kl aggregation).
+
+Each is a subclass of :class:`~thesis_repro.learners.fast.FastPPO` (SB3's ``PPO`` with the same, leaner
+update) as SB3 builds its algorithms: the base owns stepping, buffers, ``learn()`` and save/load; an algorithm
+overrides ``_setup_model`` / ``train()`` (the sequential meta-learners also ``collect_rollouts``). Every PPO
+update is :func:`~thesis_repro.learners.fast.ppo_epochs` on :func:`~thesis_repro.learners.fast.rollout_tensors`
+of the rollout (the whole buffer, one env's column or a masked subset); the aggregation math is
+:mod:`thesis_repro.mdl.aggregate`.
+
+**Domains.** The training VecEnv has one env per domain (``n_envs`` = N, ``n_steps`` = T, so one iteration
+collects N·T steps as the thesis's batches); what differs between domains is what the env settings randomise
+once per episode (chapter 4's wind ξ, chapter 3's dom Θ ~ N(Θ0, Σ)). One ``VecNormalize`` over all of them is
+the shared observation filter. Per iteration:
+
+* ``joint`` (= PPO-MDL) is plain PPO on the merged batch, i.e. :class:`~thesis_repro.learners.fast.FastPPO`
+  itself (no class here);
+* :class:`EPOpt`: PPO on the trajectories whose return is in the worst ε fraction (:func:`epopt_mask`;
+  Rajeswaran et al. 2016);
+* :class:`SubPolicyAggregation` (Alg 3): one sub-policy per domain, each updated by PPO on its own column from
+  θ_old; after every epoch (``aggregate_every_epoch``) the sub-policies are aggregated by ``aggregate``:
+  ``params_avg`` (Eq 4.6), ``kl_avg`` (Eq 4.10/4.11) or ``kl_exact`` (the exact minimiser of Eq 4.7), value
+  nets averaged. Each iteration logs the true Eq 4.7 objective of the aggregate and its KL to each sub-policy;
+* :class:`ReptileDG` (Alg 2): π' ← π; for each domain in random order collect T steps with π' and update π'
+  by PPO (lr α = ``inner_lr``); then Adam (lr β = ``learning_rate``) on π with the gradient π − π'
+  (:func:`reptile_meta_step`);
+* :class:`MAMLDG` (Alg 1, FIRST-ORDER): each domain forks π_i = π, adapts it on D_i with PPO (lr α), collects
+  D'_i with π_i and takes the PPO-loss gradient AT π_i on D'_i (:func:`post_adaptation_gradient`); Adam (lr β)
+  on π with the mean of these gradients (:func:`fomaml_meta_step`). Second-order terms are dropped.
+
+The sequential learners step one domain's env at a time through a one-env view of the same env (its own
+``VecMonitor``, a ``VecNormalize`` sharing the filter's statistics) with SB3's own ``collect_rollouts``.
+The main policy is what is saved and evaluated, without adaptation.
+
+>>> import gymnasium as gym
+>>> from stable_baselines3.common.vec_env import DummyVecEnv
+>>> venv = DummyVecEnv([lambda: gym.make("InvertedPendulum-v5")] * 2)
+>>> m = SubPolicyAggregation("MlpPolicy", venv, n_steps=32, batch_size=32, n_epochs=2, seed=0)
+>>> _ = m.learn(64)
+>>> sorted(m.last_train_stats)[:3], len(m.last_train_stats["kl"])
+(['cg_residual', 'eq47', 'eq47_params_avg'], 2)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.utils import FloatSchedule
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
+from torch import nn
+
+from thesis_repro.envs.vec import LeanVecEnv
+from thesis_repro.learners.config import AGGREGATES
+from thesis_repro.learners.fast import FastPPO, RolloutTensors, ppo_epochs, rollout_tensors
+from thesis_repro.mdl import aggregate as agg
+from thesis_repro.validation import check_choice, check_nonneg
+
+
+# ---------------------------------------------------------------------------------- defining steps (pure)
+def trajectory_segments(episode_starts: np.ndarray) -> np.ndarray:
+    """Segment id of every step of one env's buffer column (a new segment at each episode start).
+
+    >>> trajectory_segments(np.array([1, 0, 0, 1, 0])).tolist()
+    [0, 0, 0, 1, 1]
+    """
+    starts = np.asarray(episode_starts, dtype=bool).copy()
+    starts[0] = True
+    return np.cumsum(starts) - 1
+
+
+def worst_fraction(scores: np.ndarray, epsilon: float) -> np.ndarray:
+    """EPOpt selection: boolean mask of the ``ceil(ε·n)`` lowest scores (at least one).
+
+    >>> worst_fraction(np.array([5.0, 1.0, 3.0, 2.0]), 0.5).tolist()
+    [False, True, False, True]
+    """
+    scores = np.asarray(scores, dtype=float)
+    if scores.ndim != 1 or len(scores) == 0:
+        raise ValueError("scores must be a non-empty 1-D array")
+    if not 0.0 < epsilon <= 1.0:
+        raise ValueError(f"epsilon must be in (0, 1], got {epsilon!r}")
+    k = max(1, math.ceil(epsilon * len(scores) - 1e-9))
+    mask = np.zeros(len(scores), dtype=bool)
+    mask[np.argsort(scores, kind="stable")[:k]] = True
+    return mask
+
+
+def epopt_mask(episode_starts: np.ndarray, rewards: np.ndarray, epsilon: float) -> np.ndarray:
+    """Steps (shape ``(T, n_envs)`` like the buffer) of the trajectories in the worst ε fraction by return.
+
+    A trajectory is a segment of one env's column between episode starts (cut at the buffer's ends).
+
+    >>> starts = np.array([[1, 1], [0, 0], [1, 0]]); rewards = np.array([[1.0, 5.0], [1.0, 5.0], [0.5, 5.0]])
+    >>> epopt_mask(starts, rewards, 0.5).astype(int).tolist()  # returns 2, 0.5 | 15: keep the worst 2 of 3
+    [[1, 0], [1, 0], [1, 0]]
+    """
+    starts, rewards = np.asarray(episode_starts), np.asarray(rewards, dtype=float)
+    if starts.shape != rewards.shape or starts.ndim != 2:
+        raise ValueError(f"episode_starts and rewards must both be (T, n_envs), got {starts.shape}, {rewards.shape}")
+    ids, scores = [], []
+    for e in range(starts.shape[1]):
+        seg = trajectory_segments(starts[:, e])
+        ids.append(seg)
+        scores.extend(np.bincount(seg, weights=rewards[:, e]).tolist())
+    keep = worst_fraction(np.array(scores), epsilon)
+    mask = np.zeros(starts.shape, dtype=bool)
+    offset = 0
+    for e, seg in enumerate(ids):
+        mask[:, e] = keep[offset + seg]
+        offset += int(seg[-1]) + 1
+    return mask
+
+
+def reptile_meta_step(module: nn.Module, adapted: dict[str, th.Tensor], optimizer: th.optim.Optimizer) -> None:
+    """Alg 2 outer step: the meta-gradient of every parameter is π − π' (so the step moves π towards π').
+
+    >>> m = nn.Linear(1, 1); target = {k: v + 1 for k, v in m.state_dict().items()}
+    >>> reptile_meta_step(m, target, th.optim.SGD(m.parameters(), lr=1.0))
+    >>> all(th.allclose(v, target[k]) for k, v in m.state_dict().items())
+    True
+    """
+    optimizer.zero_grad()
+    for name, p in module.named_parameters():
+        p.grad = (p.detach() - adapted[name].detach()).clone()
+    optimizer.step()
+
+
+def fomaml_meta_step(module: nn.Module, grads: list[dict[str, th.Tensor]], optimizer: th.optim.Optimizer) -> None:
+    """Alg 1 outer step (first order): π's gradient is the mean of the post-adaptation gradients."""
+    if not grads:
+        raise ValueError("fomaml_meta_step needs at least one domain's gradient")
+    optimizer.zero_grad()
+    for name, p in module.named_parameters():
+        p.grad = th.stack([g[name] for g in grads]).mean(0).clone()
+    optimizer.step()
+
+
+class _GradRecorder(th.optim.Optimizer):
+    """An 'optimizer' that records the gradients it is asked to apply and leaves the parameters alone."""
+
+    def __init__(self, named: list[tuple[str, nn.Parameter]]):
+        super().__init__([p for _, p in named], {"lr": 0.0})
+        self._named = named
+        self.grads: dict[str, th.Tensor] = {}
+
+    def step(self, closure=None):  # noqa: ANN001,ANN201 - optimizer API
+        self.grads = {n: th.zeros_like(p) if p.grad is None else p.grad.detach().clone() for n, p in self._named}
+
+
+def post_adaptation_gradient(
+    policy: ActorCriticPolicy, data: RolloutTensors, **ppo_kwargs: Any
+) -> dict[str, th.Tensor]:
+    """Gradient of the PPO loss at ``policy``'s CURRENT parameters on ``data`` (one full batch, clipped at
+    ``max_grad_norm`` as every PPO step); the parameters are not changed. ``ppo_kwargs``: of :func:`ppo_epochs`."""
+    rec = _GradRecorder(list(policy.named_parameters()))
+    ppo_epochs(policy, rec, data, n_epochs=1, batch_size=len(data), **ppo_kwargs)
+    return rec.grads
+
+
+class _StepsOnly(BaseCallback):
+    """Forwards a callback's per-step calls only (a domain's collection is part of one iteration)."""
+
+    def __init__(self, inner: BaseCallback):
+        super().__init__()
+        self.inner = inner
+
+    def update_locals(self, locals_: dict[str, Any]) -> None:
+        self.inner.update_locals(locals_)
+
+    def _on_step(self) -> bool:
+        return self.inner.on_step()
+
+
+# ------------------------------------------------------------------------------------------ algorithms
+class MultiDomainPPO(FastPPO):
+    """Base of the multi-domain learners: env ``i`` of the VecEnv is domain ``i``; optional sub-policies.
+
+    ``sub_lr`` (None: no sub-policies) is the learning rate of one sub-policy per domain (same class and
+    architecture as the policy, own Adam state, saved with the model).
+    """
+
+    sub_lr: float | None = None
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        self.iterations_done = getattr(self, "iterations_done", 0)
+        self.last_train_stats: dict[str, Any] = {}
+        self._rng = getattr(self, "_rng", None) or np.random.default_rng(self.seed)
+        self.sub_policies: nn.ModuleList | None = None
+        if self.sub_lr is not None:
+            subs = []
+            for _ in range(self.n_envs):
+                sub = self.policy_class(  # type: ignore[assignment]
+                    self.observation_space, self.action_space, FloatSchedule(self.sub_lr), **self.policy_kwargs
+                )
+                sub.load_state_dict(self.policy.state_dict())
+                subs.append(sub.to(self.device))
+            self.sub_policies = nn.ModuleList(subs)
+        self._domain_envs: list[VecEnv] | None = None
+        self._domain_buffers: list[RolloutBuffer] = []
+        self._domain_obs: list[np.ndarray] = []
+        self._domain_starts: list[np.ndarray] = []
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        names, other = super()._get_torch_save_params()
+        if self.sub_policies is not None:
+            names = [*names, "sub_policies", *(f"sub_policies.{i}.optimizer" for i in range(len(self.sub_policies)))]
+        return names, other
+
+    def _excluded_save_params(self) -> list[str]:
+        private = ["_domain_envs", "_domain_buffers", "_domain_obs", "_domain_starts", "_adapted", "_meta_grads"]
+        return [*super()._excluded_save_params(), *private]
+
+    def _ppo(self, policy: ActorCriticPolicy, optimizer: th.optim.Optimizer, data: RolloutTensors, n_epochs: int):
+        """:func:`ppo_epochs` with this algorithm's PPO settings; returns its statistics."""
+        return ppo_epochs(policy, optimizer, data, n_epochs=n_epochs, batch_size=self.batch_size, **self._ppo_kwargs())
+
+    def _ppo_kwargs(self) -> dict[str, Any]:
+        clip_vf = None if self.clip_range_vf is None else self.clip_range_vf(self._current_progress_remaining)
+        return {
+            "clip_range": self.clip_range(self._current_progress_remaining),  # type: ignore[operator]
+            "clip_range_vf": clip_vf,
+            "ent_coef": self.ent_coef,
+            "vf_coef": self.vf_coef,
+            "max_grad_norm": self.max_grad_norm,
+            "normalize_advantage": self.normalize_advantage,
+            "target_kl": self.target_kl,
+        }
+
+    def _record(self, stats: dict[str, Any]) -> None:
+        self.iterations_done += 1
+        self.last_train_stats = stats
+        for key, value in stats.items():
+            if isinstance(value, float | int):
+                self.logger.record(f"train/{key}", value)
+
+    # -- sequential collection (one domain at a time)
+    def _domain_env(self, i: int) -> VecEnv:
+        """One-env view of domain ``i`` (the same env object; own monitor; the shared filter statistics)."""
+        if self._domain_envs is None:
+            base = self.env.unwrapped  # type: ignore[union-attr]
+            vn = self.get_vec_normalize_env()
+            views: list[VecEnv] = []
+            for env in base.envs:  # type: ignore[attr-defined]
+                view: VecEnv = VecMonitor(LeanVecEnv([lambda e=env: e]))
+                if vn is not None:
+                    view = VecNormalize(
+                        view,
+                        training=vn.training,
+                        norm_obs=vn.norm_obs,
+                        norm_reward=vn.norm_reward,
+                        clip_obs=vn.clip_obs,
+                        gamma=vn.gamma,
+                        epsilon=vn.epsilon,
+                    )
+                    view.obs_rms = vn.obs_rms  # one shared running filter
+                views.append(view)
+            self._domain_envs = views
+            self._domain_obs = [v.reset() for v in views]
+            self._domain_starts = [np.ones(1, dtype=bool) for _ in views]
+            self._domain_buffers = [
+                RolloutBuffer(
+                    self.n_steps,
+                    self.observation_space,
+                    self.action_space,
+                    device=self.device,
+                    gamma=self.gamma,
+                    gae_lambda=self.gae_lambda,
+                    n_envs=1,
+                )
+                for _ in views
+            ]
+        return self._domain_envs[i]
+
+    def _collect_domain(self, i: int, policy: ActorCriticPolicy, callback: BaseCallback) -> bool:
+        """Fill domain ``i``'s buffer with ``n_steps`` steps of ``policy`` (SB3's ``collect_rollouts``)."""
+        env = self._domain_env(i)
+        saved = self.policy, self._last_obs, self._last_episode_starts
+        self.policy, self._last_obs, self._last_episode_starts = policy, self._domain_obs[i], self._domain_starts[i]
+        try:
+            ok = OnPolicyAlgorithm.collect_rollouts(self, env, callback, self._domain_buffers[i], self.n_steps)
+            self._domain_obs[i], self._domain_starts[i] = self._last_obs, self._last_episode_starts  # type: ignore
+        finally:
+            self.policy, self._last_obs, self._last_episode_starts = saved
+        return ok
+
+
+class EPOpt(MultiDomainPPO):
+    """PPO on the worst ``epsilon`` fraction of the iteration's trajectories (after ``epopt_warmup`` iterations)."""
+
+    def __init__(self, *args: Any, epsilon: float = 0.1, epopt_warmup: int = 0, **kwargs: Any):
+        if not 0.0 < epsilon <= 1.0:
+            raise ValueError(f"epsilon must be in (0, 1], got {epsilon!r}")
+        self.epsilon, self.epopt_warmup = float(epsilon), int(epopt_warmup)
+        super().__init__(*args, **kwargs)
+
+    def train(self) -> None:
+        """PPO on the selected steps of the rollout buffer."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        buf = self.rollout_buffer
+        mask = None
+        if self.iterations_done >= self.epopt_warmup:
+            mask = epopt_mask(buf.episode_starts, buf.rewards, self.epsilon)
+        stats = self._ppo(self.policy, self.policy.optimizer, rollout_tensors(buf, mask=mask), self.n_epochs)
+        self._n_updates += stats["epochs"]
+        self._record({"kept_fraction": 1.0 if mask is None else float(mask.mean())})
+
+
+class SubPolicyAggregation(MultiDomainPPO):
+    """Alg 3: per domain a sub-policy updated by PPO on its own column from θ_old, then aggregated.
+
+    ``aggregate``: ``params_avg`` (Eq 4.6), ``kl_avg`` (Eq 4.10/4.11: ``cg_iters``, ``damping``,
+    ``line_search``) or ``kl_exact`` (``exact_iters`` Newton-CG steps on the true Eq 4.7: ``cg_iters``,
+    ``cg_rtol``, ``damping``); ``aggregate_every_epoch``: aggregate after each of the ``n_epochs`` epochs (Alg 3)
+    or once after all; ``fim_states``: rollout states used for Fisher products and the logged Eq 4.7.
+    The sub-policies learn with ``learning_rate``; value networks are averaged (Alg 3).
+    """
+
+    def __init__(
+        self,
+        *args: Any,
+        aggregate: str = "params_avg",
+        aggregate_every_epoch: bool = True,
+        fim_states: int = 1024,
+        cg_iters: int = 10,
+        damping: float = 0.1,
+        line_search: bool = False,
+        exact_iters: int = 10,
+        cg_rtol: float = 1e-3,
+        **kwargs: Any,
+    ):
+        self.aggregate = check_choice(aggregate, AGGREGATES, "aggregate")
+        self.aggregate_every_epoch = bool(aggregate_every_epoch)
+        self.fim_states, self.cg_iters, self.exact_iters = int(fim_states), int(cg_iters), int(exact_iters)
+        self.damping, self.cg_rtol = check_nonneg(damping, "damping"), check_nonneg(cg_rtol, "cg_rtol")
+        self.line_search = bool(line_search)
+        super().__init__(*args, **kwargs)
+
+    def _setup_model(self) -> None:
+        self.sub_lr = self.learning_rate if not callable(self.learning_rate) else self.learning_rate(1.0)
+        super()._setup_model()
+
+    def _states(self) -> th.Tensor:
+        obs = self.rollout_buffer.observations.reshape(-1, *self.observation_space.shape)
+        if self.fim_states < len(obs):
+            obs = obs[self._rng.choice(len(obs), size=self.fim_states, replace=False)]
+        return th.as_tensor(obs, dtype=th.float32, device=self.device)
+
+    def _aggregate(self, view: agg.PolicyView, thetas: list[th.Tensor], states: th.Tensor, old: th.Tensor, info: dict):
+        if self.aggregate == "params_avg":
+            return agg.params_avg(thetas)
+        if self.aggregate == "kl_avg":
+            return agg.kl_avg(
+                view,
+                thetas,
+                states,
+                old,
+                cg_iters=self.cg_iters,
+                damping=self.damping,
+                info=info,
+                line_search=self.line_search,
+            )
+        return agg.kl_exact(
+            view,
+            thetas,
+            states,
+            iters=self.exact_iters,
+            cg_iters=self.cg_iters,
+            cg_rtol=self.cg_rtol,
+            damping=self.damping,
+            info=info,
+        )
+
+    def train(self) -> None:
+        """Alg 3's update on the rollout buffer (one column per domain)."""
+        self.policy.set_training_mode(True)
+        subs = self.sub_policies
+        assert subs is not None
+        self._update_learning_rate([s.optimizer for s in subs])
+        data = [rollout_tensors(self.rollout_buffer, env_index=i) for i in range(self.n_envs)]
+        states = self._states()
+        view = agg.PolicyView.from_sb3(self.policy)
+        critic = [n for n, _ in self.policy.named_parameters() if n.startswith(agg.SB3_CRITIC_PREFIXES)]
+        theta_old = view.get_flat()
+        rounds, epochs = (self.n_epochs, 1) if self.aggregate_every_epoch else (1, self.n_epochs)
+        info: dict[str, Any] = {}
+        thetas: list[th.Tensor] = []
+        new = theta_old
+        for _ in range(rounds):
+            current = self.policy.state_dict()
+            for sub, column in zip(subs, data, strict=True):
+                sub.load_state_dict(current)
+                self._ppo(sub, sub.optimizer, column, epochs)
+            thetas = [agg.PolicyView.from_sb3(s).get_flat() for s in subs]
+            new = self._aggregate(view, thetas, states, theta_old, info)
+            view.set_flat(new)
+            params = dict(self.policy.named_parameters())
+            with th.no_grad():
+                for name in critic:
+                    params[name].copy_(th.stack([dict(s.named_parameters())[name] for s in subs]).mean(0))
+        self._n_updates += self.n_epochs
+        kls = agg.eq47_kls(view, new, thetas, states)
+        self._record(
+            {
+                "eq47": float(kls.sum()),
+                "kl": kls.tolist(),
+                "eq47_params_avg": agg.eq47_objective(view, agg.params_avg(thetas), thetas, states),
+                "cg_residual": float(info.get("cg_residual", math.nan)),
+                "step_fraction": float(info.get("step_fraction", math.nan)),
+                "exact_iters": float(info.get("iters", math.nan)),
+            }
+        )
+
+
+class _MetaPPO(MultiDomainPPO):
+    """Base of the sequential meta-learners: sub-policies adapt with ``inner_lr`` for ``inner_epochs``."""
+
+    def __init__(self, *args: Any, inner_lr: float = 1e-3, inner_epochs: int = 1, **kwargs: Any):
+        self.inner_lr, self.inner_epochs = check_nonneg(inner_lr, "inner_lr"), int(inner_epochs)
+        if self.inner_epochs < 1:
+            raise ValueError(f"inner_epochs must be >= 1, got {inner_epochs!r}")
+        super().__init__(*args, **kwargs)
+
+    def _setup_model(self) -> None:
+        self.sub_lr = self.inner_lr
+        super()._setup_model()
+        if not isinstance(self.action_space, spaces.Box):
+            raise ValueError("the multi-domain learners need a continuous (Box) action space")
+
+    def _adapt(self, sub: ActorCriticPolicy, buffer: RolloutBuffer) -> None:
+        self._ppo(sub, sub.optimizer, rollout_tensors(buffer), self.inner_epochs)
+
+
+class ReptileDG(_MetaPPO):
+    """Alg 2: π' ← π; per domain (random order) collect with π' and adapt π'; Adam on π with π − π'."""
+
+    def collect_rollouts(self, env: VecEnv, callback: BaseCallback, buffer: RolloutBuffer, n_rollout_steps: int):
+        assert self.sub_policies is not None
+        callback.on_rollout_start()
+        steps = _StepsOnly(callback)
+        steps.init_callback(self)
+        adapted = {k: v.clone() for k, v in self.policy.state_dict().items()}
+        for i in self._rng.permutation(self.n_envs).tolist():
+            sub = self.sub_policies[i]
+            sub.load_state_dict(adapted)
+            if not self._collect_domain(i, sub, steps):
+                return False
+            self._adapt(sub, self._domain_buffers[i])
+            adapted = {k: v.clone() for k, v in sub.state_dict().items()}
+        self._adapted = adapted
+        callback.update_locals(locals())
+        callback.on_rollout_end()
+        return True
+
+    def train(self) -> None:
+        """The meta step π ← Adam(π, π − π') (lr ``learning_rate``)."""
+        self._update_learning_rate(self.policy.optimizer)
+        before = agg.PolicyView.from_sb3(self.policy).get_flat()
+        reptile_meta_step(self.policy, self._adapted, self.policy.optimizer)
+        self._n_updates += 1
+        self._record({"meta_step_norm": float((agg.PolicyView.from_sb3(self.policy).get_flat() - before).norm())})
+
+
+class MAMLDG(_MetaPPO):
+    """Alg 1 (first order): per domain adapt π_i from π on D_i, gradient at π_i on D'_i; Adam on π with their mean."""
+
+    def collect_rollouts(self, env: VecEnv, callback: BaseCallback, buffer: RolloutBuffer, n_rollout_steps: int):
+        assert self.sub_policies is not None
+        callback.on_rollout_start()
+        steps = _StepsOnly(callback)
+        steps.init_callback(self)
+        start = {k: v.clone() for k, v in self.policy.state_dict().items()}
+        grads = []
+        for i, sub in enumerate(self.sub_policies):
+            sub.load_state_dict(start)
+            if not self._collect_domain(i, sub, steps):  # D_i with π
+                return False
+            self._adapt(sub, self._domain_buffers[i])  # π_i
+            if not self._collect_domain(i, sub, steps):  # D'_i with π_i
+                return False
+            grads.append(post_adaptation_gradient(sub, rollout_tensors(self._domain_buffers[i]), **self._ppo_kwargs()))
+        self._meta_grads = grads
+        callback.update_locals(locals())
+        callback.on_rollout_end()
+        return True
+
+    def train(self) -> None:
+        """The meta step: Adam (lr ``learning_rate``) on π with the mean post-adaptation gradient."""
+        self._update_learning_rate(self.policy.optimizer)
+        fomaml_meta_step(self.policy, self._meta_grads, self.policy.optimizer)
+        self._n_updates += 1
+        norm = math.sqrt(sum(float(g.square().sum()) for g in _mean_grads(self._meta_grads).values()))
+        self._record({"meta_grad_norm": norm})
+
+
+def _mean_grads(grads: list[dict[str, th.Tensor]]) -> dict[str, th.Tensor]:
+    return {k: th.stack([g[k] for g in grads]).mean(0) for k in grads[0]}
+
+
+#: Class name (the ``class`` of a ``hyperparams.yaml`` entry) -> algorithm class.
+CLASSES: dict[str, type[MultiDomainPPO]] = {
+    "EPOpt": EPOpt,
+    "MAMLDG": MAMLDG,
+    "ReptileDG": ReptileDG,
+    "SubPolicyAggregation": SubPolicyAggregation,
+}
