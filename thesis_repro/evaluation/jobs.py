@@ -121,7 +121,7 @@ class BenchmarkResult:
 
         The point column is ``sigma`` for noise tests and ``ratios`` (the dict, as text) for shift grids.
         """
-        import pandas as pd
+        import pandas as pd  # only for the tidy frames: the job functions above do not need pandas
 
         r, ln = self.returns[test], self.lengths[test]
         col = "sigma" if "sigmas" in self.tests[test] else "ratios"

@@ -7,7 +7,6 @@
 
 from __future__ import annotations
 
-import importlib
 import json
 from collections.abc import Mapping
 from pathlib import Path
@@ -15,7 +14,17 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
+from stable_baselines3.sac.policies import SACPolicy
+from stable_baselines3.td3.policies import TD3Policy
+
+from thesis_repro.learners.policies import SCNPolicy
+from thesis_repro.validation import check_choice
+
+#: Policy classes a run may save (``learner.json``'s ``policy_class``, ``"module:qualname"``): every kit learner's.
+POLICY_CLASSES: dict[str, type[BasePolicy]] = {
+    f"{c.__module__}:{c.__qualname__}": c for c in (ActorCriticPolicy, SCNPolicy, SACPolicy, TD3Policy)
+}
 
 
 class Policy:
@@ -92,8 +101,7 @@ def load_policy(result_or_path: Any, snapshot: int | None = None) -> Policy:
             raise ValueError(f"unknown snapshot {snapshot!r}; valid snapshots are: {available}")
         folder = folder / "snapshots" / f"step_{int(snapshot):09d}"
     meta = json.loads((folder / "learner.json").read_text())
-    module, name = meta["policy_class"].split(":")
-    cls = getattr(importlib.import_module(module), name)
+    cls = POLICY_CLASSES[check_choice(meta["policy_class"], list(POLICY_CLASSES), "policy class")]
     net = cls.load(str(folder / "policy.pth"), device="cpu")
     norm = None
     if (folder / "obs_norm.npz").exists():
