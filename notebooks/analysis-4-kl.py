@@ -165,6 +165,7 @@ pivot = table.pivot(index="problem", columns="aggregate", values="excess")[list(
 pivot.clip(lower=1e-12).plot.bar(ax=axes[2], logy=True, rot=90, fontsize=7)
 axes[2].set_ylabel("Eq 4.7 excess over the optimum")
 axes[2].set_title("5: excess per problem (lower is better)")
+axes[2].legend(fontsize=7, loc="lower right", framealpha=0.6)
 fig.suptitle(f"Eq 4.7 aggregates, reproduced — scale={SCALE}")
 fig.tight_layout()
 out = paths.figures(SCALE) / "analysis-4-kl.png"
