@@ -36,8 +36,8 @@ The main policy is what is saved and evaluated, without adaptation.
 >>> venv = DummyVecEnv([lambda: gym.make("InvertedPendulum-v5")] * 2)
 >>> m = SubPolicyAggregation("MlpPolicy", venv, n_steps=32, batch_size=32, n_epochs=2, seed=0)
 >>> _ = m.learn(64)
->>> sorted(m.last_train_stats)[:3], len(m.last_train_stats["kl"])
-(['cg_residual', 'eq47', 'eq47_params_avg'], 2)
+>>> sorted(m.last_train_stats), len(m.last_train_stats["kl"])
+(['eq47', 'eq47_params_avg', 'kl'], 2)
 """
 
 from __future__ import annotations
@@ -408,16 +408,16 @@ class SubPolicyAggregation(MultiDomainPPO):
                     params[name].copy_(th.stack([dict(s.named_parameters())[name] for s in subs]).mean(0))
         self._n_updates += self.n_epochs
         kls = agg.eq47_kls(view, new, thetas, states)
-        self._record(
-            {
-                "eq47": float(kls.sum()),
-                "kl": kls.tolist(),
-                "eq47_params_avg": agg.eq47_objective(view, agg.params_avg(thetas), thetas, states),
-                "cg_residual": float(info.get("cg_residual", math.nan)),
-                "step_fraction": float(info.get("step_fraction", math.nan)),
-                "exact_iters": float(info.get("iters", math.nan)),
-            }
-        )
+        stats: dict[str, Any] = {
+            "eq47": float(kls.sum()),
+            "kl": kls.tolist(),
+            "eq47_params_avg": agg.eq47_objective(view, agg.params_avg(thetas), thetas, states),
+        }
+        if self.aggregate == "kl_avg":  # of the last aggregation of the iteration
+            stats.update(cg_residual=float(info["cg_residual"]), step_fraction=float(info["step_fraction"]))
+        elif self.aggregate == "kl_exact":
+            stats.update(exact_iters=int(info["iters"]), cg_residual=float((info["cg_residuals"] or [math.nan])[-1]))
+        self._record(stats)
 
 
 class _MetaPPO(MultiDomainPPO):
