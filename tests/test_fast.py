@@ -264,3 +264,46 @@ def test_fast_off_policy_train_equals_sb3_train(kind):
         assert model.log_ent_coef.item() != before.log_ent_coef.item()
     for key, value in ref.logger.name_to_value.items():
         assert model.logger.name_to_value[key] == pytest.approx(value, rel=1e-4, abs=1e-6), key
+
+
+@pytest.mark.parametrize("policy", ["MlpPolicy", SCNPolicy])
+def test_fast_collect_rollouts_equals_sb3(policy):
+    """The closed-form sampling forward draws the same noise and gives bit-identical rollouts."""
+    import types
+
+    args = dict(n_steps=64, batch_size=64, n_epochs=2, seed=0, device="cpu")
+    ref = FastPPO(policy, _venv(), **args)  # construction seeds the global RNGs; learn right after it
+    ref.collect_rollouts = types.MethodType(PPO.collect_rollouts, ref)
+    ref.learn(256)
+    fast = FastPPO(policy, _venv(), **args)
+    fast.learn(256)
+    for name in ("observations", "actions", "rewards", "values", "log_probs", "advantages", "episode_starts"):
+        assert np.array_equal(getattr(ref.rollout_buffer, name), getattr(fast.rollout_buffer, name)), name
+    assert _max_diff(ref.policy, fast.policy) == 0.0
+
+
+def test_fused_adam_step_is_optimizer_step_bit_for_bit():
+    from thesis_repro.learners.fast import _FusedAdamStep
+
+    def make(fused=True):
+        th.manual_seed(0)
+        net = th.nn.Sequential(th.nn.Linear(3, 4), th.nn.Tanh(), th.nn.Linear(4, 2))
+        groups = [{"params": [net[0].weight], "weight_decay": 0.01}, {"params": [net[0].bias, *net[2].parameters()]}]
+        return net, th.optim.Adam(groups, lr=1e-2, eps=1e-5, fused=fused)
+
+    (a, opt_a), (b, opt_b) = make(), make()
+    step = _FusedAdamStep(opt_b)
+    assert step.ok and not _FusedAdamStep(make(fused=False)[1]).ok
+    for i in range(4):
+        x = th.randn(5, 3, generator=th.Generator().manual_seed(i))
+        for net in (a, b):
+            net.zero_grad()
+            net(x).pow(2).sum().backward()
+        opt_a.step()
+        step()
+        for g in opt_b.param_groups:  # the learning rate is read at every step
+            g["lr"] *= 0.5
+        for g in opt_a.param_groups:
+            g["lr"] *= 0.5
+    for p, q in zip(a.parameters(), b.parameters(), strict=True):
+        assert th.equal(p, q) and th.equal(opt_a.state[p]["step"], opt_b.state[q]["step"])

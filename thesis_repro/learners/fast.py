@@ -39,10 +39,12 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3 import DDPG, PPO, SAC
 from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.distributions import DiagGaussianDistribution
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import FlattenExtractor, MlpExtractor
-from stable_baselines3.common.utils import explained_variance
+from stable_baselines3.common.utils import explained_variance, obs_as_tensor
+from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
 _LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
@@ -211,6 +213,19 @@ class _ManualActorCritic:
         cache = {"x": x, "hp": hp, "hv": hv, "latent_pi": latent_pi, "diff": diff, "sq": sq, "inv_var": inv_var}
         return cache, log_prob, values
 
+    def sample(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """``policy(obs)`` (SB3's ``ActorCriticPolicy.forward``, stochastic): the same torch draw and formulas,
+        so the same actions, values (B, 1) and log-probs."""
+        x = obs.float()
+        hp = self._mlp(x, self.pi)
+        latent_pi = th.cat([x, hp[-1]], dim=1) if self.scn else hp[-1]
+        values = th.addmm(self.value_net.bias, self._mlp(x, self.vf)[-1], self.value_net.weight.t())
+        mean = th.addmm(self.action_net.bias, latent_pi, self.action_net.weight.t())
+        std = th.ones_like(mean) * self.log_std.exp()
+        actions = mean + th.empty(mean.shape, dtype=mean.dtype, device=mean.device).normal_() * std
+        log_prob = (-((actions - mean) ** 2) / (2 * std**2) - std.log() - _LOG_SQRT_2PI).sum(dim=1)
+        return actions, values, log_prob
+
     def entropy(self) -> th.Tensor:
         """Per-sample entropy of the diagonal Gaussian (the same for every sample)."""
         return (0.5 + 0.5 * math.log(2 * math.pi) + self.log_std).sum()
@@ -237,6 +252,52 @@ class _ManualActorCritic:
             self._mlp_backward(g_v.mm(self.value_net.weight), cache["hv"], self.vf, grads)
         for p in self.params:
             p.grad = grads[id(p)]
+
+
+class _FusedAdamStep:
+    """``optimizer.step()`` of a fused CPU ``torch.optim.Adam``: the same two kernels (``_foreach_add_`` on the
+    step counters, ``_fused_adam_``) with the same arguments, minus the per-call Python of ``Optimizer.step``
+    (hooks, profiler, state look-ups). Any other optimiser, or a state not yet initialised, uses ``step()``."""
+
+    def __init__(self, optimizer: th.optim.Optimizer):
+        self.optimizer = optimizer
+        groups = optimizer.param_groups
+        self.ok = type(optimizer) is th.optim.Adam and all(
+            g["fused"] and not (g["amsgrad"] or g["capturable"] or g["differentiable"] or g["decoupled_weight_decay"])
+            for g in groups
+        )
+        self.ok = self.ok and all(p.dtype == th.float32 and p.device.type == "cpu" for g in groups for p in g["params"])
+        self._lists: list[tuple[dict, list, list, list, list]] | None = None
+
+    def _ready(self) -> bool:
+        state = self.optimizer.state
+        if self._lists is None:
+            if not all(len(state[p]) for g in self.optimizer.param_groups for p in g["params"]):
+                return False
+            self._lists = [
+                (g, g["params"], [state[p]["exp_avg"] for p in g["params"]],
+                 [state[p]["exp_avg_sq"] for p in g["params"]], [state[p]["step"] for p in g["params"]])
+                for g in self.optimizer.param_groups
+            ]  # fmt: skip
+        return True
+
+    def __call__(self) -> None:
+        opt = self.optimizer
+        if not self.ok or opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks or not self._ready():
+            opt.step()
+            return
+        grads = [[p.grad for p in lists[1]] for lists in self._lists]  # type: ignore[union-attr]
+        if any(gr is None for gs in grads for gr in gs):
+            opt.step()  # parameters without gradient: let Adam skip them
+            return
+        for (g, params, exp_avgs, exp_avg_sqs, steps), gs in zip(self._lists, grads, strict=True):  # type: ignore[arg-type]
+            beta1, beta2 = g["betas"]
+            th._foreach_add_(steps, 1)
+            th._fused_adam_(
+                params, gs, exp_avgs, exp_avg_sqs, [], steps, amsgrad=False, lr=g["lr"],
+                beta1=beta1, beta2=beta2, weight_decay=g["weight_decay"], eps=g["eps"], maximize=g["maximize"],
+                grad_scale=None, found_inf=None,
+            )  # fmt: skip
 
 
 def _clip_grads(params: list[nn.Parameter], max_norm: float) -> None:
@@ -285,6 +346,7 @@ def ppo_epochs(
     if manual and mac is None:
         raise ValueError(f"policy {type(policy).__name__} has no closed-form PPO path; use manual=None")
     params = mac.params if mac is not None else list(policy.parameters())
+    adam_step = _FusedAdamStep(optimizer)
     policy.set_training_mode(True)
     pg_l, v_l, ent_l, clip_l, kl_l = [], [], [], [], []
     last: tuple[th.Tensor, th.Tensor, th.Tensor] | None = None  # (pg, value, entropy) losses of the last minibatch
@@ -347,7 +409,7 @@ def ppo_epochs(
                     loss.backward()
                 with th.no_grad():
                     _clip_grads(params, max_grad_norm)
-                optimizer.step()
+                adam_step()
             if not continue_training:
                 break
     with th.no_grad():
@@ -375,6 +437,53 @@ class FastPPO(PPO):
     """
 
     fast_path: bool | None = None
+
+    def collect_rollouts(
+        self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer, n_rollout_steps: int
+    ) -> bool:
+        """SB3 2.9's ``OnPolicyAlgorithm.collect_rollouts`` with the policy forward in closed form
+        (:meth:`_ManualActorCritic.sample`: same draw, same numbers) for the kit's policies."""
+        mac = _ManualActorCritic.build(self.policy)
+        if mac is None or not isinstance(self.action_space, spaces.Box):
+            return super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
+        assert self._last_obs is not None, "No previous observation was provided"
+        self.policy.set_training_mode(False)
+        n_steps = 0
+        rollout_buffer.reset()
+        callback.on_rollout_start()
+        low, high = self.action_space.low, self.action_space.high
+        while n_steps < n_rollout_steps:
+            with th.no_grad():
+                obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
+                actions, values, log_probs = mac.sample(obs_tensor)
+            actions = actions.cpu().numpy().reshape((-1, *self.action_space.shape))
+            clipped_actions = np.clip(actions, low, high)
+            new_obs, rewards, dones, infos = env.step(clipped_actions)
+            self.num_timesteps += env.num_envs
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return False
+            self._update_info_buffer(infos, dones)
+            n_steps += 1
+            for idx, done in enumerate(dones):  # timeouts: bootstrap with the value function (SB3 #633)
+                if (
+                    done
+                    and infos[idx].get("terminal_observation") is not None
+                    and infos[idx].get("TimeLimit.truncated", False)
+                ):
+                    terminal_obs = self.policy.obs_to_tensor(infos[idx]["terminal_observation"])[0]
+                    with th.no_grad():
+                        terminal_value = self.policy.predict_values(terminal_obs)[0]  # type: ignore[arg-type]
+                    rewards[idx] += self.gamma * terminal_value
+            rollout_buffer.add(self._last_obs, actions, rewards, self._last_episode_starts, values, log_probs)  # type: ignore[arg-type]
+            self._last_obs = new_obs  # type: ignore[assignment]
+            self._last_episode_starts = dones
+        with th.no_grad():
+            values = self.policy.predict_values(obs_as_tensor(new_obs, self.device))  # type: ignore[arg-type]
+        rollout_buffer.compute_returns_and_advantage(last_values=values, dones=dones)
+        callback.update_locals(locals())
+        callback.on_rollout_end()
+        return True
 
     def train(self) -> None:
         """Update the policy on the current rollout buffer (drop-in for ``PPO.train``)."""
@@ -601,6 +710,7 @@ class FastSAC(SAC):
         self._update_learning_rate(optimizers)
         ent_coef_losses, ent_coefs, actor_losses, critic_losses = [], [], [], []
         n_obs = int(self.observation_space.shape[0])
+        actor_step, critic_step = _FusedAdamStep(self.actor.optimizer), _FusedAdamStep(self.critic.optimizer)
         with th.no_grad():
             for gradient_step in range(gradient_steps):
                 data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
@@ -631,7 +741,7 @@ class FastSAC(SAC):
                 for k, net in enumerate(nets.critic):
                     net.backward(g_q[:, k : k + 1], caches[k], grads)
                 _set_grads(nets.critic_params, grads)
-                self.critic.optimizer.step()
+                critic_step()
                 # actor: mean(alpha * log_prob - min_k q_k(s, a~pi)) with the updated critic
                 q_pi, caches = _q_forward(nets.critic, obs, f["a"])
                 min_q, idx = th.min(q_pi, dim=1, keepdim=True)
@@ -642,7 +752,7 @@ class FastSAC(SAC):
                     g_a = g_a + net.backward(g_k, caches[k], None, need_input=True)[:, n_obs:]
                 g_lp = (ent_coef * (1.0 / b)).expand(b)
                 _set_grads(nets.actor_params, nets.actor_grads(f, g_a, g_lp))
-                self.actor.optimizer.step()
+                actor_step()
                 if gradient_step % self.target_update_interval == 0:
                     _polyak(nets.critic_params, nets.target_params, self.tau)
         self._n_updates += gradient_steps
@@ -685,6 +795,7 @@ class FastDDPG(DDPG):
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
         actor_losses, critic_losses = [], []
         n_obs = int(self.observation_space.shape[0])
+        actor_step, critic_step = _FusedAdamStep(self.actor.optimizer), _FusedAdamStep(self.critic.optimizer)
         with th.no_grad():
             for _ in range(gradient_steps):
                 self._n_updates += 1
@@ -705,7 +816,7 @@ class FastDDPG(DDPG):
                 for k, net in enumerate(critic):
                     net.backward(g_q[:, k : k + 1], caches[k], grads)
                 _set_grads(critic_params, grads)
-                self.critic.optimizer.step()
+                critic_step()
                 if self._n_updates % self.policy_delay == 0:
                     hs = actor.forward(obs)
                     q1_cache = critic[0].forward(th.cat([obs, hs[-1]], dim=1))
@@ -714,7 +825,7 @@ class FastDDPG(DDPG):
                     grads = {}
                     actor.backward(g_in[:, n_obs:], hs, grads)
                     _set_grads(actor_params, grads)
-                    self.actor.optimizer.step()
+                    actor_step()
                     _polyak(critic_params, critic_targets, self.tau)
                     _polyak(actor_params, actor_targets, self.tau)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
