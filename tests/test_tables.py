@@ -159,3 +159,221 @@ def test_auc_change_is_scale_free_per_task():
     scaled = t.assign(mean=np.where(t.env == "InvertedDoublePendulum", t["mean"] * 10, t["mean"]))
     a, b = T.auc_change(t, "ppo"), T.auc_change(scaled, "ppo")
     assert np.allclose(a.change, b.change)
+
+
+# ================================================================ the chapter-3 items (figures.ch3_tables / ch3_curves)
+from thesis_repro import figures, paths, report  # noqa: E402
+from thesis_repro.figures import ch3_curves as C  # noqa: E402
+from thesis_repro.figures import ch3_tables as F  # noqa: E402
+
+ITEMS = ["table-3.3", "table-3.4", "table-3.5", "table-3.6", "table-3.7", "3.4", "3.5", "3.6", "3.7", "3.8"]
+
+
+def keys(item: str, scale: str, train_only: bool = False) -> set[str]:
+    jobs = figures.training_jobs(item, scale) if train_only else figures.jobs(item, scale)
+    return {j.key for j in jobs}
+
+
+def test_every_item_is_registered_with_a_notebook_and_settings_at_every_scale():
+    for item in ITEMS:
+        fig = figures.get(item)
+        assert fig.module in ("thesis_repro.figures.ch3_tables", "thesis_repro.figures.ch3_curves")
+        assert paths.notebook(item if item.startswith("table") else item).exists()
+        for scale in ("smoke", "small", "full"):
+            s = F.settings(item, scale)
+            assert set(F.learners(s)) | set(F.skipped(s)) == set(s["algos"])
+
+
+def test_items_share_runs_with_fig_3_3_and_each_other():
+    # every table-3.6 job (train and evaluate) is one of Fig 3.3's at small; Table 3.4's PPO/TRPO runs too
+    assert keys("table-3.6", "small") <= keys("3.3", "small")
+    assert keys("table-3.4", "small", train_only=True) <= keys("3.3", "small", train_only=True)
+    # Table 3.3's Walker2d evaluations are Table 3.5's; Fig 3.7 is Table 3.4's grid; Fig 3.4 adds heat maps only
+    assert keys("table-3.3", "small") <= keys("table-3.5", "small")
+    assert keys("3.7", "small") == keys("table-3.4", "small")
+    assert keys("3.4", "small", train_only=True) <= keys("table-3.4", "small", train_only=True)
+    union = keys("table-3.5", "small") | keys("table-3.6", "small") | keys("table-3.7", "small")
+    assert keys("3.8", "small") <= union
+
+
+def test_budgets_are_fig_3_3s():
+    for item in ITEMS:
+        for scale in ("smoke", "small", "full"):
+            s, ref = F.settings(item, scale), figures.settings("3.3", scale)
+            for key in ("timesteps", "train_seeds", "test_rollouts", "max_episode_steps", "train_overrides"):
+                assert s[key] == ref[key], (item, scale, key)
+
+
+def test_settings_errors_name_the_valid_choices():
+    with pytest.raises(ValueError, match="skip_algos"):
+        F.settings("table-3.4", "small", skip_algos=["td3"])
+    with pytest.raises(ValueError, match="unknown factor of Walker2d 'mass'; valid factor of Walker2ds are"):
+        C.shift_value("Walker2d", "mass", 0.2)
+    with pytest.raises(ValueError, match="unknown normalisation"):
+        C.bars("3.5", F.thesis_cells(), F.settings("3.5", "small", normalisation="zscore"))
+    with pytest.raises(ValueError, match="unknown chapter-3 item 'table-9.9'"):
+        F.compare("table-9.9", F.thesis_cells(), F.settings("table-3.4", "small"))
+
+
+# ---------------------------------------------------------------- claims encoded against the thesis's own numbers
+def thesis_as_ours(item: str, s: dict) -> pd.DataFrame:
+    t = F.thesis_cells(F.THESIS_TABLES.get(item))
+    return t[t.method.isin(s["algos"]) & t.env.isin(F.item_envs(s))]
+
+
+@pytest.mark.parametrize("item", ["table-3.4", "table-3.5", "table-3.6", "table-3.7"])
+def test_table_claims_hold_on_the_thesis_numbers(item):
+    s = F.settings(item, "full")
+    verdicts = F.table_verdicts(item, F.compare(item, thesis_as_ours(item, s), s), s)
+    assert len(verdicts) >= 3 and all(v.status == report.REPRODUCES for v in verdicts), verdicts
+    assert verdicts[-1].evidence.startswith("best learner the same in 20/20 rows")
+
+
+def test_figure_claims_hold_on_the_thesis_numbers():
+    for item in ("3.5", "3.6"):
+        s = F.settings(item, "full")
+        assert all(v.status == report.REPRODUCES for v in C.bar_verdicts(item, C.bars(item, F.thesis_cells(), s), s))
+    for item in ("3.4", "3.7", "3.8"):
+        s = F.settings(item, "full")
+        comp = F.compare(item, thesis_as_ours(item, s), s)
+        for claim in C.CURVE_CLAIMS[item]:
+            assert F.judge(item, claim, F.wide(comp.ours), F.wide(comp.thesis), s).status == report.REPRODUCES
+    s = F.settings("table-3.3", "full")
+    assert [v.status for v in F.table33_verdicts(F.thesis33(), s)] == [report.REPRODUCES] * 4
+
+
+def test_a_contradicting_result_does_not_reproduce():
+    s = F.settings("table-3.6", "full")
+    ours = thesis_as_ours("table-3.6", s)
+    ours.loc[ours.method == "ppo-ent", "mean"] *= 0.1  # entropy regularisation now hurts everywhere
+    v = {x.claim: x for x in F.table_verdicts("table-3.6", F.compare("table-3.6", ours, s), s)}
+    assert v["(ii) Entropy-regularised PPO usually surpasses vanilla PPO"].status == report.DOES_NOT
+    assert v["(ii) Entropy-regularised PPO usually surpasses vanilla PPO"].evidence.startswith("reproduced: 0/20")
+
+
+def test_unaffordable_learners_keep_the_thesis_numbers_and_their_claims_are_not_run():
+    s = F.settings("table-3.4", "small")
+    assert F.skipped(s) == ["ddpg", "sac"]
+    ours = thesis_as_ours("table-3.4", s)
+    ours = ours[ours.method.isin(F.learners(s))]
+    comp = F.compare("table-3.4", ours, s)
+    text, mask = comp.text()
+    assert (text[("sac", "reproduced")] == report.NOT_RUN).all()
+    assert text.loc[("Walker2d", "obs"), ("sac", "thesis")] == "1565.4 ± 544.9"
+    assert bool(mask.loc[("Walker2d", "obs"), ("sac", "thesis")])  # the thesis's bold survives
+    assert "font-weight: bold" in comp.style("t").to_html()
+    sac = [v for v in F.table_verdicts("table-3.4", comp, s) if "SAC" in v.claim][0]
+    assert sac.status == report.NOT_RUN and "thesis: 4/4" in sac.evidence
+    assert "Not run at this scale (thesis numbers shown): ddpg, sac" in F.describe(s)
+
+
+def test_smoke_is_never_judged():
+    s = F.settings("table-3.6", "smoke")
+    comp = F.compare("table-3.6", thesis_as_ours("table-3.6", s), s)
+    assert {v.status for v in F.table_verdicts("table-3.6", comp, s)} == {report.NOT_JUDGED}
+
+
+# ---------------------------------------------------------------- running: tidy frames from (fake) job results
+def fake_run_jobs(jobs, **_):
+    out = []
+    for job in jobs:
+        cfg = job.config
+        if job.kind == "train":
+            base = 100.0 * (cfg["seed"] + 1) + len(cfg["algorithm"])
+            out.append({"episode_returns": np.arange(5.0) + base, "train_return_episodes": 3})
+        else:
+            tr, test = cfg["train"], cfg["test"]
+            n_points = len(test.get("sigmas", test.get("ratios")))
+            base = 1000.0 + 10 * len(tr["algorithm"]) + 100 * tr["seed"]
+            r = base - 50.0 * np.arange(n_points)[:, None] + np.arange(test["n_rollouts"])[None, :]
+            out.append({"returns": r})
+    return out
+
+
+def test_run_assembles_per_rollout_aucs_cells_and_training_episodes(monkeypatch):
+    monkeypatch.setattr(F, "run_jobs", fake_run_jobs)
+    s = F.settings("table-3.5", "smoke", train_seeds=2, sigmas=[0.0, 0.2, 0.4], test_rollouts=3)
+    res = F.run(s)
+    n_envs, n_algos = len(s["envs"]), len(s["algos"])
+    assert len(res.aucs) == n_envs * n_algos * 2 * 4 * 3  # envs × learners × seeds × tests × rollouts
+    a = res.aucs.query("method == 'ppo' and seed == 1 and test == 'obs' and rollout == 2").value.unique()
+    base = 1000.0 + 30 + 100  # len("ppo") = 3, seed 1
+    assert a == pytest.approx([0.2 * ((base + 2) + (base - 50 + 2) + (base - 100 + 2))])
+    cells = F.our_cells(res).set_index(["env", "test", "method"])
+    ppo = res.aucs.query("method == 'ppo' and test == 'act' and env == 'Hopper'").value
+    assert cells.loc[("Hopper", "act", "ppo"), "mean"] == pytest.approx(ppo.mean())
+    assert cells.loc[("Hopper", "act", "ppo"), "std"] == pytest.approx(ppo.std(ddof=1))
+    assert cells.loc[("Hopper", "act", "ppo"), "n"] == 6  # 2 seeds × 3 rollouts
+    ep = res.episodes.query("method == 'ppo' and seed == 0 and env == 'Hopper'").value.tolist()
+    assert ep == [105.0, 106.0, 107.0]  # the last train_return_episodes episodes
+
+
+def test_table33_cells_and_its_sigma_grid(monkeypatch):
+    monkeypatch.setattr(F, "run_jobs", fake_run_jobs)
+    s = F.settings("table-3.3", "smoke", train_seeds=2)
+    a, b = F.table33(F.run(s), s)
+    assert a.noise_type.tolist() == ["none", "obs", "act", "env", "mdl"]
+    assert a.train_sigma.tolist() == [0.0, 0.2, 0.2, 0.2, 0.2]
+    row = b[(b.noise_type == "act") & np.isclose(b.sigma_te, 0.2) & (b.train_sigma == 0.2)].iloc[0]
+    # ppo-actnoise (12 chars): returns 1120 + 100 seed - 50 (σ index 1) + rollout, seeds {0, 1} × rollouts {0, 1}
+    assert row["mean"] == pytest.approx(1120 + 50 - 50 + 0.5) and row["n"] == 4
+    texts = F.table33_text((a, b))
+    assert texts[1].loc[("obs", 0.0), (0.0, "thesis")] == "3723.9 ± 321.3"
+    s_bad = F.settings("table-3.3", "smoke", sigmas=[0.0, 0.5])
+    with pytest.raises(ValueError, match="lacks"):
+        F.table33(F.run(s_bad), s_bad)
+
+
+# ---------------------------------------------------------------- figure statistics
+def test_bars_derived_from_the_thesis_tables_by_hand():
+    s = F.settings("3.5", "full")
+    b = C.bars("3.5", F.thesis_cells(), s)
+    th = reference.load("table3_5").pivot_table(index=["env", "test"], columns="method", values="mean")
+    obs = th.xs("obs", level="test")
+    expect = ((obs["ppo-mdl"] - obs["ppo"]) / obs["ppo"]).mean()
+    got = b.query("source == 'thesis' and method == 'ppo-mdl' and test == 'obs'").change.item()
+    assert got == pytest.approx(expect)
+    b6 = C.bars("3.6", F.thesis_cells(), F.settings("3.6", "full"))
+    assert set(b6.query("panel == 'b'").method) == {"ppo-epopt", "ppo-maml-dg", "ppo-reptile-dg"}
+    assert set(b6.query("panel == 'b'").baseline) == {"ppo-mdl"}
+
+
+def test_heat_grid_and_summary():
+    s = F.settings("3.4", "small")
+    cells = C.heat_cells(s)
+    assert len(cells) == len(s["heat_shifts"]) ** 2
+    assert {"body_mass": 1.0, "wind": 0.0} in cells
+    assert {"body_mass": pytest.approx(0.6), "wind": pytest.approx(0.4 * 9.81)} in cells
+    d = np.array(s["heat_shifts"])
+    rows = [
+        {"method": m, "row_shift": a, "col_shift": c, "return": k * (100 - 50 * abs(a) - 10 * abs(c))}
+        for m, k in (("ppo", 1.0), ("trpo", 2.0))
+        for a in d
+        for c in d
+    ]
+    summary = C.heat_summary(pd.DataFrame(rows)).set_index("method")
+    assert summary.loc["ppo", "drop_row"] == pytest.approx(20.0) and summary.loc["ppo", "drop_col"] == pytest.approx(
+        4.0
+    )
+    assert summary.loc["trpo", "centre"] == 200.0
+    verdicts = C.heat_verdicts(pd.DataFrame(rows), s)
+    assert [v.status for v in verdicts] == [report.REPRODUCES, report.REPRODUCES]
+
+
+def test_degrade_and_observation_sensitivity_counts():
+    curves = pd.DataFrame(
+        {
+            "env": "H",
+            "method": "ppo",
+            "test": ["obs"] * 2 + ["act"] * 2,
+            "sigma": [0.0, 0.4] * 2,
+            "mean": [10.0, 5.0, 10.0, 12.0],
+        }
+    )
+    assert C.degrade(curves) == (1, 2)
+    w = pd.DataFrame(
+        {"ppo": [1.0, 2.0, 3.0, 9.0], "sac": [5.0, 2.0, 3.0, 9.0]},
+        index=pd.MultiIndex.from_product([["H"], ["obs", "act", "env", "dom"]], names=["env", "test"]),
+    )
+    assert C.obs_most_sensitive(w) == (1, 2)
+    assert C.env_winners(w) == (1, 1)

@@ -189,7 +189,7 @@ def budget_note(settings: Mapping[str, Any], n_algos: int | None = None, extra: 
 
 
 # Chapter modules register their items on import (add a new module's import here).
-from thesis_repro.figures import ch3, ch4, ch5  # noqa: E402
+from thesis_repro.figures import ch3, ch3_curves, ch3_tables, ch4, ch5  # noqa: E402
 
 __all__ = [
     "FIGURES",
@@ -197,6 +197,8 @@ __all__ = [
     "Figure",
     "budget_note",
     "ch3",
+    "ch3_curves",
+    "ch3_tables",
     "ch4",
     "ch5",
     "get",

@@ -1,0 +1,45 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+# ---
+
+# %% [markdown]
+# # Figure 3.8 — Generalisation of the selected learners on all five tasks
+#
+# **Thesis claims** (§3.3.4): "To summarise these most promising results, Figure 3.8 shows the generalisation
+# curves for PPO-Ent, PPO-MDL and PPO-MAML-DG, where improvement over the PPO baseline is usually clear."
+#
+# > *Thesis caption:* Generalisation of selected learning algorithms across all five benchmark environments with
+# > varying testing noise σ^(o,u,s) and environment variation Σ scale.
+#
+# Curves: testing return vs σ (mean ± sd over training seeds × testing rollouts), one row per task, one
+# column per test type; the same evaluation jobs as the tables. The thesis gives curves only, so its AUCs
+# (Tables 3.4-3.7) are shown beside ours in the table below.
+# Logic: `thesis_repro.figures.ch3_curves` (on the runs and cells of `ch3_tables`).
+
+# %% tags=["parameters"]
+SCALE = "small"
+
+# %%
+from thesis_repro import figures, report
+from thesis_repro.figures import ch3_curves, ch3_tables, plot
+
+settings = ch3_tables.settings("3.8", SCALE)
+print(figures.runs_summary("3.8", SCALE))
+print(ch3_tables.describe(settings))
+res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
+fig = ch3_curves.plot_curves(res, settings, "Fig 3.8")
+plot.save(fig, SCALE, "fig-3.8")
+
+# %%
+comp = ch3_tables.compare("3.8", ch3_tables.our_cells(res), settings)
+comp.style("Testing AUC of the curves: thesis (Tables 3.4-3.7) beside reproduced")
+
+# %% [markdown]
+# ## Does the claim reproduce at this scale?
+
+# %%
+_ = report.report("fig-3.8", SCALE, ch3_curves.curve_verdicts("3.8", res, comp, settings))

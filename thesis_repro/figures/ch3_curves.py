@@ -1,0 +1,449 @@
+"""Chapter 3, Figures 3.4-3.8: testing-return curves (3.4 top, 3.7, 3.8), heat maps over domain shifts (3.4
+bottom) and normalised-AUC bars (3.5, 3.6), thesis beside reproduced, with one verdict per claim (§3.3).
+
+The runs, evaluation jobs, cells and the claim machinery are those of :mod:`thesis_repro.figures.ch3_tables`
+(every chapter-3 item shares them); this module adds the heat-map jobs, the figure-specific claims and plots.
+
+>>> shift_value("Walker2d", "body_mass", -0.2), round(shift_value("Walker2d", "wind", 0.2), 3)
+(0.8, 1.962)
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import seaborn as sns
+
+from thesis_repro import report
+from thesis_repro.cache import Job, run_jobs
+from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE
+from thesis_repro.envs.registry import short_name
+from thesis_repro.evaluation import tables
+from thesis_repro.evaluation.jobs import check_test
+from thesis_repro.figures import budget_note, register
+from thesis_repro.figures.ch3_tables import (
+    Claim,
+    Comparison,
+    Results,
+    Stat,
+    all_better,
+    benchmarks,
+    best_in,
+    every,
+    grid,
+    identity,
+    item_envs,
+    judge,
+    learners,
+    majority,
+    noisy_learners,
+    skipped,
+    thesis_cells,
+    two_or_more,
+    wide,
+)
+from thesis_repro.validation import check_choice
+
+
+# ---------------------------------------------------------------- job grids (shared with the tables)
+def shift_value(env: str, factor: str, shift: float) -> float:
+    """Value of ``factor`` at a systematic shift of ``shift`` σ-units: ratio ``max(1 + d, MIN_RATIO)``, or for
+    the wind ``d · WIND_SCALE`` m/s² (the units of §3.2.2's sampling, see :mod:`thesis_repro.envs.factors`).
+
+    >>> shift_value("Walker2d", "body_mass", -0.2), round(shift_value("Walker2d", "wind", 0.2), 3)
+    (0.8, 1.962)
+    """
+    task = short_name(env)
+    f = FACTORS[task][check_choice(factor, list(FACTORS[task]), f"factor of {task}")]
+    return max(1.0 + float(shift), MIN_RATIO) if f.relative else float(shift) * WIND_SCALE
+
+
+def heat_cells(settings: Mapping[str, Any]) -> list[dict[str, float]]:
+    """The heat-map grid of Fig 3.4 (bottom): every (row shift, column shift) of the two ``heat_factors``."""
+    f_row, f_col = settings["heat_factors"]
+    env = settings["env"]
+    shifts = [float(d) for d in settings["heat_shifts"]]
+    return [
+        {f_row: shift_value(env, f_row, a), f_col: shift_value(env, f_col, b)}
+        for a, b in itertools.product(shifts, shifts)
+    ]
+
+
+def heat_jobs(settings: Mapping[str, Any]) -> list[Job]:
+    """One evaluation job per training run of Fig 3.4 over the whole heat-map grid (no noise)."""
+    test = check_test(
+        {
+            "perturbation": "none",
+            "ratios": heat_cells(settings),
+            "n_rollouts": int(settings["test_rollouts"]),
+            "max_episode_steps": int(settings["max_episode_steps"]),
+        }
+    )
+    return [Job("evaluate", {"train": j.config, "test": test}) for b in benchmarks(settings) for j in b.train_jobs]
+
+
+def curve_grid(settings: Mapping[str, Any]) -> list[Job]:
+    """Figs 3.5-3.8: the chapter-3 grid of their learners (:func:`thesis_repro.figures.ch3_tables.grid`)."""
+    return grid(settings)
+
+
+def fig34_grid(settings: Mapping[str, Any]) -> list[Job]:
+    """Fig 3.4: :func:`grid` plus the heat-map evaluations."""
+    return grid(settings) + heat_jobs(settings)
+
+
+for _id, _title in [
+    ("3.5", "Change in normalised testing AUC when training with noise vs PPO"),
+    ("3.6", "Change in normalised testing AUC: single-domain variants vs PPO, multi-domain vs PPO-MDL"),
+    ("3.7", "Generalisation curves of the four basic learners on all five tasks"),
+    ("3.8", "Generalisation curves of the selected learners on all five tasks"),
+]:
+    register(_id, _title)(curve_grid)
+register("3.4", "Walker2d: return vs testing noise and heat maps over domain shifts (basic learners)")(fig34_grid)
+
+
+def run_heat(settings: Mapping[str, Any], n_jobs: int | None = None) -> pd.DataFrame:
+    """Fig 3.4 heat maps: ``env, method, seed, rollout, <row factor>, <col factor>, row_shift, col_shift, return``."""
+    jobs = heat_jobs(settings)
+    done = run_jobs(jobs, n_jobs=n_jobs, desc="evaluate shifts")
+    f_row, f_col = settings["heat_factors"]
+    shifts = [float(d) for d in settings["heat_shifts"]]
+    pairs = list(itertools.product(shifts, shifts))
+    parts = []
+    for job, res in zip(jobs, done, strict=True):
+        r = np.asarray(res["returns"], dtype=float)  # (cells, rollouts)
+        ci, ri = np.indices(r.shape).reshape(2, -1)
+        cells = job.config["test"]["ratios"]
+        parts.append(
+            pd.DataFrame(
+                {
+                    **identity(job.config["train"]),
+                    "rollout": ri,
+                    f_row: [cells[c][f_row] for c in ci],
+                    f_col: [cells[c][f_col] for c in ci],
+                    "row_shift": [pairs[c][0] for c in ci],
+                    "col_shift": [pairs[c][1] for c in ci],
+                    "return": r.reshape(-1),
+                }
+            )
+        )
+    return pd.concat(parts, ignore_index=True)
+
+
+# ---------------------------------------------------------------- Figs 3.4, 3.7, 3.8: curves and heat maps
+def curve_cells(res: Results) -> pd.DataFrame:
+    """Mean ± std testing return per ``env, method, test, sigma`` over seeds × rollouts."""
+    return tables.cells(res.returns, value="return", by=("env", "method", "test", "sigma"))
+
+
+def degrade(curves: pd.DataFrame) -> tuple[int, int]:
+    """Curves (task × learner × test) whose return at the largest σ is below that at σ = 0."""
+    k = n = 0
+    for _, c in curves.groupby(["env", "method", "test"], sort=False):
+        c = c.sort_values("sigma")
+        if len(c) > 1:
+            k, n = k + int(c["mean"].iloc[-1] < c["mean"].iloc[0]), n + 1
+    return k, n
+
+
+def obs_most_sensitive(w: pd.DataFrame) -> tuple[int, int]:
+    """Learners (per task) whose observation-noise AUC is below both their action- and env-noise AUCs."""
+    k = n = 0
+    for env in dict.fromkeys(w.index.get_level_values("env")):
+        sub = w.xs(env, level="env")
+        if not {"obs", "act", "env"} <= set(sub.index):
+            continue
+        for m in sub.columns:
+            v = sub.loc[["obs", "act", "env"], m]
+            if v.notna().all():
+                k, n = k + int(v["obs"] < min(v["act"], v["env"])), n + 1
+    return k, n
+
+
+def env_winners(w: pd.DataFrame) -> tuple[int, int]:
+    """(different best learners over tasks, tasks); a task's best has the highest mean AUC over its tests."""
+    per_env = w.groupby(level="env", sort=False).mean().dropna(how="all")
+    return (int(per_env.idxmax(axis=1).nunique()), int(len(per_env))) if len(per_env) else (0, 0)
+
+
+CURVE_CLAIMS: dict[str, list[Claim]] = {
+    "3.4": [
+        Claim(
+            "Policies are relatively sensitive to observation noise compared to the other noise types (Fig 3.4a-c)",
+            (),
+            obs_most_sensitive,
+            "learners with their obs-noise AUC below their act- and env-noise AUCs",
+        ),
+        Claim(
+            "SAC is usually the most robust algorithm in this environment (§3.3.2)",
+            ("sac",),
+            best_in(["sac"]),
+            "rows (tests) with SAC best",
+        ),
+    ],
+    "3.7": [
+        Claim(
+            "There is no consistent winner in algorithm robustness across environments (§3.3.2)",
+            (),
+            env_winners,
+            "{k} different best basic learners over {n} tasks (mean AUC over the tests)",
+            two_or_more,
+        )
+    ],
+    "3.8": [
+        Claim(
+            "For PPO-Ent, PPO-MDL and PPO-MAML-DG the improvement over the PPO baseline is usually clear (§3.3.4)",
+            ("ppo", "ppo-ent", "ppo-mdl", "ppo-maml-dg"),
+            all_better([("ppo-ent", "ppo"), ("ppo-mdl", "ppo"), ("ppo-maml-dg", "ppo")]),
+            "rows (each selected learner vs PPO) above PPO",
+        )
+    ],
+}
+
+
+def degrade_verdict(item: str, res: Results, settings: Mapping[str, Any]) -> report.Verdict:
+    """Testing return falls as testing noise / shift grows (Figs 3.4a-d, 3.7, 3.8; the thesis gives curves)."""
+    k, n = degrade(curve_cells(res))
+    holds, partly = majority(k, n) if n else (None, False)
+    ev = (
+        f"reproduced: {k}/{n} curves (task × learner × test) end below their σ = 0 value; thesis: curves only "
+        f"(§3.3.2: 'performance degradation ... as increasing observation, action, and environmental noise are "
+        f"added'); {budget_note(settings, n_algos=len(learners(settings)))}"
+    )
+    claim = "Testing return degrades as testing noise and domain shift grow"
+    return report.Verdict(item, claim, report.status(holds, settings["scale"], partly), ev)
+
+
+def heat_summary(heat: pd.DataFrame) -> pd.DataFrame:
+    """Per learner: mean return at the training domain (centre) and drops along each factor's axis.
+
+    ``drop_row`` / ``drop_col``: centre minus the mean return at the largest shifts (both signs) of the row /
+    column factor with the other at 0; ``drop_ring``: centre minus the mean over the outermost ring.
+    """
+    rows = []
+    for method, h in heat.groupby("method", sort=False):
+        m = h.groupby(["row_shift", "col_shift"])["return"].mean()
+        d = max(abs(h["row_shift"]).max(), abs(h["col_shift"]).max())
+        centre = m.get((0.0, 0.0), np.nan)
+        axis_row = m[[(x, 0.0) for x in (-d, d) if (x, 0.0) in m.index]].mean()
+        axis_col = m[[(0.0, y) for y in (-d, d) if (0.0, y) in m.index]].mean()
+        ring = m[[i for i in m.index if max(abs(i[0]), abs(i[1])) == d]].mean()
+        rows.append(
+            {
+                "method": method,
+                "centre": centre,
+                "drop_row": centre - axis_row,
+                "drop_col": centre - axis_col,
+                "drop_ring": centre - ring,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def heat_verdicts(heat: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Fig 3.4(e-h): return degrades away from the training domain, and more along mass than along wind."""
+    f_row, f_col = settings["heat_factors"]
+    s = heat_summary(heat)
+    note = budget_note(settings, n_algos=len(learners(settings)))
+    k1, n1 = int((s["drop_ring"] > 0).sum()), len(s)
+    k2, n2 = int((s["drop_row"] > s["drop_col"]).sum()), len(s)
+    detail = "; ".join(
+        f"{r.method}: centre {r.centre:.0f}, drop {f_row} {r.drop_row:.0f}, drop {f_col} {r.drop_col:.0f}"
+        for r in s.itertuples()
+    )
+    out = []
+    for claim, k, n in (
+        ("Expected return degrades as the environment parameters are shifted from training (Fig 3.4e-h)", k1, n1),
+        (
+            f"Greater sensitivity to {f_row} than to {f_col} at equal shifts (Fig 3.4e-h: 'greater mass-sensitivity "
+            "than wind')",
+            k2,
+            n2,
+        ),
+    ):
+        holds, partly = majority(k, n) if n else (None, False)
+        ev = f"reproduced: {k}/{n} learners ({detail}); thesis: heat maps only; {note}"
+        out.append(report.Verdict("3.4", claim, report.status(holds, settings["scale"], partly), ev))
+    return out
+
+
+def curve_verdicts(item: str, res: Results, comp: Comparison, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Claims of Figs 3.4 (top), 3.7 and 3.8: degradation, plus the item's AUC claims (thesis: Tables 3.4-3.7)."""
+    note = budget_note(settings, n_algos=len(learners(settings)))
+    ours_w, thesis_w = wide(comp.ours), wide(comp.thesis)
+    return [degrade_verdict(item, res, settings)] + [
+        judge(item, c, ours_w, thesis_w, settings, note) for c in CURVE_CLAIMS.get(item, [])
+    ]
+
+
+# ---------------------------------------------------------------- Figs 3.5, 3.6: normalised AUC change
+#: Panels of the bar figures: (panel, baseline, thesis table whose columns are compared with the baseline).
+BAR_PANELS: dict[str, list[tuple[str, str, str]]] = {
+    "3.5": [("", "ppo", "table3_5")],
+    "3.6": [("a", "ppo", "table3_6"), ("b", "ppo-mdl", "table3_7")],
+}
+
+
+def bars(item: str, ours: pd.DataFrame, settings: Mapping[str, Any]) -> pd.DataFrame:
+    """Bars of Fig 3.5/3.6: change in normalised AUC vs the panel's baseline, mean over the tasks run, for the
+    thesis (from its tables) and reproduced: ``panel, baseline, test, method, change, n_envs, source``."""
+    how = check_choice(settings["normalisation"], tables.NORMALISATIONS, "normalisation")
+    envs = item_envs(settings)
+    parts = []
+    for panel, base, name in BAR_PANELS[item]:
+        thesis = thesis_cells(name)
+        methods = [m for m in dict.fromkeys(thesis["method"]) if m != "ppo" or base == "ppo"]
+        for source, cells in (("thesis", thesis[thesis["env"].isin(envs)]), ("reproduced", ours)):
+            sub = cells[cells["method"].isin(methods)]
+            if base not in set(sub["method"]):
+                continue
+            b = tables.mean_change(tables.auc_change(sub, base, how))
+            parts.append(b.assign(panel=panel, baseline=base, source=source))
+    cols = ["panel", "baseline", "test", "method", "change", "n_envs", "source"]
+    return pd.concat(parts, ignore_index=True)[cols] if parts else pd.DataFrame(columns=cols)
+
+
+def _bar_wide(b: pd.DataFrame, source: str) -> pd.DataFrame:
+    sub = b[b["source"] == source]
+    return sub.pivot_table(index="test", columns="method", values="change", sort=False)
+
+
+def positive_bars(methods: Sequence[str], tests: Sequence[str] | None = None, below: bool = False) -> Stat:
+    """Bars (rows: tests; columns: methods) above zero (``below``: at or below zero)."""
+
+    def stat(w: pd.DataFrame) -> tuple[int, int]:
+        cols = [m for m in methods if m in w]
+        sub = w[cols] if tests is None else w.loc[[t for t in tests if t in w.index], cols]
+        v = sub.to_numpy(dtype=float).ravel()
+        v = v[np.isfinite(v)]
+        return int(((v <= 0) if below else (v > 0)).sum()), int(v.size)
+
+    return stat
+
+
+BAR_CLAIMS: dict[str, list[Claim]] = {
+    "3.5": [
+        Claim(
+            "Training with noisy or multiple environments improves generalisation over vanilla PPO (positive bars)",
+            ("ppo", *noisy_learners().values()),
+            positive_bars(list(noisy_learners().values())),
+            "bars (learner × test) above 0",
+        ),
+        Claim(
+            "MDL training also improves robustness to observation, action and environment noise (§3.3.3)",
+            ("ppo", "ppo-mdl"),
+            positive_bars(["ppo-mdl"], ["obs", "act", "env"]),
+            "PPO-MDL bars (obs, act, env) above 0",
+            every,
+        ),
+    ],
+    "3.6": [
+        Claim(
+            "(a) Smaller nets (PPO-16, SCN-16) and entropy regularisation (PPO-Ent) improve on vanilla PPO",
+            ("ppo", "ppo-16", "ppo-scn-16", "ppo-ent"),
+            positive_bars(["ppo-16", "ppo-scn-16", "ppo-ent"]),
+            "bars above 0",
+        ),
+        Claim(
+            "(b) MAML-DG and Reptile-DG improve generalisation over PPO-MDL",
+            ("ppo-mdl", "ppo-maml-dg", "ppo-reptile-dg"),
+            positive_bars(["ppo-maml-dg", "ppo-reptile-dg"]),
+            "bars above 0",
+        ),
+        Claim(
+            "(b) EPOpt does not generalise better than PPO-MDL",
+            ("ppo-mdl", "ppo-epopt"),
+            positive_bars(["ppo-epopt"], below=True),
+            "EPOpt bars at or below 0",
+        ),
+    ],
+}
+
+
+def bar_verdicts(item: str, b: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
+    """Claims of Figs 3.5, 3.6 on the bars (thesis bars derived from its tables with the same normalisation)."""
+    note = budget_note(settings, n_algos=len(learners(settings)))
+    note += f" Normalisation: {settings['normalisation']} (thesis_repro.evaluation.tables.auc_change)."
+    ours_w, thesis_w = _bar_wide(b, "reproduced"), _bar_wide(b, "thesis")
+    return [judge(item, c, ours_w, thesis_w, settings, note) for c in BAR_CLAIMS[item]]
+
+
+# ---------------------------------------------------------------- plots
+def plot_curves(res: Results, settings: Mapping[str, Any], title: str) -> plt.Figure:
+    """Testing return vs σ (mean ± sd over seeds × rollouts): rows tasks, columns tests, lines learners."""
+    envs, tests = item_envs(settings), list(settings["tests"])
+    fig, axes = plt.subplots(len(envs), len(tests), figsize=(3.3 * len(tests), 2.6 * len(envs) + 0.6), squeeze=False)
+    order = learners(settings)
+    for i, env in enumerate(envs):
+        for j, test in enumerate(tests):
+            ax = axes[i, j]
+            d = res.returns[(res.returns["env"] == env) & (res.returns["test"] == test)]
+            sns.lineplot(
+                d,
+                x="sigma",
+                y="return",
+                hue="method",
+                hue_order=order,
+                errorbar="sd",
+                marker="o",
+                ax=ax,
+                legend=(i == 0 and j == 0),
+            )
+            ax.set_title(f"{env} — {test}", fontsize=9)
+            ax.set(xlabel="σ (Σ for dom)" if i == len(envs) - 1 else "", ylabel="testing return" if j == 0 else "")
+    miss = skipped(settings)
+    note = f" (not run at this scale: {', '.join(miss)})" if miss else ""
+    fig.suptitle(f"{title} — reproduced, scale={settings['scale']}{note}", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def plot_heat(heat: pd.DataFrame, settings: Mapping[str, Any]) -> plt.Figure:
+    """Fig 3.4 (bottom): mean return over the shift grid per learner, training domain at (0, 0)."""
+    f_row, f_col = settings["heat_factors"]
+    order = [m for m in learners(settings) if m in set(heat["method"])]
+    fig, axes = plt.subplots(1, len(order), figsize=(3.4 * len(order), 3.0), squeeze=False)
+    vmin, vmax = heat.groupby(["method", "row_shift", "col_shift"])["return"].mean().agg(["min", "max"])
+    for ax, m in zip(axes[0], order, strict=True):
+        mat = heat[heat["method"] == m].groupby(["row_shift", "col_shift"])["return"].mean().unstack("col_shift")
+        sns.heatmap(
+            mat.sort_index(ascending=False),
+            ax=ax,
+            cmap="viridis",
+            vmin=vmin,
+            vmax=vmax,
+            annot=True,
+            fmt=".0f",
+            annot_kws={"fontsize": 6},
+            cbar=ax is axes[0, -1],
+        )
+        ax.set(title=f"{m} (reproduced)", xlabel=f"{f_col} shift (σ units)", ylabel=f"{f_row} shift (σ units)")
+    fig.suptitle(f"Fig 3.4 (bottom) — {settings['env']}, scale={settings['scale']}", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def plot_bars(b: pd.DataFrame, title: str) -> plt.Figure:
+    """Bars of Figs 3.5/3.6: one column per panel × test, thesis beside reproduced per learner."""
+    keys = list(b[["panel", "test"]].drop_duplicates().itertuples(index=False, name=None))
+    fig, axes = plt.subplots(1, len(keys), figsize=(2.9 * len(keys), 3.4), squeeze=False, sharey=True)
+    for ax, (panel, test) in zip(axes[0], keys, strict=True):
+        d = b[(b["panel"] == panel) & (b["test"] == test)]
+        sns.barplot(
+            d, x="method", y="change", hue="source", hue_order=["thesis", "reproduced"], ax=ax, legend=ax is axes[0, -1]
+        )
+        if ax is axes[0, -1]:
+            ax.legend(fontsize=7)
+        ax.axhline(0, color="k", lw=0.8)
+        base = d["baseline"].iloc[0] if len(d) else ""
+        ax.set_title(f"({panel}) {test} vs {base}" if panel else f"{test} vs {base}", fontsize=9)
+        ax.set(xlabel="", ylabel="change in normalised AUC")
+        ax.tick_params(axis="x", rotation=60, labelsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
