@@ -28,7 +28,7 @@ the shared observation filter. Per iteration:
   on π with the mean of these gradients (:func:`fomaml_meta_step`). Second-order terms are dropped.
 
 The sequential learners step one domain's env at a time through a one-env view of the same env (its own
-``VecMonitor``, a ``VecNormalize`` sharing the filter's statistics) with SB3's own ``collect_rollouts``.
+``VecMonitor``, a ``VecNormalize`` sharing the filter's statistics) with the base class's ``collect_rollouts``.
 The main policy is what is saved and evaluated, without adaptation.
 
 >>> import gymnasium as gym
@@ -50,7 +50,6 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import FloatSchedule
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
@@ -280,12 +279,12 @@ class MultiDomainPPO(FastPPO):
         return self._domain_envs[i]
 
     def _collect_domain(self, i: int, policy: ActorCriticPolicy, callback: BaseCallback) -> bool:
-        """Fill domain ``i``'s buffer with ``n_steps`` steps of ``policy`` (SB3's ``collect_rollouts``)."""
+        """Fill domain ``i``'s buffer with ``n_steps`` steps of ``policy`` (the base ``collect_rollouts``)."""
         env = self._domain_env(i)
         saved = self.policy, self._last_obs, self._last_episode_starts
         self.policy, self._last_obs, self._last_episode_starts = policy, self._domain_obs[i], self._domain_starts[i]
         try:
-            ok = OnPolicyAlgorithm.collect_rollouts(self, env, callback, self._domain_buffers[i], self.n_steps)
+            ok = FastPPO.collect_rollouts(self, env, callback, self._domain_buffers[i], self.n_steps)
             self._domain_obs[i], self._domain_starts[i] = self._last_obs, self._last_episode_starts  # type: ignore
         finally:
             self.policy, self._last_obs, self._last_episode_starts = saved
