@@ -30,6 +30,7 @@ import matplotlib.pyplot as plt
 
 from thesis_repro import figures, report
 from thesis_repro.figures import ch3, plot
+from thesis_repro.learners import iteration_steps
 
 settings = figures.settings("3.2", SCALE)
 print(figures.runs_summary("3.2", SCALE))
@@ -38,7 +39,7 @@ curve.round(1)
 
 # %%
 mean = curve.groupby("iteration")[["train_return", "test_auc"]].mean().reset_index()
-steps = ch3.iteration_steps(ch3.overfitting_configs(settings)[0])
+steps = iteration_steps(ch3.overfitting_configs(settings)[0])
 fig, ax = plt.subplots(figsize=(6.5, 4))
 ax2 = ax.twinx()
 ax.plot(mean.iteration, mean.test_auc, "C0-o", ms=3, label="testing AUC (obs noise), reproduced")

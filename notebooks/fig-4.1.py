@@ -40,7 +40,7 @@ fig, axes = plot.lines_by_panel(
     conds,
     "iteration",
     [("return", "episode return (reproduced)"), ("length", "episode length (reproduced)")],
-    settings["algos"],
+    ch4.algo_names(settings),
     title=lambda cond, i: f"({cond['panel']}) {ch4.label(cond)}" if i == 0 else "",
     errorbar="sd",
 )

@@ -37,7 +37,7 @@ best = ch4.best_seeds(runs)
 best[["seed", "final_return"]]
 
 # %%
-algos = settings["algos"]
+algos = ch4.algo_names(settings)
 fig, axes = plt.subplots(len(algos), 5, figsize=(15, 2.6 * len(algos)), squeeze=False)
 for i, algo in enumerate(algos):
     frames, idx = ch4.render_cycle(

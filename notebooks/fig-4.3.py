@@ -40,7 +40,7 @@ fig, axes = plot.lines_by_panel(
     conds,
     "value",
     [("return", "testing return (reproduced)")],
-    settings["algos"],
+    ch4.algo_names(settings),
     title=lambda cond, i: f"({cond['panel']}) {ch4.label(cond)}",
     shade_wind=True,
     marker="o",

@@ -38,7 +38,7 @@ grid = ch4.mass_friction_grid(settings)
 heat = ch4.evaluate_runs(runs, "shift", grid, settings["test_rollouts"], n_jobs=settings["n_jobs"])
 
 # %%
-algos = settings["algos"]
+algos = ch4.algo_names(settings)
 fig, axes = plt.subplots(1, 1 + len(algos), figsize=(4 * (1 + len(algos)), 3.6))
 sns.lineplot(data=wind, x="value", y="return", hue="algo", hue_order=algos, marker="o", ax=axes[0])
 axes[0].axvspan(*cond["wind"], color="grey", alpha=0.15)

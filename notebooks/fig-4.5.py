@@ -38,7 +38,7 @@ grid = ch4.mass_friction_grid(settings)
 heat = ch4.evaluate_runs(runs, "shift", grid, settings["test_rollouts"], n_jobs=settings["n_jobs"])
 
 # %%
-algos = settings["algos"]
+algos = ch4.algo_names(settings)
 fig, axes = plt.subplots(len(algos), len(conds), figsize=(3.2 * len(conds), 2.8 * len(algos)), squeeze=False)
 for j, cond in enumerate(conds):
     col = heat[heat["panel"] == cond["panel"]]  # one colour scale per training condition (column)

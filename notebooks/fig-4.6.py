@@ -49,7 +49,7 @@ fig, axes = plot.lines_by_panel(
     conds,
     "value",
     [("obs", "testing return, obs noise (reproduced)"), ("act", "testing return, act noise (reproduced)")],
-    settings["algos"],
+    ch4.algo_names(settings),
     title=lambda cond, i: f"({cond['panel']}) {ch4.label(cond)}" if i == 0 else "",
     marker="o",
 )

@@ -36,7 +36,7 @@ curves = ch4.curves_frame(ch4.train_runs(settings, n_jobs=settings["n_jobs"]))
 # %%
 fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
 sns.lineplot(
-    data=curves, x="iteration", y="entropy", hue="algo", hue_order=settings["algos"], errorbar="sd", ax=axes[0]
+    data=curves, x="iteration", y="entropy", hue="algo", hue_order=ch4.algo_names(settings), errorbar="sd", ax=axes[0]
 )
 axes[0].set(ylabel="policy entropy [nats] (reproduced)", title=ch4.label(cond))
 sns.lineplot(data=curves.dropna(subset=["kl_to_aggregate"]), x="iteration", y="kl_to_aggregate", hue="algo", ax=axes[1])

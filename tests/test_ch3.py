@@ -87,11 +87,10 @@ def test_benchmark_orders_jobs_seed_env_algo():
 
 def test_snapshot_steps_follow_iteration_boundaries():
     cfg = {"class": "PPO", "n_envs": 8, "sb3": {"n_steps": 256}, "timesteps": 10_000, "snapshot_every": 5000}
-    assert ch3.iteration_steps(cfg) == 2048
     assert ch3.snapshot_steps(cfg) == [0, 6144, 10240]  # first iteration start >= 5000 after 0, then the end
     assert ch3.snapshot_steps({**cfg, "snapshot_every": 0}) == []
     with pytest.raises(ValueError, match="on-policy"):
-        ch3.iteration_steps({**cfg, "class": "SAC"})
+        ch3.snapshot_steps({**cfg, "class": "SAC"})
 
 
 def test_pareto_verdict_counts_negative_cells_and_frontiers():

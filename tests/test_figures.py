@@ -102,7 +102,7 @@ def _table() -> pd.DataFrame:
     frame = pd.DataFrame(
         {
             "panel": ["a"] * 3 + ["b"] * 3,
-            "algo": ["kl-avg", "params-avg", "joint"] * 2,
+            "algo": ["kl_avg", "params_avg", "joint"] * 2,
             "return": [95.0, 100.0, 90.0, 120.0, 100.0, 110.0],
         }
     )
@@ -111,7 +111,7 @@ def _table() -> pd.DataFrame:
 
 def test_compare_and_panel_lines():
     table = _table()
-    assert table.loc["b", "best"] == "kl-avg" and not table.loc["a", "kl-avg_best"]
+    assert table.loc["b", "best"] == "kl_avg" and not table.loc["a", "kl_avg_best"]
     lines, holds = ch4.panel_lines(table, easy=("a",), tol=0.1)
     assert holds == [True, True] and len(lines) == 2  # a: within 10 % of the best baseline; b: strictly better
     assert ch4.panel_lines(table, easy=(), tol=0.1)[1] == [False, True]

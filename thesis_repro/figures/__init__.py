@@ -26,7 +26,7 @@ from typing import Any
 
 from thesis_repro import jobs as job_kinds
 from thesis_repro import scales
-from thesis_repro.cache import Job, RunCache
+from thesis_repro.cache import Job
 from thesis_repro.validation import check_choice
 
 #: Job kinds whose runs are *training* runs (shipped as reference runs at ``small``).
@@ -126,26 +126,19 @@ def training_jobs(figure_id: str, scale: str, **overrides: Any) -> list[Job]:
 
 
 def runs_summary(figure_id: str, scale: str) -> str:
-    """One line: where the training runs of ``figure_id`` at ``scale`` come from (shipped / cached / to compute).
+    """One line: where the runs of ``figure_id`` at ``scale`` come from (shipped / cached / to compute).
+
+    Counts its training runs, or every job when the figure trains nothing (chapter 5's arm jobs).
 
     >>> runs_summary("4.1", "smoke")  # doctest: +ELLIPSIS
-    'fig-4.1 (smoke): 6 training runs: ...'
+    'fig-4.1 (smoke): 6 training runs: 0 shipped, ... cached, ... to compute'
     """
-    try:  # at call time: the run listing (thesis_repro.runs) imports this registry
-        from thesis_repro import runs as listing
-    except ImportError:
-        listing = None
-    fig, jobs = get(figure_id), training_jobs(figure_id, scale)
-    head = f"{fig.notebook_id} ({scale}): "
-    if hasattr(listing, "summary"):
-        return head + listing.summary(jobs)
-    states = [RunCache().state(j) for j in jobs]
-    done = {s: states.count(s) for s in ("shipped", "cached")}
-    return (
-        head
-        + f"{len(jobs)} training runs: {done['shipped']} shipped, {done['cached']} cached, "
-        + (f"{len(jobs) - sum(done.values())} to compute")
-    )
+    from thesis_repro import runs  # at call time: thesis_repro.runs imports this registry
+
+    fig = get(figure_id)
+    every = fig.jobs(fig.settings(scale))
+    training = [j for j in every if j.kind in TRAINING_KINDS]
+    return f"{fig.notebook_id} ({scale}): " + runs.summary(training or every)
 
 
 def ids() -> list[str]:

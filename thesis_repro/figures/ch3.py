@@ -22,7 +22,7 @@ from thesis_repro.cache import Job, Result, run_jobs
 from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
 from thesis_repro.evaluation.jobs import check_test
 from thesis_repro.figures import budget_note, register
-from thesis_repro.learners import train_config
+from thesis_repro.learners import iteration_steps, train_config
 from thesis_repro.validation import check_choice
 
 SELECTIONS: tuple[str, ...] = ("best", "mean")
@@ -59,13 +59,6 @@ def timesteps_for(timesteps: int | Mapping[str, int], env: str) -> int:
             return int(timesteps["default"])
         raise ValueError(f"no training budget for env {env!r} in {dict(timesteps)}")
     return int(timesteps)
-
-
-def iteration_steps(cfg: Mapping[str, Any]) -> int:
-    """Env steps of one on-policy iteration (rollout) of a training config: ``n_envs × n_steps``."""
-    if cfg["class"] not in ("PPO", "TRPO"):
-        raise ValueError(f"iterations are defined for the on-policy classes PPO and TRPO, not {cfg['class']!r}")
-    return int(cfg["n_envs"]) * int(cfg["sb3"]["n_steps"])
 
 
 # ---------------------------------------------------------------- Figure 3.2: overfitting during training

@@ -24,13 +24,14 @@ from thesis_repro.cache import Job, run_jobs
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import budget_note, register
-from thesis_repro.learners import iteration_steps as learner_iteration_steps
-from thesis_repro.learners import load_policy, train_config
+from thesis_repro.learners import iteration_steps, load_policy, train_config
 from thesis_repro.validation import check_choice
 
 EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
-#: The thesis's method (the claims of chapter 4 are about it).
-OURS = "kl-avg"
+#: The thesis's spelling of the learners (figures, tables and verdicts show these names; configs use the ids).
+THESIS_NAMES: dict[str, str] = {"kl-avg": "kl_avg", "params-avg": "params_avg", "kl-exact": "kl_exact"}
+#: The thesis's method (the claims of chapter 4 are about it), as figures name it.
+OURS = "kl_avg"
 
 
 # ---------------------------------------------------------------- conditions, configs, runs
@@ -74,20 +75,25 @@ def run_config(settings: Mapping[str, Any], algo: str, cond: Mapping[str, Any], 
     )
 
 
-def iteration_steps(cfg: Mapping[str, Any]) -> int:
-    """Env steps of one multi-domain iteration (all domains): ``n_domains × steps_per_domain``."""
-    return int(cfg["n_domains"]) * int(cfg["steps_per_domain"])
+def algo_names(settings: Mapping[str, Any]) -> list[str]:
+    """The thesis's names of the figure's learners, in the settings' order (hue order of the plots).
+
+    >>> algo_names({"algos": ["kl-avg", "params-avg", "joint"]})
+    ['kl_avg', 'params_avg', 'joint']
+    """
+    return [THESIS_NAMES.get(a, a) for a in settings["algos"]]
 
 
 def runs(settings: Mapping[str, Any]) -> pd.DataFrame:
-    """One row per (condition, algo, seed) of a figure: ``algo, panel, condition, seed, config``."""
+    """One row per (condition, algo, seed) of a figure: ``algo`` (thesis name), ``panel``, ``condition``,
+    ``seed``, ``config``."""
     rows = []
     for cond in conditions(settings["figure"], settings["panels"]):
         for algo in settings["algos"]:
             for seed in range(int(settings["train_seeds"])):
                 rows.append(
                     {
-                        "algo": algo,
+                        "algo": THESIS_NAMES.get(algo, algo),
                         "panel": cond["panel"],
                         "condition": label(cond),
                         "seed": seed,
@@ -118,7 +124,7 @@ def curves_frame(runs: pd.DataFrame) -> pd.DataFrame:
                     "panel": row.panel,
                     "condition": row.condition,
                     "seed": row.seed,
-                    "iteration": np.asarray(r["curve_timesteps"]) // learner_iteration_steps(row.config),
+                    "iteration": np.asarray(r["curve_timesteps"]) // iteration_steps(row.config),
                     "timesteps": r["curve_timesteps"],
                     "return": r["curve_return"],
                     "length": r["curve_length"],
@@ -297,8 +303,8 @@ def panel_lines(
 
 def caveat(settings: Mapping[str, Any]) -> str:
     """The honest fine print of a chapter-4 run: budget in env steps and iterations vs the thesis's, seeds."""
-    it = int(settings["timesteps"]) // iteration_steps(settings)
-    text = budget_note(settings, extra=f"~{it} iteration(s) of {iteration_steps(settings):,} steps")
+    steps = iteration_steps(runs(settings)["config"].iloc[0])
+    text = budget_note(settings, extra=f"~{int(settings['timesteps']) // steps} iteration(s) of {steps:,} steps")
     if int(settings["train_seeds"]) < 3:
         text += " With so few seeds there are no error bars: small differences are not evidence either way."
     return text
@@ -327,7 +333,7 @@ def verdict_4_1(curves: pd.DataFrame, settings: Mapping[str, Any]) -> list[repor
 
 def verdict_4_2(returns: pd.Series, settings: Mapping[str, Any]) -> list[report.Verdict]:
     """Fig 4.2 (visual gait claim): the measurable proxy, testing return at ξ = 0 of the best seeds."""
-    ours, base = float(returns[OURS]), float(returns["params-avg"])
+    ours, base = float(returns[OURS]), float(returns["params_avg"])
     evidence = (
         f"reproduced testing return at ξ = 0 of the best seeds: {OURS} {ours:.1f}, params_avg {base:.1f}; "
         f"naturalness itself is visual (see the key frames). {caveat(settings)}"
