@@ -377,3 +377,9 @@ def test_degrade_and_observation_sensitivity_counts():
     )
     assert C.obs_most_sensitive(w) == (1, 2)
     assert C.env_winners(w) == (1, 1)
+
+
+def test_budget_sentence_names_only_the_items_tasks():
+    one = F.describe(F.settings("3.4", "small"))
+    assert "scale small: 100,000 env steps per run (thesis: 4,000,000)" in one and "InvertedPendulum" not in one
+    assert "InvertedPendulum: 20,000" in F.describe(F.settings("table-3.4", "small"))

@@ -25,7 +25,7 @@ from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE
 from thesis_repro.envs.registry import short_name
 from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.jobs import check_test
-from thesis_repro.figures import budget_note, register
+from thesis_repro.figures import register
 from thesis_repro.figures.ch3_tables import (
     Claim,
     Comparison,
@@ -42,6 +42,7 @@ from thesis_repro.figures.ch3_tables import (
     learners,
     majority,
     noisy_learners,
+    note,
     skipped,
     thesis_cells,
     two_or_more,
@@ -213,7 +214,7 @@ def degrade_verdict(item: str, res: Results, settings: Mapping[str, Any]) -> rep
     ev = (
         f"reproduced: {k}/{n} curves (task × learner × test) end below their σ = 0 value; thesis: curves only "
         f"(§3.3.2: 'performance degradation ... as increasing observation, action, and environmental noise are "
-        f"added'); {budget_note(settings, n_algos=len(learners(settings)))}"
+        f"added'); {note(settings)}"
     )
     claim = "Testing return degrades as testing noise and domain shift grow"
     return report.Verdict(item, claim, report.status(holds, settings["scale"], partly), ev)
@@ -249,7 +250,7 @@ def heat_verdicts(heat: pd.DataFrame, settings: Mapping[str, Any]) -> list[repor
     """Fig 3.4(e-h): return degrades away from the training domain, and more along mass than along wind."""
     f_row, f_col = settings["heat_factors"]
     s = heat_summary(heat)
-    note = budget_note(settings, n_algos=len(learners(settings)))
+    text = note(settings)
     k1, n1 = int((s["drop_ring"] > 0).sum()), len(s)
     k2, n2 = int((s["drop_row"] > s["drop_col"]).sum()), len(s)
     detail = "; ".join(
@@ -267,17 +268,17 @@ def heat_verdicts(heat: pd.DataFrame, settings: Mapping[str, Any]) -> list[repor
         ),
     ):
         holds, partly = majority(k, n) if n else (None, False)
-        ev = f"reproduced: {k}/{n} learners ({detail}); thesis: heat maps only; {note}"
+        ev = f"reproduced: {k}/{n} learners ({detail}); thesis: heat maps only; {text}"
         out.append(report.Verdict("3.4", claim, report.status(holds, settings["scale"], partly), ev))
     return out
 
 
 def curve_verdicts(item: str, res: Results, comp: Comparison, settings: Mapping[str, Any]) -> list[report.Verdict]:
     """Claims of Figs 3.4 (top), 3.7 and 3.8: degradation, plus the item's AUC claims (thesis: Tables 3.4-3.7)."""
-    note = budget_note(settings, n_algos=len(learners(settings)))
+    text = note(settings)
     ours_w, thesis_w = wide(comp.ours), wide(comp.thesis)
     return [degrade_verdict(item, res, settings)] + [
-        judge(item, c, ours_w, thesis_w, settings, note) for c in CURVE_CLAIMS.get(item, [])
+        judge(item, c, ours_w, thesis_w, settings, text) for c in CURVE_CLAIMS.get(item, [])
     ]
 
 
@@ -367,10 +368,10 @@ BAR_CLAIMS: dict[str, list[Claim]] = {
 
 def bar_verdicts(item: str, b: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
     """Claims of Figs 3.5, 3.6 on the bars (thesis bars derived from its tables with the same normalisation)."""
-    note = budget_note(settings, n_algos=len(learners(settings)))
-    note += f" Normalisation: {settings['normalisation']} (thesis_repro.evaluation.tables.auc_change)."
+    text = note(settings)
+    text += f" Normalisation: {settings['normalisation']} (thesis_repro.evaluation.tables.auc_change)."
     ours_w, thesis_w = _bar_wide(b, "reproduced"), _bar_wide(b, "thesis")
-    return [judge(item, c, ours_w, thesis_w, settings, note) for c in BAR_CLAIMS[item]]
+    return [judge(item, c, ours_w, thesis_w, settings, text) for c in BAR_CLAIMS[item]]
 
 
 # ---------------------------------------------------------------- plots
@@ -397,8 +398,8 @@ def plot_curves(res: Results, settings: Mapping[str, Any], title: str) -> plt.Fi
             ax.set_title(f"{env} — {test}", fontsize=9)
             ax.set(xlabel="σ (Σ for dom)" if i == len(envs) - 1 else "", ylabel="testing return" if j == 0 else "")
     miss = skipped(settings)
-    note = f" (not run at this scale: {', '.join(miss)})" if miss else ""
-    fig.suptitle(f"{title} — reproduced, scale={settings['scale']}{note}", fontsize=10)
+    tail = f" (not run at this scale: {', '.join(miss)})" if miss else ""
+    fig.suptitle(f"{title} — reproduced, scale={settings['scale']}{tail}", fontsize=10)
     fig.tight_layout()
     return fig
 

@@ -36,7 +36,7 @@ from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import FIGURES, budget_note, register
 from thesis_repro.figures import settings as _figure_settings
-from thesis_repro.figures.ch3 import benchmark
+from thesis_repro.figures.ch3 import benchmark, timesteps_for
 from thesis_repro.learners import hyperparams
 from thesis_repro.validation import check_choice
 
@@ -94,11 +94,20 @@ def noisy_learners() -> dict[str, str]:
     return out
 
 
+def note(settings: Mapping[str, Any]) -> str:
+    """The budget sentence of :func:`thesis_repro.figures.budget_note` for the item's own tasks and learners."""
+    t = settings["timesteps"]
+    if isinstance(t, Mapping):
+        per = {e: timesteps_for(t, e) for e in item_envs(settings)}
+        t = next(iter(per.values())) if len(set(per.values())) == 1 else per
+    return budget_note({**settings, "timesteps": t}, n_algos=len(learners(settings)))
+
+
 def describe(settings: Mapping[str, Any]) -> str:
     """One line for the notebook: this scale's budget beside the thesis's, and what it does not run."""
     miss = skipped(settings)
     tail = f" Not run at this scale (thesis numbers shown): {', '.join(miss)}." if miss else ""
-    return budget_note(settings, n_algos=len(learners(settings))) + tail
+    return note(settings) + tail
 
 
 # ---------------------------------------------------------------- job grids
@@ -382,7 +391,7 @@ def often_not_always(k: int, n: int) -> tuple[bool, bool]:
 
 
 def judge(
-    item: str, claim: Claim, ours: pd.DataFrame, thesis: pd.DataFrame, settings: Mapping[str, Any], note: str = ""
+    item: str, claim: Claim, ours: pd.DataFrame, thesis: pd.DataFrame, settings: Mapping[str, Any], extra: str = ""
 ) -> report.Verdict:
     """One verdict: ``claim`` counted on our wide table and on the thesis's (same rows), status from ours."""
     not_run = [m for m in claim.needs if m in settings["skip_algos"] or m not in settings["algos"]]
@@ -390,7 +399,7 @@ def judge(
     kt, nt = claim.stat(same_rows)
     ka, na = claim.stat(thesis)
     thesis_text = f"thesis: {claim.short(kt, nt)} on the rows run here ({claim.short(ka, na)} in its full table)"
-    tail = f"; {note}" if note else ""
+    tail = f"; {extra}" if extra else ""
     if not_run:
         ev = f"{', '.join(not_run)} not run at this scale (skip_algos); {thesis_text}{tail}"
         return report.Verdict(item, claim.text, report.NOT_RUN, ev)
@@ -554,11 +563,11 @@ def _matching(w: pd.DataFrame) -> tuple[int, int]:
 
 def table_verdicts(item: str, comp: Comparison, settings: Mapping[str, Any]) -> list[report.Verdict]:
     """Every claim of an AUC table (Tables 3.4-3.7), then the bolding agreement."""
-    note = budget_note(settings, n_algos=len(learners(settings)))
+    text = note(settings)
     ours_w, thesis_w = wide(comp.ours), wide(comp.thesis)
-    out = [judge(item, c, ours_w, thesis_w, settings, note) for c in TABLE_CLAIMS.get(item, [])]
+    out = [judge(item, c, ours_w, thesis_w, settings, text) for c in TABLE_CLAIMS.get(item, [])]
     bold_o, bold_t = wide(comp.ours, "bold"), wide(comp.thesis, "bold")
-    out += [judge(item, c, bold_o, bold_t, settings, note) for c in BOLD_CLAIMS.get(item, [])]
+    out += [judge(item, c, bold_o, bold_t, settings, text) for c in BOLD_CLAIMS.get(item, [])]
     return [*out, bold_verdict(item, comp, settings)]
 
 
@@ -713,7 +722,7 @@ TABLE33_CLAIMS: dict[str, str] = {
 def table33_verdicts(ours: tuple[pd.DataFrame, pd.DataFrame], settings: Mapping[str, Any]) -> list[report.Verdict]:
     """The four findings of §3.3.3 (Table 3.3), ours beside the thesis's, each needing every finding's cells."""
     mine, theirs = table33_claims(ours), table33_claims(thesis33())
-    note = budget_note(settings, n_algos=len(learners(settings)))
+    text = note(settings)
     out = []
     for key, text in TABLE33_CLAIMS.items():
         kt, nt, dt = theirs[key]
@@ -723,6 +732,6 @@ def table33_verdicts(ours: tuple[pd.DataFrame, pd.DataFrame], settings: Mapping[
         else:
             holds = None if not n else k == n
             status = report.status(holds, settings["scale"], partly=k > 0)
-            ev = f"reproduced {k}/{n}: {d}; thesis {kt}/{nt}: {dt}; {note}"
+            ev = f"reproduced {k}/{n}: {d}; thesis {kt}/{nt}: {dt}; {text}"
         out.append(report.Verdict("table-3.3", text, status, ev))
     return out
