@@ -8,14 +8,10 @@
 
 # %% [markdown]
 # # Figure 3.2 — Overfitting occurs in deep RL
-#
-# **Thesis claim** (§3.3.1): "Training and testing performance initially improve in tandem, but overfitting
-# occurs as learning continues": testing AUC under observation noise falls while the training return of PPO on
-# *Walker2d* keeps rising.
-#
-# > *Thesis caption:* Overfitting occurs in Deep RL. Comparison of testing AUC score and training return during
-# > PPO learning of *Walker2d-v2* with non-deterministic observations. Each iteration consists of 2048 steps in
-# > simulation.
+
+# %% [markdown]
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-3.2`); the verdicts at the end judge each claim on our numbers.
 #
 # Here PPO (Appendix A hyperparameters) saves a policy snapshot every `snapshot_every` steps; each snapshot is
 # tested under observation noise over the σ grid of the scale table (AUC, Eq 3.6) and compared with the mean

@@ -8,15 +8,10 @@
 
 # %% [markdown]
 # # Figure 3.3 — Training return does not reflect generalisation
-#
-# **Thesis claim** (§3.3.1): "The Pareto frontiers illustrate that it is hard to achieve good training and
-# testing performance simultaneously" and "Most environments and noise types have clear negative correlation"
-# (Fig 3.3c: 18 of 20 task × test-type cells negative). Each variant is represented by its seed with the best
-# training return.
-#
-# > *Thesis caption:* Training return does not reflect generalisation performance. (a,b): Clear Pareto frontiers
-# > exist in testing AUC vs training return across algorithms (dots). (c): Testing AUC and training return are
-# > generally negatively correlated.
+
+# %% [markdown]
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-3.3`); the verdicts at the end judge each claim on our numbers.
 #
 # Here every variant is trained on the deterministic task and tested under observation (`obs`), action
 # (`act`), environment (`env`) noise and domain shift (`dom`) over the σ grid of the scale table. The

@@ -8,14 +8,10 @@
 
 # %% [markdown]
 # # Figure 4.1 — Training curves of kl_avg, params_avg and joint under four conditions
-#
-# **Thesis claim** (§4.3.2): "our proposed method performs similarly to others in the basic setting (leftmost
-# column), but outperforms other methods in more difficult settings (the other columns)".
-#
-# > *Thesis caption:* Comparisons of average episode returns and lengths during training in *Walker2d* task
-# > under four different training conditions. (a): c_a = 0.001, ξ ~ U(−0.5, 0.5), (b): c_a = 0.001,
-# > ξ ~ U(−2.5, 2.5), (c): c_a = 1.0, ξ ~ U(−0.5, 0.5), (d): c_a = 1.0, ξ ~ U(−2.5, 2.5). Each iteration
-# > consists of 4096 time steps in simulation. Results are averaged over 6 random seeds.
+
+# %% [markdown]
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-4.1`); the verdicts at the end judge each claim on our numbers.
 #
 # kl_avg is Alg 3 (Fisher-weighted aggregation, Eq 4.11), params_avg Eq 4.6, joint one PPO on the merged
 # batch. The conditions come from `data/thesis/chapter4_conditions.csv`; the curves are **reproduced**

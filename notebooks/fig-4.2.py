@@ -8,13 +8,10 @@
 
 # %% [markdown]
 # # Figure 4.2 — Key frames of one walking cycle, kl_avg vs params_avg
-#
-# **Thesis claim** (§4.3.2): "The walking gait is observed to be more natural with our proposed learning
-# method."
-#
-# > *Thesis caption:* Illustrations of walking cycles learned with two different method. Policies are trained
-# > with c_a = 0.1, ξ ~ U(−2.5, 2.5) and evaluated under ξ = 0 (no wind). The best policy out of 6 random
-# > seeds is used in each method.
+
+# %% [markdown]
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-4.2`); the verdicts at the end judge each claim on our numbers.
 #
 # The claim is visual. We render five key frames of one gait cycle (period = dominant period of the thigh
 # angle) offscreen with MuJoCo and report the **reproduced** testing return at ξ = 0 of the best seeds, the

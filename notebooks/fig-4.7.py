@@ -8,12 +8,10 @@
 
 # %% [markdown]
 # # Figure 4.7 — Policy entropy during training: kl_avg vs params_avg vs joint
-#
-# **Thesis claim** (§4.3.4): averaging the sub-policies in the space of action distributions keeps the policy
-# entropy higher (it only decreases when the domains' updates agree), a soft entropy regularisation.
-#
-# > *Thesis caption:* Policy entropy changes during learning process. Policies are trained in *Walker* task
-# > with c_a = 0.1, ξ ~ U(−0.5, 0.5).
+
+# %% [markdown]
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-4.7`); the verdicts at the end judge each claim on our numbers.
 #
 # The entropy is that of the diagonal-Gaussian policy (state-independent log-std) after each iteration; the
 # numbers are **reproduced**.

@@ -8,14 +8,10 @@
 
 # %% [markdown]
 # # Figure 5.3 — a successful Ball-in-Cup movement
-#
-# **Thesis claim** (§5.3.1): a learned movement swings the ball up through the string and catches it; red marks
-# ball positions while the string is **taut**, green while it is **slack**.
-#
-# > *Thesis caption:* Successful movement trajectory of Ball In Cup. The arm starts from static state and moves
-# > rightward firstly, generating the ball a momentum toward right, then moves leftward fast, generating the ball
-# > a large momentum toward upper left. After the ball is pulled back through the string, the arm moves the cup
-# > towards the ball's dropping point and catches the ball.
+
+# %% [markdown]
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-5.3`); the verdicts at the end judge each claim on our numbers.
 #
 # How we get a successful movement: CMA-ES (the thesis's learner, `cma` package) on ONE BIC task, from the
 # policy with zero RBF weights and unit PD gains, with the simulator's *shaped* cost (Eq 5.12 plus a dense

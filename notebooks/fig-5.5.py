@@ -8,14 +8,10 @@
 
 # %% [markdown]
 # # Figure 5.5 — tensor transfer vs ELLA, RBF-ELLA and FCNN
-#
-# **Thesis claims** (§5.3.3): "Figure 5.5(a) illustrates our tensor-transfer approach starting off better and
-# converging quicker and to better asymptote than alternatives. Figure 5.5(b) shows that we achieve much better
-# total cost on average, and considering each experiment achieve the best total cost in most cases."
-#
-# > *Thesis caption:* Comparison of our method vs. three baselines. (a) illustratively shows our method
-# > outperforms others in Casting to BIC transfer. (b) shows an overall comparison in terms of the total cost
-# > and percentage of transfer pairs that each algorithm wins in over all pairs.
+
+# %% [markdown]
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-5.5`); the verdicts at the end judge each claim on our numbers.
 #
 # Competitors (`thesis_repro.arm.baselines`): **ELLA** (linear policy on [x_t, t]), **RBF-ELLA** (linear on a
 # 5 × 5 × 5 RBF tiling) and **FCNN** ([x_t, t] → 8 ReLU → actions). Each learns its own source tasks the same

@@ -8,13 +8,10 @@
 
 # %% [markdown]
 # # Figure 5.6 — curriculum Reach → Throw → BIC vs no curriculum
-#
-# **Thesis claim** (§5.3.4): "the challenging BIC task can be autonomously solved by knowledge transfer from a
-# curriculum of autonomously learned source tasks, thus achieving BIC without any demonstrating supervision";
-# without the curriculum (the same 6000 pre-training trials spent on BIC itself) it is not.
-#
-# > *Thesis caption:* Comparison of learning curves of autonomously learning ball-in-cup from scratch via
-# > curriculum and without curriculum. Figure (a) shows the average returned cost and (b) shows the success rate.
+
+# %% [markdown]
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-5.6`); the verdicts at the end judge each claim on our numbers.
 #
 # What we run (`thesis_repro.arm.curriculum`): every stage is constructive MTL — CMA-ES on the Tucker factors
 # (G, U1, U2, U3) of all tasks of the family, thesis cost (Eq 5.12) only — and the factors are carried from one

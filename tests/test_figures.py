@@ -212,3 +212,11 @@ def test_register_checks_the_job_kinds():
     with pytest.raises(ValueError, match="unknown job kind 'trian'; valid job kinds are"):
         figures.register("_x", "typo", kinds=["trian"])
     assert "_x" not in figures.FIGURES
+
+
+@pytest.mark.parametrize("figure_id", EXPECTED)
+def test_every_figure_page_opens_with_the_thesis_caption_and_claims(figure_id):
+    from thesis_repro import book
+
+    entry = book.claims()[figures.get(figure_id).notebook_id]  # the book inserts these under the title
+    assert entry["caption"] and entry["claims"]
