@@ -307,3 +307,27 @@ def test_fused_adam_step_is_optimizer_step_bit_for_bit():
             g["lr"] *= 0.5
     for p, q in zip(a.parameters(), b.parameters(), strict=True):
         assert th.equal(p, q) and th.equal(opt_a.state[p]["step"], opt_b.state[q]["step"])
+
+
+@pytest.mark.parametrize("kind", ["sac", "ddpg"])
+def test_fast_exploration_equals_sb3_sample_action(kind):
+    """Closed-form exploration actions are SB3's, bit for bit: identical replay buffers and parameters."""
+    import types
+
+    from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+    def run(stock: bool):
+        model = _off_policy_model(kind)  # construction seeds the global RNGs
+        if kind == "ddpg":
+            model.action_noise = OrnsteinUhlenbeckActionNoise(np.zeros(3), 0.2 * np.ones(3))
+        if stock:
+            model._sample_action = types.MethodType(OffPolicyAlgorithm._sample_action, model)
+        model.learn(400)
+        return model
+
+    ref, fast = run(True), run(False)
+    buf_ref, buf = ref.replay_buffer, fast.replay_buffer
+    for name in ("observations", "actions", "rewards", "next_observations", "dones"):
+        assert np.array_equal(getattr(buf_ref, name), getattr(buf, name)), name
+    assert _max_diff(ref.policy, fast.policy) == 0.0

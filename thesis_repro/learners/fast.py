@@ -646,6 +646,13 @@ class _SACNets:
             return None
         return _SACNets(model, latent, critic, target)
 
+    def act(self, obs: th.Tensor) -> th.Tensor:
+        """``actor(obs, deterministic=False)``: the squashed sample, same torch draw and formulas."""
+        latent = self.latent.forward(obs)[-1]
+        mean = th.addmm(self.mu.bias, latent, self.mu.weight.t())
+        std = th.ones_like(mean) * th.clamp(th.addmm(self.log_std.bias, latent, self.log_std.weight.t()), -20, 2).exp()
+        return th.tanh(mean + th.empty(mean.shape, dtype=mean.dtype, device=mean.device).normal_() * std)
+
     def actor_forward(self, obs: th.Tensor) -> dict[str, Any]:
         """SB3's ``actor.action_log_prob(obs)``: same torch RNG draw, same formulas, plus a cache."""
         hs = self.latent.forward(obs)
@@ -684,7 +691,44 @@ class _SACNets:
         return grads
 
 
-class FastSAC(SAC):
+class _LeanExploration:
+    """``_sample_action`` of SB3 2.9's off-policy algorithms with ``predict`` in closed form: the same actor
+    output, the same (un)scaling round trip and action noise, and the eval-mode switch only when needed.
+    Warm-up (random actions), gSDE and anything unusual go through SB3's own code."""
+
+    _actor_cache: tuple[int, Any] | None = None
+
+    def _closed_form_actor(self) -> Any:
+        raise NotImplementedError
+
+    def _sample_action(self, learning_starts: int, action_noise: Any = None, n_envs: int = 1):
+        policy = self.policy
+        lean = (
+            self.num_timesteps >= learning_starts
+            and not self.use_sde
+            and isinstance(self.action_space, spaces.Box)
+            and isinstance(self._last_obs, np.ndarray)
+            and policy.squash_output
+        )
+        if lean:
+            if self._actor_cache is None or self._actor_cache[0] != id(policy):
+                self._actor_cache = (id(policy), self._closed_form_actor())
+            act = self._actor_cache[1]
+        if not lean or act is None:
+            return super()._sample_action(learning_starts, action_noise, n_envs)  # type: ignore[misc]
+        if policy.training:
+            policy.set_training_mode(False)  # as predict() does
+        obs = np.array(self._last_obs).reshape((-1, *self.observation_space.shape))
+        with th.no_grad():
+            actions = act(obs_as_tensor(obs, self.device).float())
+        unscaled = policy.unscale_action(actions.cpu().numpy().reshape((-1, *self.action_space.shape)))
+        scaled = policy.scale_action(unscaled)
+        if action_noise is not None:
+            scaled = np.clip(scaled + action_noise(), -1, 1)
+        return policy.unscale_action(scaled), scaled
+
+
+class FastSAC(_LeanExploration, SAC):
     """SB3 ``SAC`` whose ``train()`` computes the same losses and gradients in closed form (no autograd graph,
     foreach Polyak update, no per-step ``.item()``); SB3's own ``train()`` for unusual policies.
 
@@ -696,6 +740,10 @@ class FastSAC(SAC):
     """
 
     fast_path: bool | None = None
+
+    def _closed_form_actor(self) -> Any:
+        nets = _SACNets.build(self)
+        return None if nets is None else nets.act
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """Drop-in for ``SAC.train``: ``gradient_steps`` updates of critic, actor (and entropy coefficient)."""
@@ -764,12 +812,16 @@ class FastSAC(SAC):
             self.logger.record("train/ent_coef_loss", _mean(ent_coef_losses))
 
 
-class FastDDPG(DDPG):
+class FastDDPG(_LeanExploration, DDPG):
     """SB3 ``DDPG`` (= TD3 with one critic, no target smoothing, no policy delay) whose ``train()`` computes
     the same update in closed form; SB3's own ``train()`` for unusual policies. Any TD3 setting of the
     parent is honoured (``policy_delay``, ``target_policy_noise``, ``n_critics``)."""
 
     fast_path: bool | None = None
+
+    def _closed_form_actor(self) -> Any:
+        nets = self._fast_nets()
+        return None if nets is None else (lambda obs: nets[0].forward(obs)[-1])
 
     def _fast_nets(self) -> tuple[_Net, _Net, list[_Net], list[_Net]] | None:
         if not _flat_box(self) or self.actor_batch_norm_stats or self.critic_batch_norm_stats:
