@@ -32,7 +32,7 @@ import pandas as pd
 from thesis_repro import reference, report
 from thesis_repro.cache import Job, Result, run_jobs
 from thesis_repro.envs.registry import short_name
-from thesis_repro.evaluation import tables
+from thesis_repro.evaluation import Benchmark, tables
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import FIGURES, budget_note, register
 from thesis_repro.figures import settings as _figure_settings
@@ -111,7 +111,9 @@ def describe(settings: Mapping[str, Any]) -> str:
 
 
 # ---------------------------------------------------------------- job grids
-def benchmarks(settings: Mapping[str, Any], algos: Sequence[str] | None = None, envs: Sequence[str] | None = None):
+def benchmarks(
+    settings: Mapping[str, Any], algos: Sequence[str] | None = None, envs: Sequence[str] | None = None
+) -> list[Benchmark]:
     """One :func:`thesis_repro.figures.ch3.benchmark` per learner (overrides differ per learner class)."""
     algos = learners(settings) if algos is None else list(algos)
     envs = item_envs(settings) if envs is None else list(envs)
@@ -218,7 +220,8 @@ def wide(cells: pd.DataFrame, value: str = "mean", index: Sequence[str] = tuple(
     """``cells`` as rows × methods (rows keep their order of appearance)."""
     idx = list(index)
     out = cells.pivot_table(index=idx, columns="method", values=value, sort=False, dropna=False)
-    return out.reindex(pd.MultiIndex.from_frame(cells[idx].drop_duplicates()) if len(idx) > 1 else None)
+    rows = cells[idx].drop_duplicates()
+    return out.reindex(pd.MultiIndex.from_frame(rows) if len(idx) > 1 else rows[idx[0]])
 
 
 def _fmt(m: float, s: float) -> str:
@@ -235,8 +238,6 @@ class Comparison:
     thesis: pd.DataFrame  # cells + bold (the thesis's rule on all its columns: what the thesis shows)
     ours: pd.DataFrame  # cells + bold (the rule on our samples)
     agreement: dict[str, int]  # ours vs the thesis's bolding recomputed on the same methods and rows
-    skipped: list[str]
-    envs: list[str]
 
     def text(self) -> tuple[pd.DataFrame, pd.DataFrame]:
         """Display frame of "mean ± std" strings (rows env × test, columns method × source) and its bold mask."""
@@ -293,7 +294,7 @@ def compare(item: str, ours: pd.DataFrame, settings: Mapping[str, Any]) -> Compa
     b_ours = tables.bold(ours) if not ours.empty else ours.assign(bold=False)
     same = tables.bold(thesis.merge(b_ours[[*ROW, "method"]], on=[*ROW, "method"]))
     agreement = tables.bold_agreement(b_ours, same)
-    return Comparison(item, b_thesis.reset_index(drop=True), b_ours, agreement, skipped(settings), item_envs(settings))
+    return Comparison(item, b_thesis.reset_index(drop=True), b_ours, agreement)
 
 
 def _row_order(column: str) -> dict[str, int]:
