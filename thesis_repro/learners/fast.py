@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 import torch as th
+import torch.nn.functional as F
 from gymnasium import spaces
 from stable_baselines3 import DDPG, PPO, SAC
 from stable_baselines3.common.buffers import RolloutBuffer
@@ -527,6 +528,8 @@ class FastPPO(PPO):
 
 # ------------------------------------------------------------------------------- SAC / DDPG (TD3 family)
 _ACTS = {nn.ReLU: "relu", nn.Tanh: "tanh"}
+_tanh_backward = th.ops.aten.tanh_backward
+_threshold_backward = th.ops.aten.threshold_backward
 
 
 class _Net:
@@ -534,8 +537,9 @@ class _Net:
     closed form (SB3's ``create_mlp`` bodies: actor latents, TD3 actors, Q-networks)."""
 
     def __init__(self, layers: list[tuple[nn.Linear, str | None]]):
-        self.layers = layers
-        self.params = [p for lin, _ in layers for p in (lin.weight, lin.bias)]
+        # the parameter tensors themselves (updated in place by the optimiser), not the modules
+        self.layers = [(lin.weight, lin.bias, act) for lin, act in layers]
+        self.params = [p for w, b, _ in self.layers for p in (w, b)]
 
     @staticmethod
     def of(seq: nn.Module) -> _Net | None:
@@ -553,28 +557,28 @@ class _Net:
         return _Net(layers) if layers else None
 
     def forward(self, x: th.Tensor) -> list[th.Tensor]:
-        """``[x, h1, ..., out]``: the input and every layer's (activated) output."""
+        """``[x, h1, ..., out]``: the input and every layer's (activated) output (``nn.Linear``'s kernel)."""
         hs = [x]
-        for lin, act in self.layers:
-            z = th.addmm(lin.bias, hs[-1], lin.weight.t())
+        for w, b, act in self.layers:
+            z = F.linear(hs[-1], w, b)
             hs.append(z if act is None else th.tanh(z) if act == "tanh" else th.relu(z))
         return hs
 
     def backward(self, g: th.Tensor, hs: list[th.Tensor], grads: dict | None, need_input: bool = False):
-        """Store dLoss/dparams in ``grads`` (unless None) given dLoss/dout ``g``; return dLoss/dinput if asked."""
+        """Store dLoss/dparams in ``grads`` (unless None) given dLoss/dout ``g``; return dLoss/dinput if asked.
+        Activations use autograd's own backward kernels (``tanh_backward``, ``threshold_backward``)."""
         for i in range(len(self.layers) - 1, -1, -1):
-            lin, act = self.layers[i]
-            h = hs[i + 1]
+            w, b, act = self.layers[i]
             if act == "tanh":
-                g = g * (1 - h * h)
+                g = _tanh_backward(g, hs[i + 1])
             elif act == "relu":
-                g = g * (h > 0)
+                g = _threshold_backward(g, hs[i + 1], 0)
             if grads is not None:
-                grads[id(lin.weight)] = g.t().mm(hs[i])
-                grads[id(lin.bias)] = g.sum(0)
+                grads[id(w)] = g.t().mm(hs[i])
+                grads[id(b)] = g.sum(0)
             if i == 0:
-                return g.mm(lin.weight) if need_input else None
-            g = g.mm(lin.weight)
+                return g.mm(w) if need_input else None
+            g = g.mm(w)
         return None
 
 
@@ -639,7 +643,7 @@ class _SACNets:
             return None
         latent = _Net.of(actor.latent_pi)
         critic, target = _q_nets(model.critic), _q_nets(model.critic_target)
-        if latent is None or critic is None or target is None or latent.layers[-1][1] is None:
+        if latent is None or critic is None or target is None or latent.layers[-1][2] is None:
             return None
         heads = [*actor.mu.parameters(), *actor.log_std.parameters()]
         if {id(p) for p in (*latent.params, *heads)} != {id(p) for p in actor.parameters()}:
