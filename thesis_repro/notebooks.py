@@ -9,11 +9,11 @@ verdict, and a final line naming the executed notebook and the figure files writ
 over IPC sockets in the temp folder (removed at shutdown) instead of unencrypted TCP.
 
 Every executed notebook is stamped with an *execution key* (:func:`execution_key`): the notebook source,
-the scale, the parameters, ``THESIS_REPRO_RETRAIN`` and a hash of the kit itself (every file under
-``thesis_repro/`` but the book builder and benchmarks, and ``data/thesis/``). :func:`is_current` tells
-the book builder that an executed notebook can be reused. The run cache is not part of the key (runs are
-content-addressed by their configs, which the kit's files determine): after changing runs by hand,
-rebuild with ``--force``.
+the scale, the parameters, ``THESIS_REPRO_RETRAIN``, the kit modules its kernel imported (listed by a
+cell appended at execution and removed afterwards) and the configuration and ``data/thesis/`` files.
+:func:`is_current` tells the book builder that an executed notebook can be reused. The run cache is not
+part of the key (runs are content-addressed by their configs, which those files determine): after
+changing runs by hand, rebuild with ``--force``.
 
 >>> page_id("3.3"), page_id("table-3.4"), page_id("analysis-4-kl")
 ('fig-3.3', 'table-3.4', 'analysis-4-kl')
@@ -31,7 +31,6 @@ import os
 import sys
 import tempfile
 import time
-from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -104,37 +103,59 @@ def executed_path(nid: str, scale: str) -> Path:
     return paths.executed(scale) / f"{page_id(nid)}.ipynb"
 
 
-@cache
-def _kit_hash() -> str:
-    """SHA-256 over the kit's sources, configuration and thesis data (computed once per process)."""
+#: Files every notebook depends on besides the modules it imports: configuration and thesis data.
+_DATA_SUFFIXES = {".yaml", ".yml", ".csv", ".json", ".xml"}
+#: Tag of the cell appended to the staged notebook to list the kit modules the kernel imported.
+DEPS_TAG = "thesis-repro-deps"
+_DEPS_CODE = (
+    "import json as _json, sys as _sys\n"
+    "print(_json.dumps(sorted({{_m.__file__ for _m in list(_sys.modules.values())\n"
+    "    if (getattr(_m, '__file__', None) or '').startswith({root!r})}})))"
+)
+
+
+def _data_files() -> list[Path]:
+    """Configuration, model and thesis-data files (every notebook depends on all of them)."""
+    found = [p for root in (paths.PACKAGE, paths.THESIS_DATA) for p in root.rglob("*") if p.suffix in _DATA_SUFFIXES]
+    return sorted(p for p in found if p.is_file())
+
+
+def _all_modules() -> list[Path]:
+    """Every module of the kit (the dependency list when a notebook's own is unknown)."""
+    return sorted(paths.PACKAGE.rglob("*.py"))
+
+
+def _files_hash(files: list[Path]) -> str:
     h = hashlib.sha256()
-    roots = [paths.PACKAGE, paths.THESIS_DATA]
-    skip = {paths.PACKAGE / "book.py", paths.PACKAGE / "bench"}  # never run inside a notebook
-    for root in roots:
-        for p in sorted(root.rglob("*")):
-            if skip & {p, *p.parents}:
-                continue
-            if p.is_file() and p.suffix in {".py", ".yaml", ".yml", ".csv", ".xml", ".json"}:
-                h.update(str(p.relative_to(paths.ROOT)).encode())
-                h.update(p.read_bytes())
+    for p in sorted(set(files)):
+        h.update(str(p.relative_to(paths.ROOT) if p.is_relative_to(paths.ROOT) else p).encode())
+        h.update(p.read_bytes() if p.exists() else b"<missing>")
     return h.hexdigest()
 
 
-def execution_key(nid: str, scale: str, parameters: dict[str, Any] | None = None) -> str:
-    """Key of one execution: notebook source + scale + parameters + RETRAIN + the kit's own files."""
+def execution_key(
+    nid: str, scale: str, parameters: dict[str, Any] | None = None, modules: list[str] | None = None
+) -> str:
+    """Key of one execution: notebook source + scale + parameters + RETRAIN + the kit files it depends on.
+
+    ``modules`` are the kit modules the notebook's kernel imported (recorded at execution, paths relative
+    to the repository); ``None`` means every module of the kit. Configuration and ``data/thesis`` files
+    always count.
+    """
     nid = check_notebook(nid)
+    mods = _all_modules() if modules is None else [paths.ROOT / m for m in modules]  # relative to the repo
     payload = {
         "notebook": hashlib.sha256(paths.notebook(page_id(nid)).read_bytes()).hexdigest(),
         "scale": scale,
         "parameters": parameters or {},
         "retrain": os.environ.get("THESIS_REPRO_RETRAIN", ""),
-        "kit": _kit_hash(),
+        "files": _files_hash([*mods, *_data_files()]),
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
 
 
 def is_current(nid: str, scale: str, parameters: dict[str, Any] | None = None) -> bool:
-    """True if ``nid`` was executed at ``scale`` with today's sources (same :func:`execution_key`)."""
+    """True if ``nid`` was executed at ``scale`` and nothing it depends on changed (same :func:`execution_key`)."""
     out = executed_path(nid, scale)
     if not out.exists():
         return False
@@ -142,7 +163,8 @@ def is_current(nid: str, scale: str, parameters: dict[str, Any] | None = None) -
         meta = json.loads(out.read_text())["metadata"].get("thesis_repro", {})
     except (OSError, ValueError, KeyError):
         return False
-    return meta.get("execution_key") == execution_key(nid, scale, parameters)
+    key = meta.get("execution_key")
+    return key is not None and key == execution_key(nid, scale, parameters, meta.get("modules"))
 
 
 class QuietKernelManager(AsyncKernelManager):
@@ -174,9 +196,20 @@ class QuietKernelManager(AsyncKernelManager):
             self._closing = False
 
 
-def _stamp(out: Path, key: str, seconds: float) -> None:
+def _stamp(out: Path, nid: str, scale: str, parameters: dict[str, Any] | None, seconds: float) -> None:
+    """Remove the dependency cell from the executed notebook and stamp its execution key and modules."""
     nb = json.loads(out.read_text())
-    nb["metadata"]["thesis_repro"] = {"execution_key": key, "seconds": round(seconds, 1)}
+    modules = None
+    cells = nb["cells"]
+    if cells and DEPS_TAG in cells[-1].get("metadata", {}).get("tags", []):
+        text = "".join("".join(o.get("text", "")) for o in cells[-1].get("outputs", []) if o.get("name") == "stdout")
+        try:
+            modules = [str(Path(m).relative_to(paths.ROOT)) for m in json.loads(text)]
+        except ValueError:
+            modules = None
+        nb["cells"] = cells[:-1]
+    key = execution_key(nid, scale, parameters, modules)
+    nb["metadata"]["thesis_repro"] = {"execution_key": key, "modules": modules, "seconds": round(seconds, 1)}
     tmp = out.with_suffix(".tmp")
     tmp.write_text(json.dumps(nb, indent=1, ensure_ascii=False))
     tmp.replace(out)
@@ -202,6 +235,7 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     one line per verdict and a final line with the executed notebook and figure files are printed.
     """
     import jupytext
+    import nbformat
     import papermill as pm
 
     from thesis_repro import report
@@ -214,10 +248,12 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     paths.figures(scale).mkdir(parents=True, exist_ok=True)
     nb = jupytext.read(src)
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+    deps = nbformat.v4.new_code_cell(_DEPS_CODE.format(root=str(paths.PACKAGE) + os.sep))
+    deps.metadata["tags"] = [DEPS_TAG, "remove-cell"]
+    nb.cells.append(deps)
     staged = out.with_suffix(".source.ipynb")
     jupytext.write(nb, staged)
     params = {"SCALE": scale, **(parameters or {})}
-    key = execution_key(nid, scale, parameters)
     os.environ.setdefault("MUJOCO_GL", "egl")
     t0 = time.time()
     try:
@@ -235,7 +271,7 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     finally:
         staged.unlink(missing_ok=True)
     seconds = time.time() - t0
-    _stamp(out, key, seconds)
+    _stamp(out, nid, scale, parameters, seconds)
     from thesis_repro import runs  # local: the run listing imports the whole figure layer
 
     runs.record(nid, scale)  # build/<scale>/figures/fig-X.Y.runs.json: where this figure's runs are
