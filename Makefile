@@ -37,9 +37,9 @@ table-%: $(STAMP)
 smoke: $(STAMP)
 	$(BIN)/python -m thesis_repro figure all --scale smoke
 
-## make book SCALE=small : execute (or reuse) every notebook at SCALE and build the HTML book in book/_build
+## make book SCALE=small [FORCE=1] : execute the changed notebooks at SCALE, build build/$(SCALE)/book/_build/html
 book: $(STAMP)
-	$(BIN)/python -m thesis_repro book --scale $(SCALE)
+	$(BIN)/python -m thesis_repro book --scale $(SCALE) $(if $(FORCE),--force)
 
 ## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale
 test: $(STAMP)
