@@ -357,3 +357,74 @@ def test_sb3_policy_applies_vecnormalize(tiny_ppo):
     assert not np.allclose(ev.sb3_policy(tiny_ppo)(obs), want)
     with pytest.raises(TypeError, match="VecNormalize"):
         ev.sb3_policy(tiny_ppo, vecnormalize=object())
+
+
+# --- clear errors at the public API -----------------------------------------------------------------
+
+
+def test_score_model_names_the_task_and_both_shapes_for_a_foreign_model():
+    """An InvertedPendulum model scored on Hopper: one line naming the task and the shapes (not torch's error)."""
+    from stable_baselines3 import PPO
+
+    pendulum = PPO("MlpPolicy", "InvertedPendulum-v5", n_steps=64, batch_size=32, seed=0, device="cpu")
+    with pytest.raises(ValueError) as err:
+        ev.score_model(pendulum, "Hopper", tests=("obs",), sigmas=[0.0, 0.1], n_rollouts=1, max_episode_steps=5)
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert "task 'Hopper'" in msg and "observations of shape (4,)" in msg and "actions of shape (1,)" in msg
+    assert "observations of shape (11,) and actions of shape (3,)" in msg
+
+
+def test_evaluate_names_the_task_when_the_policy_fails_on_its_observations():
+    import torch
+
+    net = torch.nn.Linear(4, 1)  # an InvertedPendulum-sized policy
+
+    def pendulum_policy(obs):
+        return net(torch.as_tensor(obs, dtype=torch.float32).reshape(-1, 4)).detach().numpy()
+
+    with pytest.raises(ValueError, match=r"policy failed on task 'Hopper'.s observations \(batch of shape \(11,\)"):
+        ev.evaluate(pendulum_policy, "Hopper", "none", [0.0], 2, max_episode_steps=5, n_envs=2)
+
+
+def test_evaluate_rejects_actions_of_the_wrong_shape():
+    with pytest.raises(ValueError, match=r"task 'Hopper'.*actions of shape \(1,\).*actions of shape \(3,\)"):
+        ev.evaluate(lambda o: np.zeros((len(o), 1)), "Hopper", "none", [0.0], 2, max_episode_steps=5, n_envs=2)
+    with pytest.raises(ValueError, match=r"task 'InvertedPendulum'.*actions of shape \(\).*actions of shape \(1,\)"):
+        ev.evaluate(lambda o: np.zeros(len(o)), "InvertedPendulum", "none", [0.0], 1, max_episode_steps=3)
+
+
+def _bad_calls():
+    from thesis_repro import figures, notebooks, scales
+    from thesis_repro.learners import train_config
+
+    return {
+        "figure id": (lambda: notebooks.check_notebook("3.99"), "valid figures are: '3.2'"),
+        "figure jobs": (lambda: figures.jobs("3.99", "smoke"), "valid figures are"),
+        "scale": (lambda: scales.figure_settings("3.3", "medium"), "valid scales are: 'smoke', 'small', 'full'"),
+        "algo": (lambda: train_config("ppo2", "Hopper", 0, 1000), "valid algorithms are: 'ppo'"),
+        "env": (lambda: make_env("Hoper"), "valid envs are: 'InvertedPendulum'"),
+        "perturbation": (lambda: make_env("Hopper", "wind", 0.1), "valid perturbations are: 'none', 'obs'"),
+        "eval perturbation": (lambda: ev.evaluate(linear, "Hopper", "noise", [0.0], 1), "valid perturbations are"),
+        "test name": (lambda: ev.score_model(object(), "Hopper", tests=("noise",)), "valid test types are"),
+        "eval env": (lambda: ev.evaluate(linear, "Hoper", "obs", [0.0], 1), "valid envs are"),
+    }
+
+
+@pytest.mark.parametrize("case", list(_bad_calls()))
+def test_public_entry_points_give_one_line_naming_the_valid_choices(case):
+    call, expected = _bad_calls()[case]
+    with pytest.raises(ValueError) as err:
+        call()
+    assert expected in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_cli_reports_bad_input_in_one_line(capsys):
+    from thesis_repro.__main__ import main
+
+    assert main(["figure", "3.99", "--scale", "smoke"]) == 2
+    assert main(["figure", "3.3", "--scale", "medium"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0].startswith("error: unknown figure '3.99'; valid figures are: '3.2'")
+    assert err[1] == "error: unknown scale 'medium'; valid scales are: 'smoke', 'small', 'full'"
