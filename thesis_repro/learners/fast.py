@@ -39,7 +39,7 @@ import torch as th
 import torch.nn.functional as F
 from gymnasium import spaces
 from stable_baselines3 import DDPG, PPO, SAC
-from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.distributions import DiagGaussianDistribution
 from stable_baselines3.common.policies import ActorCriticPolicy
@@ -619,6 +619,29 @@ def _polyak(params: list[th.Tensor], targets: list[th.Tensor], tau: float) -> No
     th._foreach_add_(targets, params, alpha=tau)
 
 
+def _replay_sample(model: Any, batch_size: int) -> tuple[th.Tensor, ...]:
+    """``model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)`` as (obs, actions, next_obs,
+    dones, rewards, discounts): the same numpy draws and arithmetic, without the buffer's per-sample deep
+    copies and tensor copies. Buffers other than SB3's plain ``ReplayBuffer`` use their own ``sample``."""
+    buf, env = model.replay_buffer, model._vec_normalize_env
+    if type(buf) is not ReplayBuffer or buf.optimize_memory_usage or isinstance(buf.observations, dict):
+        d = buf.sample(batch_size, env=env)
+        disc = d.discounts if d.discounts is not None else model.gamma
+        return d.observations, d.actions, d.next_observations, d.dones, d.rewards, disc
+    inds = np.random.randint(0, buf.buffer_size if buf.full else buf.pos, size=batch_size)
+    envs = np.random.randint(0, high=buf.n_envs, size=(len(inds),))
+    obs, next_obs = buf.observations[inds, envs, :], buf.next_observations[inds, envs, :]
+    rewards = buf.rewards[inds, envs].reshape(-1, 1)
+    if env is not None:
+        if env.norm_obs:
+            obs = env._normalize_obs(obs, env.obs_rms).astype(np.float32)
+            next_obs = env._normalize_obs(next_obs, env.obs_rms).astype(np.float32)
+        rewards = env.normalize_reward(rewards).astype(np.float32)
+    dones = (buf.dones[inds, envs] * (1 - buf.timeouts[inds, envs])).reshape(-1, 1)
+    arrays = (obs, buf.actions[inds, envs, :], next_obs, dones, rewards)
+    return (*(th.from_numpy(np.ascontiguousarray(a)) for a in arrays), model.gamma)
+
+
 def _mean(xs: list[th.Tensor]) -> float:
     return float(th.stack([x.reshape(()) for x in xs]).double().mean())
 
@@ -765,9 +788,8 @@ class FastSAC(_LeanExploration, SAC):
         actor_step, critic_step = _FusedAdamStep(self.actor.optimizer), _FusedAdamStep(self.critic.optimizer)
         with th.no_grad():
             for gradient_step in range(gradient_steps):
-                data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-                discounts = data.discounts if data.discounts is not None else self.gamma
-                obs, next_obs = data.observations.float(), data.next_observations.float()  # = preprocess_obs
+                obs, actions, next_obs, dones, rewards, discounts = _replay_sample(self, batch_size)
+                obs, next_obs = obs.float(), next_obs.float()  # = preprocess_obs
                 b = len(obs)
                 f = nets.actor_forward(obs)
                 log_prob = f["log_prob"].reshape(-1, 1)
@@ -784,9 +806,9 @@ class FastSAC(_LeanExploration, SAC):
                 next_q, _ = _q_forward(nets.target, next_obs, nf["a"])
                 next_q, _ = th.min(next_q, dim=1, keepdim=True)
                 next_q = next_q - ent_coef * nf["log_prob"].reshape(-1, 1)
-                target_q = data.rewards + (1 - data.dones) * discounts * next_q
+                target_q = rewards + (1 - dones) * discounts * next_q
                 # critic: 0.5 * sum_k mean((q_k - y)^2)
-                q, caches = _q_forward(nets.critic, obs, data.actions)
+                q, caches = _q_forward(nets.critic, obs, actions)
                 critic_losses.append(0.5 * ((q - target_q) ** 2).mean(0).sum())
                 g_q = (q - target_q) * (1.0 / b)
                 grads: dict[int, th.Tensor] = {}
@@ -855,17 +877,16 @@ class FastDDPG(_LeanExploration, DDPG):
         with th.no_grad():
             for _ in range(gradient_steps):
                 self._n_updates += 1
-                data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-                discounts = data.discounts if data.discounts is not None else self.gamma
-                obs, next_obs = data.observations.float(), data.next_observations.float()  # = preprocess_obs
+                obs, actions, next_obs, dones, rewards, discounts = _replay_sample(self, batch_size)
+                obs, next_obs = obs.float(), next_obs.float()  # = preprocess_obs
                 b = len(obs)
-                noise = data.actions.clone().normal_(0, self.target_policy_noise)  # SB3's draw, even if 0
+                noise = actions.clone().normal_(0, self.target_policy_noise)  # SB3's draw, even if 0
                 noise = noise.clamp(-self.target_noise_clip, self.target_noise_clip)
                 next_actions = (actor_t.forward(next_obs)[-1] + noise).clamp(-1, 1)
                 next_q, _ = _q_forward(critic_t, next_obs, next_actions)
                 next_q, _ = th.min(next_q, dim=1, keepdim=True)
-                target_q = data.rewards + (1 - data.dones) * discounts * next_q
-                q, caches = _q_forward(critic, obs, data.actions)
+                target_q = rewards + (1 - dones) * discounts * next_q
+                q, caches = _q_forward(critic, obs, actions)
                 critic_losses.append(((q - target_q) ** 2).mean(0).sum())  # sum_k mean((q_k - y)^2)
                 g_q = (q - target_q) * (2.0 / b)
                 grads: dict[int, th.Tensor] = {}
