@@ -158,9 +158,10 @@ def test_prepare_page_drops_parameters_and_opens_with_the_thesis(monkeypatch, tm
     page = book.prepare_page(nb, "3.3", "smoke")
     sources = [c["source"] for c in page["cells"]]
     assert not any("SCALE =" in s for s in sources)
-    assert sources[0].startswith("# Figure 3.3")
+    assert sources[0] == "# Figure 3.3 - title"  # the title, then the thesis's claims, then the notebook's text
     assert "Figure 3.3 in the thesis" in sources[1] and "line 555" in sources[1]
-    assert page["cells"][2]["metadata"]["tags"] == ["hide-input"]
+    assert sources[2] == "text"
+    assert page["cells"][3]["metadata"]["tags"] == ["hide-input"]
     assert "No computed verdict" in sources[-1]  # nothing was reported at this (empty) build
 
 

@@ -57,6 +57,49 @@ _SHORT = {
 NO_VERDICT = "no verdict"
 
 
+#: LaTeX of the thesis's captions shown as text (the offline book has no MathJax).
+_TEX = {
+    r"\mathcal{U}": "U",
+    r"\mathcal{N}": "N",
+    r"\mathcal{W}": "W",
+    r"\mathcal{L}": "L",
+    r"\mathbb{E}": "E",
+    r"\sigma": "σ",
+    r"\Sigma": "Σ",
+    r"\times": "×",
+    r"\xi": "ξ",
+    r"\sim": "~",
+    r"\theta": "θ",
+    r"\eta": "η",
+    r"\pi": "π",
+    r"\rightarrow": "→",
+    r"\cdot": "·",
+    r"\pm": "±",
+    r"\alpha": "α",
+    r"\gamma": "γ",
+    r"\epsilon": "ε",
+    r"\leq": "≤",
+    r"\geq": "≥",
+    r"\approx": "≈",
+    r"\ldots": "…",
+    r"\|": "‖",
+}
+
+
+def plain_math(text: str) -> str:
+    """The thesis's inline LaTeX as plain text: ``$\\sigma_{tr} = 0.2$`` -> ``σ_tr = 0.2``.
+
+    >>> plain_math(r"(a): $c_a = 0.001$, $\\xi \\sim \\mathcal{U}(-0.5, 0.5)$; 12 seeds \\times 20")
+    '(a): c_a = 0.001, ξ ~ U(-0.5, 0.5); 12 seeds × 20'
+    """
+    for tex, uni in _TEX.items():
+        text = text.replace(tex, uni)
+    text = re.sub(r"\\text\{([^}]*)\}", r"\1", text)
+    text = re.sub(r"\\[A-Za-z]+", lambda m: m.group(0)[1:], text)  # any other macro: its name
+    text = re.sub(r"([_^])\{([^{}]*)\}", r"\1\2", text)  # x_{tr} -> x_tr
+    return text.replace("$", "").replace("{", "").replace("}", "")
+
+
 @cache
 def claims() -> dict[str, dict[str, Any]]:
     """The thesis's caption and claims per page id, from ``data/thesis/claims.yaml``."""
@@ -125,10 +168,10 @@ def thesis_cell(page: str, scale: str) -> dict[str, Any]:
     else:
         lines.append(f"```{{admonition}} {label} in the thesis: {entry['title']}\n:class: note\n")
         if entry.get("caption"):
-            lines.append(f"**Caption** (thesis, line {entry['caption_line']}): *{entry['caption']}*\n")
+            lines.append(f"**Caption** (thesis, line {entry['caption_line']}): {plain_math(entry['caption'])}\n")
         for c in entry.get("claims", []):
             where = ", ".join(str(n) for n in c["lines"])
-            lines.append(f"- **Claim** (thesis, line {where}): “{c['text']}”")
+            lines.append(f"- **Claim** (thesis, line {where}): “{plain_math(c['text'])}”")
         lines.append("```\n")
     cmd = f"make {page if not page.startswith('fig-') else 'figure-' + page[4:]} SCALE={scale}"
     if page.startswith("analysis-"):
@@ -156,9 +199,12 @@ def prepare_page(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
             cell["metadata"] = meta
         cells.append(cell)
     first = next((i for i, c in enumerate(cells) if c["cell_type"] == "markdown"), None)
-    at = 0
     if first is not None and _text(cells[first]["source"]).lstrip().startswith("# "):
+        head, _, rest = _text(cells[first]["source"]).lstrip().partition("\n")
+        cells[first] = {**cells[first], "source": head}
         at = first + 1
+        if rest.strip():  # the notebook's own introduction follows the thesis's claims
+            cells.insert(at, {**md_cell(rest.strip()), "metadata": dict(cells[first].get("metadata", {}))})
     else:
         cells.insert(0, md_cell(f"# {title(page)}"))
         at = 1
