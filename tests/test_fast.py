@@ -331,3 +331,30 @@ def test_fast_exploration_equals_sb3_sample_action(kind):
     for name in ("observations", "actions", "rewards", "next_observations", "dones"):
         assert np.array_equal(getattr(buf_ref, name), getattr(buf, name)), name
     assert _max_diff(ref.policy, fast.policy) == 0.0
+
+
+@pytest.mark.parametrize("n_envs", [1, 3])
+def test_lean_vec_normalize_matches_vec_normalize(n_envs, tmp_path):
+    from thesis_repro.envs import make_env
+    from thesis_repro.envs.vec import LeanVecEnv, LeanVecNormalize
+
+    def stack(cls):
+        fns = [lambda i=i: make_env("Hopper", "obs", 0.1, max_episode_steps=30, seed=i) for i in range(n_envs)]
+        return cls(LeanVecEnv(fns), norm_reward=True, clip_obs=5.0)
+
+    lean, ref = stack(LeanVecNormalize), stack(VecNormalize)
+    assert _same(lean.reset(), ref.reset())
+    rng = np.random.default_rng(2)
+    for _ in range(120):
+        a = rng.uniform(-1, 1, size=(n_envs, 3))
+        (o1, r1, d1, i1), (o2, r2, d2, i2) = lean.step(a), ref.step(a)
+        assert _same(o1, o2) and _same(r1, r2) and _same(d1, d2)
+        assert all(_same(x, y) for x, y in zip(i1, i2, strict=True))
+        assert _same(lean.get_original_obs(), ref.get_original_obs())
+        assert _same(lean.get_original_reward(), ref.get_original_reward())
+    for name in ("obs_rms", "ret_rms"):
+        x, y = getattr(lean, name), getattr(ref, name)
+        assert np.array_equal(x.mean, y.mean) and np.array_equal(x.var, y.var) and x.count == y.count
+    lean.save(str(tmp_path / "vn.pkl"))
+    loaded = LeanVecNormalize.load(str(tmp_path / "vn.pkl"), stack(VecNormalize).venv)
+    assert np.array_equal(loaded.obs_rms.var, lean.obs_rms.var)

@@ -40,10 +40,10 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise, VectorizedActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
-from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from thesis_repro.envs import make_env
-from thesis_repro.envs.vec import LeanVecEnv
+from thesis_repro.envs.vec import LeanVecEnv, LeanVecNormalize
 from thesis_repro.learners.algos import DDPGSplit
 from thesis_repro.learners.arpl import ARPLVecEnv
 from thesis_repro.learners.config import iteration_steps
@@ -112,9 +112,9 @@ def _wrap(cfg: dict[str, Any], inner: VecEnv, vecnorm_path: Path | None) -> VecE
     venv: VecEnv = inner
     if cfg["normalize_obs"] or cfg["norm_reward"]:
         if vecnorm_path is not None:
-            venv = VecNormalize.load(str(vecnorm_path), inner)
+            venv = LeanVecNormalize.load(str(vecnorm_path), inner)
         else:
-            venv = VecNormalize(
+            venv = LeanVecNormalize(  # = VecNormalize without per-step copies (tests/test_fast.py)
                 inner,
                 norm_obs=cfg["normalize_obs"],
                 norm_reward=cfg["norm_reward"],
