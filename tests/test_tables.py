@@ -319,6 +319,8 @@ def test_table33_cells_and_its_sigma_grid(monkeypatch):
     assert row["mean"] == pytest.approx(1120 + 50 - 50 + 0.5) and row["n"] == 4
     texts = F.table33_text((a, b))
     assert texts[1].loc[("obs", 0.0), (0.0, "thesis")] == "3723.9 ± 321.3"
+    partial = F.table33_text((a.iloc[:2], b))[0]  # the thesis has no σ_tr = 0.2 cell for "none": stays empty
+    assert partial.loc["none", (0.2, "reproduced")] == "" and partial.loc["act", (0.2, "reproduced")] == report.NOT_RUN
     s_bad = F.settings("table-3.3", "smoke", sigmas=[0.0, 0.5])
     with pytest.raises(ValueError, match="lacks"):
         F.table33(F.run(s_bad), s_bad)
