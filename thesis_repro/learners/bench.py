@@ -5,7 +5,7 @@ One line per target of issue 7, each ``measured value, ratio, target, met/not me
 * **PPO** (Appendix-A settings: 8 envs × 256 steps, batch 64, 10 epochs, 64-64 tanh; the kit's
   :class:`~thesis_repro.learners.fast.FastPPO` + lean stepping) vs SB3's 1-env default
   (``PPO("MlpPolicy", gym.make("Hopper-v5"))``: n_steps 2048, batch 64, 10 epochs, 64-64 tanh): target >= 3x.
-  For context (no target) the same kit settings trained by SB3's own ``PPO.train`` and ``DummyVecEnv``.
+  For context (no target) the same kit settings trained by SB3's own ``PPO.train``, ``DummyVecEnv``, ``VecNormalize``.
 * **SAC / DDPG** (the kit's configs: 64-64 ReLU, 50 gradient steps per 50 resp. 100 env steps, ...) trained by
   the kit's classes vs the same configs trained by SB3's own ``SAC.train`` / ``TD3.train`` and ``DummyVecEnv``
   (what SB3 does by default with these settings): target >= 2x. ``learning_starts`` is lowered so that the
@@ -32,7 +32,9 @@ import gymnasium as gym
 import torch as th
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.vec_env import DummyVecEnv
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormalize
 
 from thesis_repro.bench import target_line
 from thesis_repro.envs.registry import resolve_env
@@ -47,7 +49,7 @@ _clock = time.process_time
 
 def kit_model(algo: str, env: str, stock: bool = False, **overrides: Any) -> BaseAlgorithm:
     """The kit's model for ``train_config(algo, env, 0, ...)``; ``stock``: same settings, SB3's own ``train()``
-    and ``DummyVecEnv`` (the pre-issue-7 path)."""
+    and rollout/exploration code, Gymnasium's env class, ``DummyVecEnv`` and ``VecNormalize`` (SB3 as is)."""
     from thesis_repro.learners import train as tr
 
     cfg = train_config(algo, env, 0, 10**9, **overrides)
@@ -55,13 +57,20 @@ def kit_model(algo: str, env: str, stock: bool = False, **overrides: Any) -> Bas
         if cfg["perturbation"] != "none":
             raise ValueError(f"stock=True benchmarks unperturbed configs only, not {cfg['perturbation']!r}")
         fns = [lambda: gym.make(resolve_env(env), disable_env_checker=True)] * cfg["n_envs"]
-        inner = tr.VecMonitor(DummyVecEnv(fns))
+        venv = VecMonitor(DummyVecEnv(fns))
+        if cfg["normalize_obs"] or cfg["norm_reward"]:
+            kw = dict(norm_obs=cfg["normalize_obs"], norm_reward=cfg["norm_reward"], clip_obs=cfg["clip_obs"])
+            venv = VecNormalize(venv, gamma=cfg["sb3"].get("gamma", 0.99), **kw)
     else:
-        inner = tr.make_train_venv(cfg)
-    model = tr.build_model(cfg, tr._wrap(cfg, inner, None))
+        venv = tr._wrap(cfg, tr.make_train_venv(cfg), None)
+    model = tr.build_model(cfg, venv)
     if stock:
         base = {"PPO": PPO, "SAC": SAC, "DDPG": TD3}[cfg["class"]]
         model.train = types.MethodType(base.train, model)  # SB3's own update, on the same model
+        if isinstance(model, OnPolicyAlgorithm):  # and SB3's own policy forward while collecting
+            model.collect_rollouts = types.MethodType(OnPolicyAlgorithm.collect_rollouts, model)
+        else:
+            model._sample_action = types.MethodType(OffPolicyAlgorithm._sample_action, model)
     return model
 
 
