@@ -125,7 +125,7 @@ def bench_training(
             TARGETS["ppo"],
         )
         print(
-            f"  context: kit settings with SB3's PPO.train + DummyVecEnv: {r['kit-stock']:,.0f} steps/s "
+            f"  context: kit settings run by SB3 as is: {r['kit-stock']:,.0f} steps/s "
             f"({r['kit-stock'] / r['sb3']:.2f}x SB3 default); the fast update + stepping add "
             f"{r['kit'] / r['kit-stock']:.2f}x",
             flush=True,
@@ -139,7 +139,7 @@ def bench_training(
             r = interleaved(chunks, rounds)
             out[f"{algo} sb3-train steps/s"], out[f"{algo} kit steps/s"] = r["stock"], r["kit"]
             out[f"{algo} ratio"] = target_line(
-                f"{algo.upper()} {env} (kit config) kit vs SB3's own train()",
+                f"{algo.upper()} {env} (kit config) kit vs SB3 as is",
                 f"{r['kit']:,.0f} vs {r['stock']:,.0f} steps/s",
                 r["kit"] / r["stock"],
                 TARGETS[algo],
