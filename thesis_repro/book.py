@@ -11,8 +11,9 @@
 * the table of contents (``_toc.yml``): chapter pages, each with its figures, then tables, then analyses.
 
 Execution cache: a notebook whose executed copy carries today's execution key (notebook source, scale,
-parameters, ``THESIS_REPRO_RETRAIN`` and the kit's own files, see :func:`thesis_repro.notebooks.execution_key`)
-is not executed again; ``force=True`` re-executes everything, ``reuse=True`` takes any executed copy.
+parameters, ``THESIS_REPRO_RETRAIN``, the kit modules it imported, configuration and thesis data; see
+:func:`thesis_repro.notebooks.execution_key`) is not executed again; ``force=True`` re-executes everything,
+``reuse=True`` takes any executed copy. A notebook that fails gets an error page; the build then raises.
 
 >>> clean_stream("train:  50%|#####     | 1/2 [00:01<00:01, 1.0it/s]\\rtrain: 100%|##########| 2/2\\nAUC 3.2\\n")
 'AUC 3.2\\n'
