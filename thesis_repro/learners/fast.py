@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -138,13 +139,17 @@ def _linear_layers(seq: nn.Sequential) -> tuple[list[nn.Linear], str] | None:
     return None
 
 
+def _tensors(layers: list[nn.Linear]) -> list[SimpleNamespace]:
+    return [SimpleNamespace(weight=lin.weight, bias=lin.bias) for lin in layers]
+
+
 class _ManualActorCritic:
     """Forward pass + closed-form gradient of the PPO loss for the kit's actor-critic policies."""
 
     def __init__(self, policy: ActorCriticPolicy, pi: list[nn.Linear], vf: list[nn.Linear], act: str, scn: bool):
-        self.policy, self.pi, self.vf, self.act, self.scn = policy, pi, vf, act, scn
-        self.action_net: nn.Linear = policy.action_net
-        self.value_net: nn.Linear = policy.value_net
+        # layers as (weight, bias) holders of the parameter tensors themselves: no nn.Module attribute look-ups
+        self.policy, self.pi, self.vf, self.act, self.scn = policy, _tensors(pi), _tensors(vf), act, scn
+        self.action_net, self.value_net = _tensors([policy.action_net, policy.value_net])
         self.log_std: nn.Parameter = policy.log_std
         # parameters in policy.parameters() order, each with the slot of its gradient
         self.params = list(policy.parameters())
