@@ -26,7 +26,7 @@ def _iteration_steps(model: Any) -> int:
     return int(model.n_steps) * int(model.env.num_envs)
 
 
-def bench_multidomain(env: str = "Hopper", rounds: int = 2, algos: tuple[str, ...] = ALGOS) -> dict[str, float]:
+def bench_multidomain(env: str = "Hopper", rounds: int = 3, algos: tuple[str, ...] = ALGOS) -> dict[str, float]:
     """Steps/s of each multi-domain learner and of plain kit PPO on ``env``; prints one target line per learner."""
     from thesis_repro.learners.bench import TARGETS, _learn_chunk, interleaved, kit_model
 
