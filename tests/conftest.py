@@ -13,3 +13,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 def _isolated_dirs(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path_factory.mktemp("runs")))
     monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path_factory.mktemp("build")))
+    # the shipped layer is the real data/reference only where a test asks for it (tests/test_shipped.py)
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path_factory.mktemp("reference")))
+    monkeypatch.delenv("THESIS_REPRO_RETRAIN", raising=False)

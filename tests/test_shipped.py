@@ -1,0 +1,43 @@
+"""The reference runs shipped in ``data/reference`` (the real layer, not a fixture).
+
+CI never regenerates them (hours of training); it checks that every shipped run is still produced by a
+current figure config and intact, and retrains the cheapest one to prove the runs are reproducible.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from thesis_repro import paths, runs
+from thesis_repro.cache import RunCache
+
+LAYER = paths.ROOT / "data" / "reference"
+
+
+def test_every_shipped_run_is_current_and_intact():
+    entries = runs.shipped_entries(LAYER)
+    if not entries:
+        pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
+    stale = runs.check_shipped("small", LAYER)
+    assert not stale, "\n".join(s.message for s in stale)
+    assert runs.verify_shipped(LAYER) == {}
+    for entry in entries:  # rebuilt from its own config.json, each hashes to its folder's key
+        job = runs.shipped_job(entry)
+        assert (entry / "provenance.json").exists() and (entry / "manifest.json").exists(), entry
+        assert not any(p.name.endswith((".zip", ".pkl")) for p in entry.rglob("*")), f"{entry}: optimiser/SB3 state"
+        assert json.loads((entry / "config.json").read_text())["key"] == job.key
+
+
+def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
+    job = runs.cheapest_shipped("train", LAYER)
+    if job is None:
+        pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
+    assert runs.cost(job) <= 100_000, f"cheapest shipped run {job.label} costs {runs.cost(job):,.0f} steps"
+    shipped = RunCache(tmp_path / "unused", reference=LAYER).load(job)
+    assert shipped is not None and shipped.source == "shipped"
+    fresh = RunCache(tmp_path / "runs", reference=False).run(job)
+    assert fresh.source == "computed"
+    assert runs.max_abs_diff(shipped, fresh) <= 1e-6, job.label
+    assert fresh["train_return"] == pytest.approx(shipped["train_return"], rel=1e-6, abs=1e-6)
