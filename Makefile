@@ -14,7 +14,7 @@ export THESIS_REPRO_RETRAIN := $(RETRAIN)
 endif
 export PYTHONUNBUFFERED := 1
 
-.PHONY: venv test smoke book bench lint clean-build figure-% table-% reference-runs runs-%
+.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs runs-%
 
 venv: $(STAMP)
 
@@ -57,6 +57,10 @@ reference-runs: $(STAMP)
 ## make runs-3.3 SCALE=small : where Figure 3.3's runs are (kind, label, key, cached / shipped / missing, path)
 runs-%: $(STAMP)
 	$(BIN)/python -m thesis_repro runs $* --scale $(SCALE)
+
+## make budgets SCALE=small : training return of every cached/shipped run vs its budget (trained or still learning)
+budgets: $(STAMP)
+	$(BIN)/python -m thesis_repro budgets --scale $(SCALE)
 
 ## make bench : throughput benchmarks (batched evaluation, PPO training, ...), printed as ratios
 bench: $(STAMP)

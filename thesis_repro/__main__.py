@@ -1,5 +1,5 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
-``reference-runs --scale small``."""
+``reference-runs --scale small`` | ``budgets --scale small``."""
 
 from __future__ import annotations
 
@@ -34,6 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     ref.add_argument("--kind", nargs="+", default=None, help="job kinds to ship (default: train)")
     ref.add_argument("--commit", action="store_true", help="git-commit each run as it lands")
     ref.add_argument("--jobs", type=int, default=None, help="runs trained at once (default 1; 2 on two idle cores)")
+    bud = sub.add_parser("budgets", help="are the training runs trained? curve statistics of cached/shipped runs")
+    bud.add_argument("--scale", default="small", help="smoke | small | full")
+    bud.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
     args = parser.parse_args(argv)
 
     if getattr(args, "jobs", None):
@@ -49,6 +52,12 @@ def main(argv: list[str] | None = None) -> int:
                 notebooks.execute(nid, args.scale)
         elif args.cmd in ("runs", "reference-runs"):
             return _runs_command(args)
+        elif args.cmd == "budgets":
+            from thesis_repro import budgets, figures
+
+            scales.check_scale(args.scale)
+            ids = [figures.get(f).id for f in args.figures] if args.figures else None
+            print(budgets.render(budgets.table(args.scale, ids)))
         elif args.cmd == "book":
             from thesis_repro import book as book_mod
 

@@ -1,0 +1,154 @@
+"""Are a scale's training runs in the trained regime? Learning-curve statistics of every training run.
+
+Issue 7's rule: at ``small`` a policy should be near its plateau, i.e. its training return at least ~70 %
+of what the same learner reaches at the thesis's 4e6 steps, or of the thesis's own reported training
+return where it gives one (Table 3.3a: Walker2d, PPO and its noise-trained variants). Where the thesis
+gives no training return we cannot afford 4e6-step runs to compare with, so the stated proxy is the
+curve itself: how much the return still grew over the second half of the budget.
+
+``python -m thesis_repro budgets --scale small`` prints one row per training run that is cached or
+shipped (nothing is trained), read from its recorded curve.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from thesis_repro import figures, reference
+from thesis_repro.cache import Job, RunCache
+
+#: Table 3.3a's rows (``noise_type``) as the kit's learner ids: the thesis's Walker2d training returns.
+TABLE_3_3A_ALGOS: dict[str, str] = {
+    "none": "ppo",
+    "obs": "ppo-obsnoise",
+    "act": "ppo-actnoise",
+    "env": "ppo-envnoise",
+    "mdl": "ppo-mdl",
+}
+#: Fraction of the thesis's training return that counts as trained (issue 7).
+TRAINED_FRACTION = 0.7
+#: Without a thesis number: the return grew by at most this fraction over the budget's second half.
+PLATEAU_GAIN = 0.1
+
+
+def thesis_training_returns() -> dict[tuple[str, str], float]:
+    """``{(algo, env): mean training return}`` the thesis reports (Table 3.3a, Walker2d at 4e6 steps).
+
+    >>> thesis_training_returns()[("ppo", "Walker2d")]
+    3128.6
+    """
+    table = reference.load("table3_3a")
+    return {(TABLE_3_3A_ALGOS[r.noise_type], "Walker2d"): float(r["mean"]) for _, r in table.iterrows()}
+
+
+def window_mean(t: np.ndarray, r: np.ndarray, lo: float, hi: float) -> float:
+    """Mean of the returns ``r`` of the episodes that ended at ``lo < t <= hi`` (NaN if none).
+
+    >>> window_mean(np.array([1, 2, 3, 4]), np.array([10.0, 20.0, 30.0, 40.0]), 1, 3)
+    25.0
+    """
+    t, r = np.asarray(t, float), np.asarray(r, float)
+    sel = (t > lo) & (t <= hi) & np.isfinite(r)
+    return float(r[sel].mean()) if sel.any() else float("nan")
+
+
+def curve_stats(t: np.ndarray, r: np.ndarray, total: float, window: float = 0.1) -> dict[str, float]:
+    """Return over the last ``window`` of the budget (``final``), over the window ending at half the budget
+    (``half``), and the relative growth between them (``gain`` = (final - half) / |final|).
+
+    >>> s = curve_stats(np.arange(1, 101), np.minimum(np.arange(1, 101), 50.0), 100)
+    >>> s["final"], s["half"], s["gain"]
+    (50.0, 45.5, 0.09)
+    """
+    final = window_mean(t, r, (1 - window) * total, total)
+    half = window_mean(t, r, (0.5 - window) * total, 0.5 * total)
+    gain = (final - half) / abs(final) if np.isfinite(final) and np.isfinite(half) and final != 0 else float("nan")
+    return {"final": final, "half": half, "gain": gain}
+
+
+def judge(final: float, gain: float, thesis: float | None) -> str:
+    """``"trained"`` or ``"still learning"`` by issue 7's rule (thesis return if given, else the plateau proxy).
+
+    >>> judge(2500.0, 0.3, 3128.6), judge(1500.0, 0.05, 3128.6), judge(900.0, 0.05, None)
+    ('trained', 'still learning', 'trained')
+    """
+    if thesis is not None and np.isfinite(thesis):
+        return "trained" if final >= TRAINED_FRACTION * thesis else "still learning"
+    return "trained" if np.isfinite(gain) and gain <= PLATEAU_GAIN else "still learning"
+
+
+def _curve(result: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    for t, r in (("episode_timesteps", "episode_returns"), ("curve_timesteps", "curve_return")):
+        try:
+            return np.asarray(result[t]), np.asarray(result[r])
+        except KeyError:
+            continue
+    return np.array([]), np.array([])
+
+
+def training_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
+    """The deduplicated ``train`` jobs of the figures (all by default) at ``scale``, in figure order."""
+    out: dict[str, Job] = {}
+    for fid in figure_ids or figures.ids():
+        for job in figures.jobs(fid, scale):
+            if job.kind == "train":
+                out.setdefault(job.key, job)
+    return list(out.values())
+
+
+def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache | None = None) -> pd.DataFrame:
+    """One row per training run of ``scale`` with a cached or shipped result: algo, env, seed, timesteps,
+    source, ``half``/``final`` return, ``gain``, the thesis's training return (where given), ``fraction`` of
+    it reached and the verdict. Runs not trained yet are listed with ``source="missing"``."""
+    cache = cache or RunCache()
+    thesis = thesis_training_returns()
+    rows = []
+    for job in training_jobs(scale, figure_ids):
+        c = job.config
+        row: dict[str, Any] = {
+            "algo": c["algorithm"],
+            "env": c["env"],
+            "seed": c["seed"],
+            "timesteps": int(c["timesteps"]),
+            "c_a": c.get("c_a"),
+            "wind": None if c.get("wind") is None else tuple(c["wind"]),
+        }
+        result = cache.load(job)
+        ref = thesis.get((c["algorithm"], c["env"])) if c.get("c_a") is None else None
+        if result is None:
+            rows.append({**row, "source": "missing"})
+            continue
+        stats = curve_stats(*_curve(result), total=row["timesteps"])
+        rows.append(
+            {
+                **row,
+                "source": result.source,
+                **stats,
+                "thesis_train": ref,
+                "fraction": stats["final"] / ref if ref else float("nan"),
+                "verdict": judge(stats["final"], stats["gain"], ref),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def render(frame: pd.DataFrame) -> str:
+    """The table as aligned text (``-`` for missing values), with a one-line count of the verdicts."""
+    if frame.empty:
+        return "no training runs"
+    shown = frame.copy()
+    for col in ("half", "final", "thesis_train"):
+        if col in shown:
+            shown[col] = shown[col].map(lambda v: "-" if v is None or not np.isfinite(v) else f"{v:,.0f}")
+    for col in ("gain", "fraction"):
+        if col in shown:
+            shown[col] = shown[col].map(lambda v: "-" if v is None or not np.isfinite(v) else f"{v:.0%}")
+    text = shown.fillna("-").drop(columns=[c for c in ("c_a", "wind") if shown[c].isna().all()]).to_string(index=False)
+    counts = frame["verdict"].value_counts().to_dict() if "verdict" in frame else {}
+    missing = int((frame["source"] == "missing").sum())
+    summary = ", ".join(f"{n} {v}" for v, n in sorted(counts.items())) or "none judged"
+    return f"{text}\n{len(frame)} training runs: {summary}, {missing} not trained yet"
