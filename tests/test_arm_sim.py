@@ -316,7 +316,7 @@ def test_sample_tasks_ranges_and_seeding():
         ("bic", [[0.3, -1.0]], "ball_mass must be > 0"),
         ("reach", [[0.1, np.nan]], "goal_y must be finite"),
         ("throw", [[1.0, 0.0, 3.0]], "shape"),
-        ("ball-in-cup", [[0.3, 0.05]], "valid familys are: 'reach', 'throw', 'bic', 'cast'"),
+        ("ball-in-cup", [[0.3, 0.05]], "valid families are: 'reach', 'throw', 'bic', 'cast'"),
     ],
 )
 def test_bad_task_parameters_raise_clear_errors(family, params, match):

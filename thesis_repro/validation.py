@@ -15,8 +15,26 @@ def check_choice(value: Any, valid: Iterable[Any], what: str) -> Any:
     options = list(valid)
     if value not in options:
         listed = ", ".join(repr(o) for o in options)
-        raise ValueError(f"unknown {what} {value!r}; valid {what}s are: {listed}")
+        raise ValueError(f"unknown {what} {value!r}; valid {plural(what)} are: {listed}")
     return value
+
+
+def plural(what: str) -> str:
+    """English plural of a short noun phrase, pluralising its head noun (the last word before " of ").
+
+    >>> [plural(w) for w in ("scale", "family", "status", "test box", "panel of figure 4.1", "ArmConfig field")]
+    ['scales', 'families', 'statuses', 'test boxes', 'panels of figure 4.1', 'ArmConfig fields']
+    """
+    head, sep, tail = what.partition(" of ")
+    words = head.split(" ")
+    word = words[-1]
+    if word.endswith("y") and word[-2:-1] not in tuple("aeiou"):
+        word = word[:-1] + "ies"
+    elif word.endswith(("s", "x", "z", "ch", "sh")):
+        word += "es"
+    else:
+        word += "s"
+    return " ".join([*words[:-1], word]) + sep + tail
 
 
 def check_nonneg(value: float, what: str) -> float:
