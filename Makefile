@@ -7,7 +7,6 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SCALE ?= small
 JOBS ?=
-export MUJOCO_GL ?= egl
 # RETRAIN=1 ignores the shipped reference runs (data/reference) and retrains them into data/runs.
 ifdef RETRAIN
 export THESIS_REPRO_RETRAIN := $(RETRAIN)

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import os
-
 import pytest
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import thesis_repro  # noqa: F401 - sets MUJOCO_GL before any test imports mujoco
 
 
 @pytest.fixture(autouse=True)

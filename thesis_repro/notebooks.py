@@ -254,7 +254,6 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     staged = out.with_suffix(".source.ipynb")
     jupytext.write(nb, staged)
     params = {"SCALE": scale, **(parameters or {})}
-    os.environ.setdefault("MUJOCO_GL", "egl")
     t0 = time.time()
     try:
         pm.execute_notebook(
