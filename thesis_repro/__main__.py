@@ -58,6 +58,9 @@ def main(argv: list[str] | None = None) -> int:
             scales.check_scale(args.scale)
             ids = [figures.get(f).id for f in args.figures] if args.figures else None
             print(budgets.render(budgets.table(args.scale, ids)))
+            cost = budgets.retrain_cost(args.scale, ids)
+            print("\nRETRAIN=1 cost (measured wall time of the finished runs, 1 core each; upper bounds):")
+            print(cost.to_string(index=False, float_format=lambda v: f"{v:.2f}"))
         elif args.cmd == "book":
             from thesis_repro import book as book_mod
 

@@ -12,6 +12,7 @@ shipped (nothing is trained), read from its recorded curve.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -81,6 +82,14 @@ def judge(final: float, gain: float, thesis: float | None) -> str:
     return "trained" if np.isfinite(gain) and gain <= PLATEAU_GAIN else "still learning"
 
 
+def wall_seconds(result: Any) -> float:
+    """Measured wall time of a finished run (its ``provenance.json``), NaN if unknown."""
+    try:
+        return float(json.loads((result.path / "provenance.json").read_text())["wall_seconds"])
+    except (OSError, KeyError, ValueError, AttributeError):
+        return float("nan")
+
+
 def _curve(result: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     for t, r in (("episode_timesteps", "episode_returns"), ("curve_timesteps", "curve_return")):
         try:
@@ -131,6 +140,31 @@ def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache |
                 "thesis_train": ref,
                 "fraction": stats["final"] / ref if ref else float("nan"),
                 "verdict": judge(stats["final"], stats["gain"], ref),
+                "wall_s": wall_seconds(result),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def retrain_cost(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache | None = None) -> pd.DataFrame:
+    """What ``RETRAIN=1`` costs per figure: its training runs, how many are finished (cached or shipped) and
+    the sum of their measured wall times in core-hours (one core per run; measured while other work shared
+    the machine, so upper bounds)."""
+    cache = cache or RunCache()
+    rows = []
+    for fid in figure_ids or figures.ids():
+        jobs = [j for j in figures.jobs(fid, scale) if j.kind == "train"]
+        if not jobs:
+            continue
+        results = [cache.load(j) for j in jobs]
+        done = [r for r in results if r is not None]
+        rows.append(
+            {
+                "figure": figures.get(fid).notebook_id,
+                "runs": len(jobs),
+                "finished": len(done),
+                "env_steps": sum(int(j.config["timesteps"]) for j in jobs),
+                "core_hours": sum(wall_seconds(r) for r in done) / 3600 if done else float("nan"),
             }
         )
     return pd.DataFrame(rows)
@@ -141,7 +175,7 @@ def render(frame: pd.DataFrame) -> str:
     if frame.empty:
         return "no training runs"
     shown = frame.copy()
-    for col in ("half", "final", "thesis_train"):
+    for col in ("half", "final", "thesis_train", "wall_s"):
         if col in shown:
             shown[col] = shown[col].map(lambda v: "-" if v is None or not np.isfinite(v) else f"{v:,.0f}")
     for col in ("gain", "fraction"):
