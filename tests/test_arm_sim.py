@@ -373,7 +373,7 @@ def test_bench_arm_reports_ratio_and_cma_generation():
     assert r["speedup"] > 1.0  # vectorised beats the per-policy loop even at B = 200
     assert r["cma_n_params"] == 24 and r["cma_popsize"] == 4 + int(3 * np.log(24))
     assert r["cma_generation_s"] > 0
-    with pytest.raises(ValueError, match="valid familys"):
+    with pytest.raises(ValueError, match="valid families"):
         bench_arm(family="juggle")
 
 

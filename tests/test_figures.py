@@ -48,7 +48,7 @@ def test_register_rejects_a_second_grid_for_an_id_and_overrides_reach_the_settin
     base = figures.training_jobs("4.1", "smoke")
     more = figures.training_jobs("4.1", "smoke", train_seeds=2)
     assert len(more) == 2 * len(base) and _keys(base) < _keys(more)
-    with pytest.raises(ValueError, match="valid setting of figure 4.1s"):
+    with pytest.raises(ValueError, match="valid settings of figure 4.1 are"):
         figures.jobs("4.1", "smoke", train_seed=2)
 
 
@@ -94,7 +94,7 @@ def test_conditions_come_from_the_thesis_table():
     assert {(c["c_a"], c["wind"][1]) for c in conds} == {(0.001, 0.5), (0.001, 2.5), (1.0, 0.5), (1.0, 2.5)}
     assert [c["panel"] for c in ch4.conditions("4.1", ["a", "d"])] == ["a", "d"]
     assert ch4.conditions("4.7", ["a"])[0]["c_a"] == 0.1  # single-panel figures ignore the filter
-    with pytest.raises(ValueError, match="valid panel of figure 4.1s are"):
+    with pytest.raises(ValueError, match="valid panels of figure 4.1 are"):
         ch4.conditions("4.1", ["z"])
 
 
@@ -146,7 +146,7 @@ def test_grid_jobs_cover_all_pairs_and_share_sources():
     sources, rows = ch5.grid_jobs(settings, ["scratch", "tensor", "ella"])
     assert len(rows) == 2 * 2 * 3
     assert len(sources) == 2 * 2  # RBF sources shared by scratch/tensor, ELLA learns its own
-    with pytest.raises(ValueError, match="valid strategys"):
+    with pytest.raises(ValueError, match="valid strategies"):
         ch5.grid_jobs(settings, ["cp"])
 
 

@@ -207,7 +207,7 @@ def test_budgets_are_fig_3_3s():
 def test_settings_errors_name_the_valid_choices():
     with pytest.raises(ValueError, match="skip_algos"):
         F.settings("table-3.4", "small", skip_algos=["td3"])
-    with pytest.raises(ValueError, match="unknown factor of Walker2d 'mass'; valid factor of Walker2ds are"):
+    with pytest.raises(ValueError, match="unknown factor of Walker2d 'mass'; valid factors of Walker2d are"):
         C.shift_value("Walker2d", "mass", 0.2)
     with pytest.raises(ValueError, match="unknown normalisation"):
         C.bars("3.5", F.thesis_cells(), F.settings("3.5", "small", normalisation="zscore"))
