@@ -16,7 +16,9 @@
 # Here PPO (Appendix A hyperparameters) saves a policy snapshot every `snapshot_every` steps; each snapshot is
 # tested under observation noise over the σ grid of the scale table (AUC, Eq 3.6) and compared with the mean
 # return of the last 100 training episodes at that point. The thesis gives only the curve, so the comparison is
-# of shape. Logic: `thesis_repro.figures.ch3`.
+# of shape. The caption's "with non-deterministic observations" is read as the *testing* condition (the AUC is
+# under observation noise); training is on the deterministic task, as for every chapter-3 benchmark policy
+# (§3.3.1 trains on the default environment and tests under noise). Logic: `thesis_repro.figures.ch3`.
 
 # %% tags=["parameters"]
 SCALE = "small"
