@@ -86,6 +86,7 @@ def test_config_is_plain_json_and_overrides_apply():
     ("args", "kwargs", "match"),
     [
         (("ppo-typo", ENV, 0, 10), {}, "valid algorithms are: 'ppo'"),
+        (("ppo", "Hoppr", 0, 10), {}, "unknown env 'Hoppr'; valid envs are: 'InvertedPendulum'"),
         (("ppo", ENV, 0, 10), {"n_step": 64}, "n_steps"),
         (("ppo", ENV, 0, 10), {"perturbation": "wind"}, "valid perturbations are"),
         (("ppo", ENV, 0, 10), {"sigma": -1}, "sigma"),

@@ -29,6 +29,7 @@ import yaml
 
 from thesis_repro import paths
 from thesis_repro.envs.make import PERTURBATIONS
+from thesis_repro.envs.registry import short_name
 from thesis_repro.validation import check_choice, check_nonneg
 
 #: Algorithm classes (the ``class`` of an entry): SB3's, and the multi-domain PPOs of ``learners.multidomain``.
@@ -107,6 +108,7 @@ def train_config(algo: str, env: str, seed: int, timesteps: int, **overrides: An
     typos never pass silently.
     """
     check_choice(algo, ALGORITHMS, "algorithm")
+    short_name(env)  # a typo ("Hoppr") is a one-line error naming the valid envs, not a failure at training
     entry = hyperparams(algo)
     if isinstance(seed, bool) or int(seed) != seed or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
