@@ -193,6 +193,111 @@ def test_kl_exact_bad_arguments():
         agg.linear_gaussian_optima(agg.PolicyView(view.module, ["mean_net.0.weight"]), thetas, states)
 
 
+# ------------------------------------------------------------------ closed-form batched Fisher products
+def _sb3_actor(hidden=(8, 8), activation=torch.nn.Tanh, obs_dim: int = 5, act_dim: int = 3, seed: int = 0):
+    import gymnasium as gym
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    torch.manual_seed(seed)
+    obs, act = gym.spaces.Box(-1, 1, (obs_dim,)), gym.spaces.Box(-1, 1, (act_dim,))
+    kw = dict(net_arch=dict(pi=list(hidden), vf=[4]), activation_fn=activation, log_std_init=-0.3)
+    return ActorCriticPolicy(obs, act, lambda _: 3e-4, **kw)
+
+
+def _perturbed(view, n: int, scale: float, seed: int):
+    t0 = view.get_flat()
+    gen = torch.Generator().manual_seed(seed)
+    return [t0 + scale * torch.randn(t0.shape, generator=gen, dtype=t0.dtype) for _ in range(n)]
+
+
+@pytest.mark.parametrize("activation", [torch.nn.Tanh, torch.nn.ReLU])
+def test_closed_form_fvp_equals_the_autograd_fvp_on_sb3_policies(activation):
+    """The batched closed-form I(θ_i) v of FisherProducts = fisher_vector_product (jvp + vjp) per domain."""
+    pol = _sb3_actor(activation=activation)
+    view = agg.PolicyView.from_sb3(pol)
+    assert view.mlp is not None and view.mlp.activations == ("tanh",) * 2 if activation is torch.nn.Tanh else True
+    thetas = _perturbed(view, 4, 0.1, 1)
+    states = torch.randn(64, 5, generator=torch.Generator().manual_seed(2))
+    fp = agg.FisherProducts(view, thetas, states)
+    assert fp.closed_form
+    gen = torch.Generator().manual_seed(3)
+    shared = torch.randn(view.numel, generator=gen)
+    stack = torch.randn(4, view.numel, generator=gen)
+    ref_shared = torch.stack([agg.fisher_vector_product(view, t, states, shared) for t in thetas])
+    ref_stack = torch.stack([agg.fisher_vector_product(view, t, states, v) for t, v in zip(thetas, stack, strict=True)])
+    scale = float(ref_stack.abs().max())
+    assert torch.allclose(fp(shared), ref_shared, rtol=1e-5, atol=1e-6 * scale)
+    assert torch.allclose(fp(stack), ref_stack, rtol=1e-5, atol=1e-6 * scale)
+    assert torch.allclose(fp.mean(shared), ref_shared.mean(0), rtol=1e-5, atol=1e-6 * scale)
+    # the fast dist path is the SB3 policy's own distribution
+    for t in thetas[:2]:
+        view.set_flat(t)
+        mean, log_std = view.dist(t, states)
+        d = pol.get_distribution(states).distribution
+        assert torch.equal(mean, d.mean) and torch.allclose(log_std.exp(), d.stddev)
+
+
+def test_closed_form_fvp_equals_the_dense_fisher_in_float64():
+    """Exactness (not just agreement in float32): GaussianPolicy MLP and linear policy vs the dense FIM."""
+    for hidden in ((6, 5), ()):
+        pol = agg.GaussianPolicy(3, 2, hidden=hidden, seed=4, log_std_init=-0.4).double()
+        view = agg.PolicyView(pol)
+        assert view.mlp is not None
+        thetas = _perturbed(view, 3, 0.2, 5)
+        states = torch.randn(40, 3, generator=torch.Generator().manual_seed(6), dtype=torch.float64)
+        fp = agg.FisherProducts(view, thetas, states)
+        vs = torch.randn(3, view.numel, generator=torch.Generator().manual_seed(7), dtype=torch.float64)
+        dense = torch.stack([agg.fisher_matrix(view, t, states) @ v for t, v in zip(thetas, vs, strict=True)])
+        assert torch.allclose(fp(vs), dense, rtol=1e-10, atol=1e-12)
+
+
+def test_fisher_products_fall_back_to_autograd_for_other_views():
+    pol = agg.GaussianPolicy(3, 2, hidden=(4,), seed=0)
+    partial = agg.PolicyView(pol, [n for n, _ in pol.named_parameters() if n != "log_std"])
+    custom = agg.PolicyView(pol, dist_fn=lambda m, s: m(s))
+    states = torch.randn(16, 3, generator=torch.Generator().manual_seed(0))
+    for view in (partial, custom):
+        assert view.mlp is None
+        thetas = _perturbed(view, 2, 0.1, 0)
+        fp = agg.FisherProducts(view, thetas, states)
+        v = torch.ones(view.numel)
+        assert not fp.closed_form
+        ref = torch.stack([agg.fisher_vector_product(view, t, states, v) for t in thetas])
+        assert torch.equal(fp(v), ref)
+    with pytest.raises(ValueError, match="v must have shape"):
+        fp(torch.ones(3))
+    with pytest.raises(ValueError, match="at least one policy"):
+        agg.FisherProducts(custom, [], states)
+
+
+def test_kl_avg_and_kl_exact_are_unchanged_by_the_closed_form():
+    """Same aggregates whether the products are closed-form or autograd (a view without the MLP spec)."""
+    view, states, thetas = _mlp(3, hidden=(6, 6))
+    view.module.double()  # float64: the two paths differ only by rounding, which Newton steps would amplify
+    states, thetas = states.double(), [t.double() for t in thetas]
+    slow = agg.PolicyView(view.module, dist_fn=lambda m, s: m(s))
+    assert view.mlp is not None and slow.mlp is None
+    for fn in (
+        lambda v: agg.kl_avg(v, thetas, states, cg_iters=10, damping=0.1),
+        lambda v: agg.kl_exact(v, thetas, states, iters=5, damping=0.1),  # well-conditioned: CG is stable
+    ):
+        assert torch.allclose(fn(view), fn(slow), rtol=1e-9, atol=1e-10)
+
+
+def test_kl_exact_stops_when_the_objective_no_longer_moves():
+    """ftol: a step that lowers F by <= ftol·F ends the iterations (float32 rounding, not progress)."""
+    view, states, thetas = _mlp(0)
+    loose, strict = {}, {}
+    agg.kl_exact(view, thetas, states, iters=30, ftol=1e-2, info=loose)
+    agg.kl_exact(view, thetas, states, iters=30, ftol=0.0, info=strict)
+    assert loose["iters"] < strict["iters"]
+    f = loose["objective"]
+    assert all(a - b > 1e-2 * a for a, b in zip(f[:-2], f[1:-1], strict=True))  # every step but the last moved F
+    assert strict["objective"][-1] <= f[-1] <= f[0]
+    with pytest.raises(ValueError, match="ftol"):
+        agg.kl_exact(view, thetas, states, ftol=-1.0)
+
+
 # ------------------------------------------------------------------------ relative CG tolerance
 def test_cg_tolerance_is_relative():
     gen = torch.Generator().manual_seed(0)

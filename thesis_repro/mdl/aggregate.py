@@ -6,7 +6,10 @@ diagonal-Gaussian action distribution, and a function ``θ, states -> (mean, log
 * :func:`params_avg` — Eq 4.6, the arithmetic mean of the sub-policies' parameters;
 * :func:`fisher_vector_product` — ``I(θ) v`` of the expected Fisher information (Eq 4.9) without
   forming the matrix: for a diagonal Gaussian, ``I = E_s[J_μᵀ Σ⁻¹ J_μ + 2 J_ℓᵀ J_ℓ]`` (ℓ = log σ),
-  computed with one forward-mode and one reverse-mode product;
+  computed with one forward-mode and one reverse-mode product (autograd, any policy: the reference);
+* :class:`FisherProducts` — the same products for N policies θ_1..θ_N at once, in closed form through
+  the MLP's layers when the view is a tanh/ReLU MLP Gaussian (SB3 ``MlpPolicy``, :class:`GaussianPolicy`):
+  one batched forward cache per aggregation, then each product is a few batched matmuls (no autograd);
 * :func:`kl_avg` — Eq 4.10/4.11 solved by conjugate gradient with those products;
   :func:`kl_avg_dense` is the dense reference solve for tiny networks.
 
@@ -25,8 +28,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from typing import NamedTuple
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 from torch.func import functional_call, jacrev, jvp, vjp
 
@@ -93,11 +98,88 @@ class _Head(nn.Module):
         return self._fn(self.p, states)
 
 
+class MLPSpec(NamedTuple):
+    """Layer structure of an MLP Gaussian head: mean = Linear_L(act(... act(Linear_1(s)))), log-std a parameter.
+
+    ``linears``: (weight name, bias name or None) of each Linear, input to output; ``activations``: ``"tanh"``
+    or ``"relu"`` after each Linear but the last (the mean is linear in the last hidden layer).
+    """
+
+    linears: tuple[tuple[str, str | None], ...]
+    activations: tuple[str, ...]
+    log_std: str
+
+
+_ACTIVATIONS: dict[type, str] = {nn.Tanh: "tanh", nn.ReLU: "relu"}
+
+
+def _sequential_spec(modules: Sequence[tuple[str, nn.Module]]) -> tuple[list, list] | None:
+    """(linears, activations) of ``[(prefix, module), ...]`` alternating Linear / activation, else None."""
+    linears: list[tuple[str, str | None]] = []
+    acts: list[str] = []
+    for prefix, mod in modules:
+        if isinstance(mod, nn.Linear):
+            if len(acts) != len(linears):  # two Linears in a row
+                return None
+            linears.append((f"{prefix}weight", f"{prefix}bias" if mod.bias is not None else None))
+        elif type(mod) in _ACTIVATIONS:
+            if len(acts) != len(linears) - 1:  # an activation not right after a Linear
+                return None
+            acts.append(_ACTIVATIONS[type(mod)])
+        else:
+            return None
+    return linears, acts
+
+
+def _finish_spec(linears: list, acts: list, names: Sequence[str], log_std: str) -> MLPSpec | None:
+    if not linears or len(acts) != len(linears) - 1:
+        return None
+    covered = [n for pair in linears for n in pair if n is not None] + [log_std]
+    if sorted(covered) != sorted(names):  # θ must be exactly these parameters
+        return None
+    return MLPSpec(tuple(linears), tuple(acts), log_std)
+
+
+def _gaussian_policy_spec(module: nn.Module, names: Sequence[str]) -> MLPSpec | None:
+    if not isinstance(module, GaussianPolicy):
+        return None
+    parsed = _sequential_spec([(f"mean_net.{k}.", m) for k, m in module.mean_net.named_children()])
+    return None if parsed is None else _finish_spec(*parsed, names, "log_std")
+
+
+def _sb3_spec(policy: nn.Module, names: Sequence[str]) -> MLPSpec | None:
+    """The closed-form structure of an SB3 ``ActorCriticPolicy`` with a flat Box observation, an MLP actor
+    and a state-independent diagonal Gaussian (no gSDE, no squashing); None for anything else."""
+    from gymnasium import spaces
+    from stable_baselines3.common.distributions import DiagGaussianDistribution
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    try:
+        ok = (
+            isinstance(policy.action_dist, DiagGaussianDistribution)
+            and not getattr(policy, "use_sde", False)
+            and isinstance(policy.observation_space, spaces.Box)
+            and len(policy.observation_space.shape) == 1
+            and isinstance(policy.pi_features_extractor, FlattenExtractor)
+            and isinstance(policy.mlp_extractor.policy_net, nn.Sequential)
+            and isinstance(policy.action_net, nn.Linear)
+        )
+    except AttributeError:
+        return None
+    if not ok:
+        return None
+    net = [(f"mlp_extractor.policy_net.{k}.", m) for k, m in policy.mlp_extractor.policy_net.named_children()]
+    parsed = _sequential_spec([*net, ("action_net.", policy.action_net)])
+    return None if parsed is None else _finish_spec(*parsed, names, "log_std")
+
+
 class PolicyView:
     """Flat-vector view θ of the distribution parameters of ``module`` and ``dist(θ, states)``.
 
     ``names`` selects the parameters forming θ (default: all); ``dist_fn(module, states)`` returns
     ``(mean, log_std)`` (default: ``module(states)``). Use :meth:`from_sb3` for an SB3 ``ActorCriticPolicy``.
+    ``mlp`` is the :class:`MLPSpec` when θ is exactly an MLP Gaussian head (closed-form Fisher products,
+    :class:`FisherProducts`), else None (autograd products).
 
     >>> view = PolicyView(GaussianPolicy(2, 1, hidden=(3,)))
     >>> view.numel
@@ -117,12 +199,17 @@ class PolicyView:
         self.sizes = [params[n].numel() for n in self.names]
         self.numel = sum(self.sizes)
         self._head = _Head(module, dist_fn or (lambda m, s: m(s)))
+        self.mlp: MLPSpec | None = _gaussian_policy_spec(module, self.names) if dist_fn is None else None
+        self._float_states = False  # SB3 casts observations to float32 before its features extractor
 
     @classmethod
     def from_sb3(cls, policy: nn.Module) -> PolicyView:
         """View over the actor parameters (features, policy MLP, action net, log-std) of an SB3 policy."""
         names = [n for n, _ in policy.named_parameters() if n.startswith(SB3_ACTOR_PREFIXES)]
-        return cls(policy, names, _sb3_dist)
+        view = cls(policy, names, _sb3_dist)
+        view.mlp = _sb3_spec(policy, view.names)
+        view._float_states = True
+        return view
 
     def params(self, theta: Tensor) -> dict[str, Tensor]:
         if theta.shape != (self.numel,):
@@ -142,7 +229,19 @@ class PolicyView:
                 p[n].copy_(t)
 
     def dist(self, theta: Tensor, states: Tensor) -> tuple[Tensor, Tensor]:
-        """``(mean, log_std)``, each of shape (S, A), of π_θ at ``states``."""
+        """``(mean, log_std)``, each of shape (S, A), of π_θ at ``states`` (differentiable in ``theta``).
+
+        An MLP view (``mlp``) runs the same ops as its modules (``F.linear``, tanh/ReLU) directly on the
+        slices of θ, without ``functional_call``'s module swapping; other views use ``functional_call``.
+        """
+        if self.mlp is not None:
+            p = self.params(theta)
+            x = states.float() if self._float_states else states
+            for k, (w, b) in enumerate(self.mlp.linears):
+                x = F.linear(x, p[w], None if b is None else p[b])
+                if k < len(self.mlp.activations):
+                    x = torch.tanh(x) if self.mlp.activations[k] == "tanh" else torch.relu(x)
+            return x, p[self.mlp.log_std].expand_as(x)
         full = {f"p.{n}": t for n, t in self.params(theta).items()}
         return functional_call(self._head, full, (states,), strict=False)
 
@@ -235,6 +334,116 @@ def fisher_matrix(view: PolicyView, theta: Tensor, states: Tensor) -> Tensor:
     return (torch.einsum("sap,sa,saq->pq", jac_mu, w, jac_mu) + 2.0 * torch.einsum("sap,saq->pq", jac_ls, jac_ls)) / n
 
 
+class FisherProducts:
+    """``I(θ_i) v`` (Eq 4.9) for N fixed policies θ_1..θ_N on one set of states, batched over the N.
+
+    With an MLP view (``view.mlp``) the products are computed in closed form: the layer activations of every
+    θ_i on ``states`` are cached once, then ``I v = (1/S) Σ_s J_μᵀ Σ⁻¹ J_μ v + 2 v_ℓ`` is one forward-mode
+    pass (dz_l = x_{l-1} dW_lᵀ + db_l + dx_{l-1} W_lᵀ, dx_l = act'(z_l) ⊙ dz_l) and one reverse pass
+    through the N networks as batched matmuls, with no autograd graph. Otherwise each product is
+    :func:`fisher_vector_product` (autograd). Both give the same numbers to float rounding
+    (``tests/test_aggregate.py``). ``fpv(v)`` takes one (P,) vector for all N or an (N, P) stack and returns
+    (N, P); :meth:`mean` is (1/N) Σ_i I(θ_i) v.
+
+    >>> view = PolicyView(GaussianPolicy(3, 2, hidden=(4,), seed=0))
+    >>> s = torch.randn(16, 3, generator=torch.Generator().manual_seed(0))
+    >>> t = view.get_flat(); v = torch.ones_like(t)
+    >>> fp = FisherProducts(view, [t, t + 0.1], s)
+    >>> fp.closed_form, tuple(fp(v).shape)
+    (True, (2, 28))
+    >>> bool(torch.allclose(fp(v)[0], fisher_vector_product(view, t, s, v), atol=1e-5))
+    True
+    """
+
+    def __init__(self, view: PolicyView, thetas: Sequence[Tensor], states: Tensor):
+        if len(thetas) == 0:
+            raise ValueError("FisherProducts needs at least one policy")
+        self.view, self.states = view, states
+        self.thetas = [t.detach() for t in thetas]
+        self.n = len(self.thetas)
+        self.closed_form = view.mlp is not None
+        if self.closed_form:
+            self._cache()
+
+    def _split(self, flat: Tensor) -> dict[str, Tensor]:
+        """Per-parameter views of an (N, P) stack -> (N, *shape), or of a (P,) vector -> (*shape)."""
+        lead = flat.shape[:-1]
+        parts = torch.split(flat, self.view.sizes, dim=-1)
+        return {n: p.reshape(*lead, *s) for n, p, s in zip(self.view.names, parts, self.view.shapes, strict=True)}
+
+    def _cache(self) -> None:
+        spec = self.view.mlp
+        assert spec is not None
+        p = self._split(torch.stack(self.thetas))
+        self._w = [p[w] for w, _ in spec.linears]
+        self._b = [None if b is None else p[b] for _, b in spec.linears]
+        x = self.states.to(self.thetas[0].dtype)
+        self._x: list[Tensor] = [x]  # input of each Linear: (S, d0) shared, then (N, S, d)
+        self._d: list[Tensor] = []  # act'(z) of each hidden layer, (N, S, d)
+        with torch.no_grad():
+            for k, act in enumerate(spec.activations):
+                z = x @ self._w[k].transpose(-1, -2)
+                if self._b[k] is not None:
+                    z = z + self._b[k].unsqueeze(-2)
+                if act == "tanh":
+                    x = torch.tanh(z)
+                    self._d.append(1.0 - x * x)
+                else:
+                    x = torch.relu(z)
+                    self._d.append((z > 0).to(z.dtype))
+                self._x.append(x)
+            # Σ⁻¹ / S per domain and action dim, shape (N, 1, A)
+            self._prec = (torch.exp(-2.0 * p[spec.log_std]) / self.states.shape[0]).unsqueeze(-2)
+
+    def __call__(self, v: Tensor) -> Tensor:
+        v = v.detach()
+        if v.shape not in ((self.view.numel,), (self.n, self.view.numel)):
+            raise ValueError(
+                f"v must have shape ({self.view.numel},) or ({self.n}, {self.view.numel}), got {tuple(v.shape)}"
+            )
+        if not self.closed_form:
+            vs = v.expand(self.n, -1)
+            return torch.stack(
+                [fisher_vector_product(self.view, t, self.states, u) for t, u in zip(self.thetas, vs, strict=True)]
+            )
+        spec = self.view.mlp
+        assert spec is not None
+        dv = self._split(v)
+        n_layers = len(spec.linears)
+        with torch.no_grad():
+            dx = None
+            for k, (wn, bn) in enumerate(spec.linears):  # forward mode: dμ = J_μ v
+                dz = self._x[k] @ dv[wn].transpose(-1, -2)
+                if bn is not None:
+                    dz = dz + dv[bn].unsqueeze(-2)
+                if dx is not None:
+                    dz = dz + dx @ self._w[k].transpose(-1, -2)
+                if k < n_layers - 1:
+                    dx = self._d[k] * dz
+            g = dz * self._prec  # (N, S, A): Σ⁻¹ J_μ v / S
+            out: dict[str, Tensor] = {}
+            for k in range(n_layers - 1, -1, -1):  # reverse mode: J_μᵀ g
+                wn, bn = spec.linears[k]
+                out[wn] = g.transpose(-1, -2) @ self._x[k]
+                if bn is not None:
+                    out[bn] = g.sum(-2)
+                if k > 0:
+                    g = (g @ self._w[k]) * self._d[k - 1]
+            out[spec.log_std] = 2.0 * dv[spec.log_std]
+        lead = (self.n,)
+        return torch.cat(
+            [
+                out[name].expand(*lead, *shape).reshape(self.n, -1)
+                for name, shape in zip(self.view.names, self.view.shapes, strict=True)
+            ],
+            dim=1,
+        )
+
+    def mean(self, v: Tensor) -> Tensor:
+        """(1/N) Σ_i I(θ_i) v, shape (P,)."""
+        return self(v).mean(0)
+
+
 # ----------------------------------------------------------------------------------------- Eq 4.10/4.11
 def conjugate_gradient(
     avp: Callable[[Tensor], Tensor], b: Tensor, iters: int = 10, rtol: float = 1e-6
@@ -301,15 +510,15 @@ def kl_avg(
     if len(thetas) == 0:
         raise ValueError("kl_avg needs at least one sub-policy")
     thetas = [t.detach() for t in thetas]
-    n = len(thetas)
     mean = torch.stack(thetas).mean(0)
     base = mean if theta_old is None else theta_old.detach()
     gs = [t - base for t in thetas]
     gbar = mean - base
-    b = sum(fisher_vector_product(view, t, states, g - gbar) for t, g in zip(thetas, gs, strict=True)) / n
+    fisher = FisherProducts(view, thetas, states)
+    b = fisher(torch.stack([g - gbar for g in gs])).mean(0)
 
     def avp(v: Tensor) -> Tensor:
-        return sum(fisher_vector_product(view, t, states, v) for t in thetas) / n + damping * v
+        return fisher.mean(v) + damping * v
 
     corr, res = conjugate_gradient(avp, b, cg_iters, rtol=cg_rtol)  # type: ignore[arg-type]
     frac = 1.0
@@ -349,6 +558,7 @@ def kl_exact(
     cg_rtol: float = 1e-3,
     damping: float = 1e-3,
     tol: float = 1e-10,
+    ftol: float | None = None,
     info: dict | None = None,
 ) -> Tensor:
     """Minimise the TRUE Eq 4.7 objective F(θ) = Σ_i E_s KL(π_θi ‖ π_θ) from θ_0 = :func:`params_avg`.
@@ -361,7 +571,10 @@ def kl_exact(
     relative tolerance ``cg_rtol``, damping λ = ``damping`` on the mean Fisher as in :func:`kl_avg`), then
     backtrack (1, ½, ¼, ... 2⁻²⁰) until the Armijo condition F(θ + t d) ≤ F(θ) + 10⁻⁴ t ∇F·d holds. So F
     never increases, and the result is never worse than params_avg on Eq 4.7. Stops early when the
-    predicted decrease ½|∇F·d| ≤ ``tol`` (nats) or no step decreases F. ``info`` (if given) receives
+    predicted decrease ½|∇F·d| ≤ ``tol`` (nats) + ``ftol``·F, when a step lowers F by at most ``ftol``·F
+    (that step is kept), or when no step decreases F. ``ftol`` is relative: by default 100 machine epsilons
+    of θ's dtype (1.2e-5 in float32), i.e. F no longer moves beyond its own rounding — without it a float32
+    run spends its remaining iterations backtracking on rounding noise. ``info`` (if given) receives
     ``objective`` (F at θ_0..θ_k), ``step_sizes``, ``cg_residuals`` (relative) and ``iters`` (k).
 
     >>> pol = GaussianPolicy(3, 2, hidden=(4,), seed=0)
@@ -386,6 +599,7 @@ def kl_exact(
     damping = check_nonneg(damping, "damping")
     cg_rtol = check_nonneg(cg_rtol, "cg_rtol")
     tol = check_nonneg(tol, "tol")
+    ftol = torch.finfo(thetas[0].dtype).eps if ftol is None else check_nonneg(ftol, "ftol")
     thetas = [t.detach() for t in thetas]
     n = len(thetas)
     with torch.no_grad():
@@ -403,13 +617,15 @@ def kl_exact(
         t = theta.detach().requires_grad_(True)
         (grad,) = torch.autograd.grad(mean_obj(t), t)
 
-        def avp(v: Tensor, at: Tensor = theta) -> Tensor:
-            return fisher_vector_product(view, at, states, v) + damping * v
+        fisher = FisherProducts(view, [theta], states)
+
+        def avp(v: Tensor, fisher: FisherProducts = fisher) -> Tensor:
+            return fisher(v)[0] + damping * v
 
         d, res = conjugate_gradient(avp, -grad, cg_iters, rtol=cg_rtol)
         residuals.append(res / max(float(grad.norm()), 1e-30))
         slope = float(grad @ d)
-        if not slope < 0 or -0.5 * slope <= tol / n:
+        if not slope < 0 or -0.5 * slope <= tol / n + ftol * f:
             break
         step, accepted = 1.0, False
         with torch.no_grad():
@@ -421,9 +637,12 @@ def kl_exact(
                 step *= 0.5
         if not accepted:
             break
+        converged = f - f_new <= ftol * f
         theta, f = (theta + step * d).detach(), f_new
         history.append(n * f)
         steps.append(step)
+        if converged:
+            break
     if info is not None:
         info.update(objective=history, step_sizes=steps, cg_residuals=residuals, iters=len(steps))
     return theta.detach()
