@@ -108,6 +108,8 @@ def test_plan_dedupes_and_orders_by_cost(fake_figures):
     assert [p.job.config["algorithm"] for p in plan] == ["a", "b", "c"]
     assert [p.cost for p in plan] == [10.0, 20.0, 30.0]
     assert plan[1].figures == ["fig-9.1", "fig-9.2"]
+    by_figure = runs.plan("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True)
+    assert [p.job.config["algorithm"] for p in by_figure] == ["b", "c", "a"]  # 9.1's runs first, then 9.2's
     with pytest.raises(ValueError, match="valid job kinds are"):
         runs.generate("smoke", kinds=["trian"], log=str)
 

@@ -337,17 +337,36 @@ class Planned:
 
 
 def plan(
-    scale: str, figure_ids: Iterable[str] | None = None, kinds: Iterable[str] = figures.TRAINING_KINDS
+    scale: str,
+    figure_ids: Iterable[str] | None = None,
+    kinds: Iterable[str] = figures.TRAINING_KINDS,
+    by_figure: bool = False,
 ) -> list[Planned]:
-    """The jobs of ``kinds`` of every figure (or ``figure_ids``) at ``scale``, deduplicated by key, cheapest first."""
+    """The jobs of ``kinds`` of every figure (or ``figure_ids``) at ``scale``, deduplicated by key, cheapest
+    first; with ``by_figure``, the first figure's jobs first (each figure's cheapest first), so that the
+    figures finish in the order given."""
     kinds = set(kinds)
     out: dict[str, Planned] = {}
-    for fid in figure_ids or figures.ids():
+    rank: dict[str, int] = {}
+    for i, fid in enumerate(figure_ids or figures.ids()):
         notebook_id = figures.get(fid).notebook_id
         for job in figures.jobs(fid, scale):
             if job.kind in kinds:
                 out.setdefault(job.key, Planned(job)).figures.append(notebook_id)
-    return sorted(out.values(), key=lambda p: (p.cost, p.job.kind, p.job.label, p.job.key))
+                rank.setdefault(job.key, i if by_figure else 0)
+    return sorted(out.values(), key=lambda p: (rank[p.job.key], p.cost, p.job.kind, p.job.label, p.job.key))
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker processes
+    """Worker initializer: on Linux, end this worker when the generator process dies (a killed background
+    generator must not leave orphan workers training on)."""
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 def _wall(result: Result) -> float:
@@ -394,7 +413,8 @@ def generate(
 ) -> list[Exported]:
     """Produce the shipped reference runs of ``scale`` (``make reference-runs``).
 
-    Collects the jobs of ``kinds`` of every figure (deduplicated, cheapest first), skips those already
+    Collects the jobs of ``kinds`` of every figure (deduplicated, cheapest first; with ``figure_ids``, figure
+    by figure in that order), skips those already
     shipped with a verified entry, runs the rest through the local cache ``n_jobs`` at a time (an
     interrupted run resumes from its workdir checkpoint on the next call), exports each finished one into
     the layer and, with ``commit``, commits it as it lands. Returns the exported runs.
@@ -402,7 +422,7 @@ def generate(
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     cache = cache or RunCache(reference=False)
     kinds = tuple(check_choice(k, sorted(registry.KINDS), "job kind") for k in kinds)
-    planned = plan(scale, figure_ids, kinds)
+    planned = plan(scale, figure_ids, kinds, by_figure=figure_ids is not None)
     todo, shipped = [], 0
     for p in planned:
         where = find_entry(layer, p.job)
@@ -441,7 +461,9 @@ def generate(
     else:
         import multiprocessing as mp
 
-        with ProcessPoolExecutor(max_workers=n_jobs, mp_context=mp.get_context("spawn")) as ex:
+        with ProcessPoolExecutor(
+            max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent
+        ) as ex:
             futures = {ex.submit(execute, p.job, str(cache.root), False): p for p in todo}
             log(f"running {len(todo)} jobs, {n_jobs} at a time (cheapest first)")
             for i, fut in enumerate(as_completed(futures), 1):
