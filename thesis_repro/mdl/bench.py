@@ -1,8 +1,8 @@
 """Benchmark: env steps per CPU-second of the multi-domain learners (chapter 4) vs plain kit PPO.
 
-``joint``, ``params-avg`` and ``kl-avg`` (their ``hyperparams.yaml`` settings: N = 4 domains × T = 1024 steps
-per iteration, Alg 3's per-epoch aggregation) and the kit's PPO (8 envs × 256) are each built by the one
-training stack (``train_config`` + ``build_model``) and trained alternately, one iteration per chunk
+``joint``, ``params-avg``, ``kl-avg`` and ``kl-exact`` (their ``hyperparams.yaml`` settings: N = 4 domains ×
+T = 1024 steps per iteration, Alg 3's per-epoch aggregation) and the kit's PPO (8 envs × 256) are each built
+by the one training stack (``train_config`` + ``build_model``) and trained alternately, one iteration per chunk
 (:func:`thesis_repro.learners.bench.interleaved`). Target (issue 7): every multi-domain learner >= 0.8x the
 PPO rate. A learner the stack cannot build yet is reported as not available, with the reason.
 
@@ -19,7 +19,7 @@ import torch as th
 
 from thesis_repro.bench import target_line
 
-ALGOS: tuple[str, ...] = ("joint", "params-avg", "kl-avg")
+ALGOS: tuple[str, ...] = ("joint", "params-avg", "kl-avg", "kl-exact")
 
 
 def _iteration_steps(model: Any) -> int:
