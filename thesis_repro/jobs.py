@@ -9,10 +9,12 @@ cached and shipped run. This module is the one place that imports the kit's own 
 
 >>> KINDS["train"]
 'thesis_repro.learners:train_job'
->>> kind_of("thesis_repro.mdl.train:train_job")  # the path form maps to its kind
+>>> kind_of("thesis_repro.learners:train_job")  # the path form maps to its kind
 'train'
 >>> label("train", {"algorithm": "ppo-scn-16", "env": "Hopper", "seed": 0})
 'ppo-scn-16__Hopper__s0'
+>>> label("train", {"algorithm": "kl-avg", "env": "Walker2d", "seed": 0, "c_a": 1.0, "wind": [-2.5, 2.5]})
+'kl-avg__Walker2d__ca1__wind-2.5_2.5__s0'
 >>> kind_of("trian")  # doctest: +ELLIPSIS
 Traceback (most recent call last):
 ...
@@ -60,8 +62,22 @@ def default_label(config: Mapping[str, Any]) -> str:
 
 
 def train_label(config: Mapping[str, Any]) -> str:
-    """``<algorithm>__<env>__s<seed>`` of a training config."""
-    return "__".join(str(p) for p in (config.get("algorithm"), config.get("env"), _seed(config)) if p not in (None, ""))
+    """``<algorithm>__<env>[__ca<c_a>][__wind<low>_<high>]__s<seed>`` of a training config.
+
+    The chapter-4 env settings ``c_a`` and ``wind`` appear only when set, so runs of different chapter-4
+    conditions get different folder names (chapter-3 labels, where both are None, are unchanged).
+
+    >>> train_label({"algorithm": "joint", "env": "Hopper", "seed": 1, "c_a": 0.1, "wind": [-0.5, 0.5]})
+    'joint__Hopper__ca0.1__wind-0.5_0.5__s1'
+    """
+    parts = [config.get("algorithm"), config.get("env")]
+    if config.get("c_a") is not None:
+        parts.append(f"ca{config['c_a']:g}")
+    wind = config.get("wind")
+    if wind is not None:
+        parts.append(f"wind{wind[0]:g}_{wind[1]:g}")
+    parts.append(_seed(config))
+    return "__".join(str(p) for p in parts if p not in (None, ""))
 
 
 def evaluate_label(config: Mapping[str, Any]) -> str:
@@ -150,12 +166,10 @@ def resolve(kind: str, target: str | None = None) -> Callable[[dict[str, Any]], 
     return getattr(importlib.import_module(module), func)
 
 
-# The kit's job kinds. Training: every learner of chapters 3 and 4 (learners.train_job dispatches the
-# multi-domain ones to mdl.train). "evaluate-ch4" is the chapter-4 sweep evaluation until the one
-# evaluation job accepts wind / c_a / ratios.
-register("train", "thesis_repro.learners:train_job", train_label, aliases=("thesis_repro.mdl.train:train_job",))
+# The kit's job kinds. Training: every learner of chapters 3 and 4 (one train_job); evaluation: every
+# testing sweep of chapters 3 and 4 (sigmas, or ratios such as wind / mass × friction, and c_a).
+register("train", "thesis_repro.learners:train_job", train_label)
 register("evaluate", "thesis_repro.evaluation:evaluate_job", evaluate_label)
-register("evaluate-ch4", "thesis_repro.mdl.experiments:evaluate_job", evaluate_label)
 register("arm-source", "thesis_repro.arm.learn:source_job")
 register("arm-competitor-source", "thesis_repro.arm.baselines:competitor_source_job")
 register("arm-target", "thesis_repro.arm.baselines:target_job", arm_target_label)
