@@ -465,7 +465,8 @@ def generate(
             max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent
         ) as ex:
             futures = {ex.submit(execute, p.job, str(cache.root), False): p for p in todo}
-            log(f"running {len(todo)} jobs, {n_jobs} at a time (cheapest first)")
+            order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
+            log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
             for i, fut in enumerate(as_completed(futures), 1):
                 land(i, futures[fut], fut.result())
     return done
