@@ -20,8 +20,6 @@ CONFIG: Path = PACKAGE / "config"
 NOTEBOOKS: Path = ROOT / "notebooks"
 THESIS_DATA: Path = ROOT / "data" / "thesis"
 BOOK: Path = ROOT / "book"
-BOOK_EXECUTED: Path = BOOK / "executed"
-BOOK_BUILD: Path = BOOK / "_build"
 
 
 def runs() -> Path:
