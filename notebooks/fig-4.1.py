@@ -7,7 +7,7 @@
 # ---
 
 # %% [markdown]
-# # Figure 4.1 — Training curves of kl_avg, params_avg and joint under four conditions
+# # Figure 4.1 — Training curves of kl_avg, kl_exact, params_avg and joint under four conditions
 
 # %% [markdown]
 # The thesis's caption and claims open the book page (quoted with line numbers from
@@ -16,6 +16,10 @@
 # kl_avg is Alg 3 (Fisher-weighted aggregation, Eq 4.11), params_avg Eq 4.6, joint one PPO on the merged
 # batch. The conditions come from `data/thesis/chapter4_conditions.csv`; the curves are **reproduced**
 # (the thesis gives only plots). Logic: `thesis_repro.figures.ch4`.
+#
+# Learners: the thesis's kl_avg (Alg 3 with Eq 4.11), kl_exact (ours, issue 12: the exact minimiser of Eq 4.7
+# from params_avg), params_avg (Eq 4.6) and joint (PPO on the merged batch). Each claim is judged twice, for
+# kl_avg and for kl_exact, each against params_avg and joint only (`ch4.JUDGED`, `ch4.BASELINES`).
 
 # %% tags=["parameters"]
 SCALE = "small"

@@ -14,6 +14,10 @@
 # `data/thesis/claims.yaml`, key `fig-4.5`); the verdicts at the end judge each claim on our numbers.
 #
 # Policies: the cached runs of Fig 4.1 (wind off at test). All numbers are **reproduced**.
+#
+# Learners: the thesis's kl_avg (Alg 3 with Eq 4.11), kl_exact (ours, issue 12: the exact minimiser of Eq 4.7
+# from params_avg), params_avg (Eq 4.6) and joint (PPO on the merged batch). Each claim is judged twice, for
+# kl_avg and for kl_exact, each against params_avg and joint only (`ch4.JUDGED`, `ch4.BASELINES`).
 
 # %% tags=["parameters"]
 SCALE = "small"

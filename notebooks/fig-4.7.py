@@ -7,7 +7,7 @@
 # ---
 
 # %% [markdown]
-# # Figure 4.7 — Policy entropy during training: kl_avg vs params_avg vs joint
+# # Figure 4.7 — Policy entropy during training: kl_avg, kl_exact, params_avg, joint
 
 # %% [markdown]
 # The thesis's caption and claims open the book page (quoted with line numbers from
@@ -15,6 +15,10 @@
 #
 # The entropy is that of the diagonal-Gaussian policy (state-independent log-std) after each iteration; the
 # numbers are **reproduced**.
+#
+# Learners: the thesis's kl_avg (Alg 3 with Eq 4.11), kl_exact (ours, issue 12: the exact minimiser of Eq 4.7
+# from params_avg), params_avg (Eq 4.6) and joint (PPO on the merged batch). Each claim is judged twice, for
+# kl_avg and for kl_exact, each against params_avg and joint only (`ch4.JUDGED`, `ch4.BASELINES`).
 
 # %% tags=["parameters"]
 SCALE = "small"
