@@ -320,7 +320,17 @@ class SubPolicyAggregation(MultiDomainPPO):
     ``line_search``) or ``kl_exact`` (``exact_iters`` Newton-CG steps on the true Eq 4.7: ``cg_iters``,
     ``cg_rtol``, ``damping``); ``aggregate_every_epoch``: aggregate after each of the ``n_epochs`` epochs (Alg 3)
     or once after all; ``fim_states``: rollout states used for Fisher products and the logged Eq 4.7.
-    The sub-policies learn with ``learning_rate``; value networks are averaged (Alg 3).
+    The sub-policies learn with ``learning_rate``; value networks are averaged (Alg 3). The Fisher products
+    are :class:`~thesis_repro.mdl.aggregate.FisherProducts` (closed form for the MLP policy, all N at once).
+
+    **Reading of "domain" (fidelity note, issues 8/12).** Alg 3 samples N domains ξ_1..ξ_N per iteration
+    and collects T steps in each; §4.3.2 says of the experiments that "the wind speed is sampled once per
+    episode". The kit follows §4.3.2: domain i is env i of the VecEnv, whose ``Wind`` wrapper draws a new
+    ξ ~ U(low, high) at every episode start, so sub-policy i learns from the T = 1024 steps of env i, which
+    span one or more episodes, each with its own ξ — not from one ξ_i held for the whole iteration. The same
+    envs feed ``joint`` (plain PPO on the merged batch), so the learners compared in chapter 4 see identical
+    domain statistics. Holding one ξ_i per column for T steps (Alg 3 read literally) would need a per-iteration
+    wind in the env layer and would also change what ``joint`` sees; it is not done.
     """
 
     def __init__(
