@@ -84,4 +84,4 @@ wide.round(3)
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = report.report("fig-3.3", SCALE, ch3.pareto_verdict(ours, points, settings, SELECTION))
+_ = report.report("fig-3.3", SCALE, ch3.pareto_verdict(ours, points, settings, SELECTION, trained))

@@ -115,3 +115,6 @@ def test_pareto_verdict_counts_negative_cells_and_frontiers():
     corr, front = ch3.pareto_verdict(ours, points, settings)
     assert corr.status == report.REPRODUCES and "3/4 defined cells negative" in corr.evidence
     assert front.status == report.PARTLY  # Walker2d/act trades off, HalfCheetah/obs has one dominant variant
+    trained = pd.DataFrame({"verdict": ["trained", "still learning", "trained"]})
+    corr, _ = ch3.pareto_verdict(ours, points, settings, trained=trained)
+    assert corr.evidence.endswith("Policies: 2/3 runs in the trained regime (make budgets).")

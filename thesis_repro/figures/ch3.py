@@ -299,9 +299,16 @@ def frontier(points: pd.DataFrame) -> pd.DataFrame:
 
 
 def pareto_verdict(
-    ours: pd.DataFrame, points: pd.DataFrame, settings: Mapping[str, Any], selection: str = "best"
+    ours: pd.DataFrame,
+    points: pd.DataFrame,
+    settings: Mapping[str, Any],
+    selection: str = "best",
+    trained: pd.DataFrame | None = None,
 ) -> list[report.Verdict]:
-    """Fig 3.3's two claims: (c) mostly negative correlations; (a, b) a trade-off frontier in each panel."""
+    """Fig 3.3's two claims: (c) mostly negative correlations; (a, b) a trade-off frontier in each panel.
+
+    ``trained`` (a :func:`thesis_repro.budgets.table`) adds how many of the runs are in the trained regime,
+    since the thesis's claim is about trained policies."""
     scale, n_algos = settings["scale"], len(settings["algos"])
     thesis = reference.load("fig3_3c")
     merged = ours.merge(thesis, on=["env", "test"], suffixes=("_reproduced", "_thesis"))
@@ -314,6 +321,9 @@ def pareto_verdict(
         f"{agree}/{len(defined)} (selection={selection}); thesis: {int((thesis.value < 0).sum())}/{len(thesis)} "
         f"negative ({int((merged.value_thesis < 0).sum())}/{len(merged)} on the tasks run here); {note}"
     )
+    if trained is not None and "verdict" in trained:
+        n_trained = int((trained["verdict"] == "trained").sum())
+        evidence += f" Policies: {n_trained}/{len(trained)} runs in the trained regime (make budgets)."
     holds = None if defined.empty else n_neg > len(defined) / 2
     out = [
         report.Verdict(
