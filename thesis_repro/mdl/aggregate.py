@@ -32,6 +32,9 @@ from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
+from gymnasium import spaces
+from stable_baselines3.common.distributions import DiagGaussianDistribution
+from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import Tensor, nn
 from torch.func import functional_call, jacrev, jvp, vjp
 
@@ -150,10 +153,6 @@ def _gaussian_policy_spec(module: nn.Module, names: Sequence[str]) -> MLPSpec | 
 def _sb3_spec(policy: nn.Module, names: Sequence[str]) -> MLPSpec | None:
     """The closed-form structure of an SB3 ``ActorCriticPolicy`` with a flat Box observation, an MLP actor
     and a state-independent diagonal Gaussian (no gSDE, no squashing); None for anything else."""
-    from gymnasium import spaces
-    from stable_baselines3.common.distributions import DiagGaussianDistribution
-    from stable_baselines3.common.torch_layers import FlattenExtractor
-
     try:
         ok = (
             isinstance(policy.action_dist, DiagGaussianDistribution)
