@@ -18,7 +18,6 @@ they never collide with (small integer) training seeds. All randomness of an env
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -26,10 +25,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from thesis_repro.envs import PERTURBATIONS, make_env
 from thesis_repro.validation import check_choice, check_nonneg
 
 #: Testing conditions of chapter 3 (``"none"``: the unperturbed training domain).
-PERTURBATIONS: tuple[str, ...] = ("none", "obs", "act", "env", "dom")
 #: Tag mixed into the testing-seed stream (the bytes of "test").
 _TEST_STREAM = 0x74657374
 
@@ -77,11 +76,8 @@ def gym_make(
 
 
 def default_make() -> EnvMaker:
-    """``thesis_repro.envs.make_env`` (imported lazily so the metrics work without it)."""
-    try:
-        return importlib.import_module("thesis_repro.envs").make_env
-    except (ImportError, AttributeError) as err:  # pragma: no cover - until thesis_repro.envs lands
-        raise ImportError("thesis_repro.envs.make_env is not available; pass make=... explicitly") from err
+    """The kit's env factory, :func:`thesis_repro.envs.make_env`."""
+    return make_env
 
 
 def check_shapes(
