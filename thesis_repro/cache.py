@@ -433,10 +433,17 @@ def run_jobs(
     progress: bool = True,
     desc: str = "jobs",
 ) -> list[Result]:
-    """Run ``jobs`` (cached ones are loaded, the rest computed in parallel); results in input order."""
+    """Run ``jobs`` (cached ones are loaded, the rest computed in parallel); results in input order.
+
+    The rest run in ``n_jobs`` local worker processes, or as Ray tasks when ``THESIS_REPRO_BACKEND=ray``
+    (:mod:`thesis_repro.backends`; ``n_jobs`` is then Ray's business).
+    """
+    from thesis_repro import backends  # local: backends imports this module
+
     jobs = list(jobs)
     cache = cache or RunCache()
     n_jobs = default_jobs() if n_jobs is None else n_jobs
+    where = backends.backend()  # THESIS_REPRO_BACKEND: local | ray
     results: dict[str, Result] = {}
     todo: dict[str, Job] = {}
     for job in jobs:
@@ -454,7 +461,9 @@ def run_jobs(
         shipped = sum(r.source == "shipped" for r in results.values())
         bar = tqdm(total=len(todo), desc=f"{desc} ({len(results) - shipped} cached, {shipped} shipped)")
     t0 = time.time()
-    if n_jobs <= 1 or len(todo) <= 1:
+    if where == "ray" and todo:
+        results.update(backends.run_ray(todo, cache, bar))
+    elif n_jobs <= 1 or len(todo) <= 1:
         for key, job in todo.items():
             results[key] = cache.run(job)
             if bar:

@@ -1,0 +1,353 @@
+"""Where :func:`thesis_repro.cache.run_jobs` computes the jobs it cannot load: a local process pool or Ray.
+
+The backend is chosen by ``THESIS_REPRO_BACKEND`` (``make figure-3.3 BACKEND=ray`` sets it), so the figure
+code, which calls ``run_jobs`` through the library, does not change:
+
+* ``local`` (default): the process pool of :func:`~thesis_repro.cache.run_jobs` (``THESIS_REPRO_JOBS`` workers).
+* ``ray``: one Ray task per job (:func:`run_ray`), on the cluster at ``RAY_ADDRESS`` (``ray://host:10001``,
+  ``host:6379`` or ``auto``) or, without it, on a new local Ray instance on this machine
+  (``THESIS_REPRO_JOBS`` CPUs if set). Ray is the optional extra ``pip install -e '.[ray]'``.
+
+Ray tasks. Each task asks for the resources of its job kind (:data:`RESOURCES`, data: CPUs and memory; a
+kind not listed gets :data:`DEFAULT_RESOURCES`). The task (:func:`compute`) runs the job function in the
+job's usual workdir ``<THESIS_REPRO_DATA>/<kind>/<label>__<key>.partial`` (training checkpoints there),
+commits the finished entry into a scratch folder and returns it as bytes (:func:`pack`); the *driver*
+verifies it against its manifest and commits it to its run cache (:func:`commit`) as soon as it lands, with
+the same progress bar as the local pool. Provenance (host, times) is the worker's.
+
+Dependencies. An ``evaluate`` job's config embeds its training job (``config["train"]``), and an
+``arm-target`` job its source job (:data:`DEPENDENCIES`). When the dependency is in the same ``run_jobs``
+call, its task's object ref is passed to the dependent task (Ray runs it after); when it is already in the
+driver's cache (the usual case: figures call ``run_jobs`` twice, training first, then evaluation), the
+driver ``ray.put``\\ s its packed entry once. Either way the worker materialises the entry into its own run
+cache before running the job, so an evaluation never retrains on a node that cannot see the driver's disk.
+
+Fault tolerance. Tasks run with ``max_retries`` (:data:`MAX_RETRIES`, ``THESIS_REPRO_RAY_RETRIES``): a
+worker process or node that dies is retried by Ray, and a training job resumes from its newest
+checkpoint when ``THESIS_REPRO_DATA`` is the same path on shared storage on every node (otherwise it
+restarts from zero on another node). An exception in a job is deterministic and not retried: the
+remaining jobs still finish and are committed, then :class:`JobsFailed` is raised with each failed
+job's kind, label, key, config and remote traceback.
+
+>>> backend({"THESIS_REPRO_BACKEND": "ray"})
+'ray'
+>>> backend({"THESIS_REPRO_BACKEND": "slurm"})  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+...
+ValueError: unknown backend (THESIS_REPRO_BACKEND) 'slurm'; valid backend (THESIS_REPRO_BACKEND)s are: 'local', 'ray'
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+from thesis_repro import jobs as registry
+from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry
+from thesis_repro.validation import check_choice
+
+#: Valid values of ``THESIS_REPRO_BACKEND``.
+BACKENDS: tuple[str, ...] = ("local", "ray")
+ENV_VAR = "THESIS_REPRO_BACKEND"
+_GIB = 1024**3
+#: Ray resources of one task per job kind (``num_cpus``, ``memory`` in bytes). Every kit job is
+#: single-threaded (``torch.set_num_threads(1)``); training holds a model, a rollout buffer (SAC/DDPG: a
+#: replay buffer of up to 1e6 transitions) and its env copies.
+RESOURCES: dict[str, dict[str, float]] = {
+    "train": {"num_cpus": 1, "memory": 2 * _GIB},
+    "evaluate": {"num_cpus": 1, "memory": 1 * _GIB},
+    "arm-source": {"num_cpus": 1, "memory": 1 * _GIB},
+    "arm-competitor-source": {"num_cpus": 1, "memory": 1 * _GIB},
+    "arm-target": {"num_cpus": 1, "memory": 1 * _GIB},
+    "arm-curriculum": {"num_cpus": 1, "memory": 1 * _GIB},
+    "arm-solve": {"num_cpus": 1, "memory": 1 * _GIB},
+}
+#: Resources of a kind not in :data:`RESOURCES`.
+DEFAULT_RESOURCES: dict[str, float] = {"num_cpus": 1, "memory": 1 * _GIB}
+#: Retries of a task whose worker died (Ray's ``max_retries``); ``THESIS_REPRO_RAY_RETRIES`` overrides.
+MAX_RETRIES = 3
+#: Environment variables the driver hands to every task (paths of the run cache and the shipped layer, ...).
+FORWARDED = ("THESIS_REPRO_DATA", "THESIS_REPRO_REFERENCE", "THESIS_REPRO_RETRAIN", "MUJOCO_GL")
+#: File a task writes into its job's workdir while it runs: ``{"pid", "host", "start"}`` (who is computing it).
+WORKER_FILE = "worker.json"
+
+
+def backend(environ: Mapping[str, str] | None = None) -> str:
+    """The backend named by ``THESIS_REPRO_BACKEND`` (default ``local``); ``ValueError`` naming the choices."""
+    env = os.environ if environ is None else environ
+    name = (env.get(ENV_VAR) or "local").strip().lower() or "local"
+    return check_choice(name, BACKENDS, f"backend ({ENV_VAR})")
+
+
+def resources(kind: str) -> dict[str, float]:
+    """Ray resources of one ``kind`` task (:data:`RESOURCES`).
+
+    >>> resources("train")["num_cpus"]
+    1
+    """
+    return dict(RESOURCES.get(kind, DEFAULT_RESOURCES))
+
+
+def _evaluate_deps(config: Mapping[str, Any]) -> list[Job]:
+    return [Job("train", config["train"])] if isinstance(config.get("train"), Mapping) else []
+
+
+def _arm_target_deps(config: Mapping[str, Any]) -> list[Job]:
+    from thesis_repro.arm.baselines import COMPETITORS
+
+    src = config.get("source")
+    if not isinstance(src, Mapping):
+        return []
+    if config.get("strategy") in COMPETITORS:
+        return [Job("arm-competitor-source", {**src, "policy": config["strategy"]})]
+    return [Job("arm-source", src)]
+
+
+#: kind -> the jobs a job of that kind runs through the cache itself (embedded in its config).
+DEPENDENCIES: dict[str, Callable[[Mapping[str, Any]], list[Job]]] = {
+    "evaluate": _evaluate_deps,
+    "arm-target": _arm_target_deps,
+}
+
+
+def dependencies(job: Job) -> list[Job]:
+    """Jobs whose results ``job`` loads through the run cache (:data:`DEPENDENCIES`; none for most kinds).
+
+    >>> from thesis_repro.cache import Job
+    >>> [d.kind for d in dependencies(Job("evaluate", {"train": {"algorithm": "ppo"}, "test": {}}))]
+    ['train']
+    """
+    fn = DEPENDENCIES.get(job.kind)
+    return fn(job.config) if fn else []
+
+
+# ---------------------------------------------------------------- packed entries
+def pack(folder: Path) -> dict[str, Any]:
+    """A committed entry ``<root>/<kind>/<label>__<key>`` as plain data.
+
+    Returns ``{"kind", "folder", "files": {relative path: bytes}}`` (manifest included), for :func:`unpack`.
+    """
+    folder = Path(folder)
+    files = {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {"kind": folder.parent.name, "folder": folder.name, "files": files}
+
+
+def _has(root: Path, packed: Mapping[str, Any]) -> Path | None:
+    key = packed["folder"].rsplit("__", 1)[-1]
+    kind_dir = Path(root) / packed["kind"]
+    return next((p for p in sorted(kind_dir.glob(f"*__{key}")) if p.is_dir()), None) if kind_dir.is_dir() else None
+
+
+def unpack(root: str | Path, packed: Mapping[str, Any]) -> Path:
+    """Commit a :func:`pack`\\ ed entry under ``root`` atomically (verified against its manifest first); returns
+    its folder. An entry already there (same key) is kept as is."""
+    found = _has(Path(root), packed)
+    if found is not None:
+        return found
+    kind_dir = Path(root) / packed["kind"]
+    key = packed["folder"].rsplit("__", 1)[-1]
+    tmp = kind_dir / f".tmp-{key}-{os.getpid()}-unpack"
+    shutil.rmtree(tmp, ignore_errors=True)
+    for rel, data in packed["files"].items():
+        path = tmp / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+    try:
+        read_entry(tmp)  # raises if the bytes do not match the manifest
+    except Exception:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    final = kind_dir / packed["folder"]
+    if final.exists():
+        shutil.rmtree(final)
+    os.replace(tmp, final)
+    return final
+
+
+def commit(cache: RunCache, job: Job, packed: Mapping[str, Any]) -> Result:
+    """Driver side: commit the packed result of ``job`` to ``cache`` (under its lock) and return it as computed."""
+    with cache._lock(job):
+        path = find_entry(cache.root, job) or unpack(cache.root, packed)
+    shutil.rmtree(cache.workdir(job), ignore_errors=True)
+    values, config = read_entry(path)
+    return Result(path, values, config, source="computed")
+
+
+# ---------------------------------------------------------------- the task
+@contextmanager
+def _environ(env: Mapping[str, str | None]) -> Iterator[None]:
+    old = {k: os.environ.get(k) for k in env}
+    try:
+        for k, v in env.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def compute(
+    job: Job,
+    root: str,
+    reference: str | bool,
+    env: Mapping[str, str | None],
+    threads: int,
+    command: list[str],
+    *deps: Mapping[str, Any],
+) -> dict[str, Any]:
+    """Body of one Ray task (plain Python, also callable without Ray): compute ``job`` and return it packed.
+
+    ``deps`` are packed entries of the jobs it loads through the cache; each is committed into the worker's
+    run cache ``root`` unless already there. The job runs in its usual workdir under ``root`` (resuming from
+    a checkpoint left by an earlier, killed attempt), is committed into a scratch folder and packed; the
+    workdir is removed once packed. The entry's provenance names the driver's ``command`` and this worker's host.
+    """
+    import torch  # local: keep the module importable without torch
+
+    torch.set_num_threads(max(1, int(threads)))
+    fn = job.resolve()  # imports the job's module first: it may register a user-defined kind (and its label)
+    if job.kind not in registry.KINDS:
+        registry.register(job.kind, job.target)
+    with _environ(env):
+        cache = RunCache(root, reference=reference)
+        for dep in deps:  # shipped or already local (shared storage): nothing to do
+            if _has(cache.root, dep) is None and (cache.reference is None or _has(cache.reference, dep) is None):
+                with cache._lock(SimpleNamespace(kind=dep["kind"], key=dep["folder"].rsplit("__", 1)[-1])):
+                    unpack(cache.root, dep)
+        hit = cache.load(job)
+        if hit is not None and hit.source == "cached":  # e.g. committed by the driver of an earlier attempt
+            return pack(hit.path)
+        start = time.time()
+        workdir = cache.workdir(job)
+        (workdir / "out").mkdir(parents=True, exist_ok=True)
+        note = {"pid": os.getpid(), "host": socket.gethostname(), "start": start}
+        (workdir / WORKER_FILE).write_text(json.dumps(note))
+        values = fn(dict(job.config), workdir)
+        scratch = Path(tempfile.mkdtemp(prefix="thesis-repro-ray-"))
+        argv, sys.argv = sys.argv, list(command)  # provenance records the command that asked for the job
+        try:
+            packed = pack(RunCache(scratch, reference=False)._commit(job, values, workdir, start))
+        finally:
+            sys.argv = argv
+            shutil.rmtree(scratch, ignore_errors=True)
+        shutil.rmtree(workdir, ignore_errors=True)
+        return packed
+
+
+# ---------------------------------------------------------------- the driver
+class JobsFailed(RuntimeError):
+    """Jobs that raised on Ray (deterministic failures); the other jobs of the call were committed."""
+
+    def __init__(self, failures: list[tuple[Job, BaseException]], root: Path):
+        self.failures = failures
+        parts = [f"{len(failures)} job(s) failed on Ray; every finished run was committed to {root}"]
+        for job, err in failures:
+            parts.append(
+                f"--- {job.kind} {job.label} (key {job.key})\nconfig: {json.dumps(job.config, sort_keys=True)}\n"
+                f"{type(err).__name__}: {err}"
+            )
+        super().__init__("\n".join(parts))
+
+
+def retries() -> int:
+    """Ray ``max_retries`` of every task: ``THESIS_REPRO_RAY_RETRIES`` or :data:`MAX_RETRIES`."""
+    return int(os.environ.get("THESIS_REPRO_RAY_RETRIES", MAX_RETRIES))
+
+
+def init_ray() -> Any:
+    """Import and connect Ray once: ``RAY_ADDRESS`` if set, else a new local instance (``THESIS_REPRO_JOBS`` CPUs)."""
+    try:
+        import ray
+    except ImportError as err:
+        raise RuntimeError(
+            f"{ENV_VAR}=ray needs Ray: `pip install -e '.[ray]'` (`make figure-X.Y BACKEND=ray` installs it)"
+        ) from err
+    if not ray.is_initialized():
+        import logging
+
+        address = os.environ.get("RAY_ADDRESS") or None
+        kw: dict[str, Any] = {"log_to_driver": False, "logging_level": logging.WARNING}
+        if address is None:
+            jobs = os.environ.get("THESIS_REPRO_JOBS")
+            kw.update(address="local", include_dashboard=False, num_cpus=int(jobs) if jobs else None)
+        else:
+            kw["address"] = address
+        ray.init(**kw)
+    return ray
+
+
+def _env(cache: RunCache) -> dict[str, str | None]:
+    env: dict[str, str | None] = {k: os.environ.get(k) for k in FORWARDED}
+    env["THESIS_REPRO_DATA"] = str(cache.root.resolve())
+    if cache.reference is None:
+        env["THESIS_REPRO_RETRAIN"] = "1"
+    else:
+        env["THESIS_REPRO_REFERENCE"] = str(Path(cache.reference).resolve())
+        env["THESIS_REPRO_RETRAIN"] = None
+    return env
+
+
+def run_ray(todo: Mapping[str, Job], cache: RunCache, bar: Any = None) -> dict[str, Result]:
+    """Compute ``todo`` (key -> job, none of them cached) as Ray tasks; commit each result as it lands.
+
+    Returns key -> :class:`Result` (``source="computed"``); raises :class:`JobsFailed` after every other job
+    finished if any job raised.
+    """
+    ray = init_ray()
+    remote = ray.remote(compute)
+    root = str(cache.root.resolve())
+    reference: str | bool = str(Path(cache.reference).resolve()) if cache.reference is not None else False
+    env = _env(cache)
+    refs: dict[str, Any] = {}
+    put: dict[str, Any] = {}  # dependency key -> ref of its packed committed entry
+
+    def dep_ref(dep: Job) -> Any:
+        if dep.key in refs:
+            return refs[dep.key]
+        if dep.key not in put:
+            hit = cache.load(dep)
+            put[dep.key] = None if hit is None else ray.put(pack(hit.path))
+        return put[dep.key]
+
+    # jobs another job of this call depends on go first, so their refs exist when the dependents are submitted
+    needed = {d.key for job in todo.values() for d in dependencies(job)}
+    for key, job in sorted(todo.items(), key=lambda kv: kv[0] not in needed):
+        deps = [r for r in (dep_ref(d) for d in dependencies(job)) if r is not None]
+        res = resources(job.kind)
+        threads = int(res.get("num_cpus", 1))
+        opts = {**res, "max_retries": retries(), "retry_exceptions": False, "name": f"{job.kind}:{job.label}"}
+        refs[key] = remote.options(**opts).remote(job, root, reference, env, threads, list(sys.argv), *deps)
+    pending = {ref: key for key, ref in refs.items()}
+    results: dict[str, Result] = {}
+    failures: list[tuple[Job, BaseException]] = []
+    while pending:
+        done, _ = ray.wait(list(pending), num_returns=1)
+        for ref in done:
+            key = pending.pop(ref)
+            try:
+                packed = ray.get(ref)
+            except Exception as err:  # noqa: BLE001 - reported with the job's config once the rest finished
+                failures.append((todo[key], err))
+                continue
+            results[key] = commit(cache, todo[key], packed)
+            if bar is not None:
+                bar.update()
+    if failures:
+        raise JobsFailed(failures, cache.root)
+    return results
