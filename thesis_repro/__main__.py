@@ -1,5 +1,5 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
-``reference-runs --scale small`` | ``budgets --scale small``."""
+``reference-runs --scale small`` | ``budgets --scale small`` | ``plan 3.3 --scale full --cores 64``."""
 
 from __future__ import annotations
 
@@ -37,6 +37,10 @@ def main(argv: list[str] | None = None) -> int:
     bud = sub.add_parser("budgets", help="are the training runs trained? curve statistics of cached/shipped runs")
     bud.add_argument("--scale", default="small", help="smoke | small | full")
     bud.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
+    plan_p = sub.add_parser("plan", help="cost before running: jobs, env steps, throughput, core-hours, wall time")
+    plan_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all' (+ the book)")
+    plan_p.add_argument("--scale", default="full", help="smoke | small | full")
+    plan_p.add_argument("--cores", type=int, default=None, help="cores for the wall time (default: this machine's)")
     args = parser.parse_args(argv)
 
     if getattr(args, "jobs", None):
@@ -50,6 +54,8 @@ def main(argv: list[str] | None = None) -> int:
             ids = notebooks.notebook_ids() if args.figure == "all" else [notebooks.check_notebook(args.figure)]
             for nid in ids:
                 notebooks.execute(nid, args.scale)
+        elif args.cmd == "plan":
+            return _plan_command(args)
         elif args.cmd in ("runs", "reference-runs"):
             return _runs_command(args)
         elif args.cmd == "budgets":
@@ -71,6 +77,25 @@ def main(argv: list[str] | None = None) -> int:
     except RuntimeError as err:  # e.g. notebooks that failed while the book was built
         print(f"error: {err}", file=sys.stderr)
         return 1
+    return 0
+
+
+def _plan_command(args: argparse.Namespace) -> int:
+    from thesis_repro import plan
+
+    scales.check_scale(args.scale)
+    if args.cores is not None and args.cores < 1:
+        raise ValueError(f"--cores must be an integer >= 1, got {args.cores}")
+    rates = plan.load_rates()
+    print(plan.rates_note(rates))
+    if args.figure != "all":
+        print(plan.report(plan.plan_figure(args.figure, args.scale, args.cores, rates), rates))
+        return 0
+    per, book = plan.plan_book(args.scale, args.cores, rates)
+    for p in per:
+        print(plan.summary(p))
+    print("\nthe book (every figure; runs shared by figures counted once):")
+    print(plan.report(book, rates))
     return 0
 
 

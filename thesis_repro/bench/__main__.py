@@ -18,10 +18,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name:12s} {target}")
         return 0
     try:
-        run(args.names or None)
+        results = run(args.names or None)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    from thesis_repro.plan import write_throughput  # the cost plan (`python -m thesis_repro plan`) reads it
+
+    written = write_throughput(results)
+    if written is not None:
+        print(f"throughput per learner family (steps per CPU-second) -> {written}")
     return 0
 
 

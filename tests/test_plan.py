@@ -1,0 +1,106 @@
+"""The cost plan (`python -m thesis_repro plan`): arithmetic, job counting, throughput file, command line.
+
+No Ray needed: the plan only counts jobs and prices them."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from thesis_repro import figures, plan
+from thesis_repro.__main__ import main
+from thesis_repro.cache import Job
+from thesis_repro.learners import train_config
+
+RATES = plan.Rates({"ppo": 128.0, "evaluate": 100.0}, {"ppo": "test", "evaluate": "test"})
+
+
+def test_core_hours_and_makespan():
+    assert plan.core_hours(7_200_000, 1_000.0) == pytest.approx(2.0)
+    assert plan.core_hours(10, 0.0) == float("inf")  # unknown rate is never silently zero cost
+    assert plan.makespan([3.0, 3.0, 2.0, 2.0, 2.0], 2) == 7.0  # LPT: {3,2,2} and {3,2}
+    assert plan.makespan([1.0] * 12, 4) == 3.0
+    assert plan.makespan([1.0] * 12, 1) == 12.0  # one core: the sum
+    assert plan.makespan([9.0, 1.0], 64) == 9.0  # never below the longest job
+    assert plan.makespan([], 3) == 0.0
+    durations = [5.0, 4.0, 3.0, 3.0, 2.0, 2.0, 1.0]
+    for cores in (1, 2, 3, 5):  # within [max(sum/cores, longest), 4/3 of that]
+        lower = max(sum(durations) / cores, max(durations))
+        assert lower <= plan.makespan(durations, cores) <= 4 / 3 * lower + 1e-9
+    with pytest.raises(ValueError, match="cores"):
+        plan.makespan([1.0], 0)
+
+
+def test_family_and_work_of_jobs():
+    cfg = train_config("sac", "Hopper", 0, 4_000_000)
+    assert plan.family(Job("train", cfg)) == "sac" and plan.work(Job("train", cfg)) == 4_000_000
+    assert plan.family(Job("train", train_config("ppo-epopt", "Hopper", 0, 1000))) == "multidomain"
+    assert plan.family(Job("train", train_config("ppo-scn-16", "Hopper", 0, 1000))) == "ppo"
+    assert plan.family(Job("train", train_config("trpo", "Hopper", 0, 1000))) == "trpo"
+    test = {"perturbation": "obs", "sigmas": [0.0, 0.1, 0.2], "n_rollouts": 20, "max_episode_steps": 1000}
+    ev = Job("evaluate", {"train": cfg, "test": test})
+    assert plan.family(ev) == "evaluate" and plan.work(ev) == 3 * 20 * 1000
+    arm = Job("arm-solve", {"generations": 10, "popsize": None, "family": "bic"})
+    assert plan.family(arm) == "arm" and plan.work(arm) == 10 * plan.ARM_DEFAULT_POPSIZE
+
+
+def test_smoke_plan_matches_the_counted_jobs():
+    jobs = figures.jobs("3.3", "smoke")
+    train = [j for j in jobs if j.kind == "train"]
+    p = plan.plan_figure("3.3", "smoke", cores=2, rates=RATES)
+    assert p.n_train == len(train) == 6 and p.n_other == len(jobs) - len(train) == 24
+    assert p.env_steps == sum(j.config["timesteps"] for j in train) == 6 * 256
+    assert [(ln.kind, ln.family, ln.jobs) for ln in p.lines] == [("train", "ppo", 6), ("evaluate", "evaluate", 24)]
+    evals = sum(plan.work(j) for j in jobs if j.kind == "evaluate")
+    assert p.core_hours == pytest.approx((6 * 256 / 128 + evals / 100) / 3600)
+    train_h, eval_h = p.wall_hours()
+    assert train_h == pytest.approx(3 * 256 / 128 / 3600)  # 6 equal runs on 2 cores: 3 rounds
+    assert eval_h == pytest.approx(plan.makespan([plan.work(j) / 100 / 3600 for j in jobs if j.kind == "evaluate"], 2))
+    assert "fig-3.3 (smoke): 6 training jobs (1,536 env steps), 24 evaluation and other jobs" in plan.summary(p)
+
+
+def test_book_plan_counts_shared_runs_once():
+    per, book = plan.plan_book("smoke", cores=4, rates=RATES)
+    keys = {j.key for fid in figures.ids() for j in figures.jobs(fid, "smoke")}
+    assert len(per) == len(figures.ids())
+    assert book.n_train + book.n_other == len(keys) <= sum(p.n_train + p.n_other for p in per)
+    assert book.env_steps <= sum(p.env_steps for p in per)
+
+
+def test_throughput_file_roundtrip(tmp_path):
+    bench = {
+        "training": {"ppo kit steps/s": 1500.0, "sac kit steps/s": 200.0, "ppo ratio": 4.0},
+        "multidomain": {"joint steps/s": 1200.0, "kl-avg steps/s": 900.0},
+        "evaluation": {"batched_steps_per_s": 20000.0},
+        "arm": None,
+    }
+    assert plan.throughput_from_bench(bench) == {
+        "ppo": 1500.0,
+        "sac": 200.0,
+        "joint": 1200.0,
+        "kl-avg": 900.0,
+        "multidomain": 900.0,  # the slowest measured multi-domain learner
+        "evaluate": 20000.0,
+    }
+    path = plan.write_throughput(bench, tmp_path / "throughput.json")
+    assert plan.write_throughput({"arm": None}, tmp_path / "other.json") is None  # nothing measured: no file
+    doc = json.loads(path.read_text())
+    assert doc["rates"]["ppo"]["per_cpu_second"] == 1500.0 and doc["rates"]["ppo"]["unit"] == "env steps"
+    plan.write_throughput({"arm": {"vectorised_rollouts_per_s": 5000.0}}, path)  # merged, not replaced
+    rates = plan.load_rates(path)
+    assert rates.rate("ppo") == 1500.0 and rates.rate("arm") == 5000.0
+    assert rates.source("ppo").startswith("measured 20") and rates.source("ddpg") == "default"
+    assert rates.rate("trpo") == 1500.0 and "PPO" in rates.source("trpo")  # not benchmarked: PPO's rate
+    assert rates.rate("ddpg") == plan.DEFAULT_RATES["ddpg"] > 0
+
+
+def test_plan_command(capsys):
+    assert main(["plan", "3.3", "--scale", "smoke", "--cores", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "rates: " in out and "fig-3.3 (smoke): 6 training jobs" in out and "wall time on 2 cores" in out
+    assert main(["plan", "3.3", "--scale", "huge"]) == 2
+    assert "valid scales are" in capsys.readouterr().err
+    assert main(["plan", "3.3", "--scale", "smoke", "--cores", "0"]) == 2
+    assert main(["plan", "9.9", "--scale", "smoke"]) == 2
+    assert "valid figures are" in capsys.readouterr().err

@@ -1,0 +1,379 @@
+"""Cost plan of a figure (or the whole book) at a scale, printed before anything runs.
+
+``python -m thesis_repro plan 3.3 --scale full [--cores N]`` (``make plan-3.3 SCALE=full``) and ``plan all``
+count a figure's jobs (:func:`thesis_repro.figures.jobs`, deduplicated by key) per job kind and learner
+family, their work, the throughput of each family, the core-hours and the wall time on N cores:
+
+* **work**: env steps for ``train`` jobs (their ``timesteps``); for ``evaluate`` jobs the *upper bound*
+  points × rollouts × ``max_episode_steps`` (episodes that terminate early are shorter); for the
+  chapter-5 arm jobs an estimate of simulated rollouts (:func:`work`).
+* **throughput** (units per CPU-second, one job per core, as the kit runs them): measured by ``make bench``,
+  which writes ``build/bench/throughput.json`` (:func:`throughput_from_bench`, :func:`write_throughput`);
+  a family it has not measured falls back to :data:`DEFAULT_RATES`, and the plan says which one it used.
+* **core-hours** = work / rate / 3600 (:func:`core_hours`); **wall time** on N cores = training phase then
+  evaluation phase (the figures call ``run_jobs`` in that order), each phase scheduled longest job first on
+  N cores (:func:`makespan`; never below the longest job, nor below core-hours / N).
+
+The book total counts each run once (figures share runs by key), so it is less than the sum of the figures.
+
+>>> core_hours(3_600_000, 1_000.0)
+1.0
+>>> makespan([3.0, 3.0, 2.0, 2.0, 2.0], cores=2)
+7.0
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import os
+import platform
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from thesis_repro import figures, paths
+from thesis_repro.cache import Job
+
+#: Job kinds whose runs come first (the training phase); every other kind is the second phase.
+TRAINING_KINDS: tuple[str, ...] = figures.TRAINING_KINDS
+#: Unit of work of each family.
+UNITS: dict[str, str] = {"evaluate": "env steps", "arm": "rollouts"}
+#: Learners measured by ``make bench`` under their own name (the multi-domain line); other multi-domain
+#: learners (EPOpt, MAML-DG, Reptile-DG) use ``multidomain`` = the slowest of these.
+MEASURED_LEARNERS: tuple[str, ...] = ("joint", "params-avg", "kl-avg", "kl-exact")
+#: Training classes (``train_config(...)["class"]``) of the multi-domain learners.
+MULTIDOMAIN_CLASSES: tuple[str, ...] = ("SubPolicyAggregation", "EPOpt", "MAMLDG", "ReptileDG")
+#: Fallback throughput (units per CPU-second) of each family when ``build/bench/throughput.json`` lacks it:
+#: the rates of ``python -m thesis_repro.bench training multidomain evaluation arm`` (= ``make bench``) on the
+#: 2-core development machine on 2026-11-24 (Hopper; evaluation: the batched evaluator; arm: vectorised
+#: rollouts), measured while other training shared the machine, rounded to 3 digits. ``trpo`` was not
+#: benchmarked and takes PPO's rate (same rollouts, a cheaper update); ``multidomain`` (EPOpt, MAML-DG,
+#: Reptile-DG) is the slowest measured multi-domain learner.
+DEFAULT_RATES: dict[str, float] = {
+    "ppo": 4030.0,
+    "trpo": 4030.0,
+    "sac": 526.0,
+    "ddpg": 1430.0,
+    "joint": 2820.0,
+    "params-avg": 2740.0,
+    "kl-avg": 2070.0,
+    "kl-exact": 1990.0,
+    "multidomain": 1990.0,
+    "evaluate": 5630.0,
+    "arm": 11300.0,
+}
+#: CMA-ES population assumed for an arm job whose ``popsize`` is ``None`` (CMA's default for ~20-40 parameters).
+ARM_DEFAULT_POPSIZE = 16
+
+
+def throughput_path() -> Path:
+    """``build/bench/throughput.json`` (under ``THESIS_REPRO_BUILD`` if set)."""
+    return paths.build("bench") / "throughput.json"
+
+
+# ---------------------------------------------------------------- what a job costs
+def family(job: Job) -> str:
+    """Learner family whose throughput prices ``job``: ``ppo | trpo | sac | ddpg | joint | params-avg | kl-avg |
+    multidomain`` for training, ``evaluate``, ``arm`` (chapter 5), else the job's kind.
+
+    >>> family(Job("evaluate", {"train": {}, "test": {}}))
+    'evaluate'
+    """
+    cfg = job.config
+    if job.kind in TRAINING_KINDS:
+        algo, cls = str(cfg.get("algorithm", "")), str(cfg.get("class", ""))
+        if algo in MEASURED_LEARNERS:
+            return algo
+        if cls in MULTIDOMAIN_CLASSES:
+            return "multidomain"
+        return cls.lower() or "ppo"
+    if job.kind.startswith("evaluate"):
+        return "evaluate"
+    if job.kind.startswith("arm-"):
+        return "arm"
+    return job.kind
+
+
+def unit(fam: str) -> str:
+    """Unit of work of family ``fam`` (``env steps`` unless :data:`UNITS` says otherwise)."""
+    return UNITS.get(fam, "env steps")
+
+
+def _timesteps(cfg: Mapping[str, Any]) -> float:
+    t = cfg.get("timesteps", 0)
+    return float(sum(t.values()) if isinstance(t, Mapping) else t or 0)
+
+
+def work(job: Job) -> float:
+    """Units of work of ``job``: env steps (training), an upper bound of env steps (evaluation), or estimated
+    simulated rollouts (arm jobs: candidates per generation × generations × tasks).
+
+    >>> work(Job("evaluate", {"train": {}, "test": {"sigmas": [0.0, 0.5], "n_rollouts": 2, "max_episode_steps": 50}}))
+    200.0
+    """
+    cfg = job.config
+    if job.kind in TRAINING_KINDS:
+        return _timesteps(cfg)
+    if job.kind.startswith("evaluate"):
+        test = cfg.get("test", {})
+        points = len(test.get("sigmas", test.get("ratios", [])))
+        return float(points * int(test.get("n_rollouts", 20)) * int(test.get("max_episode_steps", 1000)))
+    pop = float(cfg.get("popsize") or ARM_DEFAULT_POPSIZE)
+    if job.kind in ("arm-source", "arm-competitor-source"):
+        return pop * int(cfg.get("n_tasks", 1)) * (int(cfg.get("generations", 0)) + int(cfg.get("mtl_generations", 0)))
+    if job.kind == "arm-target":
+        return pop * int(cfg.get("n_targets", 1)) * int(cfg.get("rounds", 1)) * int(cfg.get("phase_generations", 0))
+    if job.kind == "arm-curriculum":
+        return float(int(cfg.get("n_tasks", 1)) * int(cfg.get("pretrain_trials", 0)) + int(cfg.get("bic_trials", 0)))
+    if job.kind == "arm-solve":
+        return pop * int(cfg.get("generations", 0))
+    return _timesteps(cfg)
+
+
+# ---------------------------------------------------------------- arithmetic (pure)
+def core_hours(units: float, rate: float) -> float:
+    """CPU-core hours for ``units`` of work at ``rate`` units per CPU-second (``inf`` if the rate is unknown)."""
+    return units / rate / 3600.0 if rate > 0 else float("inf")
+
+
+def makespan(durations: Sequence[float], cores: int) -> float:
+    """Wall time of running single-core jobs of ``durations`` on ``cores`` cores, longest first, each started
+    on the core that frees up first (LPT list scheduling: within 4/3 of the optimum).
+
+    >>> makespan([1.0] * 10, cores=4)
+    3.0
+    >>> makespan([5.0, 1.0, 1.0], cores=8)  # never below the longest job
+    5.0
+    """
+    if cores < 1:
+        raise ValueError(f"cores must be an integer >= 1, got {cores!r}")
+    if not durations:
+        return 0.0
+    free = [0.0] * min(cores, len(durations))
+    for d in sorted(durations, reverse=True):
+        heapq.heapreplace(free, free[0] + d)
+    return max(free)
+
+
+# ---------------------------------------------------------------- throughput
+@dataclass(frozen=True)
+class Rates:
+    """Throughput per family (units per CPU-second) and where each number came from."""
+
+    rates: dict[str, float]
+    sources: dict[str, str]
+
+    def rate(self, fam: str) -> float:
+        return self.rates.get(fam, 0.0)
+
+    def source(self, fam: str) -> str:
+        return self.sources.get(fam, "unknown")
+
+
+def throughput_from_bench(results: Mapping[str, Mapping[str, Any] | None]) -> dict[str, float]:
+    """Steps (or rollouts) per CPU-second per family from the results of :func:`thesis_repro.bench.run`.
+
+    >>> throughput_from_bench({"training": {"ppo kit steps/s": 900.0}, "multidomain": {"joint steps/s": 700.0}})
+    {'ppo': 900.0, 'joint': 700.0, 'multidomain': 700.0}
+    """
+    out: dict[str, float] = {}
+    training = results.get("training") or {}
+    for fam in ("ppo", "sac", "ddpg"):
+        if f"{fam} kit steps/s" in training:
+            out[fam] = float(training[f"{fam} kit steps/s"])
+    md = results.get("multidomain") or {}
+    for algo in MEASURED_LEARNERS:
+        if f"{algo} steps/s" in md:
+            out[algo] = float(md[f"{algo} steps/s"])
+    if any(a in out for a in MEASURED_LEARNERS):
+        out["multidomain"] = min(out[a] for a in MEASURED_LEARNERS if a in out)
+    ev = results.get("evaluation") or {}
+    if "batched_steps_per_s" in ev:
+        out["evaluate"] = float(ev["batched_steps_per_s"])
+    arm = results.get("arm") or {}
+    if "vectorised_rollouts_per_s" in arm:
+        out["arm"] = float(arm["vectorised_rollouts_per_s"])
+    return out
+
+
+def write_throughput(results: Mapping[str, Mapping[str, Any] | None], path: str | Path | None = None) -> Path | None:
+    """Merge the families measured in ``results`` into ``build/bench/throughput.json``; ``None`` if none were.
+
+    Families measured earlier and not now are kept with their own date.
+    """
+    measured = throughput_from_bench(results)
+    if not measured:
+        return None
+    path = Path(path) if path is not None else throughput_path()
+    doc: dict[str, Any] = {"rates": {}}
+    if path.exists():
+        try:
+            doc = json.loads(path.read_text())
+        except ValueError:
+            doc = {"rates": {}}
+    stamp = {"measured": datetime.now(UTC).isoformat(timespec="seconds"), "host": platform.node()}
+    for fam, rate in measured.items():
+        doc["rates"][fam] = {"per_cpu_second": rate, "unit": unit(fam), **stamp}
+    doc["source"] = "make bench (python -m thesis_repro.bench): units per CPU-second, one single-threaded process"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps(doc, indent=1, sort_keys=True))
+    os.replace(tmp, path)
+    return path
+
+
+def load_rates(path: str | Path | None = None) -> Rates:
+    """Measured rates from ``build/bench/throughput.json`` where present, :data:`DEFAULT_RATES` elsewhere."""
+    path = Path(path) if path is not None else throughput_path()
+    rates = dict(DEFAULT_RATES)
+    sources = dict.fromkeys(DEFAULT_RATES, "default")
+    if path.exists():
+        for fam, entry in json.loads(path.read_text()).get("rates", {}).items():
+            rates[fam] = float(entry["per_cpu_second"])
+            sources[fam] = f"measured {str(entry.get('measured', ''))[:10]}".strip()
+    if sources["trpo"] == "default" and sources["ppo"] != "default":
+        rates["trpo"], sources["trpo"] = rates["ppo"], "PPO's (not benchmarked)"
+    return Rates(rates, sources)
+
+
+# ---------------------------------------------------------------- plans
+@dataclass
+class Line:
+    """One (kind, family) row of a plan."""
+
+    kind: str
+    family: str
+    jobs: int = 0
+    work: float = 0.0
+    durations: list[float] = field(default_factory=list)  # core-hours of each job
+
+    @property
+    def core_hours(self) -> float:
+        return sum(self.durations)
+
+
+@dataclass
+class Plan:
+    """Cost of a set of jobs (one figure, or the book) at one scale on ``cores`` cores."""
+
+    name: str
+    scale: str
+    cores: int
+    lines: list[Line]
+
+    @property
+    def training(self) -> list[Line]:
+        return [ln for ln in self.lines if ln.kind in TRAINING_KINDS]
+
+    @property
+    def other(self) -> list[Line]:
+        return [ln for ln in self.lines if ln.kind not in TRAINING_KINDS]
+
+    @property
+    def n_train(self) -> int:
+        return sum(ln.jobs for ln in self.training)
+
+    @property
+    def n_other(self) -> int:
+        return sum(ln.jobs for ln in self.other)
+
+    @property
+    def env_steps(self) -> float:
+        """Training env steps (the budget the scale table sets)."""
+        return sum(ln.work for ln in self.training)
+
+    @property
+    def core_hours(self) -> float:
+        return sum(ln.core_hours for ln in self.lines)
+
+    def wall_hours(self, cores: int | None = None) -> tuple[float, float]:
+        """(training phase, evaluation phase) wall hours on ``cores`` (default: the plan's)."""
+        n = cores or self.cores
+        train = makespan([d for ln in self.training for d in ln.durations], n)
+        return train, makespan([d for ln in self.other for d in ln.durations], n)
+
+
+def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rates | None = None) -> Plan:
+    """:class:`Plan` of ``jobs`` (deduplicated by key), priced with ``rates`` (default :func:`load_rates`)."""
+    rates = rates or load_rates()
+    lines: dict[tuple[str, str], Line] = {}
+    for job in {j.key: j for j in jobs}.values():
+        fam = family(job)
+        ln = lines.setdefault((job.kind, fam), Line(job.kind, fam))
+        w = work(job)
+        ln.jobs += 1
+        ln.work += w
+        ln.durations.append(core_hours(w, rates.rate(fam)))
+    order = sorted(lines.values(), key=lambda ln: (ln.kind not in TRAINING_KINDS, ln.kind, ln.family))
+    return Plan(name, scale, cores, order)
+
+
+def plan_figure(figure_id: str, scale: str, cores: int | None = None, rates: Rates | None = None) -> Plan:
+    """:class:`Plan` of every job figure ``figure_id`` runs at ``scale``."""
+    fig = figures.get(figure_id)
+    return plan_jobs(fig.notebook_id, figures.jobs(figure_id, scale), scale, cores or os.cpu_count() or 1, rates)
+
+
+def plan_book(scale: str, cores: int | None = None, rates: Rates | None = None) -> tuple[list[Plan], Plan]:
+    """One plan per figure and the book's plan (each run counted once)."""
+    cores = cores or os.cpu_count() or 1
+    rates = rates or load_rates()
+    per = {fid: figures.jobs(fid, scale) for fid in figures.ids()}
+    plans = [plan_jobs(figures.get(f).notebook_id, js, scale, cores, rates) for f, js in per.items()]
+    return plans, plan_jobs("book", (j for js in per.values() for j in js), scale, cores, rates)
+
+
+# ---------------------------------------------------------------- printing
+def _num(x: float) -> str:
+    if x == float("inf"):
+        return "unknown"
+    return f"{x:,.0f}" if x >= 100 else f"{x:,.2g}" if x < 1 else f"{x:,.1f}"
+
+
+def _hours(h: float) -> str:
+    if h == float("inf"):
+        return "unknown (no rate)"
+    return f"{h:,.1f} h" if h < 48 else f"{h:,.0f} h ({h / 24:,.1f} days)"
+
+
+def summary(p: Plan) -> str:
+    """The plan's one-line total: jobs, training env steps, core-hours, wall time on its cores."""
+    train, other = p.wall_hours()
+    return (
+        f"{p.name} ({p.scale}): {p.n_train:,} training jobs ({p.env_steps:,.0f} env steps), "
+        f"{p.n_other:,} evaluation and other jobs; "
+        f"{_num(p.core_hours)} core-hours; wall time on {p.cores} cores: {_hours(train + other)} "
+        f"(training {_hours(train)}, then evaluation {_hours(other)})"
+    )
+
+
+def report(p: Plan, rates: Rates | None = None) -> str:
+    """Table of ``p``'s lines (kind, family, jobs, work, rate and its source, core-hours) and its summary."""
+    from thesis_repro.runs import table
+
+    rates = rates or load_rates()
+    rows = [
+        {
+            "kind": ln.kind,
+            "family": ln.family,
+            "jobs": f"{ln.jobs:,}",
+            "work": f"{ln.work:,.0f} {unit(ln.family)}",
+            "per CPU-s": _num(rates.rate(ln.family)),
+            "rate from": rates.source(ln.family),
+            "core-hours": _num(ln.core_hours),
+        }
+        for ln in p.lines
+    ]
+    cols = ("kind", "family", "jobs", "work", "per CPU-s", "rate from", "core-hours")
+    return table(rows, cols) + "\n" + summary(p)
+
+
+def rates_note(rates: Rates) -> str:
+    """Where the rates come from (the measured file, or the documented defaults)."""
+    measured = sorted(f for f, s in rates.sources.items() if s.startswith("measured"))
+    if measured:
+        return f"rates: {throughput_path()} ({', '.join(measured)}); defaults (plan.DEFAULT_RATES) for the rest"
+    return "rates: plan.DEFAULT_RATES (documented defaults; run `make bench` to measure this machine's)"
