@@ -11,9 +11,16 @@ JOBS ?=
 ifdef RETRAIN
 export THESIS_REPRO_RETRAIN := $(RETRAIN)
 endif
+# BACKEND=ray runs the jobs as Ray tasks (RAY_ADDRESS=... for a cluster; none: a local Ray); default local pool.
+BACKEND ?=
+ifdef BACKEND
+export THESIS_REPRO_BACKEND := $(BACKEND)
+endif
+RAY_STAMP := $(VENV)/.installed-ray
+NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
-.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs runs-%
+.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs runs-% plan-%
 
 venv: $(STAMP)
 
@@ -25,23 +32,28 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m ipykernel install --sys-prefix --name python3 >/dev/null
 	touch $(STAMP)
 
+# the optional Ray extra (pyproject's [ray]): installed only for BACKEND=ray and for make test (its Ray tests)
+$(RAY_STAMP): $(STAMP)
+	$(BIN)/pip install -q --disable-pip-version-check -e ".[dev,ray]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	touch $(RAY_STAMP)
+
 ## make figure-3.3 SCALE=small : execute notebooks/fig-3.3.py at SCALE, write build/$(SCALE)/
-figure-%: $(STAMP)
+figure-%: $(NEEDS)
 	$(BIN)/python -m thesis_repro figure $* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS))
 
-table-%: $(STAMP)
+table-%: $(NEEDS)
 	$(BIN)/python -m thesis_repro figure table-$* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS))
 
 ## make smoke : every notebook at SCALE=smoke (seconds each)
-smoke: $(STAMP)
+smoke: $(NEEDS)
 	$(BIN)/python -m thesis_repro figure all --scale smoke
 
 ## make book SCALE=small [FORCE=1] : execute the changed notebooks at SCALE, build build/$(SCALE)/book/_build/html
-book: $(STAMP)
+book: $(NEEDS)
 	$(BIN)/python -m thesis_repro book --scale $(SCALE) $(if $(FORCE),--force)
 
 ## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale
-test: $(STAMP)
+test: $(STAMP) $(RAY_STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
 	tmp=$$(mktemp -d); export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build; \
 	$(BIN)/python -m pytest -q -rfE --doctest-modules tests thesis_repro \
@@ -60,6 +72,11 @@ runs-%: $(STAMP)
 ## make budgets SCALE=small : training return of every cached/shipped run vs its budget (trained or still learning)
 budgets: $(STAMP)
 	$(BIN)/python -m thesis_repro budgets --scale $(SCALE)
+
+## make plan-3.3 SCALE=full [CORES=64] : cost before running (jobs, env steps, throughput, core-hours, wall time);
+## make plan-all SCALE=full : every figure and the book
+plan-%: $(STAMP)
+	$(BIN)/python -m thesis_repro plan $* --scale $(SCALE) $(if $(CORES),--cores $(CORES))
 
 ## make bench : throughput benchmarks (batched evaluation, PPO training, ...), printed as ratios
 bench: $(STAMP)
