@@ -46,7 +46,9 @@ def test_backend_choice(monkeypatch):
     monkeypatch.setenv(backends.ENV_VAR, " Ray ")
     assert backends.backend() == "ray"
     monkeypatch.setenv(backends.ENV_VAR, "dask")
-    with pytest.raises(ValueError, match="'local', 'ray'"):
+    with pytest.raises(
+        ValueError, match="THESIS_REPRO_BACKEND: unknown backend 'dask'; valid backends are: 'local', 'ray'"
+    ):
         run_jobs([Job("square", {"x": 2})], progress=False)  # validated before anything runs
 
 

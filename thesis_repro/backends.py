@@ -34,7 +34,7 @@ job's kind, label, key, config and remote traceback.
 >>> backend({"THESIS_REPRO_BACKEND": "slurm"})  # doctest: +ELLIPSIS
 Traceback (most recent call last):
 ...
-ValueError: unknown backend (THESIS_REPRO_BACKEND) 'slurm'; valid backend (THESIS_REPRO_BACKEND)s are: 'local', 'ray'
+ValueError: THESIS_REPRO_BACKEND: unknown backend 'slurm'; valid backends are: 'local', 'ray'
 """
 
 from __future__ import annotations
@@ -86,7 +86,10 @@ def backend(environ: Mapping[str, str] | None = None) -> str:
     """The backend named by ``THESIS_REPRO_BACKEND`` (default ``local``); ``ValueError`` naming the choices."""
     env = os.environ if environ is None else environ
     name = (env.get(ENV_VAR) or "local").strip().lower() or "local"
-    return check_choice(name, BACKENDS, f"backend ({ENV_VAR})")
+    try:
+        return check_choice(name, BACKENDS, "backend")
+    except ValueError as err:
+        raise ValueError(f"{ENV_VAR}: {err}") from None
 
 
 def resources(kind: str) -> dict[str, float]:
@@ -230,23 +233,24 @@ def compute(
             if _has(cache.root, dep) is None and (cache.reference is None or _has(cache.reference, dep) is None):
                 with cache._lock(SimpleNamespace(kind=dep["kind"], key=dep["folder"].rsplit("__", 1)[-1])):
                     unpack(cache.root, dep)
-        hit = cache.load(job)
-        if hit is not None and hit.source == "cached":  # e.g. committed by the driver of an earlier attempt
-            return pack(hit.path)
-        start = time.time()
-        workdir = cache.workdir(job)
-        (workdir / "out").mkdir(parents=True, exist_ok=True)
-        note = {"pid": os.getpid(), "host": socket.gethostname(), "start": start}
-        (workdir / WORKER_FILE).write_text(json.dumps(note))
-        values = fn(dict(job.config), workdir)
-        scratch = Path(tempfile.mkdtemp(prefix="thesis-repro-ray-"))
-        argv, sys.argv = sys.argv, list(command)  # provenance records the command that asked for the job
-        try:
-            packed = pack(RunCache(scratch, reference=False)._commit(job, values, workdir, start))
-        finally:
-            sys.argv = argv
-            shutil.rmtree(scratch, ignore_errors=True)
-        shutil.rmtree(workdir, ignore_errors=True)
+        with cache._lock(job):  # as RunCache.run: a second computation of the same job waits, then reuses
+            hit = cache.load(job)
+            if hit is not None and hit.source == "cached":  # committed meanwhile (shared storage)
+                return pack(hit.path)
+            start = time.time()
+            workdir = cache.workdir(job)
+            (workdir / "out").mkdir(parents=True, exist_ok=True)
+            note = {"pid": os.getpid(), "host": socket.gethostname(), "start": start}
+            (workdir / WORKER_FILE).write_text(json.dumps(note))
+            values = fn(dict(job.config), workdir)
+            scratch = Path(tempfile.mkdtemp(prefix="thesis-repro-ray-"))
+            argv, sys.argv = sys.argv, list(command)  # provenance records the command that asked for the job
+            try:
+                packed = pack(RunCache(scratch, reference=False)._commit(job, values, workdir, start))
+            finally:
+                sys.argv = argv
+                shutil.rmtree(scratch, ignore_errors=True)
+            shutil.rmtree(workdir, ignore_errors=True)
         return packed
 
 
