@@ -31,12 +31,20 @@ def test_curve_stats_on_a_saturating_and_a_linear_curve():
     assert np.isnan(budgets.curve_stats(t[:10], t[:10] / 100.0, 1e6)["final"])  # no episode late in the budget
 
 
-def test_judge_uses_the_thesis_return_where_given_else_the_plateau():
-    assert budgets.judge(0.7 * 3128.6, 0.5, 3128.6) == "trained"
-    assert budgets.judge(0.69 * 3128.6, 0.0, 3128.6) == "still learning"
-    assert budgets.judge(500.0, 0.1, None) == "trained"
-    assert budgets.judge(500.0, 0.11, None) == "still learning"
-    assert budgets.judge(500.0, float("nan"), None) == "still learning"
+def test_extrapolation_and_judgement():
+    # log-linear: +500 per doubling, 1M -> 4M is two doublings
+    assert budgets.extrapolate(1500.0, 1000.0, 1e6, 4e6) == 2500.0
+    assert budgets.extrapolate(1500.0, 1000.0, 2e6, 4e6) == 2000.0
+    assert budgets.extrapolate(1500.0, 1600.0, 1e6, 4e6) == 1500.0  # a falling curve is not extrapolated down
+    assert budgets.extrapolate(1500.0, 1000.0, 4e6, 4e6) == 1500.0
+    # the thesis's own training return wins where it exists (Table 3.3a)
+    assert budgets.judge(0.7 * 3128.6, 0.0, 1e6, 3128.6) == (pytest.approx(0.7), "trained")
+    assert budgets.judge(0.69 * 3128.6, 2000.0, 1e6, 3128.6)[1] == "still learning"
+    # else the extrapolated 4e6 return: at 1M, 1000 after 833.3 at 500k -> 1000 + 2 * 166.7 = 1333.3 at 4M
+    assert budgets.judge(1000.0, 2500.0 / 3, 1e6, None) == (pytest.approx(0.75), "trained")
+    assert budgets.judge(1000.0, 600.0, 1e6, None) == (pytest.approx(1000 / 1800), "still learning")
+    assert budgets.judge(float("nan"), 1.0, 1e6, None)[1] == "still learning"
+    assert budgets.THESIS_STEPS == 4_000_000
 
 
 def test_budgets_command_lists_untrained_runs_and_rejects_bad_scales(capsys):

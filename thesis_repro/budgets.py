@@ -3,8 +3,10 @@
 Issue 7's rule: at ``small`` a policy should be near its plateau, i.e. its training return at least ~70 %
 of what the same learner reaches at the thesis's 4e6 steps, or of the thesis's own reported training
 return where it gives one (Table 3.3a: Walker2d, PPO and its noise-trained variants). Where the thesis
-gives no training return we cannot afford 4e6-step runs to compare with, so the stated proxy is the
-curve itself: how much the return still grew over the second half of the budget.
+gives no training return we cannot afford 4e6-step runs to compare with, so the return at 4e6 is
+extrapolated from the run's own curve, log-linearly: the growth between half the budget and the end
+continues for every further doubling of the steps (:func:`extrapolate`). Learning curves saturate, so
+this over-estimates the 4e6 return and the judgement errs towards "still learning".
 
 ``python -m thesis_repro budgets --scale small`` prints one row per training run that is cached or
 shipped (nothing is trained), read from its recorded curve.
@@ -32,8 +34,8 @@ TABLE_3_3A_ALGOS: dict[str, str] = {
 }
 #: Fraction of the thesis's training return that counts as trained (issue 7).
 TRAINED_FRACTION = 0.7
-#: Without a thesis number: the return grew by at most this fraction over the budget's second half.
-PLATEAU_GAIN = 0.1
+#: The thesis's training budget of every chapter-3/4 run (read from the ``full`` scale of Fig 3.3).
+THESIS_STEPS: int = figures.thesis_budget("3.3")
 
 
 def thesis_training_returns() -> dict[tuple[str, str], float]:
@@ -71,15 +73,33 @@ def curve_stats(t: np.ndarray, r: np.ndarray, total: float, window: float = 0.1)
     return {"final": final, "half": half, "gain": gain}
 
 
-def judge(final: float, gain: float, thesis: float | None) -> str:
-    """``"trained"`` or ``"still learning"`` by issue 7's rule (thesis return if given, else the plateau proxy).
+def extrapolate(final: float, half: float, steps: float, target: float = THESIS_STEPS) -> float:
+    """Log-linear estimate of the return at ``target`` steps from the returns at ``steps / 2`` and ``steps``:
+    the growth of the last doubling repeats for each of the log2(target / steps) doublings left (no
+    growth assumed when the curve fell; ``final`` itself once ``steps >= target``).
 
-    >>> judge(2500.0, 0.3, 3128.6), judge(1500.0, 0.05, 3128.6), judge(900.0, 0.05, None)
-    ('trained', 'still learning', 'trained')
+    >>> extrapolate(1500.0, 1000.0, 1e6, 4e6)  # two more doublings of +500
+    2500.0
+    >>> extrapolate(1000.0, 1000.0, 2e5, 4e6), extrapolate(900.0, 1000.0, 1e6, 4e6)
+    (1000.0, 900.0)
     """
-    if thesis is not None and np.isfinite(thesis):
-        return "trained" if final >= TRAINED_FRACTION * thesis else "still learning"
-    return "trained" if np.isfinite(gain) and gain <= PLATEAU_GAIN else "still learning"
+    if not (np.isfinite(final) and np.isfinite(half)) or steps >= target:
+        return float(final)
+    return float(final + max(final - half, 0.0) * np.log2(target / steps))
+
+
+def judge(final: float, half: float, steps: float, thesis: float | None) -> tuple[float, str]:
+    """Fraction of the 4e6 return reached (the thesis's where given, else :func:`extrapolate`) and the
+    verdict, ``"trained"`` (>= :data:`TRAINED_FRACTION`) or ``"still learning"``.
+
+    >>> judge(2500.0, 2000.0, 1e6, 3128.6)[1], judge(1500.0, 1000.0, 1e6, None)
+    ('trained', (0.6, 'still learning'))
+    """
+    reference = thesis if thesis is not None and np.isfinite(thesis) else extrapolate(final, half, steps)
+    if not (np.isfinite(final) and np.isfinite(reference)) or reference <= 0:
+        return float("nan"), "still learning"
+    fraction = float(final / reference)
+    return fraction, "trained" if fraction >= TRAINED_FRACTION else "still learning"
 
 
 def wall_seconds(result: Any) -> float:
@@ -111,8 +131,9 @@ def training_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[J
 
 def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache | None = None) -> pd.DataFrame:
     """One row per training run of ``scale`` with a cached or shipped result: algo, env, seed, timesteps,
-    source, ``half``/``final`` return, ``gain``, the thesis's training return (where given), ``fraction`` of
-    it reached and the verdict. Runs not trained yet are listed with ``source="missing"``."""
+    source, ``half``/``final`` return, ``gain``, the thesis's training return (where given), the
+    ``fraction`` of the 4e6 return reached (thesis's, else extrapolated) and the verdict. Runs not trained
+    yet are listed with ``source="missing"``."""
     cache = cache or RunCache()
     thesis = thesis_training_returns()
     rows = []
@@ -132,14 +153,15 @@ def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache |
             rows.append({**row, "source": "missing"})
             continue
         stats = curve_stats(*_curve(result), total=row["timesteps"])
+        fraction, verdict = judge(stats["final"], stats["half"], row["timesteps"], ref)
         rows.append(
             {
                 **row,
                 "source": result.source,
                 **stats,
                 "thesis_train": ref,
-                "fraction": stats["final"] / ref if ref else float("nan"),
-                "verdict": judge(stats["final"], stats["gain"], ref),
+                "fraction": fraction,
+                "verdict": verdict,
                 "wall_s": wall_seconds(result),
             }
         )
