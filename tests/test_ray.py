@@ -232,3 +232,14 @@ def test_a_failing_job_fails_the_call_after_committing_the_others(on_ray):
         run_jobs(jobs, progress=False)
     cache = RunCache()
     assert [cache.state(j) for j in jobs] == ["cached", "partial", "cached"]  # its workdir is kept, as locally
+
+
+def test_evaluation_and_its_training_run_in_one_call(on_ray):
+    """The evaluation's task gets its training run as the training task's object ref (Ray orders them)."""
+    train = Job("train", _smoke_train(seed=3))
+    test = {"perturbation": "act", "sigmas": [0.0, 0.5], "n_rollouts": 2, "max_episode_steps": 50}
+    ev = Job("evaluate", {"train": train.config, "test": test})
+    ev_res, train_res = run_jobs([ev, train], progress=False)  # the dependent first: still ordered by Ray
+    assert (ev_res.source, train_res.source) == ("computed", "computed")
+    assert ev_res["train_return"] == pytest.approx(float(np.mean(train_res["train_return"])))
+    assert ev_res["returns"].shape == (2, 2)
