@@ -34,7 +34,7 @@ def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
     job = runs.cheapest_shipped("train", LAYER)
     if job is None:
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
-    assert runs.cost(job) <= 100_000, f"cheapest shipped run {job.label} costs {runs.cost(job):,.0f} steps"
+    assert runs.cost(job) <= 250_000, f"cheapest shipped run {job.label} costs {runs.cost(job):,.0f} steps"
     shipped = RunCache(tmp_path / "unused", reference=LAYER).load(job)
     assert shipped is not None and shipped.source == "shipped"
     fresh = RunCache(tmp_path / "runs", reference=False).run(job)

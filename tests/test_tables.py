@@ -383,5 +383,5 @@ def test_degrade_and_observation_sensitivity_counts():
 
 def test_budget_sentence_names_only_the_items_tasks():
     one = F.describe(F.settings("3.4", "small"))
-    assert "scale small: 100,000 env steps per run (thesis: 4,000,000)" in one and "InvertedPendulum" not in one
-    assert "InvertedPendulum: 20,000" in F.describe(F.settings("table-3.4", "small"))
+    assert "scale small: 2,000,000 env steps per run (thesis: 4,000,000)" in one and "InvertedPendulum" not in one
+    assert "InvertedPendulum: 200,000" in F.describe(F.settings("table-3.4", "small"))

@@ -131,7 +131,7 @@ def runs_summary(figure_id: str, scale: str) -> str:
     Counts its training runs, or every job when the figure trains nothing (chapter 5's arm jobs).
 
     >>> runs_summary("4.1", "smoke")  # doctest: +ELLIPSIS
-    'fig-4.1 (smoke): 6 training runs: 0 shipped, ... cached, ... to compute'
+    'fig-4.1 (smoke): 8 training runs: 0 shipped, ... cached, ... to compute'
     """
     from thesis_repro import runs  # at call time: thesis_repro.runs imports this registry
 
