@@ -56,7 +56,7 @@ book: $(NEEDS)
 test: $(STAMP) $(RAY_STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
 	tmp=$$(mktemp -d); export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build; \
-	$(BIN)/python -m pytest -q -rfE --doctest-modules tests thesis_repro \
+	$(BIN)/python -m pytest -q -rfEs --doctest-modules tests thesis_repro \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
 ## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] : train every figure's training runs (cheapest
