@@ -5,7 +5,9 @@ are SB3 algorithms in :mod:`thesis_repro.learners.multidomain`, trained by the k
 """
 
 from thesis_repro.mdl.aggregate import (
+    FisherProducts,
     GaussianPolicy,
+    MLPSpec,
     PolicyView,
     eq47_kls,
     eq47_objective,
@@ -19,7 +21,9 @@ from thesis_repro.mdl.aggregate import (
 )
 
 __all__ = [
+    "FisherProducts",
     "GaussianPolicy",
+    "MLPSpec",
     "PolicyView",
     "eq47_kls",
     "eq47_objective",
