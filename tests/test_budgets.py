@@ -29,6 +29,8 @@ def test_curve_stats_on_a_saturating_and_a_linear_curve():
     assert lin["half"] == pytest.approx(np.mean(np.arange(401, 501) * 10.0))
     assert lin["gain"] == pytest.approx((9505 - 4505) / 9505)
     assert np.isnan(budgets.curve_stats(t[:10], t[:10] / 100.0, 1e6)["final"])  # no episode late in the budget
+    bump = budgets.curve_stats(t, np.where(t <= 5e5, t / 100.0, 1000.0), 1e6)  # rises to 5,000, drops to 1,000
+    assert bump["peak"] == pytest.approx(np.mean(np.arange(401, 501) * 10.0)) and bump["final"] == 1000.0
 
 
 def test_extrapolation_and_judgement():
@@ -44,6 +46,12 @@ def test_extrapolation_and_judgement():
     assert budgets.judge(1000.0, 2500.0 / 3, 1e6, None) == (pytest.approx(0.75), "trained")
     assert budgets.judge(1000.0, 600.0, 1e6, None) == (pytest.approx(1000 / 1800), "still learning")
     assert budgets.judge(float("nan"), 1.0, 1e6, None)[1] == "still learning"
+    # a run that collapsed (PPO) is judged against its own peak, not against a flat extrapolation
+    assert budgets.judge(2839.0, 5142.0, 1e6, None, peak=8000.0) == (pytest.approx(2839 / 8000), "fell from its peak")
+    assert budgets.judge(7900.0, 8100.0, 1e6, None, peak=8200.0) == (pytest.approx(7900 / 8200), "trained")
+    assert budgets.judge(1500.0, 1000.0, 1e6, None, peak=1600.0)[0] == pytest.approx(0.6)  # extrapolation larger
+    # a bounded task: the extrapolation stops at the largest possible return (InvertedDoublePendulum: 10/step)
+    assert budgets.judge(9191.0, 6308.0, 1e6, None, ceiling=10_000.0) == (pytest.approx(0.9191), "trained")
     assert budgets.THESIS_STEPS == 4_000_000
 
 

@@ -34,6 +34,10 @@ TABLE_3_3A_ALGOS: dict[str, str] = {
 }
 #: Fraction of the thesis's training return that counts as trained (issue 7).
 TRAINED_FRACTION = 0.7
+#: Largest reward of one step where the task bounds it (Gymnasium v5): InvertedPendulum +1 per step alive;
+#: InvertedDoublePendulum its alive bonus 10 minus non-negative distance/velocity penalties. An episode
+#: cannot return more than this times its length, so extrapolations are capped there.
+REWARD_BOUND: dict[str, float] = {"InvertedPendulum": 1.0, "InvertedDoublePendulum": 10.0}
 #: The thesis's training budget of every chapter-3/4 run (read from the ``full`` scale of Fig 3.3).
 THESIS_STEPS: int = figures.thesis_budget("3.3")
 
@@ -61,16 +65,20 @@ def window_mean(t: np.ndarray, r: np.ndarray, lo: float, hi: float) -> float:
 
 def curve_stats(t: np.ndarray, r: np.ndarray, total: float, window: float = 0.1) -> dict[str, float]:
     """Return over the last ``window`` of the budget (``final``), over the window ending at half the budget
-    (``half``), and the relative growth between them (``gain`` = (final - half) / |final|).
+    (``half``), the relative growth between them (``gain`` = (final - half) / |final|) and the best return
+    of any of the budget's ``window``-wide stretches (``peak``).
 
     >>> s = curve_stats(np.arange(1, 101), np.minimum(np.arange(1, 101), 50.0), 100)
-    >>> s["final"], s["half"], s["gain"]
-    (50.0, 45.5, 0.09)
+    >>> s["final"], s["half"], s["gain"], s["peak"]
+    (50.0, 45.5, 0.09, 50.0)
     """
     final = window_mean(t, r, (1 - window) * total, total)
     half = window_mean(t, r, (0.5 - window) * total, 0.5 * total)
     gain = (final - half) / abs(final) if np.isfinite(final) and np.isfinite(half) and final != 0 else float("nan")
-    return {"final": final, "half": half, "gain": gain}
+    n = int(round(1 / window))
+    stretches = [window_mean(t, r, k * window * total, (k + 1) * window * total) for k in range(n)]
+    peak = max((v for v in stretches if np.isfinite(v)), default=float("nan"))
+    return {"final": final, "half": half, "gain": gain, "peak": peak}
 
 
 def extrapolate(final: float, half: float, steps: float, target: float = THESIS_STEPS) -> float:
@@ -88,18 +96,38 @@ def extrapolate(final: float, half: float, steps: float, target: float = THESIS_
     return float(final + max(final - half, 0.0) * np.log2(target / steps))
 
 
-def judge(final: float, half: float, steps: float, thesis: float | None) -> tuple[float, str]:
-    """Fraction of the 4e6 return reached (the thesis's where given, else :func:`extrapolate`) and the
-    verdict, ``"trained"`` (>= :data:`TRAINED_FRACTION`) or ``"still learning"``.
+def judge(
+    final: float,
+    half: float,
+    steps: float,
+    thesis: float | None,
+    peak: float = float("nan"),
+    ceiling: float = float("inf"),
+) -> tuple[float, str]:
+    """Fraction of the 4e6 return reached and the verdict: ``"trained"`` (>= :data:`TRAINED_FRACTION`),
+    ``"still learning"``, or ``"fell from its peak"`` (the run once did better: PPO's collapses).
+
+    The 4e6 return is the thesis's where given; else the larger of :func:`extrapolate` and the run's own
+    ``peak`` (a learner given more steps does at least as well as it already did), at most ``ceiling``
+    (the task's largest possible return).
 
     >>> judge(2500.0, 2000.0, 1e6, 3128.6)[1], judge(1500.0, 1000.0, 1e6, None)
     ('trained', (0.6, 'still learning'))
+    >>> judge(2800.0, 5100.0, 1e6, None, peak=9000.0)
+    (0.3111111111111111, 'fell from its peak')
     """
-    reference = thesis if thesis is not None and np.isfinite(thesis) else extrapolate(final, half, steps)
+    if thesis is not None and np.isfinite(thesis):
+        reference, fell = thesis, False
+    else:
+        grown = min(extrapolate(final, half, steps), ceiling)
+        fell = bool(np.isfinite(peak) and peak > grown)
+        reference = peak if fell else grown
     if not (np.isfinite(final) and np.isfinite(reference)) or reference <= 0:
         return float("nan"), "still learning"
     fraction = float(final / reference)
-    return fraction, "trained" if fraction >= TRAINED_FRACTION else "still learning"
+    if fraction >= TRAINED_FRACTION:
+        return fraction, "trained"
+    return fraction, "fell from its peak" if fell else "still learning"
 
 
 def wall_seconds(result: Any) -> float:
@@ -153,7 +181,8 @@ def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache |
             rows.append({**row, "source": "missing"})
             continue
         stats = curve_stats(*_curve(result), total=row["timesteps"])
-        fraction, verdict = judge(stats["final"], stats["half"], row["timesteps"], ref)
+        bound = REWARD_BOUND.get(c["env"], float("inf")) * int(c.get("max_episode_steps") or 1000)
+        fraction, verdict = judge(stats["final"], stats["half"], row["timesteps"], ref, stats["peak"], bound)
         rows.append(
             {
                 **row,
@@ -197,7 +226,7 @@ def render(frame: pd.DataFrame) -> str:
     if frame.empty:
         return "no training runs"
     shown = frame.copy()
-    for col in ("half", "final", "thesis_train", "wall_s"):
+    for col in ("half", "final", "peak", "thesis_train", "wall_s"):
         if col in shown:
             shown[col] = shown[col].map(lambda v: "-" if v is None or not np.isfinite(v) else f"{v:,.0f}")
     for col in ("gain", "fraction"):
