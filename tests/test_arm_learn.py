@@ -105,8 +105,14 @@ def test_alternation_improves_toy_objective():
         return cost, (cost < 0.5).astype(float)
 
     res = transfer.alternate(
-        objective, transfer.make_subspace(W_src, "tensor", (4, 2, 3)), 2, rounds=2, generations=25, sigma_s=0.1,
-        sigma_L=0.05, seed=0,
+        objective,
+        transfer.make_subspace(W_src, "tensor", (4, 2, 3)),
+        2,
+        rounds=2,
+        generations=25,
+        sigma_s=0.1,
+        sigma_L=0.05,
+        seed=0,
     )
     assert res.curve.shape == (2, 100) and res.phases[:25] == ["s"] * 25 and res.phases[25] == "L"
     final = objective(res.W)[0]
@@ -194,8 +200,9 @@ def test_every_strategy_gets_the_same_budget(strategy):
         sources = 0.1 * rng.normal(size=(4, baselines.ClosedLoopPolicy(strategy).n_params))
     else:
         sources = np.tile(RBFPolicy(n_basis=6).default_params(), (4, 1, 1)) + 0.1 * rng.normal(size=(4, 8, 2))
-    out = baselines.learn_target(strategy, "throw", targets, sources, rounds=1, phase_generations=2, popsize=5,
-                                 ranks=(4, 2, 3), n_basis=6)
+    out = baselines.learn_target(
+        strategy, "throw", targets, sources, rounds=1, phase_generations=2, popsize=5, ranks=(4, 2, 3), n_basis=6
+    )
     assert out["curve"].shape == out["success_curve"].shape == (2, 4)
     assert out["trials"].tolist() == [5, 10, 15, 20]
     np.testing.assert_allclose(out["total_cost"], 5 * out["curve"].sum(1))
@@ -222,8 +229,16 @@ def test_source_and_target_jobs_through_the_run_cache():
     res = RunCache().run(Job("thesis_repro.arm.learn:source_job", src))
     assert res["W"].shape == (3, 12, 2) and res["tasks"].shape == (3, 2)
     assert np.all(res["cost"] <= res["stage1_cost"] + 1e-9)  # MTL refinement is kept only where it helps
-    tgt = {"source": src, "target": "bic", "strategy": "tensor", "n_targets": 2, "rounds": 1,
-           "phase_generations": 2, "popsize": 5, "ranks": [4, 2, 3]}
+    tgt = {
+        "source": src,
+        "target": "bic",
+        "strategy": "tensor",
+        "n_targets": 2,
+        "rounds": 1,
+        "phase_generations": 2,
+        "popsize": 5,
+        "ranks": [4, 2, 3],
+    }
     out = RunCache().run(Job("thesis_repro.arm.baselines:target_job", tgt))
     assert out["curve"].shape == (2, 4) and 0.0 <= out["success_rate"] <= 1.0
     assert RunCache().run(Job("thesis_repro.arm.learn:source_job", src)).from_cache

@@ -62,9 +62,7 @@ def load(name: str) -> pd.DataFrame:
     return frame
 
 
-def thesis_table(
-    name: str, env: str | None = None, test: str | None = None, method: str | None = None
-) -> pd.DataFrame:
+def thesis_table(name: str, env: str | None = None, test: str | None = None, method: str | None = None) -> pd.DataFrame:
     """Rows of table ``name`` matching the given ``env``/``test``/``method`` (``None`` = all), re-indexed.
 
     Unknown filter values raise ``ValueError`` listing the values present in that table.

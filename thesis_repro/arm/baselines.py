@@ -41,10 +41,12 @@ STRATEGIES: tuple[str, ...] = TRANSFER + COMPETITORS
 POLICY_CLASSES: tuple[str, ...] = COMPETITORS
 
 
-
 def closed_loop_simulate(
-    family: str, task_params: np.ndarray, controller: Callable[[int, np.ndarray, np.ndarray], np.ndarray],
-    B: int, config: dict[str, Any] | None = None,
+    family: str,
+    task_params: np.ndarray,
+    controller: Callable[[int, np.ndarray, np.ndarray], np.ndarray],
+    B: int,
+    config: dict[str, Any] | None = None,
 ) -> Any:
     """``tasks.simulate`` with the action ``a_t = controller(t, pos (B, 2), vel (B, 2))`` for B rollouts.
 
@@ -64,8 +66,17 @@ class ClosedLoopPolicy:
     ``vel_scale`` m/s; outputs are accelerations scaled by ``acc_scale`` m/s².
     """
 
-    def __init__(self, kind: str, horizon: int = 100, dt: float = 0.02, tiles: int = 5, hidden: int = 8,
-                 pos_scale: float = 0.3, vel_scale: float = 2.0, acc_scale: float = 20.0) -> None:
+    def __init__(
+        self,
+        kind: str,
+        horizon: int = 100,
+        dt: float = 0.02,
+        tiles: int = 5,
+        hidden: int = 8,
+        pos_scale: float = 0.3,
+        vel_scale: float = 2.0,
+        acc_scale: float = 20.0,
+    ) -> None:
         self.kind = check_choice(kind, POLICY_CLASSES, "policy class")
         self.horizon, self.dt, self.tiles, self.hidden = int(horizon), float(dt), int(tiles), int(hidden)
         self.pos_scale, self.vel_scale, self.acc_scale = pos_scale, vel_scale, acc_scale
@@ -129,15 +140,23 @@ def closed_loop_objective(
     def f(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n, pop = theta.shape[:2]
         flat = theta.reshape(n * pop, -1)
-        r = closed_loop_simulate(family, np.repeat(tasks, pop, axis=0), lambda t, p, v: pol.action(flat, t, p, v),
-                                 n * pop, cfg)
+        r = closed_loop_simulate(
+            family, np.repeat(tasks, pop, axis=0), lambda t, p, v: pol.action(flat, t, p, v), n * pop, cfg
+        )
         return r.cost.reshape(n, pop), r.task_cost.reshape(n, pop), r.success.reshape(n, pop).astype(float)
 
     return f
 
 
 def learn_closed_loop_sources(
-    family: str, tasks: np.ndarray, kind: str, *, generations: int, sigma: float, popsize: int, seed: int,
+    family: str,
+    tasks: np.ndarray,
+    kind: str,
+    *,
+    generations: int,
+    sigma: float,
+    popsize: int,
+    seed: int,
     config: dict | None = None,
 ) -> tuple[np.ndarray, CMAResult]:
     """A competitor's source tasks: CMA-ES per task on the shaped cost from its initial parameters."""
@@ -197,8 +216,9 @@ def learn_target(
             W0 = np.tile(RBFPolicy(n_basis=n_basis).default_params(), (n, 1, 1))
         else:
             W0 = np.asarray(sources)[rng.integers(0, len(sources), size=n)]
-        W, res = learn_independent(family, targets, W0, generations=generations, sigma=sigma, popsize=popsize,
-                                   l2=l2, seed=seed, config=config)
+        W, res = learn_independent(
+            family, targets, W0, generations=generations, sigma=sigma, popsize=popsize, l2=l2, seed=seed, config=config
+        )
         curve, success = res.curve, res.success
         final = evaluate_policies(family, targets, W, config)
     else:
@@ -217,8 +237,18 @@ def learn_target(
         kind = "tensor" if strategy == "tensor" else "matrix"
         r = (min(ranks[0], D), min(ranks[1], A), min(ranks[2], P)) if kind == "tensor" else (D, A, min(ranks[2], P))
         sub = make_subspace(tensor, kind, r)
-        res = alternate(objective, sub, n, rounds=rounds, generations=phase_generations, sigma_s=sigma,
-                        sigma_L=sigma, l2=l2, popsize=popsize, seed=seed)
+        res = alternate(
+            objective,
+            sub,
+            n,
+            rounds=rounds,
+            generations=phase_generations,
+            sigma_s=sigma,
+            sigma_L=sigma,
+            l2=l2,
+            popsize=popsize,
+            seed=seed,
+        )
         curve, success = res.curve, res.success
         _, cost, succ = objective(res.W[:, None])
         final = {"cost": cost[:, 0], "success": succ[:, 0]}
@@ -253,9 +283,19 @@ def target_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any]:
         sources = RunCache().run(Job("thesis_repro.arm.learn:source_job", src_cfg))["W"]
     targets = sample_tasks(cfg["target"], cfg["n_targets"], np.random.default_rng([cfg["seed"], 7]))
     out = learn_target(
-        strategy, cfg["target"], targets, sources, rounds=cfg["rounds"], phase_generations=cfg["phase_generations"],
-        popsize=cfg["popsize"], sigma=cfg["sigma"], ranks=tuple(cfg["ranks"]), l2=cfg["l2"], seed=cfg["seed"],
-        n_basis=src_cfg.get("n_basis", 10), config=arm,
+        strategy,
+        cfg["target"],
+        targets,
+        sources,
+        rounds=cfg["rounds"],
+        phase_generations=cfg["phase_generations"],
+        popsize=cfg["popsize"],
+        sigma=cfg["sigma"],
+        ranks=tuple(cfg["ranks"]),
+        l2=cfg["l2"],
+        seed=cfg["seed"],
+        n_basis=src_cfg.get("n_basis", 10),
+        config=arm,
     )
     out["success_rate"] = float(out["final_success"].mean())
     out["mean_total_cost"] = float(out["total_cost"].mean())
@@ -270,10 +310,22 @@ def competitor_source_job(config: dict[str, Any], workdir: Any = None) -> dict[s
     cfg = {**SOURCE_DEFAULTS, **config}
     tasks = sample_tasks(cfg["family"], int(cfg["n_tasks"]), np.random.default_rng(cfg["seed"]))
     theta, res = learn_closed_loop_sources(
-        cfg["family"], tasks, cfg["policy"], generations=cfg["generations"] + cfg["mtl_generations"],
-        sigma=cfg["sigma"], popsize=cfg["popsize"], seed=cfg["seed"], config=cfg["arm"],
+        cfg["family"],
+        tasks,
+        cfg["policy"],
+        generations=cfg["generations"] + cfg["mtl_generations"],
+        sigma=cfg["sigma"],
+        popsize=cfg["popsize"],
+        seed=cfg["seed"],
+        config=cfg["arm"],
     )
     f = closed_loop_objective(cfg["family"], tasks, ClosedLoopPolicy(cfg["policy"]), config=cfg["arm"])
     _, cost, succ = f(theta[:, None])
-    return {"theta": theta, "tasks": tasks, "curve": res.curve.mean(0), "success": succ[:, 0],
-            "success_rate": float(succ.mean()), "cost": cost[:, 0]}
+    return {
+        "theta": theta,
+        "tasks": tasks,
+        "curve": res.curve.mean(0),
+        "success": succ[:, 0],
+        "success_rate": float(succ.mean()),
+        "cost": cost[:, 0],
+    }

@@ -100,8 +100,14 @@ def solve_task(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
     pol = RBFPolicy(n_basis=int(config["n_basis"]))
     W0 = pol.default_params()[None]
     W, res = learn_independent(
-        family, task, W0, generations=int(config["generations"]), sigma=float(config["sigma"]),
-        popsize=config.get("popsize"), shaped=bool(config["shaped"]), seed=int(config["seed"]),
+        family,
+        task,
+        W0,
+        generations=int(config["generations"]),
+        sigma=float(config["sigma"]),
+        popsize=config.get("popsize"),
+        shaped=bool(config["shaped"]),
+        seed=int(config["seed"]),
     )
     r = simulate(family, task, W, record=True)
     return {

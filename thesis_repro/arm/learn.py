@@ -116,8 +116,7 @@ def cma_lockstep(
         if dim == 1:  # cma refuses 1-D problems; carry a dummy coordinate that the caller never sees
             x0 = np.concatenate([x0, np.zeros((n, 1))], axis=1)
         es = [
-            cma.CMAEvolutionStrategy(x0[i], sigma0, {**opts, "seed": int(rng.integers(1, 2**31 - 1))})
-            for i in range(n)
+            cma.CMAEvolutionStrategy(x0[i], sigma0, {**opts, "seed": int(rng.integers(1, 2**31 - 1))}) for i in range(n)
         ]
     curve = np.zeros((n, generations))
     success = np.zeros((n, generations))
@@ -284,8 +283,9 @@ def mtl_refine(
     res = cma_lockstep(evaluate, theta0[None], sigma, generations, popsize=popsize, seed=seed)
     G, U1, U2, U3 = _unpack(res.x[0], shapes)
     Wp = np.einsum("ijk,di,aj,pk->pda", G, U1, U2, U3)
-    return MTLResult(core=G, factors=[U1, U2, U3], W=Wp, curve=res.curve[0], success=res.success[0],
-                     popsize=res.popsize)
+    return MTLResult(
+        core=G, factors=[U1, U2, U3], W=Wp, curve=res.curve[0], success=res.success[0], popsize=res.popsize
+    )
 
 
 # ------------------------------------------------------------------------------ cached jobs
@@ -340,19 +340,40 @@ def source_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any]:
     pol = RBFPolicy(n_basis=cfg["n_basis"])
     W0 = np.tile(pol.default_params(), (P, 1, 1))
     W, res = learn_independent(
-        family, tasks, W0, generations=cfg["generations"], sigma=cfg["sigma"], popsize=cfg["popsize"], shaped=True,
-        seed=cfg["seed"], config=cfg["arm"],
+        family,
+        tasks,
+        W0,
+        generations=cfg["generations"],
+        sigma=cfg["sigma"],
+        popsize=cfg["popsize"],
+        shaped=True,
+        seed=cfg["seed"],
+        config=cfg["arm"],
     )
     stage1 = evaluate_policies(family, tasks, W, cfg["arm"])
-    out: dict[str, Any] = {"tasks": tasks, "curve": res.curve.mean(0), "success_curve": res.success.mean(0),
-                           "stage1_success": stage1["success"], "stage1_cost": stage1["cost"]}
+    out: dict[str, Any] = {
+        "tasks": tasks,
+        "curve": res.curve.mean(0),
+        "success_curve": res.success.mean(0),
+        "stage1_success": stage1["success"],
+        "stage1_cost": stage1["cost"],
+    }
     if cfg["mtl_generations"] > 0:
         D = W.shape[1]
         r1, r2, r3 = cfg["ranks"]
         mtl = mtl_refine(
-            family, tasks, W, (min(r1, D), min(r2, 2), min(r3, P)), generations=cfg["mtl_generations"],
-            sigma=cfg["mtl_sigma"], l1=cfg["l1"], l2=cfg["l2"], popsize=cfg["popsize"], shaped=True,
-            seed=cfg["seed"] + 1, config=cfg["arm"],
+            family,
+            tasks,
+            W,
+            (min(r1, D), min(r2, 2), min(r3, P)),
+            generations=cfg["mtl_generations"],
+            sigma=cfg["mtl_sigma"],
+            l1=cfg["l1"],
+            l2=cfg["l2"],
+            popsize=cfg["popsize"],
+            shaped=True,
+            seed=cfg["seed"] + 1,
+            config=cfg["arm"],
         )
         final = evaluate_policies(family, tasks, mtl.W, cfg["arm"])
         # keep the refined policies only where they are not worse (MTL with truncated ranks can lose a task)

@@ -157,9 +157,7 @@ class RBFPolicy:
         W = self.check_W(self.W if W is None else W)
         return self.kp_scale * W[:, self.n_basis], self.kd_scale * W[:, self.n_basis + 1]
 
-    def action(
-        self, W: np.ndarray | None, t: int, pos: np.ndarray, vel: np.ndarray
-    ) -> np.ndarray:
+    def action(self, W: np.ndarray | None, t: int, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
         """Accelerations (B, A) at control step ``t`` from observed ``pos``, ``vel`` (B, A) (Eq 5.8).
 
         ``simulate`` precomputes the desired trajectory instead of calling this per step; both agree.
