@@ -104,3 +104,15 @@ def test_plan_command(capsys):
     assert main(["plan", "3.3", "--scale", "smoke", "--cores", "0"]) == 2
     assert main(["plan", "9.9", "--scale", "smoke"]) == 2
     assert "valid figures are" in capsys.readouterr().err
+
+
+def test_plan_of_a_subset_counts_only_its_runs(capsys):
+    whole = plan.plan_figure("3.3", "smoke", cores=1)
+    part = plan.plan_figure("3.3", "smoke", cores=1, algos=["ppo"], envs=["Hopper"])
+    assert whole.n_train == len(figures.training_jobs("3.3", "smoke")) and part.n_train == 1
+    assert part.env_steps < whole.env_steps
+    assert main(["plan", "3.3", "--scale", "smoke", "--algos", "ppo", "--envs", "Hopper"]) == 0
+    assert "fig-3.3 (smoke): 1 training jobs" in capsys.readouterr().out
+    assert main(["plan", "3.3", "--scale", "smoke", "--algos", "ppo2"]) == 2
+    assert "unknown algorithm 'ppo2'; valid algorithms are: 'ppo'" in capsys.readouterr().err
+    assert main(["plan", "all", "--scale", "smoke", "--algos", "ppo"]) == 2

@@ -41,6 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     plan_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all' (+ the book)")
     plan_p.add_argument("--scale", default="full", help="smoke | small | full")
     plan_p.add_argument("--cores", type=int, default=None, help="cores for the wall time (default: this machine's)")
+    plan_p.add_argument("--envs", nargs="+", default=None, help="only these tasks (a figure's `envs` setting)")
+    plan_p.add_argument("--algos", nargs="+", default=None, help="only these learners (a figure's `algos` setting)")
     args = parser.parse_args(argv)
 
     if getattr(args, "jobs", None):
@@ -88,9 +90,12 @@ def _plan_command(args: argparse.Namespace) -> int:
         raise ValueError(f"--cores must be an integer >= 1, got {args.cores}")
     rates = plan.load_rates()
     print(plan.rates_note(rates))
+    subset = {k: v for k, v in (("envs", args.envs), ("algos", args.algos)) if v is not None}
     if args.figure != "all":
-        print(plan.report(plan.plan_figure(args.figure, args.scale, args.cores, rates), rates))
+        print(plan.report(plan.plan_figure(args.figure, args.scale, args.cores, rates, **subset), rates))
         return 0
+    if subset:
+        raise ValueError("--envs/--algos choose a subset of one figure; name it (plan 3.3 --algos ppo trpo)")
     per, book = plan.plan_book(args.scale, args.cores, rates)
     for p in per:
         print(plan.summary(p))

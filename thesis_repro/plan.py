@@ -311,10 +311,14 @@ def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rat
     return Plan(name, scale, cores, order)
 
 
-def plan_figure(figure_id: str, scale: str, cores: int | None = None, rates: Rates | None = None) -> Plan:
-    """:class:`Plan` of every job figure ``figure_id`` runs at ``scale``."""
+def plan_figure(
+    figure_id: str, scale: str, cores: int | None = None, rates: Rates | None = None, **overrides: Any
+) -> Plan:
+    """:class:`Plan` of every job figure ``figure_id`` runs at ``scale``; ``overrides`` are settings of the
+    scale table (e.g. ``envs=["Hopper"]``, ``algos=["ppo", "trpo"]`` for a subset), validated there."""
     fig = figures.get(figure_id)
-    return plan_jobs(fig.notebook_id, figures.jobs(figure_id, scale), scale, cores or os.cpu_count() or 1, rates)
+    jobs = figures.jobs(figure_id, scale, **overrides)
+    return plan_jobs(fig.notebook_id, jobs, scale, cores or os.cpu_count() or 1, rates)
 
 
 def plan_book(scale: str, cores: int | None = None, rates: Rates | None = None) -> tuple[list[Plan], Plan]:
