@@ -73,10 +73,10 @@ runs-%: $(STAMP)
 budgets: $(STAMP)
 	$(BIN)/python -m thesis_repro budgets --scale $(SCALE)
 
-## make plan-3.3 SCALE=full [CORES=64] : cost before running (jobs, env steps, throughput, core-hours, wall time);
+## make plan-3.3 SCALE=full [CORES=64] [MISSING=1 : only what is neither cached nor shipped] : cost before running (jobs, env steps, throughput, core-hours, wall time);
 ## make plan-all SCALE=full : every figure and the book
 plan-%: $(STAMP)
-	$(BIN)/python -m thesis_repro plan $* --scale $(SCALE) $(if $(CORES),--cores $(CORES))
+	$(BIN)/python -m thesis_repro plan $* --scale $(SCALE) $(if $(CORES),--cores $(CORES)) $(if $(MISSING),--missing)
 
 ## make bench : throughput benchmarks (batched evaluation, PPO training, ...), printed as ratios
 bench: $(STAMP)

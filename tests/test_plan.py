@@ -116,3 +116,13 @@ def test_plan_of_a_subset_counts_only_its_runs(capsys):
     assert main(["plan", "3.3", "--scale", "smoke", "--algos", "ppo2"]) == 2
     assert "unknown algorithm 'ppo2'; valid algorithms are: 'ppo'" in capsys.readouterr().err
     assert main(["plan", "all", "--scale", "smoke", "--algos", "ppo"]) == 2
+
+
+def test_plan_of_what_is_missing_leaves_out_finished_runs():
+    from thesis_repro.cache import RunCache
+
+    jobs = figures.jobs("3.3", "smoke", algos=["ppo"], envs=["InvertedPendulum"])
+    assert plan.plan_figure("3.3", "smoke", 1, None, True, algos=["ppo"], envs=["InvertedPendulum"]).n_train == 1
+    RunCache().run(next(j for j in jobs if j.kind == "train"))  # this test's own (empty) cache
+    left = plan.plan_figure("3.3", "smoke", 1, None, True, algos=["ppo"], envs=["InvertedPendulum"])
+    assert left.n_train == 0 and left.n_other == len(jobs) - 1

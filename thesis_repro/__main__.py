@@ -43,6 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     plan_p.add_argument("--cores", type=int, default=None, help="cores for the wall time (default: this machine's)")
     plan_p.add_argument("--envs", nargs="+", default=None, help="only these tasks (a figure's `envs` setting)")
     plan_p.add_argument("--algos", nargs="+", default=None, help="only these learners (a figure's `algos` setting)")
+    plan_p.add_argument("--missing", action="store_true", help="only what is neither cached nor shipped yet")
     args = parser.parse_args(argv)
 
     if getattr(args, "jobs", None):
@@ -92,7 +93,7 @@ def _plan_command(args: argparse.Namespace) -> int:
     print(plan.rates_note(rates))
     subset = {k: v for k, v in (("envs", args.envs), ("algos", args.algos)) if v is not None}
     if args.figure != "all":
-        print(plan.report(plan.plan_figure(args.figure, args.scale, args.cores, rates, **subset), rates))
+        print(plan.report(plan.plan_figure(args.figure, args.scale, args.cores, rates, args.missing, **subset), rates))
         return 0
     if subset:
         raise ValueError("--envs/--algos choose a subset of one figure; name it (plan 3.3 --algos ppo trpo)")

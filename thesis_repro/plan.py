@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from thesis_repro import figures, paths
-from thesis_repro.cache import Job
+from thesis_repro.cache import Job, RunCache
 
 #: Job kinds whose runs come first (the training phase); every other kind is the second phase.
 TRAINING_KINDS: tuple[str, ...] = figures.TRAINING_KINDS
@@ -312,12 +312,21 @@ def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rat
 
 
 def plan_figure(
-    figure_id: str, scale: str, cores: int | None = None, rates: Rates | None = None, **overrides: Any
+    figure_id: str,
+    scale: str,
+    cores: int | None = None,
+    rates: Rates | None = None,
+    missing: bool = False,
+    **overrides: Any,
 ) -> Plan:
     """:class:`Plan` of every job figure ``figure_id`` runs at ``scale``; ``overrides`` are settings of the
-    scale table (e.g. ``envs=["Hopper"]``, ``algos=["ppo", "trpo"]`` for a subset), validated there."""
+    scale table (e.g. ``envs=["Hopper"]``, ``algos=["ppo", "trpo"]`` for a subset), validated there. With
+    ``missing``, only the jobs neither cached nor shipped (what running the figure now would compute)."""
     fig = figures.get(figure_id)
     jobs = figures.jobs(figure_id, scale, **overrides)
+    if missing:
+        cache = RunCache()
+        jobs = [j for j in jobs if cache.state(j) not in ("cached", "shipped")]
     return plan_jobs(fig.notebook_id, jobs, scale, cores or os.cpu_count() or 1, rates)
 
 
