@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import figures, reference
+from thesis_repro import figures, reference, runs
 from thesis_repro.cache import Job, RunCache
 
 #: Table 3.3a's rows (``noise_type``) as the kit's learner ids: the thesis's Walker2d training returns.
@@ -148,13 +148,9 @@ def _curve(result: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def training_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
-    """The deduplicated ``train`` jobs of the figures (all by default) at ``scale``, in figure order."""
-    out: dict[str, Job] = {}
-    for fid in figure_ids or figures.ids():
-        for job in figures.jobs(fid, scale):
-            if job.kind == "train":
-                out.setdefault(job.key, job)
-    return list(out.values())
+    """The deduplicated ``train`` jobs of the figures (all by default) at ``scale``, figure by figure
+    (:func:`thesis_repro.runs.plan`, the reference-run generator's own list)."""
+    return [p.job for p in runs.plan(scale, figure_ids, kinds=("train",), by_figure=True)]
 
 
 def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache | None = None) -> pd.DataFrame:
