@@ -324,6 +324,25 @@ def test_aggregators_with_zero_learning_rate_keep_theta_old(algo):
     assert np.allclose(stats["kl"], 0.0, atol=1e-8) and stats["eq47"] == pytest.approx(0.0, abs=1e-8)
 
 
+def test_kl_avg_learner_passes_its_configured_cg_settings(monkeypatch):
+    # the config is the record: kl-avg's cg_rtol/cg_iters/damping reach Eq 4.11's solver unchanged
+    cfg = tiny("kl-avg")
+    seen: list[dict] = []
+    real = agg.kl_avg
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(agg, "kl_avg", spy)
+    model = model_for(cfg)
+    collected(model)
+    model.train()
+    sb3 = cfg["sb3"]
+    assert seen and all(k["cg_rtol"] == model.cg_rtol == sb3["cg_rtol"] for k in seen)
+    assert all(k["cg_iters"] == sb3["cg_iters"] and k["damping"] == sb3["damping"] for k in seen)
+
+
 def test_kl_exact_is_never_worse_than_params_avg_on_eq_4_7():
     model = model_for(tiny("kl-exact", learning_rate=3e-3))
     collected(model)

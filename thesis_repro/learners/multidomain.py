@@ -316,7 +316,7 @@ class EPOpt(MultiDomainPPO):
 class SubPolicyAggregation(MultiDomainPPO):
     """Alg 3: per domain a sub-policy updated by PPO on its own column from θ_old, then aggregated.
 
-    ``aggregate``: ``params_avg`` (Eq 4.6), ``kl_avg`` (Eq 4.10/4.11: ``cg_iters``, ``damping``,
+    ``aggregate``: ``params_avg`` (Eq 4.6), ``kl_avg`` (Eq 4.10/4.11: ``cg_iters``, ``cg_rtol``, ``damping``,
     ``line_search``) or ``kl_exact`` (``exact_iters`` Newton-CG steps on the true Eq 4.7: ``cg_iters``,
     ``cg_rtol``, ``damping``); ``aggregate_every_epoch``: aggregate after each of the ``n_epochs`` epochs (Alg 3)
     or once after all; ``fim_states``: rollout states used for Fisher products and the logged Eq 4.7.
@@ -376,6 +376,7 @@ class SubPolicyAggregation(MultiDomainPPO):
                 damping=self.damping,
                 info=info,
                 line_search=self.line_search,
+                cg_rtol=self.cg_rtol,
             )
         return agg.kl_exact(
             view,
