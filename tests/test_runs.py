@@ -201,6 +201,27 @@ def test_export_of_a_real_training_run_keeps_what_evaluation_needs(tmp_path):
         runs.export(type("R", (), {"path": tmp_path / "bare"})(), tmp_path / "reference")
 
 
+def test_retrain_comparison_is_bit_exact_on_the_same_platform_else_by_outcome(tmp_path):
+    from thesis_repro.cache import platform_info
+
+    entry = tmp_path / "train" / "a__Toy__s0__0123"
+    entry.mkdir(parents=True)
+    prov = entry / "provenance.json"
+    prov.write_text(json.dumps({"wall_seconds": 1.0}))
+    assert runs.same_platform(entry) is None  # runs made before the platform was recorded
+    prov.write_text(json.dumps({"platform": platform_info()}))
+    assert runs.same_platform(entry) is True
+    prov.write_text(json.dumps({"platform": {**platform_info(), "torch_cpu_capability": "NO AVX"}}))
+    assert runs.same_platform(entry) is False
+    # same platform: only weights count; elsewhere both returns within OUTCOME_RTOL of the larger one
+    assert runs.retrain_verdict("r", True, 0.0, (1.0, 2.0), None).ok
+    assert not runs.retrain_verdict("r", True, 2e-6, (990.0, 990.0), (1000.0, 1000.0)).ok
+    edge = 1000.0 * (1 - runs.OUTCOME_RTOL)
+    assert runs.retrain_verdict("r", False, 0.4, (1000.0, edge + 1e-6), (1000.0, 1000.0)).ok
+    bad = runs.retrain_verdict("r", False, 0.4, (1000.0, 1000.0), (1000.0, edge - 1.0))
+    assert not bad.ok and "testing return 1000.00 shipped vs 949.00 retrained: NOT within 5%" in bad.message
+
+
 def test_runs_command(fake_figures, capsys):
     assert main(["runs", "9.2", "--scale", "smoke"]) == 0
     out = capsys.readouterr().out

@@ -39,5 +39,9 @@ def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
     assert shipped is not None and shipped.source == "shipped"
     fresh = RunCache(tmp_path / "runs", reference=False).run(job)
     assert fresh.source == "computed"
-    assert runs.max_abs_diff(shipped, fresh) <= 1e-6, job.label
-    assert fresh["train_return"] == pytest.approx(shipped["train_return"], rel=1e-6, abs=1e-6)
+    # bit-identical where the shipped run was made on this platform; elsewhere the same outcome (runs.OUTCOME_RTOL)
+    check = runs.compare_retrain(shipped, fresh)
+    print(check.message)
+    assert check.ok, check.message
+    if runs.same_platform(shipped):
+        assert fresh["train_return"] == pytest.approx(shipped["train_return"], rel=1e-6, abs=1e-6)

@@ -8,7 +8,7 @@ as artefacts (e.g. a trained policy).
 
 Entries live in readable folders ``<root>/<kind>/<label>__<key>/`` (``train/ppo__Hopper__s0__<key>``;
 lookups go by key) holding ``config.json`` (kind, config, key), ``provenance.json`` (command, git commit,
-package versions, host, times), ``result.json``, ``arrays.npz``, ``out/`` and ``manifest.json`` (SHA-256
+package versions, host, platform, times), ``result.json``, ``arrays.npz``, ``out/`` and ``manifest.json`` (SHA-256
 of every file). ``workdir`` (``<label>__<key>.partial``) survives an interruption, so long jobs checkpoint
 there and resume. Entries are committed atomically (a temporary folder, then ``os.replace``); an entry
 whose files do not match its manifest is reported as corrupt, removed and recomputed. A per-entry lock
@@ -260,8 +260,59 @@ def _git(*args: str) -> str | None:
     return proc.stdout.strip()
 
 
+#: CPU features that select different float kernels (MKL, ATen, NumPy dispatch); part of :func:`platform_info`.
+_ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "avx512_fp16", "amx_tile")
+
+
+def platform_info() -> dict[str, Any]:
+    """What decides a run's float rounding besides its config and code: CPU, SIMD kernels, BLAS.
+
+    Training is deterministic on one platform, but MKL, PyTorch (ATen) and NumPy pick different SIMD
+    kernels on different CPUs, and RL amplifies the last-bit differences; so a run is bit-reproducible
+    only where this dict is equal (:func:`thesis_repro.runs.compare_retrain`).
+
+    >>> sorted(platform_info())
+    ['cpu', 'isa', 'machine', 'numpy_simd', 'torch_cpu_capability', 'vendor']
+    """
+    cpu = vendor = ""
+    flags: set[str] = set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            key = key.strip()
+            if key == "model name" and not cpu:
+                cpu = value.strip()
+            elif key == "vendor_id" and not vendor:
+                vendor = value.strip()
+            elif key == "flags" and not flags:
+                flags = set(value.split())
+    except OSError:  # not Linux: the processor string is all we know
+        cpu = platform.processor()
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as npf  # type: ignore[attr-defined]
+
+        numpy_simd = sorted(k for k, v in npf.items() if v and k.startswith(("AVX512", "X86_V", "AVX2", "FMA")))
+    except ImportError:  # pragma: no cover - other NumPy layouts
+        numpy_simd = []
+    try:
+        import torch
+
+        capability = torch.backends.cpu.get_cpu_capability()
+    except ImportError:  # pragma: no cover - torch is a dependency
+        capability = None
+    return {
+        "machine": platform.machine(),
+        "vendor": vendor,
+        "cpu": cpu,
+        "isa": [f for f in _ISA_FLAGS if f in flags],
+        "torch_cpu_capability": capability,
+        "numpy_simd": numpy_simd,
+    }
+
+
 def provenance(start: float, end: float) -> dict[str, Any]:
-    """Who/what/when made an entry: command line, git commit (+ dirty flag), package versions, host, times."""
+    """Who/what/when made an entry: command line, git commit (+ dirty flag), package versions, host, times,
+    and the :func:`platform_info` that decides its float rounding."""
     commit = _git("rev-parse", "HEAD")
     status = _git("status", "--porcelain", "--untracked-files=no") if commit else None
     return {
@@ -271,6 +322,7 @@ def provenance(start: float, end: float) -> dict[str, Any]:
         "git_dirty": None if status is None else bool(status),
         "packages": _versions(),
         "hostname": platform.node(),
+        "platform": platform_info(),
         "start": datetime.fromtimestamp(start, UTC).isoformat(timespec="seconds"),
         "end": datetime.fromtimestamp(end, UTC).isoformat(timespec="seconds"),
         "wall_seconds": round(end - start, 3),

@@ -10,8 +10,10 @@
   buffers) with a fresh manifest.
 * :func:`generate`: ``make reference-runs SCALE=small`` — trains the training jobs of every figure
   (cheapest first, resumable), exports each into the layer and optionally commits it as it lands.
-* :func:`check_shipped` (stale shipped runs), :func:`verify_shipped` (corrupt ones) and
-  :func:`max_abs_diff` (compare two runs' policies) back the provenance tests.
+* :func:`check_shipped` (stale shipped runs), :func:`verify_shipped` (corrupt ones),
+  :func:`max_abs_diff` (compare two runs' policies) and :func:`compare_retrain` (a retrain against the
+  shipped run: bit-identical on the same platform, else the same outcome within :data:`OUTCOME_RTOL`) back
+  the provenance tests.
 
 >>> from thesis_repro.cache import Job
 >>> summary([Job("square", {"x": 1}), Job("square", {"x": 2})], RunCache(reference=False))
@@ -35,7 +37,16 @@ import numpy as np
 
 from thesis_repro import figures, paths
 from thesis_repro import jobs as registry
-from thesis_repro.cache import Job, Result, RunCache, execute, find_entry, read_entry, write_manifest
+from thesis_repro.cache import (
+    Job,
+    Result,
+    RunCache,
+    execute,
+    find_entry,
+    platform_info,
+    read_entry,
+    write_manifest,
+)
 from thesis_repro.validation import check_choice
 
 #: States of a job in :func:`rows`.
@@ -310,6 +321,97 @@ def max_abs_diff(result_a: Result | str | Path, result_b: Result | str | Path) -
         diff = sorted(a.keys() ^ b.keys()) or [k for k in a if a[k].shape != b[k].shape]
         raise ValueError(f"the two runs have different parameters: {', '.join(diff[:5])}")
     return max((float(np.max(np.abs(a[k].astype(np.float64) - b[k]))) for k in a if a[k].size), default=0.0)
+
+
+#: A retrain on the platform that made the shipped run must give its weights to this tolerance.
+WEIGHTS_ATOL = 1e-6
+#: On another platform (other SIMD kernels, so other last bits, which RL amplifies) a retrain is another
+#: sample of the same training procedure: its training return and its deterministic policy's testing return
+#: must match the shipped run's within this relative tolerance.
+OUTCOME_RTOL = 0.05
+
+
+def same_platform(result_or_path: Result | str | Path) -> bool | None:
+    """Was this run made on a platform equal to this one (:func:`~thesis_repro.cache.platform_info`)?
+    ``None`` if its provenance does not record one (runs made before it was recorded)."""
+    path = Path(getattr(result_or_path, "path", result_or_path))
+    recorded = json.loads((path / "provenance.json").read_text()).get("platform")
+    return None if recorded is None else recorded == json.loads(json.dumps(platform_info()))
+
+
+@dataclass(frozen=True)
+class RetrainCheck:
+    """Outcome of :func:`retrain_verdict`: ``ok`` and a one-line ``message`` saying which rule applied."""
+
+    ok: bool
+    message: str
+
+
+def retrain_verdict(
+    label: str,
+    same: bool | None,
+    weights_diff: float,
+    train_return: tuple[float, float],
+    test_return: tuple[float, float] | None,
+    rtol: float = OUTCOME_RTOL,
+) -> RetrainCheck:
+    """The rule of :func:`compare_retrain` on its numbers (``(shipped, fresh)`` pairs).
+
+    Same platform: weights within :data:`WEIGHTS_ATOL`. Another or unrecorded platform: bit-identical
+    weights pass too; otherwise both returns must agree within ``rtol`` of the larger magnitude.
+
+    >>> retrain_verdict("r", True, 0.0, (990.0, 990.0), None).ok
+    True
+    >>> retrain_verdict("r", True, 0.3, (990.0, 991.0), None).message
+    'r: same platform as the shipped run but weights differ by 0.3 > 1e-06 (training is not deterministic)'
+    >>> retrain_verdict("r", None, 0.3, (993.6, 991.1), (1000.0, 1000.0)).ok
+    True
+    >>> retrain_verdict("r", False, 0.3, (993.6, 500.0), (1000.0, 1000.0)).ok
+    False
+    """
+
+    def close(pair: tuple[float, float]) -> bool:
+        a, b = pair
+        return abs(a - b) <= rtol * max(abs(a), abs(b))
+
+    if weights_diff <= WEIGHTS_ATOL:
+        return RetrainCheck(True, f"{label}: bit-identical to the shipped run (max |dw| {weights_diff:.1e})")
+    if same:
+        return RetrainCheck(
+            False,
+            f"{label}: same platform as the shipped run but weights differ by {weights_diff:.3g} > "
+            f"{WEIGHTS_ATOL:g} (training is not deterministic)",
+        )
+    where = "another platform" if same is False else "a platform the shipped run did not record"
+    pairs = {"training return": train_return, **({"testing return": test_return} if test_return else {})}
+    ok = all(close(p) for p in pairs.values())
+    said = ", ".join(f"{k} {a:.2f} shipped vs {b:.2f} retrained" for k, (a, b) in pairs.items())
+    rule = f"within {rtol:.0%}" if ok else f"NOT within {rtol:.0%}"
+    return RetrainCheck(ok, f"{label}: retrained on {where} (weights differ by {weights_diff:.3g}); {said}: {rule}")
+
+
+def compare_retrain(shipped: Result, fresh: Result, n_rollouts: int = 5, rtol: float = OUTCOME_RTOL) -> RetrainCheck:
+    """Is ``fresh`` (a retrain from scratch) the shipped training run again? See :func:`retrain_verdict`.
+
+    Across platforms both final policies are also tested on the unperturbed task (``n_rollouts`` testing
+    seeds, the same for both) and their mean returns compared.
+    """
+    same = same_platform(shipped)
+    diff = max_abs_diff(shipped, fresh)
+    test = None
+    if diff > WEIGHTS_ATOL and not same:
+        from thesis_repro.evaluation import evaluate  # local: the listing stays importable without the envs
+        from thesis_repro.learners import load_policy
+
+        cfg = shipped_job(shipped.path).config
+        env, steps = cfg["env"], cfg.get("max_episode_steps") or 1000
+        a, b = (
+            float(evaluate(load_policy(r), env, "none", [0.0], n_rollouts, max_episode_steps=steps).mean())
+            for r in (shipped, fresh)
+        )
+        test = (a, b)
+    train = (float(shipped["train_return"]), float(fresh["train_return"]))
+    return retrain_verdict(shipped.path.name.rsplit("__", 1)[0], same, diff, train, test, rtol)
 
 
 # ---------------------------------------------------------------- the reference-run generator
