@@ -222,6 +222,15 @@ def test_retrain_comparison_is_bit_exact_on_the_same_platform_else_by_outcome(tm
     assert not bad.ok and "testing return 1000.00 shipped vs 949.00 retrained: NOT within 5%" in bad.message
 
 
+def test_wall_seconds_of_a_resumed_run_counts_every_session(tmp_path):
+    from thesis_repro.cache import Result
+
+    (tmp_path / "provenance.json").write_text(json.dumps({"wall_seconds": 25.0}))  # the last session only
+    assert runs.wall_seconds(Result(tmp_path, {"wall_time": 830.0}, {})) == 830.0
+    assert runs.wall_seconds(Result(tmp_path, {"y": 1}, {})) == 25.0  # jobs without their own clock
+    assert np.isnan(runs.wall_seconds(Result(tmp_path / "gone", {}, {})))
+
+
 def test_runs_command(fake_figures, capsys):
     assert main(["runs", "9.2", "--scale", "smoke"]) == 0
     out = capsys.readouterr().out

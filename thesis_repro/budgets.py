@@ -14,7 +14,6 @@ shipped (nothing is trained), read from its recorded curve.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -130,14 +129,6 @@ def judge(
     return fraction, "fell from its peak" if fell else "still learning"
 
 
-def wall_seconds(result: Any) -> float:
-    """Measured wall time of a finished run (its ``provenance.json``), NaN if unknown."""
-    try:
-        return float(json.loads((result.path / "provenance.json").read_text())["wall_seconds"])
-    except (OSError, KeyError, ValueError, AttributeError):
-        return float("nan")
-
-
 def _curve(result: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     for t, r in (("episode_timesteps", "episode_returns"), ("curve_timesteps", "curve_return")):
         try:
@@ -187,7 +178,7 @@ def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache |
                 "thesis_train": ref,
                 "fraction": fraction,
                 "verdict": verdict,
-                "wall_s": wall_seconds(result),
+                "wall_s": runs.wall_seconds(result),
             }
         )
     return pd.DataFrame(rows)
@@ -211,7 +202,7 @@ def retrain_cost(scale: str, figure_ids: Iterable[str] | None = None, cache: Run
                 "runs": len(jobs),
                 "finished": len(done),
                 "env_steps": sum(int(j.config["timesteps"]) for j in jobs),
-                "core_hours": sum(wall_seconds(r) for r in done) / 3600 if done else float("nan"),
+                "core_hours": sum(runs.wall_seconds(r) for r in done) / 3600 if done else float("nan"),
             }
         )
     return pd.DataFrame(rows)

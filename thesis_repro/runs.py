@@ -471,10 +471,14 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker 
         pass
 
 
-def _wall(result: Result) -> float:
+def wall_seconds(result: Result) -> float:
+    """Measured wall time of a finished run, NaN if unknown: a training run's own ``wall_time`` (summed over
+    the sessions of a resumed run), else the ``provenance.json`` of the process that committed it."""
     try:
+        if "wall_time" in result:
+            return float(result["wall_time"])
         return float(json.loads((result.path / "provenance.json").read_text())["wall_seconds"])
-    except (OSError, KeyError, ValueError):
+    except (OSError, KeyError, ValueError, TypeError, AttributeError):
         return float("nan")
 
 
@@ -546,7 +550,7 @@ def generate(
 
     def land(i: int, p: Planned, result: Result) -> None:
         ex = export(result, layer)
-        wall = _wall(result)
+        wall = wall_seconds(result)
         note = "" if ex.bytes <= TARGET_BYTES else f" (over the {TARGET_BYTES / 1e6:.0f} MB target)"
         line = f"[{i}/{len(todo)}] {p.job.kind} {p.job.label}: {wall:.0f} s, shipped {ex.megabytes:.2f} MB{note}"
         if commit:
