@@ -428,3 +428,22 @@ def test_cli_reports_bad_input_in_one_line(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err[0].startswith("error: unknown figure '3.99'; valid figures are: '3.2'")
     assert err[1] == "error: unknown scale 'medium'; valid scales are: 'smoke', 'small', 'full'"
+
+
+@pytest.mark.parametrize(
+    ("var", "value", "expected"),
+    [
+        ("THESIS_REPRO_RETRAIN", "maybe", "error: RETRAIN / THESIS_REPRO_RETRAIN: unknown value 'maybe'; valid values"),
+        ("THESIS_REPRO_BACKEND", "slurm", "error: THESIS_REPRO_BACKEND: unknown backend 'slurm'; valid backends are"),
+    ],
+)
+def test_cli_rejects_bad_make_variables_before_any_notebook_runs(var, value, expected, monkeypatch, capsys):
+    # make figure-3.3 RETRAIN=maybe / BACKEND=slurm: one line, exit 2, no kernel started (else a traceback in it)
+    from thesis_repro import notebooks
+    from thesis_repro.__main__ import main
+
+    monkeypatch.setenv(var, value)
+    monkeypatch.setattr(notebooks, "execute", lambda *a, **k: pytest.fail("a notebook ran"))
+    assert main(["figure", "3.3", "--scale", "smoke"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(expected)

@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "jobs", None):
         os.environ["THESIS_REPRO_JOBS"] = str(args.jobs)
     try:
+        check_environment()
         if args.cmd == "list":
             print("scales:", ", ".join(scales.SCALES))
             print("notebooks:", ", ".join(notebooks.notebook_ids()))
@@ -81,6 +82,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 1
     return 0
+
+
+def check_environment() -> None:
+    """The kit's environment settings (``make ... RETRAIN=1 BACKEND=ray``) are valid before anything runs:
+    a typo is a one-line error here, not a traceback inside a notebook's kernel."""
+    from thesis_repro import backends, paths
+
+    paths.retrain()
+    backends.backend()
 
 
 def _plan_command(args: argparse.Namespace) -> int:

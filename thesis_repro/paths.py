@@ -33,15 +33,29 @@ def reference() -> Path:
     return Path(os.environ.get("THESIS_REPRO_REFERENCE", ROOT / "data" / "reference"))
 
 
+#: Values of ``THESIS_REPRO_RETRAIN`` (``make ... RETRAIN=...``): yes, then no.
+RETRAIN_VALUES: tuple[tuple[str, ...], tuple[str, ...]] = (("1", "true", "yes", "on"), ("", "0", "false", "no", "off"))
+
+
 def retrain() -> bool:
-    """Whether ``THESIS_REPRO_RETRAIN`` asks to ignore the shipped runs and recompute them.
+    """Whether ``THESIS_REPRO_RETRAIN`` asks to ignore the shipped runs and recompute them; any other value
+    than those of :data:`RETRAIN_VALUES` is a ``ValueError`` (a typo must not silently use shipped runs).
 
     >>> import os; os.environ["THESIS_REPRO_RETRAIN"] = "1"; retrain()
     True
+    >>> os.environ["THESIS_REPRO_RETRAIN"] = "2"; retrain()
+    Traceback (most recent call last):
+    ...
+    ValueError: RETRAIN / THESIS_REPRO_RETRAIN: unknown value '2'; valid values are: 1, true, yes, on, 0, false, no, off
     >>> del os.environ["THESIS_REPRO_RETRAIN"]; retrain()
     False
     """
-    return os.environ.get("THESIS_REPRO_RETRAIN", "").strip().lower() in ("1", "true", "yes", "on")
+    value = os.environ.get("THESIS_REPRO_RETRAIN", "").strip().lower()
+    yes, no = RETRAIN_VALUES
+    if value not in yes + no:
+        valid = ", ".join(v for v in yes + no if v)
+        raise ValueError(f"RETRAIN / THESIS_REPRO_RETRAIN: unknown value {value!r}; valid values are: {valid}")
+    return value in yes
 
 
 def build(scale: str) -> Path:
