@@ -48,9 +48,10 @@ table-%: $(NEEDS)
 smoke: $(NEEDS)
 	$(BIN)/python -m thesis_repro figure all --scale smoke
 
-## make book SCALE=small [FORCE=1] : execute the changed notebooks at SCALE, build build/$(SCALE)/book/_build/html
+## make book SCALE=small [FORCE=1] [SHIPPED_ONLY=1 : skip notebooks that would train] : execute the changed
+## notebooks at SCALE, build build/$(SCALE)/book/_build/html
 book: $(NEEDS)
-	$(BIN)/python -m thesis_repro book --scale $(SCALE) $(if $(FORCE),--force)
+	$(BIN)/python -m thesis_repro book --scale $(SCALE) $(if $(FORCE),--force) $(if $(SHIPPED_ONLY),--shipped-only)
 
 ## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale
 test: $(STAMP) $(RAY_STAMP)

@@ -19,7 +19,7 @@ from urllib.parse import unquote, urlparse
 import pytest
 import yaml
 
-from thesis_repro import book, notebooks, paths, report
+from thesis_repro import book, figures, notebooks, paths, report
 
 THESIS_TXT = Path(os.environ.get("THESIS_TXT", "/work/shared/thesis.txt"))
 PROGRESS = re.compile(r"it/s\]|s/it\]|\d%\|")
@@ -220,6 +220,20 @@ def test_a_failing_notebook_gets_an_error_page_and_fails_the_build(monkeypatch, 
     html = (tmp_path / "book" / "_build" / "html" / "executed" / "fig-3.3.html").read_text()
     assert "Execution failed at scale smoke" in html and "KeyError" in html
     assert "Traceback" not in html and "Figure 3.3 in the thesis" in html
+
+
+@pytest.mark.slow
+def test_shipped_only_book_leaves_out_what_would_train_and_says_how_to_run_it(monkeypatch, tmp_path):
+    # the test run cache and shipped layer are empty: Fig 3.3's training runs are all to compute
+    monkeypatch.setattr(notebooks, "execute", lambda *a, **k: pytest.fail("a notebook that would train ran"))
+    book.build("smoke", ids=["3.3"], root=tmp_path / "book", shipped_only=True)
+    html = tmp_path / "book" / "_build" / "html"
+    page = re.sub(r"<[^>]+>", "", (html / "executed" / "fig-3.3.html").read_text())
+    n = len(figures.training_jobs("3.3", "smoke"))
+    assert "Not run in this build (scale smoke)" in page and "Figure 3.3 in the thesis" in page
+    assert f"{n} of its {n} training runs are neither shipped nor cached" in page
+    assert "make figure-3.3 SCALE=smoke" in page and "make plan-3.3 SCALE=smoke MISSING=1" in page
+    assert "not built: " in (html / "chapter-3.html").read_text()  # the chapter table says why, no verdict
 
 
 # --- the built book in a real browser -------------------------------------------------------------------

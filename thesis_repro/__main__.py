@@ -22,6 +22,9 @@ def main(argv: list[str] | None = None) -> int:
     book.add_argument("--jobs", type=int, default=None)
     book.add_argument("--reuse", action="store_true", help="reuse executed notebooks even if their sources changed")
     book.add_argument("--force", action="store_true", help="re-execute every notebook (default: only changed ones)")
+    book.add_argument(
+        "--shipped-only", action="store_true", help="execute only notebooks whose training runs are shipped or cached"
+    )
     sub.add_parser("list", help="list the notebooks and scales")
     runs_p = sub.add_parser("runs", help="where a figure's runs are: kind, label, key, state, path")
     runs_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all'")
@@ -74,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         elif args.cmd == "book":
             from thesis_repro import book as book_mod
 
-            book_mod.build(args.scale, reuse=args.reuse, force=args.force)
+            book_mod.build(args.scale, reuse=args.reuse, force=args.force, shipped_only=args.shipped_only)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

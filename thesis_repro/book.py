@@ -15,6 +15,10 @@ parameters, ``THESIS_REPRO_RETRAIN``, the kit modules it imported, configuration
 :func:`thesis_repro.notebooks.execution_key`) is not executed again; ``force=True`` re-executes everything,
 ``reuse=True`` takes any executed copy. A notebook that fails gets an error page; the build then raises.
 
+``shipped_only=True`` (``make book SCALE=small SHIPPED_ONLY=1``) executes only the notebooks whose training
+runs are all shipped or cached; each other page says how many of its runs are still to train and how to
+train them, and counts as *no verdict* (a book in minutes while the shipped runs are still landing).
+
 >>> clean_stream("train:  50%|#####     | 1/2 [00:01<00:01, 1.0it/s]\\rtrain: 100%|##########| 2/2\\nAUC 3.2\\n")
 'AUC 3.2\\n'
 >>> md_cell("x")["cell_type"]
@@ -230,8 +234,9 @@ def _escape(text: str) -> str:
     return text.replace("|", "\\|").replace("\n", " ").strip()
 
 
-def chapter_summary(chapter: str, executed: list[str], scale: str) -> str:
-    """Markdown table of the verdicts of a chapter's pages at ``scale`` (pages without one are listed too)."""
+def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[str, str] | None = None) -> str:
+    """Markdown table of the verdicts of a chapter's pages at ``scale`` (pages without one are listed too,
+    with ``notes[page]`` as the reason, else "not in this build")."""
     pages = [notebooks.page_id(n) for n in executed if notebooks.chapter(n) == chapter]
     known = [p for p in claims() if p.split("-", 1)[1].split("-")[0].split(".")[0] == chapter]
     rows = ["| page | claim | verdict | evidence |", "|---|---|---|---|"]
@@ -244,7 +249,8 @@ def chapter_summary(chapter: str, executed: list[str], scale: str) -> str:
             rows.append(f"| {link} | {_escape(v.claim)} | **{v.status}** | {_escape(v.evidence)} |")
     missing = [p for p in known if p not in pages]
     for page in missing:
-        rows.append(f"| {title(page)} | {_escape(claims()[page]['title'])} | {NO_VERDICT} | not in this build |")
+        why = _escape((notes or {}).get(page, "not in this build"))
+        rows.append(f"| {title(page)} | {_escape(claims()[page]['title'])} | {NO_VERDICT} | {why} |")
     head = f"\n\n## Verdicts at scale `{scale}`\n\n"
     note = (
         "\n\nOne row per claim judged by the kit; *thesis* numbers come from `data/thesis/`, *reproduced* "
@@ -337,10 +343,12 @@ def build(
     ids: list[str] | None = None,
     root: Path | None = None,
     force: bool = False,
+    shipped_only: bool = False,
 ) -> Path:
     """Execute (or reuse up-to-date) notebooks at ``scale`` and build the HTML book; returns ``index.html``.
 
-    ``root`` (default ``build/<scale>/book``) receives the staged sources and ``_build/html``.
+    ``root`` (default ``build/<scale>/book``) receives the staged sources and ``_build/html``;
+    ``shipped_only`` leaves out (with a page saying why) the notebooks that would have to train.
     """
     check_scale(scale)
     t0 = time.time()
@@ -348,8 +356,16 @@ def build(
     root = Path(root) if root is not None else paths.build(scale) / "book"
     stage(root)
     (root / "executed").mkdir()
-    ran, kept, failed = [], [], {}
+    ran, kept, failed, pending = [], [], {}, {}
     for nid in ids:
+        total, todo = untrained(nid, scale) if shipped_only else (0, [])
+        if todo:
+            pending[notebooks.page_id(nid)] = pending_note(nid, scale, total, len(todo))
+            print(f"[thesis_repro] {notebooks.page_id(nid)} not run: {len(todo)}/{total} training runs to compute")
+            (root / "executed" / f"{notebooks.page_id(nid)}.ipynb").write_text(
+                json.dumps(pending_page(nid, scale, pending[notebooks.page_id(nid)]), indent=1, ensure_ascii=False)
+            )
+            continue
         src = notebooks.executed_path(nid, scale)
         fresh = src.exists() and (reuse or notebooks.is_current(nid, scale))
         try:
@@ -366,11 +382,12 @@ def build(
         (root / "executed" / f"{notebooks.page_id(nid)}.ipynb").write_text(
             json.dumps(page, indent=1, ensure_ascii=False)
         )
+    judged = [n for n in ids if notebooks.page_id(n) not in pending]
     for md in root.glob("chapter-*.md"):
         with md.open("a") as f:
-            f.write(chapter_summary(md.stem.split("-", 1)[1], ids, scale))
+            f.write(chapter_summary(md.stem.split("-", 1)[1], judged, scale, pending))
     with (root / "intro.md").open("a") as f:
-        f.write(scoreboard(ids, scale))
+        f.write(scoreboard(judged, scale))
         f.write(f"\n_Built at scale `{scale}` from commit `{_git_rev()}` on {time.strftime('%Y-%m-%d %H:%M')}._\n")
     write_toc(ids, root)
     jb = Path(sys.executable).parent / "jupyter-book"
@@ -384,7 +401,9 @@ def build(
     index = root / "_build" / "html" / "index.html"
     print(
         f"[thesis_repro] book ({scale}) built in {time.time() - t0:.0f} s "
-        f"({len(ran)} notebook(s) executed, {len(kept)} up to date): {index}"
+        f"({len(ran)} notebook(s) executed, {len(kept)} up to date"
+        + (f", {len(pending)} not run: runs to train" if pending else "")
+        + f"): {index}"
     )
     if failed:
         names = ", ".join(notebooks.page_id(n) for n in failed)
@@ -401,6 +420,40 @@ def _last_line(err: BaseException) -> str:
     return lines[-1] if lines else repr(err)
 
 
+def untrained(nid: str, scale: str) -> tuple[int, list[Any]]:
+    """(number of training runs, those neither cached nor shipped) of notebook ``nid`` at ``scale``."""
+    from thesis_repro import figures  # local: figure modules import the learners
+    from thesis_repro.cache import RunCache
+
+    if nid not in figures.ids():
+        return 0, []
+    jobs = list({j.key: j for j in figures.training_jobs(nid, scale)}.values())
+    cache = RunCache()
+    return len(jobs), [j for j in jobs if cache.state(j) in ("missing", "partial")]
+
+
+def pending_note(nid: str, scale: str, total: int, todo: int) -> str:
+    """Why a page was not executed by a ``shipped_only`` build, and the commands that would execute it."""
+    return (
+        f"not built: {todo} of its {total} training runs are neither shipped nor cached; "
+        f"`make figure-{notebooks.page_id(nid).removeprefix('fig-')} SCALE={scale}` trains them "
+        f"(cost first: `make plan-{nid} SCALE={scale} MISSING=1`)"
+    )
+
+
+def pending_page(nid: str, scale: str, note: str) -> dict[str, Any]:
+    """Page of a notebook a ``shipped_only`` build did not execute: title, the thesis's claims and why."""
+    page = notebooks.page_id(nid)
+    head = f"```{{admonition}} Not run in this build (scale {scale})\n:class: warning\n"
+    body = f"{head}{note[0].upper()}{note[1:]}.\n```\n"
+    return _page([md_cell(f"# {title(page)}"), thesis_cell(page, scale), md_cell(body)])
+
+
+def _page(cells: list[dict[str, Any]]) -> dict[str, Any]:
+    meta = {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}}
+    return {"cells": cells, "metadata": meta, "nbformat": 4, "nbformat_minor": 5}
+
+
 def failed_page(nid: str, scale: str, error: str) -> dict[str, Any]:
     """Page of a notebook that failed to execute: its title, the thesis's claims and the error's last line."""
     page = notebooks.page_id(nid)
@@ -408,6 +461,4 @@ def failed_page(nid: str, scale: str, error: str) -> dict[str, Any]:
         f"```{{admonition}} Execution failed at scale {scale}\n:class: error\n"
         f"`{error}`\n\nRun `python -m thesis_repro figure {page} --scale {scale}` to see the full error.\n```\n"
     )
-    cells = [md_cell(f"# {title(page)}"), thesis_cell(page, scale), md_cell(body)]
-    meta = {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}}
-    return {"cells": cells, "metadata": meta, "nbformat": 4, "nbformat_minor": 5}
+    return _page([md_cell(f"# {title(page)}"), thesis_cell(page, scale), md_cell(body)])
