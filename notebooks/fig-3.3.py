@@ -51,6 +51,7 @@ print(budgets.render(trained))
 
 # %% [markdown]
 # ## (a, b) Testing AUC vs training return, with the Pareto frontier
+# Each point is one variant (labelled); the dashed line joins the Pareto-optimal ones.
 
 # %%
 sns.set_theme(style="whitegrid")
@@ -58,9 +59,9 @@ panels = settings["panels"]
 fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.2), squeeze=False)
 for ax, (env, test) in zip(axes[0], panels, strict=True):
     p = points[(points.env == env) & (points.test == test)]
-    sns.scatterplot(data=p, x="train_return", y="auc", hue="algo", s=70, ax=ax, legend=ax is axes[0, 0])
+    sns.scatterplot(data=p, x="train_return", y="auc", hue="algo", s=70, ax=ax, legend=False)
     front = ch3.frontier(p)
-    ax.plot(front.train_return, front.auc, "k--", lw=1, label="Pareto frontier")
+    ax.plot(front.train_return, front.auc, "k--", lw=1)
     for row in p.itertuples():
         ax.annotate(row.algo, (row.train_return, row.auc), fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.set(title=f"{env} - {test} (reproduced, {SCALE})", xlabel="training return", ylabel="testing AUC")
