@@ -9,18 +9,8 @@
 # %% [markdown]
 # # Figure 3.4 — Generalisation of the basic learners on Walker2d
 #
-# **Thesis claims** (§3.3.2): "Figures 3.4(a-c) show performance degradation of these standard policies as
-# increasing observation, action, and environmental noise are added at testing. We can see that policies are
-# relatively sensitive to observation noise compared to the other types. In terms of domain-shift rather than
-# noise, Figures 3.4(e-h) show that the expected return of standard models degrades rapidly as example
-# environmental parameters (mass ratio, wind direction) are changed at testing, with the degradation rate
-# depending on the factor being modified (e.g., greater mass-sensitivity than wind). [...] In this particular
-# environment, SAC is usually the most robust algorithm."
-#
-# > *Thesis caption:* Generalization of standard continuous control policies for *Walker2d-v2*. Top: Performance with
-# > varying testing noise σ^(o,u,s) and environment variation Σ scale. Bottom: Heatmaps illustrate policy
-# > performance over a grid of environmental domain-shifts. Each cell corresponds to a particular set of context
-# > parameters θ_te^h with training domain at (0,0). Results are averaged over 12 random seeds.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-3.4`); the verdicts at the end judge each claim on our numbers.
 #
 # Top: testing return vs σ (mean ± sd over training seeds × testing rollouts) for PPO, TRPO, DDPG, SAC. Bottom:
 # mean testing return over body-mass × wind shifts in σ units (mass ratio 1 + d; wind d · 9.81 m/s², the units

@@ -9,15 +9,8 @@
 # %% [markdown]
 # # Figure 3.5 — Change in normalised testing AUC when training with noise
 #
-# **Thesis claims** (§3.3.3): "Figure 3.5 shows the impact of training with multiple domains or different noise
-# compared to training with deterministic environments, averaging over all five benchmark environments. [...]
-# Overall the results show positive improved generalisation when training with noisy environments. [...] MDL
-# training often improves robustness not only to novel domains at testing, but also i.i.d observation, action,
-# and environment noise."
-#
-# > *Thesis caption:* Change in normalised testing AUC score when training with more stochastic environments
-# > compared to training with a deterministic environment. Positive bars imply improvements in generalisation
-# > performance over vanilla PPO. Results are averaged over all five training environments.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-3.5`); the verdicts at the end judge each claim on our numbers.
 #
 # The thesis does not define its normalisation. We use the change relative to the baseline,
 # (AUC − AUC_baseline) / |AUC_baseline| per task and test, averaged over the tasks (setting `normalisation`;

@@ -9,16 +9,8 @@
 # %% [markdown]
 # # Figure 3.6 — Change in normalised testing AUC: single- and multi-domain training methods
 #
-# **Thesis claims** (§3.3.4): "(i) The smaller PPO-16 often surpasses the classic PPO [...] (ii)
-# Entropy-regularised PPO usually surpasses vanilla PPO [...]. Thus generalisation performance can be increased
-# by reducing architecture size, or adding regularisers to reduce overfitting." and "(i) EPOpt does not
-# generalise well for unseen domains compared to PPO-MDL in most cases. (ii) Our adaptations of [...] MAML and
-# Reptile [...] do succeed in learning more generalisable policies compared to vanilla MDL domain randomisation."
-#
-# > *Thesis caption:* Change in normalised testing AUC score using various training settings. (a) Impact of
-# > different single-domain training methods compared to vanilla PPO training. (b) Impact of different
-# > multiple-domain training methods compared to PPO-MDL training. Results are averaged over all five training
-# > environments.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-3.6`); the verdicts at the end judge each claim on our numbers.
 #
 # The thesis does not define its normalisation. We use the change relative to the baseline,
 # (AUC − AUC_baseline) / |AUC_baseline| per task and test, averaged over the tasks (setting `normalisation`;

@@ -9,11 +9,8 @@
 # %% [markdown]
 # # Figure 3.7 — Generalisation of the four basic learners on all five tasks
 #
-# **Thesis claims** (§3.3.2): "The results for all environments are shown in Figure 3.7 and summarised as AUCs
-# in Table 3.4. [...] there is not a consistent winner in algorithm robustness across all environments."
-#
-# > *Thesis caption:* Generalisation of four basic learning algorithms across all five benchmark environments with
-# > varying testing noise σ^(o,u,s) and environment variation Σ scale.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-3.7`); the verdicts at the end judge each claim on our numbers.
 #
 # Curves: testing return vs σ (mean ± sd over training seeds × testing rollouts), one row per task, one
 # column per test type; the same evaluation jobs as the tables. The thesis gives curves only, so its AUCs

@@ -9,11 +9,8 @@
 # %% [markdown]
 # # Figure 3.8 — Generalisation of the selected learners on all five tasks
 #
-# **Thesis claims** (§3.3.4): "To summarise these most promising results, Figure 3.8 shows the generalisation
-# curves for PPO-Ent, PPO-MDL and PPO-MAML-DG, where improvement over the PPO baseline is usually clear."
-#
-# > *Thesis caption:* Generalisation of selected learning algorithms across all five benchmark environments with
-# > varying testing noise σ^(o,u,s) and environment variation Σ scale.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `fig-3.8`); the verdicts at the end judge each claim on our numbers.
 #
 # Curves: testing return vs σ (mean ± sd over training seeds × testing rollouts), one row per task, one
 # column per test type; the same evaluation jobs as the tables. The thesis gives curves only, so its AUCs

@@ -9,18 +9,8 @@
 # %% [markdown]
 # # Table 3.3 — Improving Walker2d-PPO generalisation by training with noise
 #
-# **Thesis claims** (§3.3.3): "(i) in each case, except environmental noise, the (expected) training return is
-# significantly lower when adding noise (Table 3.3a, compare cols), (ii) For observation and action noise,
-# training with noise in preparation for testing with noise improves performance compared to the naive
-# deterministic training [...]. (iii) However, there is not a clear benefit from removing the domain shift in
-# this way if the testing scenario contains environment noise, or novel domains compared to training [...].
-# (iv) [...] while testing performance has generally degraded at σ_te = 0.4 compared to σ_te = 0.2, the
-# degradation is ameliorated significantly (compared to deterministic training) in the case of action noise and
-# observation noise."
-#
-# > *Thesis caption:* Improving Walker2d-PPO generalization by training with noise. (a) Compares training return in
-# > deterministic (σ_tr = 0.0) and noisy (σ_tr = 0.2) conditions. (b) Compares the testing performance of
-# > different training conditions. 'MDL' and 'DOM' refer to training or testing on multiple domains respectively.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `table-3.3`); the verdicts at the end judge each claim on our numbers.
 #
 # (a) training return: mean ± std of the last training episodes behind each run's training return (pooled over
 # training seeds); (b) testing return at σ_te ∈ {0, 0.2, 0.4} (`chapter3_settings.csv`), mean ± std over training

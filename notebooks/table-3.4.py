@@ -9,15 +9,8 @@
 # %% [markdown]
 # # Table 3.4 — Generalisation of the basic learners (AUC)
 #
-# **Thesis claims** (§3.3.2): "In this particular environment [Walker2d], SAC is usually the most robust
-# algorithm. However overall, there is not a consistent winner in algorithm robustness across all environments
-# as seen in Table 3.4. For example, PPO performs better in *InvertedPendulum* and *InvertedDoublePendulum*."
-#
-# > *Thesis caption:* Generalisation performance of basic Deep RL learners in terms of AUC scores. Algorithms are
-# > trained on five standard deterministic environments, and tested with varying degrees of noise and
-# > domain-shift. Results are averaged over 12 training seeds × 20 testing seeds. For each testing condition
-# > (row), the results of the best-performing algorithm, as well as algorithms that are not significantly
-# > different are highlighted in boldface. Welch's t-test with p < 0.05 is used for significance testing.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `table-3.4`); the verdicts at the end judge each claim on our numbers.
 #
 # Cells: mean ± std of the testing AUC (Eq. 3.6) over training seeds × testing rollouts, **thesis** beside
 # **reproduced**. Bold: the best learner of the row plus every learner not significantly different from it

@@ -9,17 +9,8 @@
 # %% [markdown]
 # # Table 3.5 — Training with noisy and multiple environments (AUC)
 #
-# **Thesis claims** (§3.3.3): "Overall the results show positive improved generalisation when training with
-# noisy environments. Interestingly, there is some transferability across noise types. MDL training often
-# improves robustness not only to novel domains at testing, but also i.i.d observation, action, and environment
-# noise. Meanwhile, observation noise training improves robustness to action noise and MDL testing in
-# *HalfCheetah*."
-#
-# > *Thesis caption:* Generalisation performance of training with noisy and multiple environments in terms of AUC
-# > score. [...] For all noisy training settings, gaussian noise with 0.2 standard deviation is used during
-# > training. All performance are averaged over 12 training seeds × 20 testing seeds. Results of the
-# > best-performing training setting on each testing condition, as well as the ones that are not significantly
-# > different, are highlighted in boldface. Welch's t-test with p < 0.05 is used for significant testing.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `table-3.5`); the verdicts at the end judge each claim on our numbers.
 #
 # Cells: mean ± std of the testing AUC (Eq. 3.6) over training seeds × testing rollouts, **thesis** beside
 # **reproduced**. Bold: the best learner of the row plus every learner not significantly different from it

@@ -9,16 +9,8 @@
 # %% [markdown]
 # # Table 3.6 — Algorithms and architectures (AUC)
 #
-# **Thesis claims** (§3.3.4): "(i) The smaller PPO-16 often surpasses the classic PPO architecture with 64
-# hidden units each layer in generalisation, and similarly for SCN vs SCN-16. (ii) Entropy-regularised PPO
-# usually surpasses vanilla PPO, sometimes by a large margin. (iii) Adversarial PPO-APRL sometimes improves, but
-# often also worsens vanilla PPO. (iv) The best performing model is either PPO-16, SCN-16, or PPO-Ent."
-#
-# > *Thesis caption:* Generalisation performance of different algorithms and architectures in terms of AUC score.
-# > Algorithms are trained on five standard deterministic environments, and tested with varying degrees of noise
-# > and domain-shift. All performance are averaged over 12 training seeds × 20 testing seeds. The results of the
-# > best-performing algorithm on each testing condition, as well as all algorithms that are not significantly
-# > different, are highlighted in boldface. Welch's t-test with p < 0.05 is used for significant testing.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `table-3.6`); the verdicts at the end judge each claim on our numbers.
 #
 # Cells: mean ± std of the testing AUC (Eq. 3.6) over training seeds × testing rollouts, **thesis** beside
 # **reproduced**. Bold: the best learner of the row plus every learner not significantly different from it

@@ -9,15 +9,8 @@
 # %% [markdown]
 # # Table 3.7 — Multi-domain training methods (AUC)
 #
-# **Thesis claims** (§3.3.4): "(i) EPOpt does not generalise well for unseen domains compared to PPO-MDL in
-# most cases. (ii) Our adaptations of few-shot meta-learning methods (MAML and Reptile) to multi-domain training
-# do succeed in learning more generalisable policies compared to vanilla MDL domain randomisation."
-#
-# > *Thesis caption:* Generalisation performance of different multiple domain training methods in terms of AUC
-# > score. [...] Training domain parameters are sampled from θ_d ~ N(·, 0.2) for all training settings except for
-# > PPO. All performance are averaged over 12 training seeds × 20 testing seeds. The results of best-performing
-# > algorithm in each testing condition, as well as all algorithms that are not significantly different, are
-# > highlighted in boldface. Welch's t-test with p < 0.05 is used for significant testing.
+# The thesis's caption and claims open the book page (quoted with line numbers from
+# `data/thesis/claims.yaml`, key `table-3.7`); the verdicts at the end judge each claim on our numbers.
 #
 # Cells: mean ± std of the testing AUC (Eq. 3.6) over training seeds × testing rollouts, **thesis** beside
 # **reproduced**. Bold: the best learner of the row plus every learner not significantly different from it
