@@ -231,6 +231,17 @@ def test_wall_seconds_of_a_resumed_run_counts_every_session(tmp_path):
     assert np.isnan(runs.wall_seconds(Result(tmp_path / "gone", {}, {})))
 
 
+def test_generator_progress_line_reads_the_newest_checkpoint(tmp_path):
+    cache = RunCache(tmp_path / "runs", reference=False)
+    job, fresh = Job("square", {"x": 1, "timesteps": 300_000}), Job("square", {"x": 2, "timesteps": 10})
+    work = cache.workdir(job)
+    for steps in (100_000, 200_704):
+        (work / f"ckpt-{steps:012d}").mkdir(parents=True)
+    line = runs.progress_line([job, fresh], cache, 125.0)
+    assert line.startswith("  ... 2 min: training ")
+    assert f"{job.label} 200,704/300,000 steps; {fresh.label} 0/10 steps" in line
+
+
 def test_runs_command(fake_figures, capsys):
     assert main(["runs", "9.2", "--scale", "smoke"]) == 0
     out = capsys.readouterr().out

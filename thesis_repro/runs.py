@@ -29,7 +29,7 @@ import shutil
 import subprocess
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -507,6 +507,29 @@ def git_commit(path: Path, message: str, attempts: int = 20) -> str:
     raise AssertionError("unreachable")  # pragma: no cover
 
 
+#: Seconds between the generator's progress lines while its runs train (checkpoints land every 100k steps).
+HEARTBEAT_SECONDS = 300.0
+
+
+def progress_line(jobs: Sequence[Job], cache: RunCache, elapsed: float) -> str:
+    """One line: how far each of ``jobs`` got (env steps of its newest checkpoint / its budget).
+
+    >>> progress_line([], RunCache(reference=False), 600.0)
+    '  ... 10 min: nothing training'
+    """
+    from thesis_repro.learners.train import checkpoint_steps  # local: the listing stays importable without torch
+
+    parts = []
+    for job in jobs:
+        try:
+            steps = f"{checkpoint_steps(cache.workdir(job)):,}"
+        except (OSError, ValueError):  # a kind that checkpoints otherwise
+            steps = "?"
+        parts.append(f"{job.label} {steps}/{cost(job):,.0f} steps")
+    what = "training " + "; ".join(parts) + " (newest checkpoints)" if parts else "nothing training"
+    return f"  ... {elapsed / 60:.0f} min: {what}"
+
+
 def generate(
     scale: str = "small",
     figure_ids: Iterable[str] | None = None,
@@ -516,6 +539,7 @@ def generate(
     layer_root: str | Path | None = None,
     cache: RunCache | None = None,
     log: Callable[[str], None] = print,
+    heartbeat: float = HEARTBEAT_SECONDS,
 ) -> list[Exported]:
     """Produce the shipped reference runs of ``scale`` (``make reference-runs``).
 
@@ -523,7 +547,8 @@ def generate(
     by figure in that order), skips those already
     shipped with a verified entry, runs the rest through the local cache ``n_jobs`` at a time (an
     interrupted run resumes from its workdir checkpoint on the next call), exports each finished one into
-    the layer and, with ``commit``, commits it as it lands. Returns the exported runs.
+    the layer and, with ``commit``, commits it as it lands; every ``heartbeat`` seconds without one landing it
+    logs a :func:`progress_line`. Returns the exported runs.
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     cache = cache or RunCache(reference=False)
@@ -570,9 +595,16 @@ def generate(
         with ProcessPoolExecutor(
             max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent
         ) as ex:
-            futures = {ex.submit(execute, p.job, str(cache.root), False): p for p in todo}
+            futures: dict[Future, Planned] = {ex.submit(execute, p.job, str(cache.root), False): p for p in todo}
             order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
             log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
-            for i, fut in enumerate(as_completed(futures), 1):
-                land(i, futures[fut], fut.result())
+            pending, t0 = set(futures), time.time()
+            while pending:
+                finished, pending = wait(pending, timeout=heartbeat, return_when=FIRST_COMPLETED)
+                started = [futures[f].job for f in pending if f.running()]  # the pool queues one extra
+                running = [j for j in started if cache.workdir(j).exists()]  # workers still importing: none
+                if not finished and running:
+                    log(progress_line(running, cache, time.time() - t0))
+                for fut in finished:
+                    land(len(done) + 1, futures[fut], fut.result())
     return done

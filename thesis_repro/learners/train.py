@@ -168,6 +168,12 @@ def _checkpoints(workdir: Path) -> list[Path]:
     return sorted(workdir.glob("ckpt-*"), key=lambda p: int(p.name.split("-")[1]))
 
 
+def checkpoint_steps(workdir: str | Path) -> int:
+    """Env steps of the newest checkpoint in a training run's ``workdir`` (0: none yet): how far it got."""
+    found = _checkpoints(Path(workdir))
+    return int(found[-1].name.split("-")[1]) if found else 0
+
+
 def save_artifacts(model: BaseAlgorithm, folder: Path, cfg: dict[str, Any], full: bool) -> None:
     """Write ``policy.pth`` + ``obs_norm.npz`` + ``learner.json`` (and ``model.zip``/``vecnormalize.pkl`` if full)."""
     folder.mkdir(parents=True, exist_ok=True)
