@@ -21,6 +21,7 @@ thesis averages) and cells (``env, test, method, mean, std, n``).
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -102,11 +103,12 @@ def note(settings: Mapping[str, Any]) -> str:
     return budget_note({**settings, "timesteps": t}, n_algos=len(learners(settings)))
 
 
-def describe(settings: Mapping[str, Any]) -> str:
-    """One line for the notebook: this scale's budget beside the thesis's, and what it does not run."""
+def describe(settings: Mapping[str, Any], width: int = 100) -> str:
+    """For the notebook: this scale's budget beside the thesis's and what it does not run, wrapped at
+    ``width`` characters (a book page shows printed text as is: one long line would scroll sideways)."""
     miss = skipped(settings)
     tail = f" Not run at this scale (thesis numbers shown): {', '.join(miss)}." if miss else ""
-    return note(settings) + tail
+    return textwrap.fill(note(settings) + tail, width=width)
 
 
 # ---------------------------------------------------------------- job grids
