@@ -360,11 +360,11 @@ def build(
     for nid in ids:
         total, todo = untrained(nid, scale) if shipped_only else (0, [])
         if todo:
-            pending[notebooks.page_id(nid)] = pending_note(nid, scale, total, len(todo))
-            print(f"[thesis_repro] {notebooks.page_id(nid)} not run: {len(todo)}/{total} training runs to compute")
-            (root / "executed" / f"{notebooks.page_id(nid)}.ipynb").write_text(
-                json.dumps(pending_page(nid, scale, pending[notebooks.page_id(nid)]), indent=1, ensure_ascii=False)
-            )
+            page_id = notebooks.page_id(nid)
+            pending[page_id] = pending_note(nid, scale, total, len(todo))
+            print(f"[thesis_repro] {page_id} not run: {len(todo)}/{total} training runs to compute")
+            page = pending_page(nid, scale, pending[page_id])
+            (root / "executed" / f"{page_id}.ipynb").write_text(json.dumps(page, indent=1, ensure_ascii=False))
             continue
         src = notebooks.executed_path(nid, scale)
         fresh = src.exists() and (reuse or notebooks.is_current(nid, scale))
