@@ -126,3 +126,6 @@ def test_plan_of_what_is_missing_leaves_out_finished_runs():
     RunCache().run(next(j for j in jobs if j.kind == "train"))  # this test's own (empty) cache
     left = plan.plan_figure("3.3", "smoke", 1, None, True, algos=["ppo"], envs=["InvertedPendulum"])
     assert left.n_train == 0 and left.n_other == len(jobs) - 1
+    per, book = plan.plan_book("smoke", 1, None, missing=True)  # plan all --missing: the same rule
+    every = plan.plan_book("smoke", 1, None)[1]
+    assert book.n_train == every.n_train - 1 and book.n_other == every.n_other

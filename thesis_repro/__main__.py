@@ -110,7 +110,7 @@ def _plan_command(args: argparse.Namespace) -> int:
         return 0
     if subset:
         raise ValueError("--envs/--algos choose a subset of one figure; name it (plan 3.3 --algos ppo trpo)")
-    per, book = plan.plan_book(args.scale, args.cores, rates)
+    per, book = plan.plan_book(args.scale, args.cores, rates, args.missing)
     for p in per:
         print(plan.summary(p))
     print("\nthe book (every figure; runs shared by figures counted once):")

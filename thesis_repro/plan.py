@@ -324,17 +324,24 @@ def plan_figure(
     ``missing``, only the jobs neither cached nor shipped (what running the figure now would compute)."""
     fig = figures.get(figure_id)
     jobs = figures.jobs(figure_id, scale, **overrides)
-    if missing:
-        cache = RunCache()
-        jobs = [j for j in jobs if cache.state(j) not in ("cached", "shipped")]
-    return plan_jobs(fig.notebook_id, jobs, scale, cores or os.cpu_count() or 1, rates)
+    return plan_jobs(fig.notebook_id, to_compute(jobs) if missing else jobs, scale, cores or os.cpu_count() or 1, rates)
 
 
-def plan_book(scale: str, cores: int | None = None, rates: Rates | None = None) -> tuple[list[Plan], Plan]:
-    """One plan per figure and the book's plan (each run counted once)."""
+def to_compute(jobs: Iterable[Job]) -> list[Job]:
+    """The ``jobs`` neither cached nor shipped: what running them now would compute."""
+    cache = RunCache()
+    return [j for j in jobs if cache.state(j) not in ("cached", "shipped")]
+
+
+def plan_book(
+    scale: str, cores: int | None = None, rates: Rates | None = None, missing: bool = False
+) -> tuple[list[Plan], Plan]:
+    """One plan per figure and the book's plan (each run counted once); ``missing`` as in :func:`plan_figure`."""
     cores = cores or os.cpu_count() or 1
     rates = rates or load_rates()
     per = {fid: figures.jobs(fid, scale) for fid in figures.ids()}
+    if missing:
+        per = {fid: to_compute(js) for fid, js in per.items()}
     plans = [plan_jobs(figures.get(f).notebook_id, js, scale, cores, rates) for f, js in per.items()]
     return plans, plan_jobs("book", (j for js in per.values() for j in js), scale, cores, rates)
 
