@@ -422,14 +422,12 @@ def _last_line(err: BaseException) -> str:
 
 def untrained(nid: str, scale: str) -> tuple[int, list[Any]]:
     """(number of training runs, those neither cached nor shipped) of notebook ``nid`` at ``scale``."""
-    from thesis_repro import figures  # local: figure modules import the learners
-    from thesis_repro.cache import RunCache
+    from thesis_repro import figures, plan  # local: figure modules import the learners
 
     if nid not in figures.ids():
         return 0, []
     jobs = list({j.key: j for j in figures.training_jobs(nid, scale)}.values())
-    cache = RunCache()
-    return len(jobs), [j for j in jobs if cache.state(j) in ("missing", "partial")]
+    return len(jobs), plan.to_compute(jobs)
 
 
 def pending_note(nid: str, scale: str, total: int, todo: int) -> str:
