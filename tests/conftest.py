@@ -14,3 +14,5 @@ def _isolated_dirs(tmp_path_factory, monkeypatch):
     # the shipped layer is the real data/reference only where a test asks for it (tests/test_shipped.py)
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path_factory.mktemp("reference")))
     monkeypatch.delenv("THESIS_REPRO_RETRAIN", raising=False)
+    # SB3's default logger makes an SB3-<timestamp> folder in the system temp dir per learn(); keep them in pytest's
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3-log")))

@@ -7,6 +7,8 @@ in one session folder shared with ``tests/test_notebooks.py`` (whichever runs fi
 
 from __future__ import annotations
 
+import atexit
+import functools
 import json
 import os
 import re
@@ -60,7 +62,12 @@ def chromium() -> str:
     return found
 
 
-_PROFILE = Path(tempfile.mkdtemp(prefix="thesis-repro-chromium-"))
+@functools.cache
+def _profile() -> Path:
+    """Chromium's profile folder: made on first use, removed when the test session ends (no temp litter)."""
+    path = Path(tempfile.mkdtemp(prefix="thesis-repro-chromium-"))
+    atexit.register(shutil.rmtree, path, ignore_errors=True)
+    return path
 
 
 def _browser_args(exe: str) -> list[str]:
@@ -76,7 +83,7 @@ def _browser_args(exe: str) -> list[str]:
         "--no-default-browser-check",
         "--disable-breakpad",
         "--disable-crash-reporter",
-        f"--user-data-dir={_PROFILE}",
+        f"--user-data-dir={_profile()}",
     ]
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3 import PPO
-from stable_baselines3.common.logger import configure
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from thesis_repro.envs import make_env
@@ -38,7 +38,7 @@ def _twins(policy="MlpPolicy", activation=th.nn.Tanh, **kw) -> tuple[FastPPO, PP
     fast = FastPPO(policy, _venv(), policy_kwargs=pk, **args)
     fast.learn(512)
     sb3 = PPO(policy, _venv(), policy_kwargs=pk, **args)
-    sb3.set_logger(configure(None, [""]))
+    sb3.set_logger(Logger(None, []))
     sb3.policy.load_state_dict(fast.policy.state_dict())
     sb3.policy.optimizer.load_state_dict(copy.deepcopy(fast.policy.optimizer.state_dict()))
     sb3.rollout_buffer = copy.deepcopy(fast.rollout_buffer)
@@ -218,7 +218,7 @@ def _off_policy_twin(model):
     finally:
         model.env, model._vec_normalize_env = env, vn
     twin.env, twin._vec_normalize_env = env, vn
-    twin.set_logger(configure(None, [""]))
+    twin.set_logger(Logger(None, []))
     return twin
 
 

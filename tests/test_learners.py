@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -345,11 +346,29 @@ def test_training_env_seeds_stay_below_the_testing_range_also_after_a_resume(tmp
     assert all(lt.env_seed(s, i) < 2**32 for s in (0, 2**32 - 1, 2**63) for i in range(16))
 
 
-def test_training_leaves_no_logger_folders(tmp_path, monkeypatch):
-    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
-    (tmp_path / "tmp").mkdir()
+def _private_tmp(tmp_path: Path, monkeypatch) -> Path:
+    """A fresh system temp dir, and SB3 back on its default logger folder (conftest points SB3_LOGDIR away)."""
     import tempfile
 
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
     monkeypatch.setattr(tempfile, "tempdir", None)  # re-read TMPDIR
+    return tmp_path / "tmp"
+
+
+def test_training_leaves_no_logger_folders(tmp_path, monkeypatch):
+    tmp = _private_tmp(tmp_path, monkeypatch)
     train_job(tiny(timesteps=128), tmp_path / "run")
-    assert not list((tmp_path / "tmp").glob("SB3-*"))
+    assert not list(tmp.glob("SB3-*"))
+
+
+def test_bench_chunks_leave_no_logger_folders(tmp_path, monkeypatch):
+    from stable_baselines3 import PPO
+
+    from thesis_repro.learners.bench import _learn_chunk
+
+    tmp = _private_tmp(tmp_path, monkeypatch)
+    chunk = _learn_chunk(PPO("MlpPolicy", "InvertedPendulum-v5", n_steps=64, batch_size=64, n_epochs=1), 64)
+    assert chunk() == 64 and chunk() == 64
+    assert not list(tmp.glob("SB3-*"))

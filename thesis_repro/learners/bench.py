@@ -32,6 +32,7 @@ import gymnasium as gym
 import torch as th
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormalize
@@ -91,6 +92,8 @@ def interleaved(chunks: dict[str, Callable[[], int]], rounds: int) -> dict[str, 
 
 
 def _learn_chunk(model: BaseAlgorithm, steps: int) -> Callable[[], int]:
+    model.set_logger(Logger(None, []))  # SB3's default logger would leave an SB3-<timestamp> temp folder per learn()
+
     def chunk() -> int:
         before = model.num_timesteps
         model.learn(steps, reset_num_timesteps=False)
