@@ -7,6 +7,7 @@ import json
 import pickle
 import shutil
 import warnings
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -136,6 +137,19 @@ def test_readable_self_describing_entry(tmp_path):
     manifest = json.loads((res.path / "manifest.json").read_text())["sha256"]
     on_disk = {str(p.relative_to(res.path)) for p in res.path.rglob("*") if p.is_file()} - {"manifest.json"}
     assert set(manifest) == on_disk >= {"config.json", "provenance.json", "result.json", "arrays.npz"}
+
+
+def test_arrays_are_stored_deflated_and_read_back_exactly(tmp_path):
+    cache = RunCache(tmp_path / "runs", reference=False)
+    res = cache.run(Job("test-counting", {"n": 5000, "counter": str(tmp_path / "count")}))
+    assert np.array_equal(res["arr"], np.arange(5000, dtype=float))
+    with zipfile.ZipFile(res.path / "arrays.npz") as zf:
+        assert {i.compress_type for i in zf.infolist()} == {zipfile.ZIP_DEFLATED}
+    steps = np.arange(0, 130_000 * 15, 15, dtype=np.int64)  # a long per-episode log compresses well
+    np.savez_compressed(tmp_path / "a.npz", t=steps)
+    np.savez(tmp_path / "b.npz", t=steps)
+    assert (tmp_path / "a.npz").stat().st_size < (tmp_path / "b.npz").stat().st_size / 3
+    assert np.array_equal(np.load(tmp_path / "a.npz")["t"], steps)
 
 
 def test_lookup_goes_by_key_not_label(tmp_path):

@@ -428,7 +428,8 @@ class RunCache:
         (tmp / "provenance.json").write_text(json.dumps(provenance(start, time.time()), indent=1))
         (tmp / "result.json").write_text(json.dumps(scalars, indent=1, sort_keys=True))
         if arrays:
-            np.savez(tmp / "arrays.npz", **arrays)
+            # deflated: a diverging learner's 2M-step run logs ~130k short episodes (3.2 MB raw, 0.8 MB deflated)
+            np.savez_compressed(tmp / "arrays.npz", **arrays)
         write_manifest(tmp)
         for p in tmp.rglob("*"):
             if p.is_file():
