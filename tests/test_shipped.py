@@ -30,6 +30,15 @@ def test_every_shipped_run_is_current_and_intact():
         assert json.loads((entry / "config.json").read_text())["key"] == job.key
 
 
+def test_shipped_layer_is_compact():
+    """Small compact files (issue 7: tens of MB at most; no tracked file over 2 MiB), never optimiser state."""
+    files = [p for p in LAYER.rglob("*") if p.is_file()]
+    big = sorted(f"{p.relative_to(LAYER)} ({p.stat().st_size / 2**20:.1f} MiB)" for p in files if p.stat().st_size > 2**21)
+    assert not big, f"shipped files over 2 MiB (store arrays deflated, thin the logs): {big}"
+    total = sum(p.stat().st_size for p in files)
+    assert total < 60e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is tens of MB"
+
+
 def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
     job = runs.cheapest_shipped("train", LAYER)
     if job is None:
