@@ -33,9 +33,10 @@ def test_every_shipped_run_is_current_and_intact():
 def test_shipped_layer_is_compact():
     """Small compact files (issue 7: tens of MB at most; no tracked file over 2 MiB), never optimiser state."""
     files = [p for p in LAYER.rglob("*") if p.is_file()]
-    big = sorted(f"{p.relative_to(LAYER)} ({p.stat().st_size / 2**20:.1f} MiB)" for p in files if p.stat().st_size > 2**21)
+    sizes = {p: p.stat().st_size for p in files}
+    big = sorted(f"{p.relative_to(LAYER)} ({n / 2**20:.1f} MiB)" for p, n in sizes.items() if n > 2**21)
     assert not big, f"shipped files over 2 MiB (store arrays deflated, thin the logs): {big}"
-    total = sum(p.stat().st_size for p in files)
+    total = sum(sizes.values())
     assert total < 60e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is tens of MB"
 
 
