@@ -22,7 +22,7 @@ from thesis_repro.cache import Job, Result, run_jobs
 from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
 from thesis_repro.evaluation.jobs import check_test
 from thesis_repro.figures import budget_note, register
-from thesis_repro.learners import iteration_steps, train_config
+from thesis_repro.learners import iteration_steps, n_iterations, train_config
 from thesis_repro.validation import check_choice
 
 SELECTIONS: tuple[str, ...] = ("best", "mean")
@@ -85,7 +85,7 @@ def snapshot_steps(cfg: Mapping[str, Any]) -> list[int]:
     batch, every = iteration_steps(cfg), int(cfg["snapshot_every"])
     if every <= 0:
         return []
-    n_iter = -(-int(cfg["timesteps"]) // batch)
+    n_iter = n_iterations(cfg)
     out: list[int] = []
     for i in range(n_iter):
         t = i * batch

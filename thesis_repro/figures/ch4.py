@@ -28,7 +28,7 @@ from thesis_repro.cache import Job, run_jobs
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import budget_note, register
-from thesis_repro.learners import iteration_steps, load_policy, train_config
+from thesis_repro.learners import iteration_steps, load_policy, n_iterations, train_config
 from thesis_repro.validation import check_choice
 
 EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
@@ -336,8 +336,8 @@ def panel_lines(
 
 def caveat(settings: Mapping[str, Any]) -> str:
     """The honest fine print of a chapter-4 run: budget in env steps and iterations vs the thesis's, seeds."""
-    steps = iteration_steps(runs(settings)["config"].iloc[0])
-    text = budget_note(settings, extra=f"~{int(settings['timesteps']) // steps} iteration(s) of {steps:,} steps")
+    cfg = runs(settings)["config"].iloc[0]
+    text = budget_note(settings, extra=f"{n_iterations(cfg)} iteration(s) of {iteration_steps(cfg):,} steps")
     if int(settings["train_seeds"]) < 3:
         text += " With so few seeds there are no error bars: small differences are not evidence either way."
     return text

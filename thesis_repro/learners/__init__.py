@@ -17,6 +17,7 @@ from thesis_repro.learners.config import (
     algorithms,
     hyperparams,
     iteration_steps,
+    n_iterations,
     train_config,
 )
 from thesis_repro.learners.policy import Policy, load_policy, snapshots
@@ -31,6 +32,7 @@ __all__ = [
     "hyperparams",
     "iteration_steps",
     "load_policy",
+    "n_iterations",
     "snapshots",
     "train_config",
     "train_job",

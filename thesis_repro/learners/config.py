@@ -146,6 +146,17 @@ def iteration_steps(cfg: Mapping[str, Any]) -> int:
     return int(cfg["n_envs"]) * int(cfg["sb3"]["n_steps"]) * (2 if cfg["class"] == "MAMLDG" else 1)
 
 
+def n_iterations(cfg: Mapping[str, Any]) -> int:
+    """On-policy iterations a training config runs: SB3's ``learn()`` finishes the iteration that crosses
+    ``timesteps``, so ``ceil(timesteps / iteration_steps)``.
+
+    >>> cfg = train_config("joint", "Walker2d", 0, 2_000_000)
+    >>> iteration_steps(cfg), n_iterations(cfg)
+    (4096, 489)
+    """
+    return -(-int(cfg["timesteps"]) // iteration_steps(cfg))
+
+
 def _validate(cfg: dict[str, Any]) -> None:
     check_choice(cfg["class"], CLASSES, "learner class")
     check_choice(cfg["perturbation"], PERTURBATIONS, "perturbation")
