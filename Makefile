@@ -56,7 +56,8 @@ book: $(NEEDS)
 ## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale
 test: $(STAMP) $(RAY_STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
-	tmp=$$(mktemp -d); export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build; \
+	tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
+	export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build SB3_LOGDIR=$$tmp/sb3-log; \
 	$(BIN)/python -m pytest -q -rfEs --doctest-modules tests thesis_repro \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
