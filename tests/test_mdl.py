@@ -534,3 +534,20 @@ def test_chapter4_verdicts_on_hand_made_tables():
     )
     v = ch4.verdict_4_4(wind, heat, figures.settings("4.4", "small"))
     assert [x.status for x in v] == [report.REPRODUCES] * 3 + [report.DOES_NOT]  # the centre cell is excluded
+
+
+def test_fig47_verdict_judges_entropy_and_prints_the_return_beside_it():
+    # kl_avg: highest entropy but it stopped learning (return -5); kl_exact: high entropy and best return
+    algos = {"kl_avg": (12.0, -5.0), "kl_exact": (9.0, 2000.0), "params_avg": (4.0, 1500.0), "joint": (1.0, 1800.0)}
+    curves = pd.DataFrame(
+        [
+            {"panel": "-", "algo": a, "iteration": it, "entropy": ent, "return": ret}
+            for a, (ent, ret) in algos.items()
+            for it in (1, 2, 3)
+        ]
+    )
+    v = ch4.verdict_4_7(curves, figures.settings("4.7", "small"))
+    assert [x.status for x in v] == [report.REPRODUCES, report.REPRODUCES]  # the literal claim: entropy
+    assert "late training return kl_avg -5 vs joint 1,800; kl_avg's higher entropy comes with a policy" in v[0].evidence
+    assert "late training return kl_exact 2,000 vs joint 1,800." in v[1].evidence
+    assert "not a sign" not in v[1].evidence
