@@ -551,3 +551,17 @@ def test_fig47_verdict_judges_entropy_and_prints_the_return_beside_it():
     assert "late training return kl_avg -5 vs joint 1,800; kl_avg's higher entropy comes with a policy" in v[0].evidence
     assert "late training return kl_exact 2,000 vs joint 1,800." in v[1].evidence
     assert "not a sign" not in v[1].evidence
+
+
+@pytest.mark.parametrize("env", ["Walker2d", "Hopper"])
+def test_fig42_frames_use_the_models_tracking_camera(env):
+    import mujoco
+
+    from thesis_repro.envs import make_env
+
+    e = make_env(env, ratios={"wind": 0.0}, c_a=0.1, max_episode_steps=5, env_kwargs=ch4.RENDER)
+    model, renderer = e.unwrapped.model, e.unwrapped.mujoco_renderer
+    track = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "track")
+    assert track >= 0 and renderer.camera_id == track  # not gymnasium's FREE camera (-1), which stays put
+    assert model.cam_mode[track] == mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM
+    e.close()

@@ -479,6 +479,12 @@ def verdict_4_7(curves: pd.DataFrame, settings: Mapping[str, Any]) -> list[repor
 
 
 # ---------------------------------------------------------------- Figure 4.2: rendering
+#: Offscreen rendering of Fig 4.2. Gymnasium 1.4 renders Walker2d/Hopper with a FREE camera whose
+#: ``trackbodyid`` has no effect, so a walker leaves the frame after a few metres; the models' own
+#: ``track`` camera (mode ``trackcom``) follows the centre of mass, as the thesis's frames do.
+RENDER: dict[str, Any] = {"render_mode": "rgb_array", "width": 480, "height": 320, "camera_name": "track"}
+
+
 def render_cycle(
     run_result: Any, env: str, c_a: float, n_frames: int = 5, steps: int = 300, seed: int = 0
 ) -> tuple[list[np.ndarray], list[int]]:
@@ -486,10 +492,10 @@ def render_cycle(
 
     The cycle period is the dominant period of the thigh-joint angle (FFT) over ``steps`` steps; the
     frames are ``n_frames`` evenly spaced steps of the last full cycle (fallback: of the whole episode).
+    The camera follows the walker (:data:`RENDER`).
     """
     policy = load_policy(run_result)
-    render = {"render_mode": "rgb_array", "width": 480, "height": 320}
-    e = make_env(env, ratios={"wind": 0.0}, c_a=c_a, max_episode_steps=steps, env_kwargs=render)
+    e = make_env(env, ratios={"wind": 0.0}, c_a=c_a, max_episode_steps=steps, env_kwargs=RENDER)
     obs, _ = e.reset(seed=seed)
     frames, angles = [e.render()], [float(obs[2])]
     for _ in range(steps):
