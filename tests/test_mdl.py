@@ -250,7 +250,7 @@ def test_fomaml_meta_step_uses_mean_of_given_gradients():
 
 
 def test_maml_gradient_is_taken_at_adapted_parameters_on_fresh_data():
-    cfg = tiny("ppo-maml-dg", max_grad_norm=1e9)
+    cfg = tiny("ppo-maml-dg", max_grad_norm=1e9, meta_update="step")  # Alg 1 read literally
     model = model_for(cfg)
     start = {k: v.clone() for k, v in model.policy.state_dict().items()}
     model.learn(cfg["n_envs"] * cfg["sb3"]["n_steps"] * 2)  # one iteration: D_i, adapt, D'_i per domain
@@ -273,6 +273,35 @@ def test_maml_gradient_is_taken_at_adapted_parameters_on_fresh_data():
             assert torch.allclose(model._meta_grads[i][n], p.grad, atol=1e-5), n
     # the main policy moved (one Adam step with the mean gradient), the sub-policies were left adapted
     assert any(not torch.equal(model.policy.state_dict()[k], start[k]) for k in start)
+
+
+def test_maml_ppo_outer_update_with_one_minibatch_is_the_literal_step_and_keeps_the_shifts():
+    """meta_update='ppo' with 1 epoch and 1 minibatch per domain takes exactly Alg 1's one step; with more it
+    takes n_epochs x T/batch_size steps, each at pi + Delta_i (Delta_i fixed), and learns more than one step."""
+    t = TINY["n_steps"]
+    after = {}
+    for mode in ("step", "ppo"):
+        cfg = tiny("ppo-maml-dg", meta_update=mode, n_epochs=1, batch_size=t, seed=3)
+        model = model_for(cfg)
+        collected(model)
+        model.train()
+        assert model.last_train_stats["meta_steps"] == 1
+        after[mode] = _params(model.policy)
+    torch.testing.assert_close(after["ppo"], after["step"], atol=1e-6, rtol=0)
+
+    cfg = tiny("ppo-maml-dg", meta_update="ppo", n_epochs=3, batch_size=t // 4, seed=3)
+    model = model_for(cfg)
+    collected(model)
+    start = {n: p.detach().clone() for n, p in model.policy.named_parameters()}
+    model.train()
+    assert model.last_train_stats["meta_steps"] == 3 * 4
+    final = dict(model.policy.named_parameters())
+    for sub, shift in zip(model.sub_policies, model._shifts, strict=True):
+        for n, p in sub.named_parameters():  # the last gradient was taken at (pi before the last step) + Delta_i
+            assert torch.allclose(p - shift[n], final[n], atol=2e-3)  # one Adam step (lr 1e-3) away at most
+    assert any(not torch.allclose(final[n], start[n]) for n in start)
+    with pytest.raises(ValueError, match="valid meta_updates are: 'step', 'ppo'"):
+        train_config("ppo-maml-dg", "Hopper", 0, 100, meta_update="sgd")
 
 
 def _params(policy) -> torch.Tensor:

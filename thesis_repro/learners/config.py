@@ -39,6 +39,9 @@ CLASSES: tuple[str, ...] = (*ON_POLICY, "DDPG", "SAC")
 MULTI_DOMAIN_CLASSES: tuple[str, ...] = ("EPOpt", "MAMLDG", "ReptileDG", "SubPolicyAggregation")
 #: Aggregation steps of :class:`~thesis_repro.learners.multidomain.SubPolicyAggregation` (``mdl.aggregate``).
 AGGREGATES: tuple[str, ...] = ("params_avg", "kl_avg", "kl_exact")
+#: Outer updates of :class:`~thesis_repro.learners.multidomain.MAMLDG`: one Adam step per iteration (Alg 1 read
+#: literally) or PPO's epochs x minibatches on the post-adaptation data (the kit's default).
+META_UPDATES: tuple[str, ...] = ("step", "ppo")
 POLICIES: tuple[str, ...] = ("mlp", "scn")
 ACTIVATIONS: tuple[str, ...] = ("tanh", "relu")
 
@@ -190,6 +193,8 @@ def _validate(cfg: dict[str, Any]) -> None:
         raise ValueError(f"epsilon must be in (0, 1], got {sb3['epsilon']!r}")
     if "aggregate" in sb3:
         check_choice(sb3["aggregate"], AGGREGATES, "aggregate")
+    if "meta_update" in sb3:
+        check_choice(sb3["meta_update"], META_UPDATES, "meta_update")
     for key in ("damping", "cg_rtol", "inner_lr"):
         if key in sb3:
             check_nonneg(sb3[key], key)
