@@ -28,8 +28,8 @@ def runs() -> Path:
 
 
 def reference() -> Path:
-    """Shipped read-only layer of finished ``small`` training runs (``data/reference`` unless
-    ``THESIS_REPRO_REFERENCE`` is set); consulted after the local run cache."""
+    """Shipped read-only layer of finished ``small`` runs: training runs and chapter 5's results
+    (``data/reference`` unless ``THESIS_REPRO_REFERENCE`` is set); consulted after the local run cache."""
     return Path(os.environ.get("THESIS_REPRO_REFERENCE", ROOT / "data" / "reference"))
 
 
