@@ -18,6 +18,9 @@
 # **thesis** bars are derived from its Tables 3.5-3.7 with the same function, the **reproduced** bars from our
 # cells.
 # Logic: `thesis_repro.figures.ch3_curves` (runs and cells of `ch3_tables`), `evaluation.tables.auc_change`.
+# PPO-MAML-DG's outer update is optimised as PPO (epochs x minibatches of Alg 1's first-order objective), a
+# stated deviation from Alg 1 read literally, which takes one Adam step per iteration and did not learn at
+# `small` (README, "MAML-DG's outer update"); Reptile-DG follows Alg 2 as written.
 
 # %% tags=["parameters"]
 SCALE = "small"

@@ -16,6 +16,9 @@
 # column per test type; the same evaluation jobs as the tables. The thesis gives curves only, so its AUCs
 # (Tables 3.4-3.7) are shown beside ours in the table below.
 # Logic: `thesis_repro.figures.ch3_curves` (on the runs and cells of `ch3_tables`).
+# PPO-MAML-DG's outer update is optimised as PPO (epochs x minibatches of Alg 1's first-order objective), a
+# stated deviation from Alg 1 read literally, which takes one Adam step per iteration and did not learn at
+# `small` (README, "MAML-DG's outer update"); Reptile-DG follows Alg 2 as written.
 
 # %% tags=["parameters"]
 SCALE = "small"

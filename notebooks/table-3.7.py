@@ -17,6 +17,9 @@
 # (two-sided Welch t-test, p < 0.05 as the captions say; `chapter3_settings.csv`). The thesis's bolding is not
 # in its text: it is derived by the same rule from its mean ± std with n = 12 × 20 = 240 per cell. Grey cells:
 # not run at this scale. Logic: `thesis_repro.figures.ch3_tables`, statistics: `thesis_repro.evaluation.tables`.
+# PPO-MAML-DG's outer update is optimised as PPO (epochs x minibatches of Alg 1's first-order objective), a
+# stated deviation from Alg 1 read literally, which takes one Adam step per iteration and did not learn at
+# `small` (README, "MAML-DG's outer update"); Reptile-DG follows Alg 2 as written.
 
 # %% tags=["parameters"]
 SCALE = "small"
