@@ -277,7 +277,7 @@ def test_maml_gradient_is_taken_at_adapted_parameters_on_fresh_data():
 
 def test_maml_ppo_outer_update_with_one_minibatch_is_the_literal_step_and_keeps_the_shifts():
     """meta_update='ppo' with 1 epoch and 1 minibatch per domain takes exactly Alg 1's one step; with more it
-    takes n_epochs x T/batch_size steps, each at pi + Delta_i (Delta_i fixed), and learns more than one step."""
+    takes n_epochs x T/batch_size steps, each at pi + Delta_i (Delta_i fixed), and moves pi."""
     t = TINY["n_steps"]
     after = {}
     for mode in ("step", "ppo"):
