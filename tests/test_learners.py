@@ -324,7 +324,7 @@ def test_other_learners_train_and_load(tmp_path, algo, kw):
 
 def test_training_env_seeds_stay_below_the_testing_range_also_after_a_resume(tmp_path, monkeypatch):
     """Training env seeds are < 2**32 (testing seeds are >= 2**32), however large the run seed; SB3's own rule
-    (seed + i, and a resumed run's SeedSequence draw + i) could reach 2**32."""
+    (seed + i) could reach 2**32."""
     seen: list[int] = []
     original = lt.TrainingVecEnv.seed
 
@@ -337,12 +337,10 @@ def test_training_env_seeds_stay_below_the_testing_range_also_after_a_resume(tmp
     cfg = tiny(timesteps=384, seed=2**32 - 1, checkpoint_every=128)
     with pytest.raises(KeyboardInterrupt):
         train_job(cfg, tmp_path, callback=_Interrupt(at=200))
-    first = len(seen)
     assert train_job(cfg, tmp_path)["resumed_from"] == 128
-    assert len(seen) > first  # the resumed session re-seeded its envs
+    # a resumed run restores its envs' state exactly (tests/test_resume.py): whatever seeding the rebuild
+    # does is overwritten, and every seed drawn stays below the testing range
     assert seen and all(0 <= s < 2**32 for s in seen)
-    resumed = seen[-cfg["n_envs"] :]  # the last seeding wins (applied at the next reset)
-    assert len(set(resumed)) == cfg["n_envs"] and not set(resumed) & set(seen[:first])
     assert all(lt.env_seed(s, i) < 2**32 for s in (0, 2**32 - 1, 2**63) for i in range(16))
 
 

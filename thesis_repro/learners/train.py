@@ -8,10 +8,12 @@ Usable as ``Job("train", train_config(...))``. The job
 * seeds SB3 (torch, numpy, the action space) with the config's ``seed`` and env ``i`` with
   :func:`env_seed` ``(seed, i)`` — the kit's ONE seeding rule, always ``< 2**32`` and so disjoint from the
   testing seeds (``>= 2**32``, :func:`thesis_repro.evaluation.test_seeds`), also after a resume;
-* checkpoints model + VecNormalize statistics (+ replay buffer off-policy) + bookkeeping into
+* checkpoints model (+ replay buffer off-policy) + the run's live state (:mod:`thesis_repro.learners.resume`:
+  simulators, wrappers, VecNormalize statistics, random generators, global RNGs) + bookkeeping into
   ``workdir/ckpt-<steps>`` at iteration boundaries at least ``checkpoint_every`` env steps apart, and resumes
-  from the newest checkpoint when rerun after an interruption (the timestep counter continues; the remaining
-  steps get fresh randomness seeded by :func:`resume_seed`);
+  from the newest checkpoint when rerun after an interruption, EXACTLY: the resumed run is bit-identical to
+  an uninterrupted one (``tests/test_resume.py``). A checkpoint that cannot be restored exactly (written by
+  other code) is discarded and the run starts afresh;
 * writes ``out/model.zip``, ``out/vecnormalize.pkl`` (if the obs filter is on), ``out/policy.pth`` +
   ``out/obs_norm.npz`` + ``out/learner.json`` (what :func:`thesis_repro.learners.load_policy` reads) and,
   every ``snapshot_every`` env steps at iteration boundaries, ``out/snapshots/step_<t>/`` (policy + obs filter).
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import shutil
 import time
 from collections.abc import Sequence
@@ -50,6 +53,7 @@ from thesis_repro.learners.config import iteration_steps
 from thesis_repro.learners.fast import FastPPO, FastSAC  # leaner, equivalent train() (tests/test_fast.py)
 from thesis_repro.learners.multidomain import CLASSES as MULTI_DOMAIN_CLASSES
 from thesis_repro.learners.policies import SCNPolicy
+from thesis_repro.learners.resume import ResumeMismatch, capture, global_rng_state, restore, set_global_rng_state
 
 RETURN_WINDOW = 100  # training episodes averaged into train_return and the curve
 #: Algorithm class of each ``class`` name of ``hyperparams.yaml``.
@@ -72,11 +76,6 @@ def env_seed(seed: int, i: int) -> int:
     (True, True)
     """
     return int(np.random.SeedSequence([int(seed), int(i)]).generate_state(1, dtype=np.uint32)[0])
-
-
-def resume_seed(seed: int, timesteps: int) -> int:
-    """Seed of the randomness after resuming a run at ``timesteps`` (fresh, reproducible, ``< 2**32``)."""
-    return int(np.random.SeedSequence([int(seed), int(timesteps)]).generate_state(1, dtype=np.uint32)[0])
 
 
 class TrainingVecEnv(LeanVecEnv):
@@ -210,10 +209,17 @@ class _Bookkeeper(BaseCallback):
     """Records finished episodes and, per on-policy iteration, the policy entropy and the learner's own
     statistics (``model.last_train_stats``); checkpoints and snapshots at iteration boundaries."""
 
-    def __init__(self, cfg: dict[str, Any], workdir: Path, state: dict[str, Any]):
+    def __init__(self, cfg: dict[str, Any], workdir: Path, state: dict[str, Any], live: dict[str, Any] | None = None):
         super().__init__()
         self.cfg, self.workdir, self.state = cfg, workdir, state
+        self.live = live  # a checkpoint's live state, written back once learn() has set itself up
         self.t0 = time.time()
+
+    def _on_training_start(self) -> None:
+        # after SB3's _setup_learn (which resets action noise and may reset envs): the checkpoint's state wins
+        if self.live is not None:
+            _restore_live(self.model, self.live)
+            self.live = None
 
     def _on_step(self) -> bool:
         for info in self.locals.get("infos", []):
@@ -259,12 +265,76 @@ class _Bookkeeper(BaseCallback):
             vn.save(str(tmp / "vecnormalize.pkl"))
         if isinstance(self.model, OffPolicyAlgorithm):
             self.model.save_replay_buffer(str(tmp / "replay_buffer.pkl"))
+        with open(tmp / "live.pkl", "wb") as fh:
+            pickle.dump(_capture_live(self.model), fh, protocol=pickle.HIGHEST_PROTOCOL)
         (tmp / "state.json").write_text(json.dumps(self.state))
         old = _checkpoints(self.workdir)
         os.replace(tmp, self.workdir / f"ckpt-{t:012d}")
         for p in old:
             if p.name != f"ckpt-{t:012d}":
                 shutil.rmtree(p, ignore_errors=True)
+
+
+def _live_roots(model: BaseAlgorithm) -> dict[str, Any]:
+    """What ``model.save`` does not hold, as separately walked roots (SB3's ``load`` rebuilds the model's own
+    spaces apart from the env's, so each root is captured on its own, whatever the two runs share)."""
+    own = {
+        k: v
+        for k, v in vars(model).items()
+        if isinstance(v, np.ndarray | np.random.Generator | int | float | bool | np.generic) and not k.startswith("__")
+    }
+    roots: dict[str, Any] = {
+        "env": model.env,
+        "action_space": model.action_space,
+        "observation_space": model.observation_space,
+        "action_noise": getattr(model, "action_noise", None),
+        "model": own,
+    }
+    if getattr(model, "_domain_envs", None) is not None:  # the sequential learners' per-domain views
+        roots["domains"] = (model._domain_envs, model._domain_obs, model._domain_starts)  # type: ignore[attr-defined]
+    return roots
+
+
+def _capture_live(model: BaseAlgorithm) -> dict[str, Any]:
+    roots = {name: capture(obj) for name, obj in _live_roots(model).items()}
+    return {"roots": roots, "rng": global_rng_state()}
+
+
+def _restore_live(model: BaseAlgorithm, live: dict[str, Any]) -> None:
+    saved = live["roots"]
+    if "domains" in saved and getattr(model, "_domain_envs", None) is None:
+        model._domain_env(0)  # type: ignore[attr-defined]  # build them; their state is restored next
+    roots = _live_roots(model)
+    if set(roots) != set(saved):
+        raise ResumeMismatch(f"checkpoint roots {sorted(saved)} != rebuilt {sorted(roots)}")
+    for name, obj in roots.items():
+        restore(obj, saved[name])
+    for key, value in roots["model"].items():
+        setattr(model, key, value)
+    set_global_rng_state(live["rng"])
+
+
+def _resume(cfg: dict[str, Any], workdir: Path, cls: type[BaseAlgorithm], ckpt: Path):
+    """``(venv, model, state, live)`` of checkpoint ``ckpt``, restored exactly; ``ResumeMismatch`` if it cannot be."""
+    live_path = ckpt / "live.pkl"
+    if not live_path.exists():
+        raise ResumeMismatch(f"{ckpt.name} has no live state (written by an older kit)")
+    state = json.loads((ckpt / "state.json").read_text())
+    with open(live_path, "rb") as fh:
+        live = pickle.load(fh)
+    venv = _wrap(cfg, make_train_venv(cfg), None)
+    try:
+        model = cls.load(str(ckpt / "model.zip"), env=venv, device="cpu", force_reset=False)
+        model.set_logger(Logger(None, []))
+        if isinstance(venv, ARPLVecEnv):
+            venv.policy = model.policy
+        if isinstance(model, OffPolicyAlgorithm):
+            model.load_replay_buffer(str(ckpt / "replay_buffer.pkl"))
+        _restore_live(model, live)  # now, to find a mismatch before training; again in _on_training_start
+    except Exception:
+        venv.close()
+        raise
+    return venv, model, state, live
 
 
 def _grid(every: int, end: int) -> np.ndarray:
@@ -321,18 +391,19 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
     (workdir / "out").mkdir(parents=True, exist_ok=True)
     cls = ALGORITHM_CLASSES[cfg["class"]]
     ckpts = _checkpoints(workdir)
-    inner = make_train_venv(cfg)
+    resumed = None
     if ckpts:
-        ckpt = ckpts[-1]
-        state = json.loads((ckpt / "state.json").read_text())
-        vn_path = ckpt / "vecnormalize.pkl"
-        venv = _wrap(cfg, inner, vn_path if vn_path.exists() else None)
-        model = cls.load(str(ckpt / "model.zip"), env=venv, device="cpu")
-        model.set_logger(Logger(None, []))
-        if isinstance(model, OffPolicyAlgorithm):
-            model.load_replay_buffer(str(ckpt / "replay_buffer.pkl"))
-        # fresh, reproducible randomness for the remaining steps (not a replay of the first session's)
-        model.set_random_seed(resume_seed(cfg["seed"], state["last_checkpoint"]))
+        try:
+            resumed = _resume(cfg, workdir, cls, ckpts[-1])
+        except (ResumeMismatch, OSError, EOFError, pickle.UnpicklingError, ValueError, KeyError) as err:
+            print(f"[train] cannot resume {workdir.name} exactly ({err}); starting afresh", flush=True)
+            for p in ckpts:
+                shutil.rmtree(p, ignore_errors=True)
+            shutil.rmtree(workdir / "out" / "snapshots", ignore_errors=True)
+            ckpts = []
+    live = None
+    if resumed is not None:
+        venv, model, state, live = resumed
         resumed_from = int(model.num_timesteps)
         snaps = workdir / "out" / "snapshots"
         for p in snaps.glob("step_*") if snaps.exists() else []:
@@ -342,7 +413,7 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
             state["last_snapshot"] = None
         state["wall_time_before"] = state["wall_time"]
     else:
-        venv = _wrap(cfg, inner, None)
+        venv = _wrap(cfg, make_train_venv(cfg), None)
         model = build_model(cfg, venv)
         resumed_from = 0
         state = {
@@ -353,9 +424,9 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
             "wall_time": 0.0,
             "wall_time_before": 0.0,
         }
-    if isinstance(venv, ARPLVecEnv):
-        venv.policy = model.policy
-    book = _Bookkeeper(cfg, workdir, state)
+        if isinstance(venv, ARPLVecEnv):
+            venv.policy = model.policy
+    book = _Bookkeeper(cfg, workdir, state, live)
     remaining = int(cfg["timesteps"]) - int(model.num_timesteps)
     t0 = time.time()
     if remaining > 0:
