@@ -27,7 +27,7 @@ import matplotlib.pyplot as plt
 
 from thesis_repro import figures, report
 from thesis_repro.arm import ArmConfig
-from thesis_repro.cache import run_jobs
+from thesis_repro.backends import run_jobs
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.3", SCALE)

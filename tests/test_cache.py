@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from thesis_repro import jobs as registry
-from thesis_repro.cache import CACHE_VERSION, CorruptEntryWarning, Job, RunCache, canonical_json, run_jobs
+from thesis_repro.backends import run_jobs
+from thesis_repro.cache import CACHE_VERSION, CorruptEntryWarning, Job, RunCache, canonical_json
 
 
 def _counting(config: dict, workdir: Path) -> dict:
@@ -49,8 +50,8 @@ registry.register("test-resumable", "tests.test_cache:_resumable")
 @pytest.fixture
 def scratch_registry(monkeypatch):
     """Registry changes made by a test are undone after it."""
-    for name in ("KINDS", "LABELS", "PATHS"):
-        monkeypatch.setattr(registry, name, dict(getattr(registry, name)))
+    for name in ("KINDS", "LABELS", "PATHS", "DEPENDENCIES", "RESOURCES", "PINNED"):
+        monkeypatch.setattr(registry, name, type(getattr(registry, name))(getattr(registry, name)))
 
 
 def test_key_depends_on_full_config_only():

@@ -187,7 +187,7 @@ def test_curriculum_verdict():
 
 
 def test_a_run_shared_by_two_figures_is_computed_once():
-    from thesis_repro.cache import run_jobs
+    from thesis_repro.backends import run_jobs
 
     small = {"panels": ["a"], "algos": ["joint"]}
     (first,) = run_jobs(figures.training_jobs("4.1", "smoke", **small), n_jobs=1, progress=False)

@@ -22,7 +22,8 @@ import pytest
 
 from thesis_repro import backends, figures
 from thesis_repro import jobs as registry
-from thesis_repro.cache import Job, RunCache, read_entry, run_jobs
+from thesis_repro.backends import run_jobs
+from thesis_repro.cache import Job, RunCache, read_entry
 from thesis_repro.learners import train_config
 
 NO_RAY = "ray is not installed: `pip install -e '.[ray]'` (make test installs it) to run the Ray backend tests"

@@ -1,25 +1,31 @@
-"""Where :func:`thesis_repro.cache.run_jobs` computes the jobs it cannot load: a local process pool or Ray.
+"""Running jobs: :func:`run_jobs` loads what the run cache has and computes the rest in a local process pool or
+on Ray. The run cache (:mod:`thesis_repro.cache`) only stores; the job kinds (:mod:`thesis_repro.jobs`) say what
+a kind needs (dependencies, resources); this module knows no kind.
 
 The backend is chosen by ``THESIS_REPRO_BACKEND`` (``make figure-3.3 BACKEND=ray`` sets it), so the figure
-code, which calls ``run_jobs`` through the library, does not change:
+code, which calls ``run_jobs``, does not change:
 
-* ``local`` (default): the process pool of :func:`~thesis_repro.cache.run_jobs` (``THESIS_REPRO_JOBS`` workers).
+* ``local`` (default): a process pool of ``THESIS_REPRO_JOBS`` workers (:func:`default_jobs`), each job run by
+  :func:`execute`.
 * ``ray``: one Ray task per job (:func:`run_ray`), on the cluster at ``RAY_ADDRESS`` (``ray://host:10001``,
   ``host:6379`` or ``auto``) or, without it, on a new local Ray instance on this machine
   (``THESIS_REPRO_JOBS`` CPUs if set). Ray is the optional extra ``pip install -e '.[ray]'``.
 
-Ray tasks. Each task asks for the resources of its job kind (:data:`RESOURCES`, data: CPUs and memory; a
-kind not listed gets :data:`DEFAULT_RESOURCES`). The task (:func:`compute`) runs the job function in the
-job's usual workdir ``<THESIS_REPRO_DATA>/<kind>/<label>__<key>.partial`` (training checkpoints there),
+Pinned dependencies. A job whose key pins its dependencies' entries (an evaluation pins its training run:
+:meth:`~thesis_repro.cache.RunCache.bind`) can be keyed only once they are committed: :func:`run_jobs` first
+runs the missing ones (the usual figure calls ``run_jobs`` for training first anyway), then binds.
+
+Ray tasks. Each task asks for the resources of its job kind (:data:`RESOURCES`, registered with the kind: CPUs
+and memory; a kind without gets :data:`DEFAULT_RESOURCES`). The task (:func:`compute`) runs the job function in
+the job's usual workdir ``<THESIS_REPRO_DATA>/<kind>/<label>__<key>.partial`` (training checkpoints there),
 commits the finished entry into a scratch folder and returns it as bytes (:func:`pack`); the *driver*
 verifies it against its manifest and commits it to its run cache (:func:`commit`) as soon as it lands, with
 the same progress bar as the local pool. Provenance (host, times) is the worker's.
 
-Dependencies. An ``evaluate`` job's config embeds its training job (``config["train"]``), and an
-``arm-target`` job its source job (:data:`DEPENDENCIES`). When the dependency is in the same ``run_jobs``
-call, its task's object ref is passed to the dependent task (Ray runs it after); when it is already in the
-driver's cache (the usual case: figures call ``run_jobs`` twice, training first, then evaluation), the
-driver ``ray.put``\\ s its packed entry once. Either way the worker materialises the entry into its own run
+Dependencies. A job's dependencies are what its kind's hook declares (:func:`dependencies`: an evaluation's
+training job, a transfer job's source job). When the dependency is in the same ``run_jobs`` call, its task's
+object ref is passed to the dependent task (Ray runs it after); when it is already in the driver's cache,
+the driver ``ray.put``\\ s its packed entry once. Either way the worker materialises the entry into its own run
 cache before running the job, so an evaluation never retrains on a node that cannot see the driver's disk.
 
 Fault tolerance. Tasks run with ``max_retries`` (:data:`MAX_RETRIES`, ``THESIS_REPRO_RAY_RETRIES``): a
@@ -46,32 +52,24 @@ import socket
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
 from thesis_repro import jobs as registry
-from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry
+from thesis_repro.cache import Job, Result, RunCache, read_entry
 from thesis_repro.validation import check_choice
 
 #: Valid values of ``THESIS_REPRO_BACKEND``.
 BACKENDS: tuple[str, ...] = ("local", "ray")
 ENV_VAR = "THESIS_REPRO_BACKEND"
 _GIB = 1024**3
-#: Ray resources of one task per job kind (``num_cpus``, ``memory`` in bytes). Every kit job is
-#: single-threaded (``torch.set_num_threads(1)``); training holds a model, a rollout buffer (SAC/DDPG: a
-#: replay buffer of up to 1e6 transitions) and its env copies.
-RESOURCES: dict[str, dict[str, float]] = {
-    "train": {"num_cpus": 1, "memory": 2 * _GIB},
-    "evaluate": {"num_cpus": 1, "memory": 1 * _GIB},
-    "arm-source": {"num_cpus": 1, "memory": 1 * _GIB},
-    "arm-competitor-source": {"num_cpus": 1, "memory": 1 * _GIB},
-    "arm-target": {"num_cpus": 1, "memory": 1 * _GIB},
-    "arm-curriculum": {"num_cpus": 1, "memory": 1 * _GIB},
-    "arm-solve": {"num_cpus": 1, "memory": 1 * _GIB},
-}
+#: Ray resources of one task per job kind (``num_cpus``, ``memory`` in bytes), as each kind registered them
+#: (:func:`thesis_repro.jobs.register`; the registry's own dict).
+RESOURCES: dict[str, dict[str, float]] = registry.RESOURCES
 #: Resources of a kind not in :data:`RESOURCES`.
 DEFAULT_RESOURCES: dict[str, float] = {"num_cpus": 1, "memory": 1 * _GIB}
 #: Retries of a task whose worker died (Ray's ``max_retries``); ``THESIS_REPRO_RAY_RETRIES`` overrides.
@@ -98,40 +96,108 @@ def resources(kind: str) -> dict[str, float]:
     >>> resources("train")["num_cpus"]
     1
     """
-    return dict(RESOURCES.get(kind, DEFAULT_RESOURCES))
-
-
-def _evaluate_deps(config: Mapping[str, Any]) -> list[Job]:
-    return [Job("train", config["train"])] if isinstance(config.get("train"), Mapping) else []
-
-
-def _arm_target_deps(config: Mapping[str, Any]) -> list[Job]:
-    from thesis_repro.arm.baselines import COMPETITORS
-
-    src = config.get("source")
-    if not isinstance(src, Mapping):
-        return []
-    if config.get("strategy") in COMPETITORS:
-        return [Job("arm-competitor-source", {**src, "policy": config["strategy"]})]
-    return [Job("arm-source", src)]
-
-
-#: kind -> the jobs a job of that kind runs through the cache itself (embedded in its config).
-DEPENDENCIES: dict[str, Callable[[Mapping[str, Any]], list[Job]]] = {
-    "evaluate": _evaluate_deps,
-    "arm-target": _arm_target_deps,
-}
+    return dict(registry.RESOURCES.get(kind, DEFAULT_RESOURCES))
 
 
 def dependencies(job: Job) -> list[Job]:
-    """Jobs whose results ``job`` loads through the run cache (:data:`DEPENDENCIES`; none for most kinds).
+    """Jobs whose results ``job`` loads through the run cache (its kind's hook, :func:`thesis_repro.jobs.dependencies`).
 
-    >>> from thesis_repro.cache import Job
     >>> [d.kind for d in dependencies(Job("evaluate", {"train": {"algorithm": "ppo"}, "test": {}}))]
     ['train']
     """
-    fn = DEPENDENCIES.get(job.kind)
-    return fn(job.config) if fn else []
+    return list(registry.dependencies(job.kind, job.config).values())
+
+
+# ---------------------------------------------------------------- running jobs
+def default_jobs() -> int:
+    """Worker processes for :func:`run_jobs`: ``THESIS_REPRO_JOBS`` or the number of cores."""
+    return int(os.environ.get("THESIS_REPRO_JOBS", os.cpu_count() or 1))
+
+
+def execute(job: Job, root: str | None = None, reference: str | bool = True) -> Result:
+    """Run one job through the cache, single-threaded (what a pool worker calls).
+
+    ``reference`` is the shipped layer to consult (see :class:`~thesis_repro.cache.RunCache`).
+    """
+    import torch  # local: keep the module importable without torch
+
+    torch.set_num_threads(1)
+    return RunCache(root, reference=reference).run(job)
+
+
+def _bind_all(
+    jobs: list[Job], cache: RunCache, n_jobs: int | None, progress: bool, desc: str
+) -> tuple[list[Job], dict[str, Result]]:
+    """``jobs`` bound (:meth:`RunCache.bind`), and the results of their pinned dependencies, which are run first
+    (loaded and verified, or computed)."""
+    deps = {d.key: d for job in jobs if registry.pinned(job.kind) for d in dependencies(job)}
+    done: dict[str, Result] = {}
+    if deps:
+        ran = run_jobs(list(deps.values()), n_jobs, cache, progress, f"{desc}: dependencies")
+        done = dict(zip(deps, ran, strict=True))
+    bound = []
+    for job in jobs:
+        b = cache.bind(job) or cache.bind(job, compute=True)  # compute: only if a dependency vanished meanwhile
+        assert b is not None
+        bound.append(b)
+    return bound, done
+
+
+def run_jobs(
+    jobs: Iterable[Job],
+    n_jobs: int | None = None,
+    cache: RunCache | None = None,
+    progress: bool = True,
+    desc: str = "jobs",
+) -> list[Result]:
+    """Run ``jobs`` (cached ones are loaded, the rest computed in parallel); results in input order.
+
+    The rest run in ``n_jobs`` local worker processes, or as Ray tasks when ``THESIS_REPRO_BACKEND=ray``
+    (``n_jobs`` is then Ray's business). Temporary folders of dead processes' commits are removed first.
+    """
+    cache = cache or RunCache()
+    n_jobs = default_jobs() if n_jobs is None else n_jobs
+    where = backend()  # THESIS_REPRO_BACKEND: local | ray
+    cache.sweep()
+    jobs, deps = _bind_all(list(jobs), cache, n_jobs, progress, desc)
+    results: dict[str, Result] = {}
+    todo: dict[str, Job] = {}
+    for job in jobs:
+        if job.key in results or job.key in todo:
+            continue
+        hit = deps.get(job.key) or cache.load(job)
+        if hit is not None:
+            results[job.key] = hit
+        else:
+            todo[job.key] = job
+    bar = None
+    if progress and todo:
+        from tqdm import tqdm
+
+        shipped = sum(r.source == "shipped" for r in results.values())
+        bar = tqdm(total=len(todo), desc=f"{desc} ({len(results) - shipped} cached, {shipped} shipped)")
+    t0 = time.time()
+    if where == "ray" and todo:
+        results.update(run_ray(todo, cache, bar))
+    elif n_jobs <= 1 or len(todo) <= 1:
+        for key, job in todo.items():
+            results[key] = cache.run(job)
+            if bar:
+                bar.update()
+    else:
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(max_workers=min(n_jobs, len(todo)), mp_context=mp.get_context("spawn")) as ex:
+            ref = str(cache.reference) if cache.reference is not None else False
+            futures = {ex.submit(execute, job, str(cache.root), ref): key for key, job in todo.items()}
+            for fut in as_completed(futures):
+                results[futures[fut]] = fut.result()
+                if bar:
+                    bar.update()
+    if bar:
+        bar.set_postfix_str(f"{time.time() - t0:.0f}s")
+        bar.close()
+    return [results[job.key] for job in jobs]
 
 
 # ---------------------------------------------------------------- packed entries
@@ -180,7 +246,7 @@ def unpack(root: str | Path, packed: Mapping[str, Any]) -> Path:
 def commit(cache: RunCache, job: Job, packed: Mapping[str, Any]) -> Result:
     """Driver side: commit the packed result of ``job`` to ``cache`` (under its lock) and return it as computed."""
     with cache._lock(job):
-        path = find_entry(cache.root, job) or unpack(cache.root, packed)
+        path = _has(cache.root, packed) or unpack(cache.root, packed)
     shutil.rmtree(cache.workdir(job), ignore_errors=True)
     values, config = read_entry(path)
     return Result(path, values, config, source="computed")
@@ -233,6 +299,9 @@ def compute(
             if _has(cache.root, dep) is None and (cache.reference is None or _has(cache.reference, dep) is None):
                 with cache._lock(SimpleNamespace(kind=dep["kind"], key=dep["folder"].rsplit("__", 1)[-1])):
                     unpack(cache.root, dep)
+        bound = cache.bind(job, compute=True)  # the driver binds already; a direct call may not have
+        assert bound is not None
+        job = bound
         with cache._lock(job):  # as RunCache.run: a second computation of the same job waits, then reuses
             hit = cache.load(job)
             if hit is not None and hit.source == "cached":  # committed meanwhile (shared storage)
@@ -242,7 +311,8 @@ def compute(
             (workdir / "out").mkdir(parents=True, exist_ok=True)
             note = {"pid": os.getpid(), "host": socket.gethostname(), "start": start}
             (workdir / WORKER_FILE).write_text(json.dumps(note))
-            values = fn(dict(job.config), workdir)
+            with cache.computing():
+                values = fn(dict(job.config), workdir)
             scratch = Path(tempfile.mkdtemp(prefix="thesis-repro-ray-"))
             argv, sys.argv = sys.argv, list(command)  # provenance records the command that asked for the job
             try:

@@ -1,4 +1,4 @@
-"""Content-addressed, atomic, resumable run cache with a shipped read-only layer, and a parallel job runner.
+"""Content-addressed, atomic, resumable run cache with a shipped read-only layer: it stores and verifies entries.
 
 A :class:`Job` is a registered *kind* (:mod:`thesis_repro.jobs`: ``"train"``, ``"evaluate"``, ...) plus a
 JSON config. Its key is ``sha256(v<CACHE_VERSION>|<kind>|<canonical config>)``: any change to the resolved
@@ -8,16 +8,26 @@ as artefacts (e.g. a trained policy).
 
 Entries live in readable folders ``<root>/<kind>/<label>__<key>/`` (``train/ppo__Hopper__s0__<key>``;
 lookups go by key) holding ``config.json`` (kind, config, key), ``provenance.json`` (command, git commit,
-package versions, host, platform, times), ``result.json``, ``arrays.npz``, ``out/`` and ``manifest.json`` (SHA-256
-of every file). ``workdir`` (``<label>__<key>.partial``) survives an interruption, so long jobs checkpoint
-there and resume. Entries are committed atomically (a temporary folder, then ``os.replace``); an entry
-whose files do not match its manifest is reported as corrupt, removed and recomputed. A per-entry lock
-makes concurrent processes safe: the second waits and then reuses the first one's result.
+package versions, host, platform, times, and what the job measured: wall time, throughput),
+``result.json``, ``arrays.npz``, ``out/`` and ``manifest.json`` (SHA-256 of every file). ``result.json`` and
+``arrays.npz`` hold only what the job computed (:data:`VOLATILE` values go to the provenance), so identical
+computations give byte-identical result files. ``workdir`` (``<label>__<key>.partial``) survives an
+interruption, so long jobs checkpoint there and resume. Entries are committed atomically (a temporary
+folder ``.tmp-<key>-<pid>``, then ``os.replace``; one left by a dead process is removed on the next run); an
+entry whose files do not match its manifest is reported as corrupt, removed and recomputed. A per-entry
+lock makes concurrent processes safe: the second waits and then reuses the first one's result.
 
 Lookup order: the local cache (``paths.runs()``), then the shipped read-only layer of reference runs
 (``paths.reference()``, ignored when ``THESIS_REPRO_RETRAIN=1``). A shipped entry is verified against its
 manifest too; a corrupt one is reported and recomputed into the local cache, never used and never deleted.
 ``Result.source`` says where a result came from: ``"computed"``, ``"cached"`` or ``"shipped"``.
+
+Pinned dependencies. A kind registered with ``pin=True`` (an evaluation) has the *identity* of each of its
+dependencies' entries (:func:`entry_identity`: a hash of what the job computed, the same for a local entry
+and its shipped copy) in its config, filled in by :meth:`RunCache.bind`: recomputing a training run gives
+new evaluations, never the old weights' ones. The cache knows no kind: the registry's hooks say which.
+
+This module stores; :mod:`thesis_repro.backends` runs many jobs (``run_jobs``: a process pool or Ray).
 
 >>> import tempfile
 >>> cache = RunCache(tempfile.mkdtemp(), reference=False)
@@ -33,19 +43,22 @@ True
 from __future__ import annotations
 
 import fcntl
+import fnmatch
 import hashlib
 import json
 import os
 import platform
+import re
 import shlex
 import shutil
 import subprocess
 import sys
 import time
 import warnings
-from collections.abc import Callable, Iterable, Iterator, Mapping
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import zipfile
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from functools import cache as _memo
@@ -71,6 +84,26 @@ PROVENANCE_PACKAGES: tuple[str, ...] = (
     "mujoco",
     "numpy",
 )
+#: Result values that are measurements of the computation, not its outcome (they differ between identical
+#: runs): moved from ``result.json`` to ``provenance.json["measured"]``. A job may also return them (and any
+#: other measurement) in a ``"provenance"`` dict. Read them with :meth:`Result.measured`.
+VOLATILE: tuple[str, ...] = ("wall_time", "steps_per_s")
+#: Artefacts that stay in the local cache and are never shipped (glob patterns on any file or folder name
+#: under ``out/``): full SB3 models and VecNormalize pickles, replay buffers, resumable checkpoints,
+#: optimiser dumps. They are not part of an entry's :func:`entry_identity` either.
+UNSHIPPED: tuple[str, ...] = (
+    "model.zip",
+    "vecnormalize.pkl",
+    "*replay_buffer*",
+    "ckpt*",
+    "checkpoint*",
+    "*optimizer*",
+    "*optimiser*",
+    ".ckpt-tmp",
+)
+#: Name of the temporary folder of a commit (``.tmp-<key>-<pid>``) and of the other writers' temporary
+#: folders (``.tmp-<key>-<pid>-unpack``, ``.tmp-export-<label>__<key>-<pid>``): the pid is the last number.
+_TMP_RE = re.compile(r"^\.tmp-.+-(\d+)(?:-unpack)?$")
 
 
 class CorruptEntryWarning(UserWarning):
@@ -191,6 +224,27 @@ class Result(Mapping[str, Any]):
     def __repr__(self) -> str:
         return f"Result({self.path.name}, keys={sorted(self.values)}, source={self.source!r})"
 
+    @property
+    def provenance(self) -> dict[str, Any]:
+        """The entry's ``provenance.json`` (``OSError``/``ValueError`` if unreadable)."""
+        return json.loads((self.path / "provenance.json").read_text())
+
+    def measured(self, name: str, default: Any = None) -> Any:
+        """A value the job measured (``wall_time``, ``steps_per_s``, ...): from ``provenance.json["measured"]``,
+        else from the result itself (entries committed before :data:`VOLATILE` existed), else ``default``."""
+        try:
+            measured = self.provenance.get("measured") or {}
+        except (OSError, ValueError):
+            measured = {}
+        if name in measured:
+            return measured[name]
+        return self.values.get(name, default)
+
+    @property
+    def identity(self) -> str:
+        """:func:`entry_identity` of this entry."""
+        return entry_identity(self.path)
+
 
 def _sha256(path: Path) -> str:
     h = hashlib.sha256()
@@ -211,13 +265,95 @@ def write_manifest(folder: Path) -> dict[str, str]:
     return sums
 
 
-def read_entry(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Verify entry ``path`` against its manifest and return ``(values, config)``; raises if unusable."""
+def check_manifest(path: Path) -> None:
+    """Raise (``ValueError``, ``OSError``) unless the files of entry ``path`` match its manifest."""
     manifest = json.loads((path / "manifest.json").read_text())
     files = {str(p.relative_to(path)): _sha256(p) for p in _files(path)}
     if files != manifest["sha256"]:
         bad = sorted(set(files) ^ set(manifest["sha256"]) | {f for f in files if manifest["sha256"].get(f) != files[f]})
         raise ValueError(f"files differ from the manifest: {', '.join(bad[:5])}")
+
+
+def verify_entry(path: str | Path) -> bool:
+    """Do the files of entry ``path`` match its manifest (and is it readable)? Never raises."""
+    try:
+        read_entry(Path(path))
+    except Exception:  # noqa: BLE001 - any failure to read means the entry is unusable
+        return False
+    return True
+
+
+def _unshipped(rel: str) -> bool:
+    return any(fnmatch.fnmatch(part, pat) for part in Path(rel).parts[1:] for pat in UNSHIPPED)
+
+
+def entry_identity(path: str | Path) -> str:
+    """What a committed entry computed, as a hash: its manifest's sums of ``result.json``, ``arrays.npz`` and
+    the shipped artefacts under ``out/`` (not ``config.json``, ``provenance.json`` nor :data:`UNSHIPPED` files).
+
+    Equal for a local entry and its shipped copy (``runs.export``), and for two computations that give the same
+    bytes; different when a recomputation gives other weights or results. Read from the manifest (an entry is
+    verified when it is loaded).
+    """
+    sums = json.loads((Path(path) / "manifest.json").read_text())["sha256"]
+    kept = {
+        rel: digest
+        for rel, digest in sums.items()
+        if rel in ("result.json", "arrays.npz") or (rel.startswith("out/") and not _unshipped(rel))
+    }
+    return hashlib.sha256(canonical_json(kept).encode()).hexdigest()[:20]
+
+
+def pid_alive(pid: int) -> bool:
+    """Is process ``pid`` running on this machine (or not ours to signal)?"""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def sweep_tmp(folder: str | Path) -> list[Path]:
+    """Remove the temporary folders (``.tmp-<key>-<pid>`` and the like) in ``folder`` left by dead processes.
+
+    A folder whose pid is alive (a commit in progress) is left alone. Returns the removed folders.
+    """
+    folder = Path(folder)
+    removed = []
+    try:
+        candidates = [p for p in folder.iterdir() if p.name.startswith(".tmp-")]
+    except OSError:  # no such folder yet
+        return []
+    for p in candidates:
+        m = _TMP_RE.match(p.name)
+        if m is None or not p.is_dir() or pid_alive(int(m.group(1))):
+            continue
+        shutil.rmtree(p, ignore_errors=True)
+        if not p.exists():
+            removed.append(p)
+    return removed
+
+
+def save_arrays(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write ``arrays`` as a deflated ``.npz`` whose bytes depend on the arrays only.
+
+    ``np.savez_compressed`` stamps every member with the current time; this writes a fixed timestamp, so
+    equal arrays give byte-identical files. ``np.load`` reads it as usual.
+    """
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+        for name, value in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            with zf.open(info, "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
+
+
+def read_entry(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Verify entry ``path`` against its manifest and return ``(values, config)``; raises if unusable."""
+    check_manifest(path)
     config = json.loads((path / "config.json").read_text())
     values: dict[str, Any] = json.loads((path / "result.json").read_text())
     if (path / "arrays.npz").exists():
@@ -330,11 +466,17 @@ def provenance(start: float, end: float) -> dict[str, Any]:
     }
 
 
+#: The cache whose :meth:`RunCache.run` is computing a job in this thread (:meth:`RunCache.current`).
+_ACTIVE: ContextVar[RunCache | None] = ContextVar("thesis_repro_active_cache", default=None)
+
+
 class RunCache:
     """The on-disk cache (``paths.runs()`` unless ``root`` is given) over the shipped read-only layer.
 
     ``reference=True`` consults ``paths.reference()`` unless ``THESIS_REPRO_RETRAIN=1``; a path consults
     that folder; ``False`` disables the layer.
+
+    Every method taking a job first :meth:`bind`\\ s it (a no-op for kinds that pin nothing).
     """
 
     def __init__(self, root: str | Path | None = None, reference: str | Path | bool = True):
@@ -346,30 +488,113 @@ class RunCache:
         else:
             self.reference = Path(reference)
         self._bad_shipped: set[str] = set()
+        self._ids: dict[Path, tuple[tuple[int, int], str]] = {}
 
+    @staticmethod
+    def current() -> RunCache:
+        """The cache computing the job that calls this (so a job function loads its dependencies from the
+        same cache that binds them), else a default ``RunCache()``."""
+        return _ACTIVE.get() or RunCache()
+
+    @contextmanager
+    def computing(self) -> Iterator[None]:
+        """Make this cache :meth:`current` while a job function runs."""
+        token = _ACTIVE.set(self)
+        try:
+            yield
+        finally:
+            _ACTIVE.reset(token)
+
+    # ---------------------------------------------------------------- pinned dependencies
+    def _identity(self, path: Path) -> str:
+        st = (path / "manifest.json").stat()
+        stamp = (st.st_mtime_ns, st.st_size)
+        hit = self._ids.get(path)
+        if hit is None or hit[0] != stamp:
+            hit = (stamp, entry_identity(path))
+            self._ids[path] = hit
+        return hit[1]
+
+    def _located(self, job: Job) -> Path | None:
+        """Where :meth:`load` would read ``job`` from (local, then shipped), without verifying."""
+        found = find_entry(self.root, job)
+        if found is None and job.key not in self._bad_shipped:
+            found = self.shipped(job)
+        return found
+
+    def bind(self, job: Job, compute: bool = False) -> Job | None:
+        """``job`` with the identity of each of its pinned dependencies' entries in its config.
+
+        For kinds registered with ``pin=True`` (:mod:`thesis_repro.jobs`; an evaluation pins its training run as
+        ``config["policy"]``); every other job, and a job already bound, is returned as is. The identity is that
+        of the entry :meth:`load` gives (local first, then shipped). A dependency not committed yet gives
+        ``None``, unless ``compute``: then it is loaded or computed through this cache first.
+        """
+        if not registry.pinned(job.kind):
+            return job
+        deps = registry.dependencies(job.kind, job.config)
+        if all(name in job.config for name in deps):
+            return job
+        pins: dict[str, str] = {}
+        for name, dep in deps.items():
+            dep = self.bind(dep, compute)
+            if dep is None:
+                return None
+            if compute:
+                path = self.run(dep).path
+            else:
+                path = self._located(dep)
+                if path is None:
+                    return None
+            pins[name] = self._identity(path)
+        return Job(job.kind, {**job.config, **pins})
+
+    def _bound(self, job: Job) -> Job:
+        """:meth:`bind` ``job``, or ``job`` itself when a dependency is missing (nothing can be stored for it)."""
+        return self.bind(job) or job
+
+    # ---------------------------------------------------------------- where entries are
     def entry(self, job: Job) -> Path:
         """Local folder of ``job``: the committed one if any, else where it will be committed."""
+        job = self._bound(job)
         return find_entry(self.root, job) or self.root / job.kind / job.folder
 
     def shipped(self, job: Job) -> Path | None:
         """Folder of ``job`` in the shipped layer (unverified), or ``None``."""
-        return find_entry(self.reference, job) if self.reference is not None else None
+        return find_entry(self.reference, self._bound(job)) if self.reference is not None else None
 
     def workdir(self, job: Job) -> Path:
         """Scratch folder kept across interruptions (checkpoints live here until commit)."""
+        job = self._bound(job)
         folder = self.root / job.kind
         if folder.is_dir():
             for p in folder.glob(f"*__{job.key}.partial"):
                 return p
         return folder / f"{job.folder}.partial"
 
-    def state(self, job: Job) -> str:
-        """``cached`` / ``shipped`` / ``partial`` (interrupted, resumable) / ``missing``, without verifying."""
-        if find_entry(self.root, job):
-            return "cached"
-        if self.shipped(job) is not None:
-            return "shipped"
-        return "partial" if self.workdir(job).exists() else "missing"
+    def state(self, job: Job, verify: bool = False) -> str:
+        """``cached`` / ``shipped`` / ``partial`` (interrupted, resumable) / ``missing``; with ``verify``,
+        ``corrupt`` for a committed entry that fails its manifest (the one :meth:`load` would read first).
+
+        Without ``verify`` nothing is read but folder names (and, for pinned kinds, their dependencies' manifests).
+        """
+        bound = self.bind(job)
+        if bound is None:  # a pinned dependency is not committed: neither is this job
+            return "missing"
+        found = find_entry(self.root, bound)
+        if found is not None:
+            return "corrupt" if verify and not verify_entry(found) else "cached"
+        shipped = self.shipped(bound)
+        if shipped is not None:
+            bad = bound.key in self._bad_shipped or (verify and not verify_entry(shipped))
+            return "corrupt" if bad else "shipped"
+        return "partial" if self.workdir(bound).exists() else "missing"
+
+    def sweep(self, kind: str | None = None) -> list[Path]:
+        """Remove the temporary folders of dead processes' commits (:func:`sweep_tmp`) under ``root`` (one
+        ``kind``'s folder, or all). Returns the removed folders."""
+        folders = [self.root / kind] if kind else [p for p in self.root.glob("*") if p.is_dir()]
+        return [p for folder in folders for p in sweep_tmp(folder)]
 
     @contextmanager
     def _lock(self, job: Job) -> Iterator[None]:
@@ -382,11 +607,15 @@ class RunCache:
             finally:
                 fcntl.flock(fh, fcntl.LOCK_UN)
 
+    # ---------------------------------------------------------------- load, commit, run
     def load(self, job: Job) -> Result | None:
         """The committed entry for ``job`` (local cache, then shipped layer), or ``None``.
 
         A corrupt local entry is removed (with a warning); a corrupt shipped entry is reported and skipped.
         """
+        job = self.bind(job)
+        if job is None:
+            return None
         path = find_entry(self.root, job)
         if path is not None:
             try:
@@ -415,9 +644,16 @@ class RunCache:
     def _commit(self, job: Job, values: Mapping[str, Any], workdir: Path, start: float) -> Path:
         if not isinstance(values, Mapping):
             raise TypeError(f"job {job.kind} ({job.fn}) must return a dict, got {type(values).__name__}")
+        measured = dict(values.get("provenance") or {})
+        measured.update({k: values[k] for k in VOLATILE if k in values})
+        values = {k: v for k, v in values.items() if k != "provenance" and k not in VOLATILE}
         arrays = {k: np.asarray(v) for k, v in values.items() if isinstance(v, np.ndarray)}
         scalars = _jsonable({k: v for k, v in values.items() if k not in arrays}, f"{job.kind} result")
+        prov = provenance(start, time.time())
+        if measured:
+            prov["measured"] = _jsonable(measured, f"{job.kind} measurements")
         final = self.entry(job)
+        sweep_tmp(final.parent)
         tmp = final.parent / f".tmp-{job.key}-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
@@ -425,11 +661,11 @@ class RunCache:
             shutil.copytree(workdir / "out", tmp / "out")
         meta = {"kind": job.kind, "config": job.config, "key": job.key, "label": job.label, "fn": job.fn}
         (tmp / "config.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
-        (tmp / "provenance.json").write_text(json.dumps(provenance(start, time.time()), indent=1))
+        (tmp / "provenance.json").write_text(json.dumps(prov, indent=1))
         (tmp / "result.json").write_text(json.dumps(scalars, indent=1, sort_keys=True))
         if arrays:
             # deflated: a diverging learner's 2M-step run logs ~130k short episodes (3.2 MB raw, 0.8 MB deflated)
-            np.savez_compressed(tmp / "arrays.npz", **arrays)
+            save_arrays(tmp / "arrays.npz", arrays)
         write_manifest(tmp)
         for p in tmp.rglob("*"):
             if p.is_file():
@@ -440,8 +676,25 @@ class RunCache:
         os.replace(tmp, final)
         return final
 
+    def compute(self, job: Job) -> Path:
+        """Compute the (bound) ``job`` in its workdir and commit it; the caller holds its lock. Returns the entry."""
+        start = time.time()
+        workdir = self.workdir(job)
+        (workdir / "out").mkdir(parents=True, exist_ok=True)
+        with self.computing():
+            values = job.resolve()(dict(job.config), workdir)
+        path = self._commit(job, values, workdir, start)
+        shutil.rmtree(workdir, ignore_errors=True)
+        return path
+
     def run(self, job: Job) -> Result:
-        """Load ``job`` (local cache, then shipped layer) or compute and commit it to the local cache."""
+        """Load ``job`` (local cache, then shipped layer) or compute and commit it to the local cache.
+
+        A pinned dependency (:meth:`bind`) is loaded or computed first.
+        """
+        bound = self.bind(job, compute=True)
+        assert bound is not None  # compute=True commits every dependency
+        job = bound
         cached = self.load(job)
         if cached is not None:
             return cached
@@ -449,92 +702,12 @@ class RunCache:
             cached = self.load(job)  # another process may have finished it while we waited
             if cached is not None:
                 return cached
-            start = time.time()
-            workdir = self.workdir(job)
-            workdir.mkdir(parents=True, exist_ok=True)
-            (workdir / "out").mkdir(exist_ok=True)
-            values = job.resolve()(dict(job.config), workdir)
-            path = self._commit(job, values, workdir, start)
-            shutil.rmtree(workdir, ignore_errors=True)
+            path = self.compute(job)
         found = find_entry(self.root, job)
         if found is None:  # pragma: no cover - only if the disk lies to us
             raise RuntimeError(f"cache entry {path} vanished right after commit")
         values, config = read_entry(found)
         return Result(found, values, config, source="computed")
-
-
-def execute(job: Job, root: str | None = None, reference: str | bool = True) -> Result:
-    """Run one job through the cache (the unit a distributed engine would call remotely).
-
-    ``reference`` is the shipped layer to consult (see :class:`RunCache`).
-    """
-    import torch  # local: keep the cache importable without torch
-
-    torch.set_num_threads(1)
-    return RunCache(root, reference=reference).run(job)
-
-
-def default_jobs() -> int:
-    """Worker processes for :func:`run_jobs`: ``THESIS_REPRO_JOBS`` or the number of cores."""
-    return int(os.environ.get("THESIS_REPRO_JOBS", os.cpu_count() or 1))
-
-
-def run_jobs(
-    jobs: Iterable[Job],
-    n_jobs: int | None = None,
-    cache: RunCache | None = None,
-    progress: bool = True,
-    desc: str = "jobs",
-) -> list[Result]:
-    """Run ``jobs`` (cached ones are loaded, the rest computed in parallel); results in input order.
-
-    The rest run in ``n_jobs`` local worker processes, or as Ray tasks when ``THESIS_REPRO_BACKEND=ray``
-    (:mod:`thesis_repro.backends`; ``n_jobs`` is then Ray's business).
-    """
-    from thesis_repro import backends  # local: backends imports this module
-
-    jobs = list(jobs)
-    cache = cache or RunCache()
-    n_jobs = default_jobs() if n_jobs is None else n_jobs
-    where = backends.backend()  # THESIS_REPRO_BACKEND: local | ray
-    results: dict[str, Result] = {}
-    todo: dict[str, Job] = {}
-    for job in jobs:
-        if job.key in results or job.key in todo:
-            continue
-        hit = cache.load(job)
-        if hit is not None:
-            results[job.key] = hit
-        else:
-            todo[job.key] = job
-    bar = None
-    if progress and todo:
-        from tqdm import tqdm
-
-        shipped = sum(r.source == "shipped" for r in results.values())
-        bar = tqdm(total=len(todo), desc=f"{desc} ({len(results) - shipped} cached, {shipped} shipped)")
-    t0 = time.time()
-    if where == "ray" and todo:
-        results.update(backends.run_ray(todo, cache, bar))
-    elif n_jobs <= 1 or len(todo) <= 1:
-        for key, job in todo.items():
-            results[key] = cache.run(job)
-            if bar:
-                bar.update()
-    else:
-        import multiprocessing as mp
-
-        with ProcessPoolExecutor(max_workers=min(n_jobs, len(todo)), mp_context=mp.get_context("spawn")) as ex:
-            ref = str(cache.reference) if cache.reference is not None else False
-            futures = {ex.submit(execute, job, str(cache.root), ref): key for key, job in todo.items()}
-            for fut in as_completed(futures):
-                results[futures[fut]] = fut.result()
-                if bar:
-                    bar.update()
-    if bar:
-        bar.set_postfix_str(f"{time.time() - t0:.0f}s")
-        bar.close()
-    return [results[job.key] for job in jobs]
 
 
 def _square(config: dict[str, Any], workdir: Path) -> dict[str, Any]:

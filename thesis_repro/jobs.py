@@ -7,6 +7,18 @@ cached and shipped run. This module is the one place that imports the kit's own 
 (:func:`resolve`). Each kind has a *label* function giving a readable folder name from the config
 (``train/ppo-scn-16__Hopper__s0__<key>``); the label is decoration, lookups go by key.
 
+A kind registers what the storage and the backends must know about it, so that neither names any kind:
+
+* ``deps``: a ``"module:function"`` hook, ``fn(config) -> {name: Job}``, giving the jobs a job of this kind
+  loads through the run cache (an evaluation's training run, a transfer job's source run). The Ray backend
+  ships them to the worker (:func:`dependencies`).
+* ``pin``: the identity of each dependency's entry is part of the key (``config[name] = identity``, filled in
+  by :meth:`thesis_repro.cache.RunCache.bind`), so a recomputed dependency never reuses old results.
+* ``resources``: what one Ray task of the kind asks for (:data:`RESOURCES`).
+
+The hooks are imported only when called: this module imports no job module, and the run cache and the
+backends import none either.
+
 >>> KINDS["train"]
 'thesis_repro.learners:train_job'
 >>> kind_of("thesis_repro.learners:train_job")  # the path form maps to its kind
@@ -34,6 +46,12 @@ from thesis_repro.validation import check_choice
 KINDS: dict[str, str] = {}
 #: kind -> ``label(config) -> str`` (readable part of the run folder name).
 LABELS: dict[str, Callable[[Mapping[str, Any]], str]] = {}
+#: kind -> ``"module:function"`` of its dependency hook, ``fn(config) -> {name: Job}`` (:func:`dependencies`).
+DEPENDENCIES: dict[str, str] = {}
+#: Kinds whose key pins the identity of their dependencies' entries (:meth:`~thesis_repro.cache.RunCache.bind`).
+PINNED: set[str] = set()
+#: kind -> Ray resources of one task (``num_cpus``, ``memory`` in bytes); others get the backend's default.
+RESOURCES: dict[str, dict[str, float]] = {}
 #: ``"module:function"`` -> kind, for jobs written in the path form ``Job("module:function", cfg)``
 #: (every path a kind was ever registered at, so a moved function keeps its old spelling working).
 PATHS: dict[str, str] = {}
@@ -106,13 +124,27 @@ def sanitize(text: str) -> str:
     return _UNSAFE.sub("-", text).strip("-.")[:MAX_LABEL]
 
 
+def _check_path(path: str, what: str) -> None:
+    if not isinstance(path, str) or path.count(":") != 1:
+        raise ValueError(f"{what} must look like 'package.module:function', got {path!r}")
+
+
 def register(
-    kind: str, target: str, label: Callable[[Mapping[str, Any]], str] | None = None, aliases: tuple[str, ...] = ()
+    kind: str,
+    target: str,
+    label: Callable[[Mapping[str, Any]], str] | None = None,
+    aliases: tuple[str, ...] = (),
+    *,
+    deps: str | None = None,
+    pin: bool = False,
+    resources: Mapping[str, float] | None = None,
 ) -> str:
     """Register (or move) job ``kind`` computed by ``target`` (``"module:function"``); returns ``kind``.
 
     Re-registering a kind at another path *moves* it: keys do not change and the old path keeps mapping
     to the kind. ``aliases`` are further paths computing the same kind (e.g. a dispatching wrapper).
+    ``deps``, ``pin`` and ``resources`` are described in the module docstring; a re-registration without
+    them keeps the earlier ones.
 
     >>> register("my-kind", "mypkg.jobs:my_job", label=lambda c: f"n{c['n']}")
     'my-kind'
@@ -123,15 +155,24 @@ def register(
     if not isinstance(kind, str) or not _KIND_RE.match(kind):
         raise ValueError(f"job kind must be a short lowercase name like 'train' or 'arm-source', got {kind!r}")
     for path in (target, *aliases):
-        if not isinstance(path, str) or path.count(":") != 1:
-            raise ValueError(f"job target must look like 'package.module:function', got {path!r}")
+        _check_path(path, "job target")
         if PATHS.get(path, kind) != kind:
             raise ValueError(f"{path} is already registered as job kind {PATHS[path]!r}, not {kind!r}")
+    if deps is not None:
+        _check_path(deps, "dependency hook")
+    if pin and deps is None and kind not in DEPENDENCIES:
+        raise ValueError(f"job kind {kind!r}: pin=True needs a dependency hook (deps=...)")
     KINDS[kind] = target
     for path in (target, *aliases):
         PATHS[path] = kind
     if label is not None or kind not in LABELS:
         LABELS[kind] = label or default_label
+    if deps is not None:
+        DEPENDENCIES[kind] = deps
+    if pin:
+        PINNED.add(kind)
+    if resources is not None:
+        RESOURCES[kind] = dict(resources)
     return kind
 
 
@@ -156,23 +197,67 @@ def label(kind: str, config: Mapping[str, Any]) -> str:
     return sanitize(text) or "job"
 
 
+def _import(path: str) -> Any:
+    module, func = path.split(":")
+    return getattr(importlib.import_module(module), func)
+
+
+def dependencies(kind: str, config: Mapping[str, Any]) -> dict[str, Any]:
+    """``{name: Job}``: the jobs a ``kind`` job with ``config`` loads through the run cache (``{}`` for most).
+
+    >>> sorted(dependencies("evaluate", {"train": {"algorithm": "ppo"}, "test": {}}))
+    ['policy']
+    >>> dependencies("square", {"x": 1})
+    {}
+    """
+    path = DEPENDENCIES.get(kind_of(kind))
+    return dict(_import(path)(config)) if path else {}
+
+
+def pinned(kind: str) -> bool:
+    """Does the key of a ``kind`` job pin the identity of its dependencies' entries?
+
+    >>> pinned("evaluate"), pinned("arm-target")
+    (True, False)
+    """
+    return kind_of(kind) in PINNED
+
+
 def resolve(kind: str, target: str | None = None) -> Callable[[dict[str, Any]], Any]:
     """The job function of ``kind`` (imported now). ``target`` is the path recorded when the job was made,
     used when this process has not registered the kind (a user kind in a spawned worker)."""
     path = KINDS.get(kind) or target
     if path is None:
         kind_of(kind)  # raises the ValueError listing the kinds
-    module, func = path.split(":")
-    return getattr(importlib.import_module(module), func)
+    return _import(path)
 
 
+_GIB = 1024**3
 # The kit's job kinds. Training: every learner of chapters 3 and 4 (one train_job); evaluation: every
 # testing sweep of chapters 3 and 4 (sigmas, or ratios such as wind / mass × friction, and c_a).
-register("train", "thesis_repro.learners:train_job", train_label)
-register("evaluate", "thesis_repro.evaluation:evaluate_job", evaluate_label)
-register("arm-source", "thesis_repro.arm.learn:source_job")
-register("arm-competitor-source", "thesis_repro.arm.baselines:competitor_source_job")
-register("arm-target", "thesis_repro.arm.baselines:target_job", arm_target_label)
-register("arm-curriculum", "thesis_repro.arm.curriculum:curriculum_job")
-register("arm-solve", "thesis_repro.arm.bench:solve_task")
+# Resources: every kit job is single-threaded (``torch.set_num_threads(1)``); training holds a model, a rollout
+# buffer (SAC/DDPG: a replay buffer of up to 1e6 transitions) and its env copies.
+# An evaluation pins its training run's identity ("policy"): new weights, new evaluation. The chapter-5
+# transfer job only declares its source run (pinning it would change the keys of the shipped runs).
+_ONE = {"num_cpus": 1, "memory": 1 * _GIB}
+register("train", "thesis_repro.learners:train_job", train_label, resources={"num_cpus": 1, "memory": 2 * _GIB})
+register(
+    "evaluate",
+    "thesis_repro.evaluation:evaluate_job",
+    evaluate_label,
+    deps="thesis_repro.evaluation.jobs:evaluate_dependencies",
+    pin=True,
+    resources=_ONE,
+)
+register("arm-source", "thesis_repro.arm.learn:source_job", resources=_ONE)
+register("arm-competitor-source", "thesis_repro.arm.baselines:competitor_source_job", resources=_ONE)
+register(
+    "arm-target",
+    "thesis_repro.arm.baselines:target_job",
+    arm_target_label,
+    deps="thesis_repro.arm.baselines:target_dependencies",
+    resources=_ONE,
+)
+register("arm-curriculum", "thesis_repro.arm.curriculum:curriculum_job", resources=_ONE)
+register("arm-solve", "thesis_repro.arm.bench:solve_task", resources=_ONE)
 register("square", "thesis_repro.cache:_square", lambda c: f"x{c['x']}")  # toy job of doctests and tests

@@ -37,14 +37,16 @@ import numpy as np
 
 from thesis_repro import figures, paths
 from thesis_repro import jobs as registry
+from thesis_repro.backends import execute
 from thesis_repro.cache import (
+    UNSHIPPED,
     Job,
     Result,
     RunCache,
-    execute,
     find_entry,
     platform_info,
     read_entry,
+    sweep_tmp,
     write_manifest,
 )
 from thesis_repro.validation import check_choice
@@ -53,16 +55,8 @@ from thesis_repro.validation import check_choice
 STATES: tuple[str, ...] = ("cached", "shipped", "partial", "missing")
 #: Artefacts never shipped (glob patterns on file or folder names): full SB3 models and VecNormalize
 #: pickles (optimiser state, env references), replay buffers, resumable checkpoints, optimiser dumps.
-EXCLUDE: tuple[str, ...] = (
-    "model.zip",
-    "vecnormalize.pkl",
-    "*replay_buffer*",
-    "ckpt*",
-    "checkpoint*",
-    "*optimizer*",
-    "*optimiser*",
-    ".ckpt-tmp",
-)
+#: (The cache's list: these files are not part of an entry's identity either.)
+EXCLUDE: tuple[str, ...] = UNSHIPPED
 #: Files a shipped entry of a kind must hold for evaluation to work (``load_policy(result)``).
 REQUIRED: dict[str, tuple[str, ...]] = {"train": ("out/policy.pth", "out/learner.json")}
 #: Size a shipped run should stay under (snapshots included); larger ones are reported.
@@ -200,6 +194,7 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
         dropped.extend(_rel(Path(folder) / n).split(f"{src.name}/", 1)[-1] for n in out)
         return out
 
+    sweep_tmp(dest.parent)  # temporary copies of dead exports
     tmp = dest.parent / f".tmp-export-{src.name}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
@@ -473,11 +468,13 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker 
 
 def wall_seconds(result: Result) -> float:
     """Measured wall time of a finished run, NaN if unknown: a training run's own ``wall_time`` (summed over
-    the sessions of a resumed run), else the ``provenance.json`` of the process that committed it."""
+    the sessions of a resumed run; :meth:`~thesis_repro.cache.Result.measured`), else the ``provenance.json`` of the
+    process that committed it."""
     try:
-        if "wall_time" in result:
-            return float(result["wall_time"])
-        return float(json.loads((result.path / "provenance.json").read_text())["wall_seconds"])
+        wall = result.measured("wall_time")
+        if wall is not None:
+            return float(wall)
+        return float(result.provenance["wall_seconds"])
     except (OSError, KeyError, ValueError, TypeError, AttributeError):
         return float("nan")
 

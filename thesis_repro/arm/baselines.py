@@ -27,12 +27,13 @@ simulator with ``a_t = controller(t, pos, vel)`` (see its docstring).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from thesis_repro.arm.learn import CMAResult, cma_lockstep, evaluate_policies, learn_independent
+from thesis_repro.cache import Job, RunCache
 from thesis_repro.validation import check_choice
 
 TRANSFER: tuple[str, ...] = ("scratch", "direct", "matrix", "tensor")
@@ -270,17 +271,16 @@ def target_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any]:
     competitor's policy class (:func:`learn_closed_loop_sources`, same tasks, same budget).
     """
     from thesis_repro.arm.tasks import sample_tasks
-    from thesis_repro.cache import Job, RunCache
 
     cfg = {**TARGET_DEFAULTS, **config}
     strategy = check_choice(cfg["strategy"], STRATEGIES, "strategy")
     src_cfg = cfg["source"]
     arm = src_cfg.get("arm", {})
     if strategy in COMPETITORS:
-        src = RunCache().run(Job("thesis_repro.arm.baselines:competitor_source_job", {**src_cfg, "policy": strategy}))
+        src = RunCache.current().run(Job("arm-competitor-source", {**src_cfg, "policy": strategy}))
         sources = src["theta"]
     else:
-        sources = RunCache().run(Job("thesis_repro.arm.learn:source_job", src_cfg))["W"]
+        sources = RunCache.current().run(Job("arm-source", src_cfg))["W"]
     targets = sample_tasks(cfg["target"], cfg["n_targets"], np.random.default_rng([cfg["seed"], 7]))
     out = learn_target(
         strategy,
@@ -300,6 +300,20 @@ def target_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any]:
     out["success_rate"] = float(out["final_success"].mean())
     out["mean_total_cost"] = float(out["total_cost"].mean())
     return out
+
+
+def target_dependencies(config: Mapping[str, Any]) -> dict[str, Job]:
+    """The source job a ``target_job`` config loads through the run cache (the ``arm-target`` kind's hook).
+
+    >>> [j.kind for j in target_dependencies({"source": {"family": "reach"}, "strategy": "fcnn"}).values()]
+    ['arm-competitor-source']
+    """
+    src = config.get("source")
+    if not isinstance(src, Mapping):
+        return {}
+    if config.get("strategy") in COMPETITORS:
+        return {"source": Job("arm-competitor-source", {**src, "policy": config["strategy"]})}
+    return {"source": Job("arm-source", src)}
 
 
 def competitor_source_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any]:

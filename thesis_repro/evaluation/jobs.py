@@ -2,6 +2,9 @@
 
 An evaluation config (the ``"evaluate"`` job) is ``{"train": <train_config(...)>, "test": <test block>}``;
 the trained model comes from the run cache (the same train job is trained once and shared by every test).
+The kind pins its training run (:func:`evaluate_dependencies`): the run cache adds ``"policy": <identity of
+the training entry>`` (:func:`thesis_repro.cache.entry_identity`) before keying it, so an evaluation of
+retrained weights is a new entry, and a fresh clone (shipped training runs) computes the same keys.
 A test block is ``{"perturbation", "sigmas" | "ratios", "n_rollouts", "seed", "max_episode_steps",
 "c_a", "snapshot" (optional), "env" (optional), "env_kwargs" (optional)}``:
 
@@ -30,7 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from thesis_repro.cache import Job, Result, RunCache, run_jobs
+from thesis_repro.backends import run_jobs
+from thesis_repro.cache import Job, Result, RunCache
 from thesis_repro.evaluation.evaluator import PERTURBATIONS, evaluate, evaluate_shift
 from thesis_repro.evaluation.metrics import auc, expected_return, sigma_step
 from thesis_repro.learners import load_policy, train_config
@@ -63,15 +67,31 @@ def check_test(test: Mapping[str, Any]) -> dict[str, Any]:
     return t
 
 
+def evaluate_dependencies(config: Mapping[str, Any]) -> dict[str, Job]:
+    """``{"policy": <the train job>}``: the run an evaluation loads (the ``evaluate`` kind's pinned dependency).
+
+    >>> evaluate_dependencies({"train": {"algorithm": "ppo"}, "test": {}})["policy"].kind
+    'train'
+    """
+    train = config.get("train")
+    return {"policy": Job(TRAIN_KIND, train)} if isinstance(train, Mapping) else {}
+
+
 def evaluate_job(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
     """Job function: train (through the cache) or reuse the model of ``config["train"]``, evaluate ``["test"]``.
 
     Any kit learner's run (chapter 3 or 4) is evaluated the same way. Returns ``returns`` and ``lengths``
     ``(points, n_rollouts)``, ``expected_return`` ``(points,)``, ``auc`` (Eq. 3.6; ``None`` for shift grids or a
-    single sigma) and ``train_return`` if the train job reports one.
+    single sigma) and ``train_return`` if the train job reports one. The training entry is loaded from the
+    cache running this job; if ``config["policy"]`` names another entry identity, that is an error.
     """
     test = check_test(config["test"])
-    train = RunCache().run(Job(TRAIN_KIND, config["train"]))
+    train = RunCache.current().run(Job(TRAIN_KIND, config["train"]))
+    if config.get("policy") is not None and train.identity != config["policy"]:
+        raise RuntimeError(
+            f"evaluation of policy {config['policy']} found training entry {train.path} with identity "
+            f"{train.identity} (recomputed meanwhile?); rerun to evaluate the current one"
+        )
     policy = load_policy(train, snapshot=test.get("snapshot"))
     env = test.get("env", config["train"]["env"])
     c_a = test["c_a"] if test["c_a"] is not None else config["train"].get("c_a")

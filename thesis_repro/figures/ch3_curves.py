@@ -20,7 +20,8 @@ import pandas as pd
 import seaborn as sns
 
 from thesis_repro import report
-from thesis_repro.cache import Job, run_jobs
+from thesis_repro.backends import run_jobs
+from thesis_repro.cache import Job
 from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE
 from thesis_repro.envs.registry import short_name
 from thesis_repro.evaluation import tables
