@@ -15,6 +15,7 @@ ValueError: unknown scale 'huge'; valid scales are: 'smoke', 'small', 'full'
 from __future__ import annotations
 
 import copy
+import os
 from functools import cache
 from typing import Any
 
@@ -24,6 +25,9 @@ from thesis_repro import paths
 from thesis_repro.validation import check_choice
 
 SCALES: tuple[str, ...] = ("smoke", "small", "full")
+#: Environment variable that overrides every figure's ``protocol`` setting (the reference-run generator's
+#: ``PROTOCOL=thesis``).
+PROTOCOL_ENV = "THESIS_REPRO_PROTOCOL"
 
 
 @cache
@@ -69,6 +73,10 @@ def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]
     for key, value in overrides.items():
         check_choice(key, list(settings), f"setting of figure {figure}")
         settings[key] = value
+    if os.environ.get(PROTOCOL_ENV):
+        from thesis_repro.learners.config import PROTOCOLS
+
+        settings["protocol"] = check_choice(os.environ[PROTOCOL_ENV], PROTOCOLS, f"{PROTOCOL_ENV} protocol")
     settings["figure"] = figure
     settings["scale"] = scale
     return settings

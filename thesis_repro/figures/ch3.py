@@ -18,8 +18,7 @@ import numpy as np
 import pandas as pd
 
 from thesis_repro import reference, report
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job, Result
+from thesis_repro.cache import Job, Result, run_jobs
 from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
 from thesis_repro.evaluation.jobs import check_test
 from thesis_repro.figures import budget_note, register
@@ -105,6 +104,7 @@ def overfitting_configs(settings: Mapping[str, Any]) -> list[dict[str, Any]]:
             seed,
             int(settings["timesteps"]),
             snapshot_every=int(settings["snapshot_every"]),
+            protocol=settings["protocol"],
             **dict(settings["train_overrides"] or {}),
         )
         for seed in range(int(settings["train_seeds"]))
@@ -257,7 +257,7 @@ def pareto_benchmark(settings: Mapping[str, Any]) -> Benchmark:
         sigmas=settings["sigmas"],
         n_rollouts=int(settings["test_rollouts"]),
         max_episode_steps=int(settings["max_episode_steps"]),
-        train_overrides=settings["train_overrides"],
+        train_overrides={**(settings["train_overrides"] or {}), "protocol": settings["protocol"]},
     )
 
 

@@ -30,8 +30,7 @@ import numpy as np
 import pandas as pd
 
 from thesis_repro import reference, report
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job, Result
+from thesis_repro.cache import Job, Result, run_jobs
 from thesis_repro.envs.registry import short_name
 from thesis_repro.evaluation import Benchmark, tables
 from thesis_repro.evaluation.metrics import auc
@@ -74,9 +73,10 @@ def skipped(settings: Mapping[str, Any]) -> list[str]:
 
 
 def overrides(settings: Mapping[str, Any], algo: str) -> dict[str, Any]:
-    """Training overrides of ``algo``: its ``algo_overrides`` entry if any, else the item's ``train_overrides``."""
+    """Training overrides of ``algo``: its ``algo_overrides`` entry if any, else the item's ``train_overrides``;
+    plus the scale's training ``protocol``."""
     per = settings.get("algo_overrides") or {}
-    return dict(per[algo] if algo in per else settings["train_overrides"] or {})
+    return {**dict(per[algo] if algo in per else settings["train_overrides"] or {}), "protocol": settings["protocol"]}
 
 
 def item_envs(settings: Mapping[str, Any]) -> list[str]:

@@ -25,8 +25,7 @@ import numpy as np
 import pandas as pd
 
 from thesis_repro import reference, report
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job
+from thesis_repro.cache import Job, run_jobs
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import budget_note, register
@@ -81,6 +80,7 @@ def run_config(settings: Mapping[str, Any], algo: str, cond: Mapping[str, Any], 
         c_a=cond["c_a"],
         wind=list(cond["wind"]),
         max_episode_steps=settings["max_episode_steps"],
+        protocol=settings["protocol"],
         **extra,
     )
 

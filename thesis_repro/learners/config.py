@@ -56,6 +56,17 @@ RUN_DEFAULTS: dict[str, Any] = {
 }
 #: Keys that identify the run; not overridable.
 IDENTITY = ("algorithm", "class", "env", "seed", "timesteps")
+#: Learning-rate schedules of the PPO-family learners (``lr_schedule``): OpenAI baselines ppo1's ``linear``
+#: (learning rate AND clip range x max(1 - t/T, 0), t = env steps before the iteration, T = the run's budget),
+#: or ``constant``.
+LR_SCHEDULES: tuple[str, ...] = ("linear", "constant")
+#: Training protocols. ``thesis``: every learner as the thesis ran it (issue 20: baselines-style annealed PPO,
+#: ...). ``kit-v1``: the kit's earlier protocol, under which the shipped `small` runs were trained until they
+#: are regenerated: it drops every setting in :data:`THESIS_PROTOCOL_KEYS`, which restores the earlier
+#: behaviour AND the earlier config (so the shipped runs keep their keys). The scale table picks one per scale.
+PROTOCOLS: tuple[str, ...] = ("thesis", "kit-v1")
+#: Settings the thesis protocol added (dotted paths into the resolved config), absent under ``kit-v1``.
+THESIS_PROTOCOL_KEYS: tuple[str, ...] = ("lr_schedule",)
 
 
 @cache
@@ -102,8 +113,13 @@ def hyperparams(algo: str) -> dict[str, Any]:
     return _resolve(algo)
 
 
-def train_config(algo: str, env: str, seed: int, timesteps: int, **overrides: Any) -> dict[str, Any]:
+def train_config(
+    algo: str, env: str, seed: int, timesteps: int, *, protocol: str = "kit-v1", **overrides: Any
+) -> dict[str, Any]:
     """Full resolved, JSON-plain config of one training run (the input of the ``"train"`` job).
+
+    ``protocol`` (:data:`PROTOCOLS`) is ``"thesis"`` or ``"kit-v1"`` (drops :data:`THESIS_PROTOCOL_KEYS`);
+    figures pass their scale's ``protocol`` setting.
 
     ``overrides`` may name any top-level setting (``n_envs``, ``perturbation``, ``sigma``, ``c_a``, ``wind``,
     ``net_arch``, ``snapshot_every``, ``max_episode_steps``, ...) or any key of the entry's ``sb3`` block
@@ -121,6 +137,14 @@ def train_config(algo: str, env: str, seed: int, timesteps: int, **overrides: An
     cfg.update(copy.deepcopy(RUN_DEFAULTS))
     cfg.update(entry)
     cfg.setdefault("sb3", {})
+    if check_choice(protocol, PROTOCOLS, "protocol") == "kit-v1":
+        for path in THESIS_PROTOCOL_KEYS:
+            *parents, leaf = path.split(".")
+            holder: Any = cfg
+            for part in parents:
+                holder = holder.get(part) if isinstance(holder, dict) else None
+            if isinstance(holder, dict):
+                holder.pop(leaf, None)
     top = [k for k in cfg if k not in IDENTITY and k != "sb3"]
     for key, value in overrides.items():
         if key in top:
@@ -193,6 +217,10 @@ def _validate(cfg: dict[str, Any]) -> None:
         raise ValueError(f"epsilon must be in (0, 1], got {sb3['epsilon']!r}")
     if "aggregate" in sb3:
         check_choice(sb3["aggregate"], AGGREGATES, "aggregate")
+    if "lr_schedule" in cfg:
+        check_choice(cfg["lr_schedule"], LR_SCHEDULES, "lr_schedule")
+        if cfg["class"] not in ON_POLICY or cfg["class"] == "TRPO":
+            raise ValueError(f"lr_schedule is implemented for the PPO-family learners only, not {cfg['class']}")
     if "meta_update" in sb3:
         check_choice(sb3["meta_update"], META_UPDATES, "meta_update")
     for key in ("damping", "cg_rtol", "inner_lr"):

@@ -132,6 +132,10 @@ def build_model(cfg: dict[str, Any], venv: VecEnv) -> BaseAlgorithm:
     kwargs: dict[str, Any] = dict(cfg["sb3"])
     if cfg["class"] == "DDPG":
         kwargs.update(actor_lr=cfg["actor_lr"], critic_lr=cfg["critic_lr"], critic_l2=cfg["critic_l2"])
+    if cfg.get("lr_schedule", "constant") == "linear":
+        offset = iteration_steps(cfg) / int(cfg["timesteps"])
+        for key in ("learning_rate", "clip_range"):
+            kwargs[key] = Ppo1Linear(float(kwargs.get(key, 3e-4 if key == "learning_rate" else 0.2)), offset)
     noise = cfg.get("action_noise")
     if noise is not None:
         if noise["type"] != "ou":
@@ -151,6 +155,27 @@ def build_model(cfg: dict[str, Any], venv: VecEnv) -> BaseAlgorithm:
     )
     model.set_logger(Logger(None, []))  # SB3's default logger would create an SB3-<timestamp> temp folder
     return model
+
+
+class Ppo1Linear:
+    """OpenAI baselines ppo1's ``schedule='linear'`` as an SB3 schedule: ``initial x max(1 - t/T, 0)`` with t the
+    env steps done BEFORE the iteration (SB3 evaluates schedules after collecting it: ``progress_remaining`` =
+    1 - (t + batch)/T, so ``offset`` = batch/T). The first iteration trains with ``initial``, the last with
+    ``initial x batch/T``.
+
+    >>> s = Ppo1Linear(3e-4, offset=0.25)  # 4 iterations
+    >>> [round(s(p) / 3e-4, 2) for p in (0.75, 0.5, 0.25, 0.0)]
+    [1.0, 0.75, 0.5, 0.25]
+    """
+
+    def __init__(self, initial: float, offset: float):
+        self.initial, self.offset = float(initial), float(offset)
+
+    def __call__(self, progress_remaining: float) -> float:
+        return self.initial * min(max(progress_remaining + self.offset, 0.0), 1.0)
+
+    def __repr__(self) -> str:
+        return f"Ppo1Linear({self.initial:g}, offset={self.offset:g})"
 
 
 def _optimizer(cfg: dict[str, Any]) -> dict[str, Any]:

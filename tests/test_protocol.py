@@ -1,0 +1,94 @@
+"""The training protocol (issue 20): baselines ppo1's linear annealing, the kit-v1 protocol that keeps the
+shipped small runs' keys, and the invariant that a fresh clone's small figure never trains for hours."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback
+
+from thesis_repro import figures, scales
+from thesis_repro.learners import train_config, train_job
+from thesis_repro.learners.config import THESIS_PROTOCOL_KEYS, iteration_steps
+from thesis_repro.learners.train import Ppo1Linear
+
+PPO = {"n_steps": 64, "n_envs": 2, "batch_size": 32, "n_epochs": 2}
+
+
+class _Rates(BaseCallback):
+    """The learning rate and clip range each iteration trained with (read at the next rollout start)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lrs: list[float] = []
+        self.clips: list[float] = []
+
+    def _on_rollout_start(self) -> None:
+        if self.model._n_updates:
+            self.lrs.append(self.model.policy.optimizer.param_groups[0]["lr"])
+            self.clips.append(self.model.clip_range(self.model._current_progress_remaining))
+
+    def _on_training_end(self) -> None:
+        self._on_rollout_start()
+
+    def _on_step(self) -> bool:
+        return True
+
+
+def test_linear_schedule_anneals_lr_and_clip_range_to_zero_over_the_runs_own_budget(tmp_path):
+    cfg = train_config("ppo", "InvertedPendulum", 0, 640, protocol="thesis", max_episode_steps=50, **PPO)
+    assert cfg["lr_schedule"] == "linear" and iteration_steps(cfg) == 128
+    rates = _Rates()
+    train_job(cfg, tmp_path, callback=rates)
+    n = 640 // 128  # 5 iterations: ppo1's max(1 - t/T, 0) at t = 0, 128, ..., 512 env steps before each
+    expected = [1 - i / n for i in range(n)]
+    assert np.allclose(np.array(rates.lrs) / 3e-4, expected) and np.allclose(np.array(rates.clips) / 0.2, expected)
+    assert rates.lrs[-1] == pytest.approx(3e-4 / n)  # the last iteration: ~0 for a long run (1/n of the start)
+
+
+def test_constant_schedule_is_a_named_option(tmp_path):
+    cfg = train_config("ppo", "InvertedPendulum", 0, 384, protocol="thesis", lr_schedule="constant", **PPO)
+    rates = _Rates()
+    train_job(cfg, tmp_path, callback=rates)
+    assert rates.lrs == [3e-4] * 3 and rates.clips == [0.2] * 3
+    with pytest.raises(ValueError, match="valid lr_schedules are"):
+        train_config("ppo", "Hopper", 0, 1000, protocol="thesis", lr_schedule="cosine")
+
+
+def test_ppo1_schedule_values():
+    s = Ppo1Linear(1.0, offset=0.1)
+    assert s(0.9) == 1.0 and s(0.0) == pytest.approx(0.1) and s(-0.5) == 0.0
+
+
+def test_kit_v1_protocol_drops_exactly_the_thesis_protocol_settings():
+    for algo in ("ppo", "ppo-mdl", "ppo-maml-dg", "kl-avg", "trpo", "sac"):
+        thesis = train_config(algo, "Hopper", 0, 1000, protocol="thesis")
+        old = train_config(algo, "Hopper", 0, 1000, protocol="kit-v1")
+        assert old == {k: v for k, v in thesis.items() if k not in THESIS_PROTOCOL_KEYS}
+        assert ("lr_schedule" in thesis) == (thesis["class"] not in ("TRPO", "SAC", "DDPG"))
+    with pytest.raises(ValueError, match="valid protocols are"):
+        train_config("ppo", "Hopper", 0, 1000, protocol="baselines")
+
+
+def test_the_protocol_override_is_validated(monkeypatch):
+    monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
+    assert scales.figure_settings("3.3", "small")["protocol"] == "thesis"
+    monkeypatch.setenv(scales.PROTOCOL_ENV, "bogus")
+    with pytest.raises(ValueError, match="valid THESIS_REPRO_PROTOCOL protocols are"):
+        scales.figure_settings("3.3", "small")
+
+
+def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
+    """Issue 20's invariant while runs change: every training run of every small figure is shipped (a fresh
+    clone, i.e. an empty local cache, evaluates and plots only)."""
+    from thesis_repro import paths
+    from thesis_repro.cache import RunCache
+
+    monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path))
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
+    monkeypatch.delenv("THESIS_REPRO_RETRAIN", raising=False)
+    monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
+    cache = RunCache()
+    jobs = {j.key: j for fid in figures.ids() for j in figures.jobs(fid, "small") if j.kind == "train"}
+    missing = sorted(j.label for j in jobs.values() if cache.state(j) != "shipped")
+    assert not missing, f"small training runs neither shipped nor cached: {missing}"
