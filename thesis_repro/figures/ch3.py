@@ -18,7 +18,8 @@ import numpy as np
 import pandas as pd
 
 from thesis_repro import reference, report
-from thesis_repro.cache import Job, Result, run_jobs
+from thesis_repro.backends import run_jobs
+from thesis_repro.cache import Job, Result
 from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
 from thesis_repro.evaluation.jobs import check_test
 from thesis_repro.figures import budget_note, register

@@ -30,7 +30,8 @@ import numpy as np
 import pandas as pd
 
 from thesis_repro import reference, report
-from thesis_repro.cache import Job, Result, run_jobs
+from thesis_repro.backends import run_jobs
+from thesis_repro.cache import Job, Result
 from thesis_repro.envs.registry import short_name
 from thesis_repro.evaluation import Benchmark, tables
 from thesis_repro.evaluation.metrics import auc

@@ -25,7 +25,8 @@ import numpy as np
 import pandas as pd
 
 from thesis_repro import reference, report
-from thesis_repro.cache import Job, run_jobs
+from thesis_repro.backends import run_jobs
+from thesis_repro.cache import Job
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import budget_note, register
