@@ -1,25 +1,112 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
-``reference-runs --scale small`` | ``budgets --scale small`` | ``plan 3.3 --scale full --cores 64``."""
+``reference-runs --scale small`` | ``budgets --scale small`` | ``plan 3.3 --scale full --cores 64`` | ``claims ...``.
+
+Every failure a user can cause ends in one ``error: ...`` line on stderr and a non-zero exit code, never a
+traceback: a bad argument or setting (2), a notebook that failed (its own exception, 1), a folder that cannot
+be written (the path and the setting naming it, 1). Ctrl-C prints ``interrupted; rerun to resume`` and exits
+130 (143 for SIGTERM, 129 for SIGHUP): finished runs are cached and interrupted ones resume.
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, NoReturn
 
-from thesis_repro import notebooks, scales
+INTERRUPTED = "interrupted; rerun to resume"
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised like Ctrl-C so that the same cleanup runs; ``code`` is the exit code."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.code = 128 + signum
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one ``error:`` line (no usage block)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"error: {message} (see `{self.prog} --help`)\n")
+
+
+def positive_int(text: str) -> int:
+    """``--jobs``/``--cores`` values: an integer >= 1.
+
+    >>> positive_int("2")
+    2
+    >>> positive_int("0")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: invalid value '0'; valid values are integers >= 1
+    """
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}; valid values are integers >= 1")
+    return value
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m thesis_repro")
+    """Run the command line; returns the exit code (see the module docstring)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        with _signals_as_interrupts():
+            return _main(argv)
+    except KeyboardInterrupt as err:
+        nb = sys.modules.get("thesis_repro.notebooks")
+        if nb is not None:  # no kernel can be running if the notebooks module was never imported
+            nb.kill_kernels()
+        print(INTERRUPTED, file=sys.stderr)
+        return err.code if isinstance(err, Terminated) else 130
+
+
+@contextlib.contextmanager
+def _signals_as_interrupts() -> Iterator[None]:
+    """SIGTERM and SIGHUP raise :class:`Terminated` while the command runs (kernels and files get cleaned)."""
+
+    def handler(signum: int, frame: Any) -> None:
+        raise Terminated(signum)
+
+    saved = {}
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        with contextlib.suppress(ValueError, OSError):  # not the main thread: leave the handlers alone
+            saved[sig] = signal.signal(sig, handler)
+    try:
+        yield
+    finally:
+        for sig, old in saved.items():
+            signal.signal(sig, old)
+
+
+def _main(argv: list[str]) -> int:
+    parser = Parser(prog="python -m thesis_repro")
     sub = parser.add_subparsers(dest="cmd", required=True)
     fig = sub.add_parser("figure", help="execute one notebook (or 'all') at a scale")
     fig.add_argument("figure", help="figure id such as 3.3, table-3.4, or 'all'")
     fig.add_argument("--scale", default="small", help="smoke | small | full")
-    fig.add_argument("--jobs", type=int, default=None, help="parallel worker processes (default: cores)")
+    fig.add_argument("--jobs", type=positive_int, default=None, help="parallel worker processes, >= 1 (default: cores)")
+    fig.add_argument(
+        "-p",
+        "--parameter",
+        nargs=2,
+        action="append",
+        default=[],
+        metavar=("NAME", "VALUE"),
+        help="a notebook parameter (VALUE read as YAML); SCALE is --scale's",
+    )
     book = sub.add_parser("book", help="execute every notebook at a scale and build the HTML book")
     book.add_argument("--scale", default="small")
-    book.add_argument("--jobs", type=int, default=None)
+    book.add_argument("--jobs", type=positive_int, default=None, help="parallel worker processes, >= 1")
     book.add_argument("--reuse", action="store_true", help="reuse executed notebooks even if their sources changed")
     book.add_argument("--force", action="store_true", help="re-execute every notebook (default: only changed ones)")
     book.add_argument(
@@ -30,78 +117,201 @@ def main(argv: list[str] | None = None) -> int:
     runs_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all'")
     runs_p.add_argument("--scale", default="small", help="smoke | small | full")
     runs_p.add_argument("--json", action="store_true", help="print the rows as JSON")
-    runs_p.add_argument("--check", action="store_true", help="report stale or corrupt shipped runs instead")
+    runs_p.add_argument(
+        "--check", action="store_true", help="report stale or corrupt shipped runs and corrupt local runs instead"
+    )
     ref = sub.add_parser("reference-runs", help="train the figures' training runs and ship them in data/reference")
     ref.add_argument("--scale", default="small", help="smoke | small | full")
     ref.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
     ref.add_argument("--kind", nargs="+", default=None, help="job kinds to ship (default: train)")
     ref.add_argument("--commit", action="store_true", help="git-commit each run as it lands")
-    ref.add_argument("--jobs", type=int, default=None, help="runs trained at once (default 1; 2 on two idle cores)")
+    ref.add_argument(
+        "--jobs", type=positive_int, default=None, help="runs trained at once, >= 1 (default 1; 2 on two idle cores)"
+    )
     bud = sub.add_parser("budgets", help="are the training runs trained? curve statistics of cached/shipped runs")
     bud.add_argument("--scale", default="small", help="smoke | small | full")
     bud.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
     plan_p = sub.add_parser("plan", help="cost before running: jobs, env steps, throughput, core-hours, wall time")
     plan_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all' (+ the book)")
     plan_p.add_argument("--scale", default="full", help="smoke | small | full")
-    plan_p.add_argument("--cores", type=int, default=None, help="cores for the wall time (default: this machine's)")
+    plan_p.add_argument(
+        "--cores", type=positive_int, default=None, help="cores for the wall time, >= 1 (default: this machine's)"
+    )
     plan_p.add_argument("--envs", nargs="+", default=None, help="only these tasks (a figure's `envs` setting)")
     plan_p.add_argument("--algos", nargs="+", default=None, help="only these learners (a figure's `algos` setting)")
     plan_p.add_argument("--missing", action="store_true", help="only what is neither cached nor shipped yet")
-    args = parser.parse_args(argv)
-
+    sub.add_parser("claims", help="the thesis's claims ledger (`claims --help` for its commands)", add_help=False)
+    if argv[:1] == ["claims"]:  # everything after `claims` is the ledger's own command line
+        return _guarded(lambda: _claims(argv[1:]))
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as done:  # --help, or a usage error (already printed as one `error:` line)
+        return int(done.code or 0)
     if getattr(args, "jobs", None):
         os.environ["THESIS_REPRO_JOBS"] = str(args.jobs)
+    return _guarded(lambda: _command(args))
+
+
+def _guarded(command: Any) -> int:
+    """Run ``command()``; a user's error becomes one ``error:`` line and an exit code."""
     try:
-        check_environment()
-        if args.cmd == "list":
-            print("scales:", ", ".join(scales.SCALES))
-            print("notebooks:", ", ".join(notebooks.notebook_ids()))
-        elif args.cmd == "figure":
-            scales.check_scale(args.scale)
-            ids = notebooks.notebook_ids() if args.figure == "all" else [notebooks.check_notebook(args.figure)]
-            for nid in ids:
-                notebooks.execute(nid, args.scale)
-        elif args.cmd == "plan":
-            return _plan_command(args)
-        elif args.cmd in ("runs", "reference-runs"):
-            return _runs_command(args)
-        elif args.cmd == "budgets":
-            from thesis_repro import budgets, figures
-
-            scales.check_scale(args.scale)
-            ids = [figures.get(f).id for f in args.figures] if args.figures else None
-            print(budgets.render(budgets.table(args.scale, ids)))
-            cost = budgets.retrain_cost(args.scale, ids)
-            print("\nRETRAIN=1 cost (measured wall time of the finished runs, 1 core each; upper bounds):")
-            print(cost.to_string(index=False, float_format=lambda v: f"{v:.2f}"))
-        elif args.cmd == "book":
-            from thesis_repro import book as book_mod
-
-            book_mod.build(args.scale, reuse=args.reuse, force=args.force, shipped_only=args.shipped_only)
+        return command()
     except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
+        print(f"error: {_one_line(err)}", file=sys.stderr)
         return 2
-    except RuntimeError as err:  # e.g. notebooks that failed while the book was built
-        print(f"error: {err}", file=sys.stderr)
+    except OSError as err:  # an unwritable, full or misplaced folder
+        print(f"error: {describe_os_error(err)}", file=sys.stderr)
         return 1
+    except RuntimeError as err:  # e.g. a notebook that failed, notebooks that failed while the book was built
+        print(f"error: {_one_line(err)}", file=sys.stderr)
+        return 1
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or type(err).__name__
+
+
+def describe_os_error(err: OSError) -> str:
+    """One line for an ``OSError``: what went wrong, the path, and the setting that chose the path.
+
+    >>> describe_os_error(OSError(28, "No space left on device", "/x/runs/train"))
+    '/x/runs/train: No space left on device'
+    """
+    from thesis_repro import paths
+
+    what = err.strerror or _one_line(err)
+    name = err.filename
+    if name is None:
+        return what
+    where = ""
+    settings = (
+        (paths.runs(), "the run cache, THESIS_REPRO_DATA"),
+        (paths.build("x").parent, "the build folder, THESIS_REPRO_BUILD"),
+        (paths.reference(), "the shipped runs, THESIS_REPRO_REFERENCE"),
+    )
+    for root, setting in settings:
+        path = Path(os.fsdecode(name)).absolute()
+        if path == root.absolute() or root.absolute() in path.parents:
+            where = f" ({setting})"
+            break
+    return f"{os.fsdecode(name)}{where}: {what}"
+
+
+def check_writable(folder: Path) -> None:
+    """Create ``folder`` if needed and write (and remove) a small file in it; an ``OSError`` naming the
+    folder if it cannot be written (read-only, full, or a path through a file)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".write-test-") as fh:
+            fh.write(b"\0" * 4096)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as err:
+        raise OSError(err.errno, f"cannot be written ({err.strerror or err})", str(folder)) from None
+
+
+def _claims(argv: list[str]) -> int:
+    """``python -m thesis_repro claims ...``: the claims ledger's own command line."""
+    try:
+        from thesis_repro.claims import cli
+    except ImportError as err:
+        raise RuntimeError(f"the claims ledger is not available ({err})") from None
+    return int(cli.main(argv) or 0)
+
+
+def _command(args: argparse.Namespace) -> int:
+    from thesis_repro import notebooks, paths, scales
+
+    check_environment()
+    if args.cmd == "list":
+        print("scales:", ", ".join(scales.SCALES))
+        print("notebooks:", ", ".join(notebooks.notebook_ids()))
+    elif args.cmd == "figure":
+        scales.check_scale(args.scale)
+        ids = notebooks.notebook_ids() if args.figure == "all" else [notebooks.check_notebook(args.figure)]
+        params = notebook_parameters(args.parameter, args.scale)
+        for folder in (paths.runs(), paths.build(args.scale)):
+            check_writable(folder)
+        for nid in ids:
+            notebooks.execute(nid, args.scale, params)
+    elif args.cmd == "plan":
+        return _plan_command(args)
+    elif args.cmd in ("runs", "reference-runs"):
+        return _runs_command(args)
+    elif args.cmd == "budgets":
+        from thesis_repro import budgets, figures
+
+        scales.check_scale(args.scale)
+        ids = [figures.get(f).id for f in args.figures] if args.figures else None
+        print(budgets.render(budgets.table(args.scale, ids)))
+        cost = budgets.retrain_cost(args.scale, ids)
+        print("\nRETRAIN=1 cost (measured wall time of the finished runs, 1 core each; upper bounds):")
+        print(cost.to_string(index=False, float_format=lambda v: f"{v:.2f}"))
+    elif args.cmd == "book":
+        from thesis_repro import book as book_mod
+
+        scales.check_scale(args.scale)
+        for folder in (paths.runs(), paths.build(args.scale)):
+            check_writable(folder)
+        book_mod.build(args.scale, reuse=args.reuse, force=args.force, shipped_only=args.shipped_only)
     return 0
 
 
+def notebook_parameters(pairs: list[list[str]], scale: str) -> dict[str, Any]:
+    """``-p NAME VALUE`` pairs as notebook parameters (values read as YAML: ``3`` is an int, ``[1, 2]`` a list);
+    a ``SCALE`` other than ``scale`` is a ``ValueError``.
+
+    >>> notebook_parameters([["SEEDS", "3"], ["SCALE", "smoke"]], "smoke")
+    {'SEEDS': 3}
+    """
+    import yaml
+
+    from thesis_repro import notebooks
+
+    params: dict[str, Any] = {}
+    for name, text in pairs:
+        try:
+            params[name] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            params[name] = text
+    return notebooks.check_parameters(params, scale)
+
+
+def check_jobs() -> int | None:
+    """``THESIS_REPRO_JOBS`` (worker processes; set by ``--jobs``) as an int, ``None`` if unset; anything but
+    an integer >= 1 is a ``ValueError``.
+
+    >>> os.environ["THESIS_REPRO_JOBS"] = "two"; check_jobs()
+    Traceback (most recent call last):
+    ...
+    ValueError: THESIS_REPRO_JOBS: invalid value 'two'; valid values are integers >= 1 (unset: one per core)
+    >>> del os.environ["THESIS_REPRO_JOBS"]
+    """
+    text = os.environ.get("THESIS_REPRO_JOBS")
+    if text is None:
+        return None
+    try:
+        return positive_int(text.strip())
+    except argparse.ArgumentTypeError:
+        raise ValueError(
+            f"THESIS_REPRO_JOBS: invalid value {text!r}; valid values are integers >= 1 (unset: one per core)"
+        ) from None
+
+
 def check_environment() -> None:
-    """The kit's environment settings (``make ... RETRAIN=1 BACKEND=ray``) are valid before anything runs:
-    a typo is a one-line error here, not a traceback inside a notebook's kernel."""
+    """The kit's environment settings (``make ... RETRAIN=1 BACKEND=ray``, ``THESIS_REPRO_JOBS``) are valid
+    before anything runs: a typo is a one-line error here, not a traceback inside a notebook's kernel."""
     from thesis_repro import backends, paths
 
     paths.retrain()
     backends.backend()
+    check_jobs()
 
 
 def _plan_command(args: argparse.Namespace) -> int:
-    from thesis_repro import plan
+    from thesis_repro import plan, scales
 
     scales.check_scale(args.scale)
-    if args.cores is not None and args.cores < 1:
-        raise ValueError(f"--cores must be an integer >= 1, got {args.cores}")
     rates = plan.load_rates()
     print(plan.rates_note(rates))
     subset = {k: v for k, v in (("envs", args.envs), ("algos", args.algos)) if v is not None}
@@ -121,21 +331,28 @@ def _plan_command(args: argparse.Namespace) -> int:
 def _runs_command(args: argparse.Namespace) -> int:
     import json
 
-    from thesis_repro import figures, runs
+    from thesis_repro import figures, paths, runs, scales
 
     scales.check_scale(args.scale)
     if args.cmd == "reference-runs":
+        for folder in (paths.runs(), paths.reference()):
+            check_writable(folder)
         kinds = args.kind or figures.TRAINING_KINDS
         runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1)
         return 0
     if args.check:
-        stale, corrupt = runs.check_shipped(args.scale), runs.verify_shipped()
+        stale, corrupt, local = runs.check_shipped(args.scale), runs.verify_shipped(), runs.verify_local()
         for s in stale:
             print(s.message)
         for path, err in corrupt.items():
             print(f"corrupt shipped run {path}: {err}")
-        print(f"{len(runs.shipped_entries())} shipped runs: {len(stale)} stale, {len(corrupt)} corrupt")
-        return 1 if stale or corrupt else 0
+        for path, err in local.items():
+            print(f"corrupt local run {path}: {err} (removed and recomputed when a figure next needs it)")
+        print(
+            f"{len(runs.shipped_entries())} shipped runs: {len(stale)} stale, {len(corrupt)} corrupt; "
+            f"{len(runs.local_entries())} local runs ({paths.runs()}): {len(local)} corrupt"
+        )
+        return 1 if stale or corrupt or local else 0
     ids = figures.ids() if args.figure == "all" else [args.figure]
     for fid in ids:
         rows = runs.rows(fid, args.scale)
@@ -143,7 +360,8 @@ def _runs_command(args: argparse.Namespace) -> int:
             print(json.dumps({"figure": fid, "scale": args.scale, "runs": rows}, indent=1))
             continue
         train = [j for j in figures.jobs(fid, args.scale) if j.kind in figures.TRAINING_KINDS]
-        print(f"{figures.get(fid).notebook_id} ({args.scale}): {runs.summary(train) if train else 'no training runs'}")
+        line = runs.summary(train, verify=True) if train else "no training runs"
+        print(f"{figures.get(fid).notebook_id} ({args.scale}): {line}")
         print(runs.table(rows) + "\n")
     return 0
 

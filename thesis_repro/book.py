@@ -376,7 +376,11 @@ def build(
                 kept.append(nid)
             page = prepare_page(json.loads(src.read_text()), nid, scale)
         except Exception as err:  # one broken notebook must not sink an hour-long build: report it at the end
-            failed[nid] = f"{type(err).__name__}: {_last_line(err)}"
+            failed[nid] = (
+                _last_line(err)
+                if isinstance(err, notebooks.NotebookError)
+                else f"{type(err).__name__}: {_last_line(err)}"
+            )
             print(f"[thesis_repro] {notebooks.page_id(nid)} FAILED at scale {scale}: {failed[nid]}", file=sys.stderr)
             page = failed_page(nid, scale, failed[nid])
         (root / "executed" / f"{notebooks.page_id(nid)}.ipynb").write_text(
@@ -457,6 +461,7 @@ def failed_page(nid: str, scale: str, error: str) -> dict[str, Any]:
     page = notebooks.page_id(nid)
     body = (
         f"```{{admonition}} Execution failed at scale {scale}\n:class: error\n"
-        f"`{error}`\n\nRun `python -m thesis_repro figure {page} --scale {scale}` to see the full error.\n```\n"
+        f"`{error}`\n\nThe failed notebook, with its traceback: `{notebooks.shown(notebooks.failed_path(nid, scale))}` "
+        f"(`python -m thesis_repro figure {page} --scale {scale}` runs it again).\n```\n"
     )
     return _page([md_cell(f"# {title(page)}"), thesis_cell(page, scale), md_cell(body)])

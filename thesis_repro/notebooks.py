@@ -8,6 +8,14 @@ A run's terminal output is the notebook's progress bars (its stderr, written as 
 verdict, and a final line naming the executed notebook and the figure files written. The kernel talks
 over IPC sockets in the temp folder (removed at shutdown) instead of unencrypted TCP.
 
+Nothing good is overwritten: the kernel sees ``THESIS_REPRO_BUILD`` pointing at a staging folder
+(``<build>/.staging-<scale>-<page id>-<pid>``), so the executed notebook, its figures and its verdicts are
+written there and moved into ``build/<scale>/`` (``os.replace``, the notebook last) only when the run
+succeeds. A failed run raises :class:`NotebookError` (the failing cell's own exception, one line) and keeps
+its executed copy as ``<page id>.failed.ipynb`` beside the previous, intact one; an interrupted run kills its
+kernel (and the kernel's worker processes) and removes its connection files. Kernel files and staging
+folders left by a process that was killed outright are removed by the next :func:`execute`.
+
 Every executed notebook is stamped with an *execution key* (:func:`execution_key`): the notebook source,
 the scale, the parameters, ``THESIS_REPRO_RETRAIN``, the kit modules its kernel imported (listed by a
 cell appended at execution and removed afterwards) and the configuration and ``data/thesis/`` files.
@@ -25,9 +33,13 @@ changing runs by hand, rebuild with ``--force``.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import hashlib
 import json
 import os
+import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -103,6 +115,11 @@ def executed_path(nid: str, scale: str) -> Path:
     return paths.executed(scale) / f"{page_id(nid)}.ipynb"
 
 
+def failed_path(nid: str, scale: str) -> Path:
+    """``build/<scale>/notebooks/<page id>.failed.ipynb``: the last failed execution, with its traceback."""
+    return paths.executed(scale) / f"{page_id(nid)}.failed.ipynb"
+
+
 #: Files every notebook depends on besides the modules it imports: configuration and thesis data.
 _DATA_SUFFIXES = {".yaml", ".yml", ".csv", ".json", ".xml"}
 #: Tag of the cell appended to the staged notebook to list the kit modules the kernel imported.
@@ -167,22 +184,40 @@ def is_current(nid: str, scale: str, parameters: dict[str, Any] | None = None) -
     return key is not None and key == execution_key(nid, scale, parameters, meta.get("modules"))
 
 
+#: Prefix of every kernel file in the temp folder: ``thesis-repro-kernel-<pid>-<n>.json`` (connection file)
+#: and ``thesis-repro-kernel-<pid>-<n>-<port>`` (IPC sockets); ``<pid>`` is the process that started the kernel.
+KERNEL_PREFIX = "thesis-repro-kernel-"
+#: Kernels started by this process and not shut down yet (killed by :func:`kill_kernels`).
+_LIVE: set[QuietKernelManager] = set()
+
+
 class QuietKernelManager(AsyncKernelManager):
     """Kernel manager whose kernel talks over IPC sockets in the temp folder (no unencrypted-TCP warning).
 
-    The socket files (``<tmp>/thesis-repro-kernel-<pid>-<n>-<port>``) are removed when the kernel shuts down.
+    The connection file and the socket files (``<tmp>/thesis-repro-kernel-<pid>-<n>[.json|-<port>]``) are
+    removed when the kernel shuts down, by :func:`kill_kernels` when this process is interrupted, or by
+    :func:`clean_stale` once ``<pid>`` is dead. ``extra_env`` is added to the kernel's environment.
     Shutdown skips jupyter_client's preliminary SIGINT (papermill shuts down an idle kernel), which made
     the kernel log "KeyboardInterrupt caught in kernel" now and then.
     """
 
     _count = 0
+    extra_env: dict[str, str] = {}
 
     def __init__(self, **kwargs: Any):
         super().__init__(**kwargs)
         QuietKernelManager._count += 1
+        base = Path(tempfile.gettempdir()) / f"{KERNEL_PREFIX}{os.getpid()}-{self._count}"
         self.transport = "ipc"
-        self.ip = str(Path(tempfile.gettempdir()) / f"thesis-repro-kernel-{os.getpid()}-{self._count}")
+        self.connection_file = f"{base}.json"
+        self.ip = str(base)
         self._closing = False
+
+    async def _async_pre_start_kernel(self, **kw: Any) -> tuple[list[str], dict[str, Any]]:
+        if self.extra_env:
+            kw["env"] = {**kw.get("env", os.environ), **self.extra_env}
+        _LIVE.add(self)
+        return await super()._async_pre_start_kernel(**kw)
 
     async def _async_interrupt_kernel(self) -> None:
         if not self._closing:
@@ -194,6 +229,144 @@ class QuietKernelManager(AsyncKernelManager):
             await super()._async_shutdown_kernel(now=now, restart=restart)
         finally:
             self._closing = False
+            _LIVE.discard(self)
+            _remove_kernel_files(self.ip)
+
+    def kill_now(self, grace: float = 2.0) -> None:
+        """Synchronously end the kernel's process group (the kernel and its worker processes: the kernel runs
+        in a session of its own), wait up to ``grace`` seconds, then remove its connection and socket files."""
+        prov = self.provisioner
+        pid, pgid = getattr(prov, "pid", None), getattr(prov, "pgid", None)
+        if pgid is not None and pgid == os.getpgid(0):
+            pgid = None  # never signal our own process group
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            if not _signal_kernel(pid, pgid, sig):
+                break
+            deadline = time.time() + grace
+            while time.time() < deadline and _signal_kernel(pid, pgid, 0):
+                with contextlib.suppress(Exception):
+                    prov.process.poll()  # reap the kernel so that it stops counting as alive
+                time.sleep(0.05)
+        with contextlib.suppress(Exception):
+            prov.process.poll()
+        _LIVE.discard(self)
+        _remove_kernel_files(self.ip)
+
+
+def _signal_kernel(pid: int | None, pgid: int | None, sig: int) -> bool:
+    """Send ``sig`` to the kernel's group (else the kernel); False if nothing is left to signal."""
+    try:
+        if pgid is not None:
+            os.killpg(pgid, sig)
+        elif pid is not None:
+            os.kill(pid, sig)
+        else:
+            return False
+    except (ProcessLookupError, PermissionError):
+        return False
+    return True
+
+
+def _remove_kernel_files(base: str) -> None:
+    """Remove a kernel's connection file (``<base>.json``) and IPC socket files (``<base>-<port>``)."""
+    base_path = Path(base)
+    for p in [Path(f"{base}.json"), *base_path.parent.glob(f"{base_path.name}-*")]:
+        with contextlib.suppress(OSError):
+            p.unlink()
+
+
+def kill_kernels() -> None:
+    """End every kernel this process started and still runs, and remove their files (on an interrupt and at
+    exit; a no-op after a normal run)."""
+    for km in list(_LIVE):
+        km.kill_now()
+
+
+atexit.register(kill_kernels)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def _owner_pid(name: str, prefix: str, sep: str = "-") -> int | None:
+    """The pid in ``<prefix><pid>-...`` (``sep`` ``"-"``) or ``<prefix>...-<pid>`` (``sep`` ``""``), else None.
+
+    >>> _owner_pid("thesis-repro-kernel-123-4-5555", KERNEL_PREFIX), _owner_pid(".staging-x-77", ".staging-", "")
+    (123, 77)
+    """
+    rest = name[len(prefix) :] if name.startswith(prefix) else None
+    if rest is None:
+        return None
+    text = rest.split("-", 1)[0] if sep else rest.rsplit("-", 1)[-1]
+    return int(text) if text.isdigit() else None
+
+
+def clean_stale(build_root: Path | None = None) -> list[Path]:
+    """Remove kernel files (temp folder) and staging folders (``build_root``, default the build folder) left
+    by processes that are dead (killed before they could clean up); returns what was removed."""
+    removed = []
+    tmp = Path(tempfile.gettempdir())
+    for p in tmp.glob(f"{KERNEL_PREFIX}*"):
+        pid = _owner_pid(p.name, KERNEL_PREFIX)
+        if pid is not None and pid != os.getpid() and not _pid_alive(pid):
+            with contextlib.suppress(OSError):
+                p.unlink()
+                removed.append(p)
+    root = build_root if build_root is not None else paths.build("x").parent
+    if root.is_dir():
+        for p in root.glob(".staging-*"):
+            pid = _owner_pid(p.name, ".staging-", "")
+            if pid is not None and pid != os.getpid() and not _pid_alive(pid):
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+    return removed
+
+
+class NotebookError(RuntimeError):
+    """A notebook's cell raised: ``ename``/``evalue`` are that exception's type and message."""
+
+    def __init__(self, page: str, ename: str, evalue: str, failed: Path | None = None):
+        self.page, self.ename, self.evalue, self.failed = page, ename, evalue, failed
+        msg = " ".join(str(evalue).split()) or "(no message)"
+        where = f" (its traceback: {shown(failed)})" if failed is not None else ""
+        super().__init__(f"notebook {page} failed: {ename}: {msg}{where}")
+
+
+def shown(path: Path) -> str:
+    """``path`` as shown to a user: relative to the repository if inside it, else absolute."""
+    try:
+        return str(path.resolve().relative_to(paths.ROOT))
+    except ValueError:
+        return str(path)
+
+
+def check_parameters(parameters: dict[str, Any] | None, scale: str) -> dict[str, Any]:
+    """The notebook parameters without ``SCALE``: the scale argument sets it, and a different ``SCALE``
+    parameter is a ``ValueError`` (it would run one scale and file the result under another).
+
+    >>> check_parameters({"SCALE": "small", "SEEDS": 2}, "small")
+    {'SEEDS': 2}
+    >>> check_parameters({"SCALE": "full"}, "small")
+    Traceback (most recent call last):
+    ...
+    ValueError: parameter SCALE='full' differs from the scale 'small'; the scale argument (--scale) sets SCALE
+    """
+    params = dict(parameters or {})
+    if "SCALE" in params:
+        if params["SCALE"] != scale:
+            raise ValueError(
+                f"parameter SCALE={params['SCALE']!r} differs from the scale {scale!r}; "
+                "the scale argument (--scale) sets SCALE"
+            )
+        del params["SCALE"]
+    return params
 
 
 def _stamp(out: Path, nid: str, scale: str, parameters: dict[str, Any] | None, seconds: float) -> None:
@@ -233,52 +406,96 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
 
     With ``log`` the notebook's stderr (progress bars) goes to this process's stderr as it comes, then
     one line per verdict and a final line with the executed notebook and figure files are printed.
+    Outputs are staged and swapped in on success (module docstring); a failing cell raises
+    :class:`NotebookError`; a ``SCALE`` parameter other than ``scale`` is a ``ValueError``.
     """
     import jupytext
     import nbformat
     import papermill as pm
+    from jupyter_client.kernelspec import NoSuchKernel
+    from papermill.exceptions import PapermillExecutionError
 
     from thesis_repro import report
 
     nid = check_notebook(nid)
     check_scale(scale)
-    src = paths.notebook(page_id(nid))
+    parameters = check_parameters(parameters, scale)
+    page = page_id(nid)
+    build_root = paths.build(scale).parent
+    clean_stale(build_root)
+    src = paths.notebook(page)
     out = executed_path(nid, scale)
+    failed = failed_path(nid, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
     paths.figures(scale).mkdir(parents=True, exist_ok=True)
+    stage = build_root / f".staging-{scale}-{page}-{os.getpid()}"
+    shutil.rmtree(stage, ignore_errors=True)
+    staged_out = stage / out.relative_to(build_root)
+    staged_out.parent.mkdir(parents=True)
+    (stage / paths.figures(scale).relative_to(build_root)).mkdir(parents=True)
     nb = jupytext.read(src)
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
     deps = nbformat.v4.new_code_cell(_DEPS_CODE.format(root=str(paths.PACKAGE) + os.sep))
     deps.metadata["tags"] = [DEPS_TAG, "remove-cell"]
     nb.cells.append(deps)
-    staged = out.with_suffix(".source.ipynb")
+    staged = staged_out.with_suffix(".source.ipynb")
     jupytext.write(nb, staged)
-    params = {"SCALE": scale, **(parameters or {})}
+    manager = type("StagedKernelManager", (QuietKernelManager,), {"extra_env": {"THESIS_REPRO_BUILD": str(stage)}})
     t0 = time.time()
     try:
-        pm.execute_notebook(
-            str(staged),
-            str(out),
-            parameters=params,
-            cwd=str(paths.ROOT),
-            kernel_name="python3",
-            progress_bar=False,
-            log_output=False,
-            stderr_file=sys.stderr if log else None,
-            kernel_manager_class=QuietKernelManager,
-        )
-    finally:
+        try:
+            pm.execute_notebook(
+                str(staged),
+                str(staged_out),
+                parameters={"SCALE": scale, **parameters},
+                cwd=str(paths.ROOT),
+                kernel_name="python3",
+                progress_bar=False,
+                log_output=False,
+                stderr_file=sys.stderr if log else None,
+                kernel_manager_class=manager,
+            )
+        except PapermillExecutionError as err:
+            kept = None
+            if staged_out.exists():
+                os.replace(staged_out, failed)
+                kept = failed
+            raise NotebookError(page, err.ename, err.evalue, kept) from None
+        except NoSuchKernel as err:
+            raise RuntimeError(f"no Jupyter kernel {err}; install it with `make venv`") from None
+        except (RuntimeError, TimeoutError) as err:  # the kernel died, a cell timed out, ...
+            lines = [ln for ln in str(err).splitlines() if ln.strip()]
+            raise NotebookError(page, type(err).__name__, lines[-1] if lines else "") from None
+        finally:
+            kill_kernels()  # a no-op unless interrupted or failed before papermill shut the kernel down
         staged.unlink(missing_ok=True)
-    seconds = time.time() - t0
-    _stamp(out, nid, scale, parameters, seconds)
+        seconds = time.time() - t0
+        _stamp(staged_out, nid, scale, parameters, seconds)
+        _swap_in(stage, build_root, last=staged_out)
+        failed.unlink(missing_ok=True)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     from thesis_repro import runs  # local: the run listing imports the whole figure layer
 
     runs.record(nid, scale)  # build/<scale>/figures/fig-X.Y.runs.json: where this figure's runs are
     if log:
-        verdicts = report.verdicts_path(page_id(nid), scale)
+        verdicts = report.verdicts_path(page, scale)
         if verdicts.exists() and verdicts.stat().st_mtime >= t0:
-            for v in report.load(page_id(nid), scale):
+            for v in report.load(page, scale):
                 print(v)
         figs = ", ".join(str(p) for p in outputs_of(nid, scale, since=t0)) or "none"
-        print(f"[thesis_repro] {page_id(nid)} ({scale}, {seconds:.0f} s): notebook {out}; figures: {figs}")
+        print(f"[thesis_repro] {page} ({scale}, {seconds:.0f} s): notebook {out}; figures: {figs}")
     return out
+
+
+def _swap_in(stage: Path, root: Path, last: Path) -> list[Path]:
+    """Move every file of ``stage`` to the same place under ``root`` (``os.replace``), ``last`` last (the
+    executed notebook: it marks the run as complete); returns the destinations."""
+    files = sorted((p for p in stage.rglob("*") if p.is_file() and p.suffix != ".tmp"), key=lambda p: (p == last, p))
+    moved = []
+    for p in files:
+        dest = root / p.relative_to(stage)
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(p, dest)
+        moved.append(dest)
+    return moved

@@ -1,16 +1,17 @@
 """Where every figure's runs are, the shipped layer of reference runs, and the generator that fills it.
 
 * :func:`rows` / :func:`table`: a figure's jobs with their kind, label, key, state (``cached`` in the
-  local cache, ``shipped`` in ``data/reference``, ``partial`` = interrupted and resumable, ``missing``)
-  and path — ``python -m thesis_repro runs 3.3 --scale small``; :func:`record` writes the same rows to
-  ``build/<scale>/figures/fig-3.3.runs.json`` after a notebook ran; :func:`summary` is the one line a
-  notebook prints.
+  local cache, ``shipped`` in ``data/reference``, ``corrupt`` = either of them failing its manifest, to be
+  recomputed, ``partial`` = interrupted and resumable, ``missing``) and path — ``python -m thesis_repro
+  runs 3.3 --scale small``; :func:`record` writes the same rows to ``build/<scale>/figures/fig-3.3.runs.json``
+  after a notebook ran; :func:`summary` is the one line a notebook prints.
 * :func:`export`: compact copy of a finished training entry into the shipped layer (policy weights,
   obs filter, curves, snapshots, config, provenance; never optimiser state, full SB3 models or replay
   buffers) with a fresh manifest.
 * :func:`generate`: ``make reference-runs SCALE=small`` — trains the training jobs of every figure
   (cheapest first, resumable), exports each into the layer and optionally commits it as it lands.
-* :func:`check_shipped` (stale shipped runs), :func:`verify_shipped` (corrupt ones),
+* :func:`check_shipped` (stale shipped runs), :func:`verify_shipped` and :func:`verify_local` (corrupt
+  shipped and local entries; ``runs --check``),
   :func:`max_abs_diff` (compare two runs' policies) and :func:`compare_retrain` (a retrain against the
   shipped run: bit-identical on the same platform, else the same outcome within :data:`OUTCOME_RTOL`) back
   the provenance tests.
@@ -52,7 +53,7 @@ from thesis_repro.cache import (
 from thesis_repro.validation import check_choice
 
 #: States of a job in :func:`rows`.
-STATES: tuple[str, ...] = ("cached", "shipped", "partial", "missing")
+STATES: tuple[str, ...] = ("cached", "shipped", "corrupt", "partial", "missing")
 #: Artefacts never shipped (glob patterns on file or folder names): full SB3 models and VecNormalize
 #: pickles (optimiser state, env references), replay buffers, resumable checkpoints, optimiser dumps.
 #: (The cache's list: these files are not part of an entry's identity either.)
@@ -71,24 +72,46 @@ def _rel(path: Path) -> str:
 
 
 # ---------------------------------------------------------------- findable runs
-def job_row(job: Job, cache: RunCache) -> dict[str, str]:
-    """``kind``, ``label``, ``key``, ``state`` and ``path`` of one job (no verification, no computing)."""
-    state = cache.state(job)
+def corrupt(path: Path) -> str | None:
+    """Why entry ``path`` fails its manifest (or cannot be read), ``None`` if it verifies."""
+    try:
+        read_entry(path)
+    except Exception as err:  # noqa: BLE001 - any failure to read means the entry is unusable
+        return str(err) or type(err).__name__
+    return None
+
+
+def job_state(job: Job, cache: RunCache, verify: bool = True) -> tuple[str, Path]:
+    """State (one of :data:`STATES`) and folder of one job, without computing anything.
+
+    With ``verify`` the entry the cache would read (local, else shipped) is checked against its manifest
+    (every file hashed) and is ``corrupt`` if it fails: the cache will not use it but recompute the job.
+    """
+    state = cache.state(job, verify=verify)
     if state == "cached":
         path = cache.entry(job)
     elif state == "shipped":
         path = cache.shipped(job)
+    elif state == "corrupt":
+        path = cache.entry(job) if cache.entry(job).is_dir() else cache.shipped(job)
     elif state == "partial":
         path = cache.workdir(job)
     else:
-        path = cache.root / job.kind / job.folder
+        path = cache.entry(job)
+    return state, Path(path)
+
+
+def job_row(job: Job, cache: RunCache, verify: bool = True) -> dict[str, str]:
+    """``kind``, ``label``, ``key``, ``state`` and ``path`` of one job (see :func:`job_state`; no computing)."""
+    state, path = job_state(job, cache, verify)
     return {"kind": job.kind, "label": job.label, "key": job.key, "state": state, "path": _rel(path)}
 
 
-def rows(figure_id: str, scale: str, cache: RunCache | None = None) -> list[dict[str, str]]:
-    """One row per job figure ``figure_id`` runs at ``scale`` (training jobs first)."""
+def rows(figure_id: str, scale: str, cache: RunCache | None = None, verify: bool = True) -> list[dict[str, str]]:
+    """One row per job figure ``figure_id`` runs at ``scale`` (training jobs first); ``verify``: see
+    :func:`job_state`."""
     cache = cache or RunCache()
-    return [job_row(job, cache) for job in figures.jobs(figure_id, scale)]
+    return [job_row(job, cache, verify) for job in figures.jobs(figure_id, scale)]
 
 
 def table(rows: Sequence[Mapping[str, str]], columns: Sequence[str] = ("kind", "label", "key", "state", "path")) -> str:
@@ -104,20 +127,23 @@ def table(rows: Sequence[Mapping[str, str]], columns: Sequence[str] = ("kind", "
     return "\n".join(lines)
 
 
-def summary(jobs: Iterable[Job], cache: RunCache | None = None) -> str:
+def summary(jobs: Iterable[Job], cache: RunCache | None = None, verify: bool = False) -> str:
     """One line: how many of ``jobs`` are shipped, cached locally or still to compute.
 
     ``"35 training runs: 35 shipped, 0 cached, 0 to compute"`` (``runs`` when not all are training jobs;
-    interrupted runs that will resume are counted as to compute and named).
+    interrupted runs that will resume, and with ``verify`` corrupt entries, count as to compute and are named).
     """
     cache = cache or RunCache()
     jobs = list({j.key: j for j in jobs}.values())
-    states = [cache.state(j) for j in jobs]
+    states = [job_state(j, cache, verify)[0] for j in jobs]
     noun = "training runs" if jobs and all(j.kind in figures.TRAINING_KINDS for j in jobs) else "runs"
-    todo = states.count("partial") + states.count("missing")
+    n = {s: states.count(s) for s in STATES}
+    todo = n["partial"] + n["missing"] + n["corrupt"]
     noun = noun[:-1] if len(jobs) == 1 else noun
-    text = f"{len(jobs)} {noun}: {states.count('shipped')} shipped, {states.count('cached')} cached, {todo} to compute"
-    return text + (f" ({states.count('partial')} interrupted, will resume)" if states.count("partial") else "")
+    text = f"{len(jobs)} {noun}: {n['shipped']} shipped, {n['cached']} cached, {todo} to compute"
+    notes = [f"{n['partial']} interrupted, will resume"] if n["partial"] else []
+    notes += [f"{n['corrupt']} corrupt, will be recomputed"] if n["corrupt"] else []
+    return text + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def runs_json(figure_id: str, scale: str) -> Path:
@@ -139,7 +165,7 @@ def record(figure_id: str, scale: str, cache: RunCache | None = None) -> Path | 
         "figure": figures.get(figure_id).notebook_id,
         "scale": scale,
         "summary": summary(training, cache) if training else summary(jobs, cache),
-        "runs": [job_row(j, cache) for j in jobs],
+        "runs": [job_row(j, cache, verify=False) for j in jobs],  # the notebook has just read (verified) them
     }
     out = runs_json(figure_id, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -211,14 +237,30 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
     return Exported(dest, _size(dest), tuple(sorted(dropped)))
 
 
-def shipped_entries(layer_root: str | Path | None = None) -> list[Path]:
-    """Every entry folder (``<kind>/<label>__<key>``) of the shipped layer."""
-    layer = Path(layer_root) if layer_root is not None else paths.reference()
-    if not layer.is_dir():
+def entries(root: str | Path) -> list[Path]:
+    """Every committed entry folder (``<kind>/<label>__<key>``) under ``root`` (no workdirs, temporary folders
+    or locks)."""
+    root = Path(root)
+    if not root.is_dir():
         return []
     return sorted(
-        p for p in layer.glob("*/*__*") if p.is_dir() and not p.name.startswith(".") and not p.name.endswith(".partial")
+        p
+        for p in root.glob("*/*__*")
+        if p.is_dir()
+        and not p.name.startswith(".")
+        and not p.parent.name.startswith(".")
+        and not p.name.endswith(".partial")
     )
+
+
+def shipped_entries(layer_root: str | Path | None = None) -> list[Path]:
+    """Every entry folder (``<kind>/<label>__<key>``) of the shipped layer."""
+    return entries(layer_root if layer_root is not None else paths.reference())
+
+
+def local_entries(root: str | Path | None = None) -> list[Path]:
+    """Every committed entry folder of the local run cache (``paths.runs()`` unless ``root``)."""
+    return entries(root if root is not None else paths.runs())
 
 
 @dataclass(frozen=True)
@@ -285,13 +327,13 @@ def check_shipped(scale: str = "small", layer_root: str | Path | None = None) ->
 
 def verify_shipped(layer_root: str | Path | None = None) -> dict[Path, str]:
     """Shipped entries that fail their manifest (or cannot be read), with the reason."""
-    bad = {}
-    for path in shipped_entries(layer_root):
-        try:
-            read_entry(path)
-        except Exception as err:  # noqa: BLE001 - any failure to read means the entry is unusable
-            bad[path] = str(err)
-    return bad
+    return {p: why for p in shipped_entries(layer_root) if (why := corrupt(p)) is not None}
+
+
+def verify_local(root: str | Path | None = None) -> dict[Path, str]:
+    """Local run-cache entries (``paths.runs()`` unless ``root``) that fail their manifest, with the reason
+    (the cache removes and recomputes such an entry when a figure next needs it)."""
+    return {p: why for p in local_entries(root) if (why := corrupt(p)) is not None}
 
 
 def _policy_arrays(result_or_path: Result | str | Path) -> dict[str, np.ndarray]:

@@ -1,0 +1,353 @@
+"""Failures a user can cause: one ``error:`` line (never a traceback) and a non-zero exit code; Ctrl-C exits
+130 with "interrupted; rerun to resume"; a failed or interrupted run leaves the previous outputs intact and
+no kernel files behind; ``runs --check`` and ``runs X.Y`` catch corrupt entries (issue 19, items 2-5).
+
+The notebook runs use a toy notebook (``fig-9.1``, seconds each) in a temporary notebooks folder.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import types
+from pathlib import Path
+
+import pytest
+
+from thesis_repro import figures, notebooks, paths, runs
+from thesis_repro.__main__ import INTERRUPTED, main
+from thesis_repro.cache import Job, RunCache
+
+TOY = """# %% tags=["parameters"]
+SCALE = "small"
+MODE = "ok"
+MARKER = ""
+
+# %%
+import time
+from pathlib import Path
+
+from thesis_repro import paths, report
+
+out = paths.figures(SCALE) / "fig-9.1.png"
+out.parent.mkdir(parents=True, exist_ok=True)
+out.write_text(f"figure {MODE}")
+report.report("fig-9.1", SCALE, [report.Verdict("9.1", "toy claim", report.NOT_JUDGED, MODE)], display=False)
+if MODE == "fail":
+    raise ValueError("the toy notebook failed on purpose")
+if MODE == "slow":
+    Path(MARKER).write_text("started")
+    time.sleep(120)
+"""
+
+DRIVER = """import sys
+from pathlib import Path
+
+from thesis_repro import paths
+
+paths.NOTEBOOKS = Path(sys.argv[1])
+from thesis_repro.__main__ import main
+
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def error_lines(err: str) -> list[str]:
+    """Non-empty stderr lines; asserts that none is a traceback."""
+    assert "Traceback" not in err, err
+    return [ln for ln in err.splitlines() if ln.strip()]
+
+
+def assert_one_error(err: str, *needles: str) -> str:
+    lines = error_lines(err)
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture
+def toy(tmp_path, monkeypatch) -> Path:
+    """A notebooks folder holding only the toy notebook ``fig-9.1``."""
+    folder = tmp_path / "notebooks"
+    folder.mkdir()
+    (folder / "fig-9.1.py").write_text(TOY)
+    monkeypatch.setattr(paths, "NOTEBOOKS", folder)
+    return folder
+
+
+def outputs(scale: str = "smoke") -> dict[str, bytes]:
+    """The toy notebook's executed copy, figure and verdicts."""
+    files = [notebooks.executed_path("9.1", scale), paths.figures(scale) / "fig-9.1.png"]
+    files.append(paths.figures(scale) / "fig-9.1.verdicts.json")
+    return {p.name: p.read_bytes() for p in files}
+
+
+def leftovers() -> list[Path]:
+    """Staging folders of the build (none may outlive a run)."""
+    return sorted(paths.build("smoke").parent.glob(".staging-*"))
+
+
+# ---------------------------------------------------------------- notebook failures
+def test_failed_notebook_is_one_line_and_leaves_the_previous_outputs_intact(toy, capsys):
+    assert main(["figure", "9.1", "--scale", "smoke"]) == 0
+    good = outputs()
+    assert good["fig-9.1.png"] == b"figure ok"
+    capsys.readouterr()
+    # the failing run writes its figure and verdicts before it raises: staged, never swapped in
+    assert main(["figure", "9.1", "--scale", "smoke", "-p", "MODE", "fail"]) == 1
+    line = assert_one_error(
+        capsys.readouterr().err, "notebook fig-9.1 failed: ValueError: the toy notebook failed on purpose"
+    )
+    assert "PapermillExecutionError" not in line and "fig-9.1.failed.ipynb" in line
+    assert outputs() == good
+    failed = json.loads(notebooks.failed_path("9.1", "smoke").read_text())
+    assert any(o.get("ename") == "ValueError" for c in failed["cells"] for o in c.get("outputs", []))
+    assert leftovers() == []
+    assert notebooks.is_current("9.1", "smoke")  # the good executed copy still serves the book
+    # a later successful run removes the failed copy
+    assert main(["figure", "9.1", "--scale", "smoke"]) == 0
+    assert not notebooks.failed_path("9.1", "smoke").exists()
+
+
+def test_a_scale_parameter_cannot_override_the_scale(toy, capsys, monkeypatch):
+    ran = []
+    monkeypatch.setattr(notebooks, "execute", lambda *a, **k: ran.append(a))
+    assert main(["figure", "9.1", "--scale", "smoke", "-p", "SCALE", "full"]) == 2
+    assert_one_error(capsys.readouterr().err, "SCALE='full'", "'smoke'", "--scale")
+    assert ran == []
+    assert main(["figure", "9.1", "--scale", "smoke", "-p", "SCALE", "smoke", "-p", "SEEDS", "2"]) == 0
+    assert ran == [("9.1", "smoke", {"SEEDS": 2})]
+    monkeypatch.undo()
+    with pytest.raises(ValueError, match="differs from the scale"):
+        notebooks.execute("3.3", "smoke", {"SCALE": "small"})
+
+
+# ---------------------------------------------------------------- interrupts and kills
+def start_slow_run(tmp_path: Path, toy: Path) -> tuple[subprocess.Popen, dict[str, str], Path]:
+    """The CLI running the toy notebook in its slow mode (a subprocess with a private temp folder); returns
+    once the notebook's cell is running."""
+    driver, marker, private_tmp = tmp_path / "driver.py", tmp_path / "started", tmp_path / "tmp"
+    driver.write_text(DRIVER)
+    private_tmp.mkdir(exist_ok=True)
+    env = {**os.environ, "TMPDIR": str(private_tmp), "PYTHONUNBUFFERED": "1"}
+    cmd = [sys.executable, str(driver), str(toy), "figure", "9.1", "--scale", "smoke"]
+    proc = subprocess.Popen(
+        [*cmd, "-p", "MODE", "slow", "-p", "MARKER", str(marker)],
+        env=env,
+        cwd=paths.ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.time() + 60
+    while not marker.exists():
+        if proc.poll() is not None or time.time() > deadline:
+            proc.kill()
+            pytest.fail(f"the slow toy run did not start: {proc.communicate()}")
+        time.sleep(0.1)
+    return proc, env, private_tmp
+
+
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_interrupt_exits_cleanly_and_keeps_the_previous_outputs(toy, tmp_path, capsys, sig, code):
+    assert main(["figure", "9.1", "--scale", "smoke"]) == 0
+    good = outputs()
+    proc, _, private_tmp = start_slow_run(tmp_path, toy)
+    assert sorted(p.name for p in private_tmp.glob("thesis-repro-kernel-*"))  # the kernel's files exist
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    assert error_lines(err) == [INTERRUPTED]
+    assert outputs() == good
+    assert leftovers() == []
+    assert sorted(private_tmp.iterdir()) == [], "kernel connection or socket files left behind"
+
+
+def test_kernel_files_of_a_killed_run_are_removed_by_the_next_run(toy, tmp_path, monkeypatch):
+    assert main(["figure", "9.1", "--scale", "smoke"]) == 0
+    good = outputs()
+    proc, _, private_tmp = start_slow_run(tmp_path, toy)
+    proc.kill()  # SIGKILL: nothing of the CLI's own cleanup can run
+    proc.communicate(timeout=60)
+    stale = sorted(p.name for p in private_tmp.glob("thesis-repro-kernel-*"))
+    assert f"thesis-repro-kernel-{proc.pid}-1.json" in stale
+    assert leftovers(), "the killed run's staging folder should still be there"
+    assert outputs() == good
+    monkeypatch.setattr(tempfile, "tempdir", str(private_tmp))
+    removed = notebooks.clean_stale(paths.build("smoke").parent)  # what the next execute() does first
+    assert len(removed) == len(stale) + 1
+    assert sorted(private_tmp.glob("thesis-repro-kernel-*")) == [] and leftovers() == []
+
+
+def test_keyboard_interrupt_anywhere_is_one_line_and_code_130(monkeypatch, capsys):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(notebooks, "execute", interrupted)
+    assert main(["figure", "3.3", "--scale", "smoke"]) == 130
+    assert error_lines(capsys.readouterr().err) == [INTERRUPTED]
+
+
+# ---------------------------------------------------------------- folders and settings
+def _must_not_run(*args, **kwargs):
+    pytest.fail("the command ran although its settings are invalid")
+
+
+def test_build_path_that_is_a_file(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    (tmp_path / "a-file").write_text("")
+    monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path / "a-file"))
+    assert main(["figure", "3.3", "--scale", "smoke"]) == 1
+    assert_one_error(capsys.readouterr().err, str(tmp_path / "a-file"), "THESIS_REPRO_BUILD", "cannot be written")
+
+
+def _read_only_folder(tmp_path: Path) -> Path:
+    """A folder this process cannot write to (chmod; as root, which ignores modes, a read-only filesystem)."""
+    folder = tmp_path / "read-only"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        (folder / "probe").write_text("")
+    except OSError:
+        return folder / "runs"
+    (folder / "probe").unlink()
+    candidate = Path("/sys/thesis-repro-test-runs")  # sysfs: read-only, also for root
+    try:
+        candidate.mkdir()
+    except OSError:
+        return candidate
+    candidate.rmdir()
+    pytest.skip("no unwritable folder available")
+
+
+@pytest.mark.parametrize("setting", ["THESIS_REPRO_DATA", "THESIS_REPRO_BUILD"])
+def test_unwritable_data_or_build_folder(monkeypatch, tmp_path, capsys, setting):
+    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    folder = _read_only_folder(tmp_path)
+    monkeypatch.setenv(setting, str(folder))
+    try:
+        assert main(["figure", "3.3", "--scale", "smoke"]) == 1
+    finally:
+        (tmp_path / "read-only").chmod(0o700)
+    assert_one_error(capsys.readouterr().err, str(folder), setting, "cannot be written")
+
+
+def test_full_disk(monkeypatch, capsys):
+    full = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def no_space(fd):
+        raise full
+
+    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    with monkeypatch.context() as m:
+        m.setattr(os, "fsync", no_space)  # the write probe of the run cache hits a full disk
+        assert main(["figure", "3.3", "--scale", "smoke"]) == 1
+    assert_one_error(capsys.readouterr().err, str(paths.runs()), "THESIS_REPRO_DATA", "No space left on device")
+    # a full disk while the notebook's outputs are written
+    target = notebooks.executed_path("3.3", "smoke")
+
+    def writes_fail(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))
+
+    monkeypatch.setattr(notebooks, "execute", writes_fail)
+    assert main(["figure", "3.3", "--scale", "smoke"]) == 1
+    assert_one_error(capsys.readouterr().err, f"{target} (the build folder, THESIS_REPRO_BUILD): No space left")
+
+
+@pytest.mark.parametrize("value", ["x", "0", "-2", "1.5", ""])
+def test_bad_thesis_repro_jobs(monkeypatch, capsys, value):
+    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    monkeypatch.setenv("THESIS_REPRO_JOBS", value)
+    assert main(["figure", "3.3", "--scale", "smoke"]) == 2
+    assert_one_error(capsys.readouterr().err, "THESIS_REPRO_JOBS", repr(value), "valid values are integers >= 1")
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "two"])
+def test_bad_jobs_argument(monkeypatch, capsys, value):
+    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    assert main(["figure", "3.3", "--scale", "smoke", "--jobs", value]) == 2
+    assert_one_error(capsys.readouterr().err, "--jobs", repr(value), "valid values are integers >= 1")
+    assert main(["plan", "3.3", "--cores", value]) == 2
+    assert_one_error(capsys.readouterr().err, "--cores", "integers >= 1")
+
+
+def test_usage_errors_are_one_line(capsys):
+    assert main([]) == 2
+    assert_one_error(capsys.readouterr().err, "required")
+    assert main(["figure", "9.99", "--scale", "smoke"]) == 2
+    assert_one_error(capsys.readouterr().err, "unknown figure '9.99'")
+    assert main(["figure", "3.3", "--scale", "huge"]) == 2
+    assert_one_error(capsys.readouterr().err, "unknown scale 'huge'")
+
+
+def test_cli_subprocess_bad_jobs_is_one_line(tmp_path):
+    """The real command line (what `make figure-3.3 JOBS=0` runs)."""
+    cmd = [sys.executable, "-m", "thesis_repro", "figure", "3.3", "--scale", "smoke", "--jobs", "0"]
+    out = subprocess.run(cmd, cwd=paths.ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert_one_error(out.stderr, "--jobs")
+
+
+# ---------------------------------------------------------------- verifiable listings
+@pytest.fixture
+def square_figure(monkeypatch):
+    """A figure whose only run is the cache's toy job ``square`` (x=3)."""
+    monkeypatch.setattr(figures, "FIGURES", {})
+    monkeypatch.setattr(figures, "TRAINING_KINDS", ("square",))
+    job = Job("square", {"x": 3})
+    figures.register("9.1", "toy figure", kinds=["square"], settings_id="_example")(lambda scale: [job])
+    return job
+
+
+def test_runs_check_catches_a_corrupt_local_entry(square_figure, capsys):
+    entry = RunCache(reference=False).run(square_figure).path
+    assert main(["runs", "--check", "--scale", "smoke"]) == 0
+    assert "1 local runs" in capsys.readouterr().out
+    (entry / "result.json").write_text(json.dumps({"y": 10}))
+    assert main(["runs", "--check", "--scale", "smoke"]) == 1
+    out = capsys.readouterr().out
+    assert f"corrupt local run {entry}: files differ from the manifest: result.json" in out
+    assert "1 local runs" in out and "1 corrupt" in out
+    assert runs.verify_local() == {entry: "files differ from the manifest: result.json"}
+
+
+def test_runs_listing_shows_corrupt_local_and_shipped_entries(square_figure, capsys, monkeypatch, tmp_path):
+    entry = RunCache(reference=False).run(square_figure).path
+    assert runs.job_row(square_figure, RunCache())["state"] == "cached"
+    (entry / "result.json").write_text(json.dumps({"y": 10}))
+    assert main(["runs", "9.1", "--scale", "smoke"]) == 0
+    out = capsys.readouterr().out
+    assert "fig-9.1 (smoke): 1 training run: 0 shipped, 0 cached, 1 to compute (1 corrupt, will be recomputed)" in out
+    assert [r["state"] for r in runs.rows("9.1", "smoke")] == ["corrupt"]
+    # the same in the shipped layer
+    layer = tmp_path / "layer"
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
+    shipped = runs.export(RunCache(tmp_path / "fresh", reference=False).run(square_figure), layer).path
+    monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "empty"))
+    assert [r["state"] for r in runs.rows("9.1", "smoke")] == ["shipped"]
+    (shipped / "config.json").write_text("{}")
+    assert main(["runs", "9.1", "--scale", "smoke", "--json"]) == 0
+    assert [r["state"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["corrupt"]
+
+
+# ---------------------------------------------------------------- the claims ledger
+def test_claims_subcommand(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "thesis_repro.claims.cli", None)  # not importable (yet)
+    assert main(["claims", "list"]) == 1
+    assert_one_error(capsys.readouterr().err, "the claims ledger is not available")
+    seen = []
+    fake = types.ModuleType("thesis_repro.claims.cli")
+    fake.main = lambda argv: seen.append(argv) or 3
+    package = types.ModuleType("thesis_repro.claims")
+    package.cli = fake
+    monkeypatch.setitem(sys.modules, "thesis_repro.claims", package)
+    monkeypatch.setitem(sys.modules, "thesis_repro.claims.cli", fake)
+    assert main(["claims", "show", "--scale", "small"]) == 3
+    assert seen == [["show", "--scale", "small"]]
