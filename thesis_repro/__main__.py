@@ -125,6 +125,10 @@ def _main(argv: list[str]) -> int:
     ref.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
     ref.add_argument("--kind", nargs="+", default=None, help="job kinds to ship (default: train)")
     ref.add_argument("--commit", action="store_true", help="git-commit each run as it lands")
+    ref.add_argument("--algos", nargs="+", default=None, help="only these learners' runs (default: all)")
+    ref.add_argument(
+        "--protocol", default=None, help="training protocol: thesis | kit-v1 (default: the scale's, scales.yaml)"
+    )
     ref.add_argument(
         "--jobs", type=positive_int, default=None, help="runs trained at once, >= 1 (default 1; 2 on two idle cores)"
     )
@@ -338,7 +342,14 @@ def _runs_command(args: argparse.Namespace) -> int:
         for folder in (paths.runs(), paths.reference()):
             check_writable(folder)
         kinds = args.kind or figures.TRAINING_KINDS
-        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1)
+        from thesis_repro.learners.config import ALGORITHMS, PROTOCOLS
+        from thesis_repro.validation import check_choice
+
+        if args.protocol is not None:
+            os.environ[scales.PROTOCOL_ENV] = check_choice(args.protocol, PROTOCOLS, "protocol")
+        for algo in args.algos or ():
+            check_choice(algo, ALGORITHMS, "algorithm")
+        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1, algos=args.algos)
         return 0
     if args.check:
         stale, corrupt, local = runs.check_shipped(args.scale), runs.verify_shipped(), runs.verify_local()

@@ -290,6 +290,28 @@ def current_keys(scale: str, kinds: Iterable[str] | None = None, figure_ids: Ite
     return keys
 
 
+def pending_keys(scale: str) -> set[str]:
+    """Keys a shipped entry may have besides :func:`current_keys`: every figure's jobs under the OTHER training
+    protocols (runs regenerated for the thesis protocol land before ``scale`` switches to it) and the protocol
+    studies' runs (:mod:`thesis_repro.study`)."""
+    from thesis_repro.learners.config import PROTOCOLS
+    from thesis_repro.scales import PROTOCOL_ENV
+    from thesis_repro.study import lr_schedule_jobs
+
+    keys = {j.key for j in lr_schedule_jobs()}
+    saved = os.environ.get(PROTOCOL_ENV)
+    try:
+        for protocol in PROTOCOLS:
+            os.environ[PROTOCOL_ENV] = protocol
+            keys |= current_keys(scale)
+    finally:
+        if saved is None:
+            os.environ.pop(PROTOCOL_ENV, None)
+        else:
+            os.environ[PROTOCOL_ENV] = saved
+    return keys
+
+
 def shipped_job(path: str | Path) -> Job:
     """The :class:`Job` a shipped (or cached) entry was made from, rebuilt from its ``config.json``;
     ``ValueError`` if it no longer hashes to the entry's key (e.g. after a ``CACHE_VERSION`` bump)."""
@@ -316,7 +338,7 @@ def check_shipped(scale: str = "small", layer_root: str | Path | None = None) ->
     An empty list means every shipped run is still used; otherwise each :attr:`StaleRun.message` says how
     to regenerate.
     """
-    keys = current_keys(scale)
+    keys = current_keys(scale) | pending_keys(scale)
     stale = []
     for path in shipped_entries(layer_root):
         key = path.name.rsplit("__", 1)[1]
@@ -475,22 +497,30 @@ class Planned:
         return cost(self.job)
 
 
+def job_algorithm(job: Job) -> str | None:
+    """The learner a training job trains, or an evaluation evaluates (``None`` for other kinds)."""
+    cfg = job.config.get("train", job.config)
+    return cfg.get("algorithm") if isinstance(cfg, Mapping) else None
+
+
 def plan(
     scale: str,
     figure_ids: Iterable[str] | None = None,
     kinds: Iterable[str] = figures.TRAINING_KINDS,
     by_figure: bool = False,
+    algos: Iterable[str] | None = None,
 ) -> list[Planned]:
     """The jobs of ``kinds`` of every figure (or ``figure_ids``) at ``scale``, deduplicated by key, cheapest
     first; with ``by_figure``, the first figure's jobs first (each figure's cheapest first), so that the
-    figures finish in the order given."""
+    figures finish in the order given; with ``algos``, only the jobs of those learners."""
     kinds = set(kinds)
+    keep = None if algos is None else set(algos)
     out: dict[str, Planned] = {}
     rank: dict[str, int] = {}
     for i, fid in enumerate(figure_ids or figures.ids()):
         notebook_id = figures.get(fid).notebook_id
         for job in figures.jobs(fid, scale):
-            if job.kind in kinds:
+            if job.kind in kinds and (keep is None or job_algorithm(job) in keep):
                 out.setdefault(job.key, Planned(job)).figures.append(notebook_id)
                 rank.setdefault(job.key, i if by_figure else 0)
     return sorted(out.values(), key=lambda p: (rank[p.job.key], p.cost, p.job.kind, p.job.label, p.job.key))
@@ -498,10 +528,12 @@ def plan(
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker processes
     """Worker initializer: on Linux, end this worker when the generator process dies (a killed background
-    generator must not leave orphan workers training on)."""
+    generator must not leave orphan workers training on); ignore Ctrl-C, which the generator handles by
+    ending its workers (:func:`_stop_pool`) instead of each printing a traceback."""
     import ctypes
     import signal
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
@@ -579,6 +611,7 @@ def generate(
     cache: RunCache | None = None,
     log: Callable[[str], None] = print,
     heartbeat: float = HEARTBEAT_SECONDS,
+    algos: Iterable[str] | None = None,
 ) -> list[Exported]:
     """Produce the shipped reference runs of ``scale`` (``make reference-runs``).
 
@@ -592,7 +625,7 @@ def generate(
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     cache = cache or RunCache(reference=False)
     kinds = tuple(check_choice(k, sorted(registry.KINDS), "job kind") for k in kinds)
-    planned = plan(scale, figure_ids, kinds, by_figure=figure_ids is not None)
+    planned = plan(scale, figure_ids, kinds, by_figure=figure_ids is not None, algos=algos)
     todo, shipped = [], 0
     for p in planned:
         where = find_entry(layer, p.job)
@@ -638,12 +671,24 @@ def generate(
             order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
             log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
             pending, t0 = set(futures), time.time()
-            while pending:
-                finished, pending = wait(pending, timeout=heartbeat, return_when=FIRST_COMPLETED)
-                started = [futures[f].job for f in pending if f.running()]  # the pool queues one extra
-                running = [j for j in started if cache.workdir(j).exists()]  # workers still importing: none
-                if not finished and running:
-                    log(progress_line(running, cache, time.time() - t0))
-                for fut in finished:
-                    land(len(done) + 1, futures[fut], fut.result())
+            try:
+                while pending:
+                    finished, pending = wait(pending, timeout=heartbeat, return_when=FIRST_COMPLETED)
+                    started = [futures[f].job for f in pending if f.running()]  # the pool queues one extra
+                    running = [j for j in started if cache.workdir(j).exists()]  # workers still importing: none
+                    if not finished and running:
+                        log(progress_line(running, cache, time.time() - t0))
+                    for fut in finished:
+                        land(len(done) + 1, futures[fut], fut.result())
+            except BaseException:  # Ctrl-C or a failed run: stop now (interrupted runs resume from their checkpoints)
+                _stop_pool(ex)
+                raise
     return done
+
+
+def _stop_pool(ex: ProcessPoolExecutor) -> None:
+    """End a process pool's workers now and drop its queued jobs (leaving the ``with`` block would otherwise
+    wait for every running and queued job to finish)."""
+    ex.shutdown(wait=False, cancel_futures=True)
+    for proc in list((getattr(ex, "_processes", None) or {}).values()):
+        proc.terminate()
