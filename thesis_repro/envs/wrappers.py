@@ -3,7 +3,8 @@
 * :class:`ObservationNoise` σ^o: o_t = obs_t + σ·ε_t (also on the reset observation).
 * :class:`ActionNoise` σ^u: u_t = clip(a_t + σ·ε_t, action bounds).
 * :class:`EnvironmentNoise` σ^s: the factors θ^h are resampled before EVERY step ("Env").
-* :class:`DomainShift` Σ: Θ ~ N(Θ0, Σ) sampled ONCE per episode, at reset ("Dom").
+* :class:`DomainShift` Σ: Θ ~ N(Θ0, Σ) sampled ONCE per episode, at reset ("Dom"); or held across episodes
+  (:meth:`~_EpisodeDomain.hold_domain`: the meta-learners' one Θ_i per batch, Alg 1/2).
 * :class:`SystematicShift`: fixed factor values (heatmap grids).
 * :class:`Wind` (chapter 4): ξ ~ U(low, high) once per episode, the horizontal wind of ``factors``.
 
@@ -187,8 +188,40 @@ class EnvironmentNoise(_FactorWrapper):
             self.factors.sample(self.np_random, self.sigma)
 
 
-class DomainShift(_FactorWrapper):
-    """Domain shift Θ ~ N(Θ0, Σ), Σ = σ²I, sampled ONCE per episode at reset ("Dom")."""
+class _EpisodeDomain(_FactorWrapper):
+    """A factor wrapper that draws a new domain at every reset, unless one is held.
+
+    :meth:`hold_domain` draws a domain NOW (from the wrapper's own seeded generator, as a reset would) and
+    keeps it across episode resets until the next ``hold_domain`` or :meth:`release_domain`: the
+    meta-learners' "sample a batch of domains Θ_i ~ p(Θ)" of Alg 1/2, one Θ_i for all of domain i's batches.
+    """
+
+    # class-level default: the instance attribute exists only once a domain was held (exact resume of runs
+    # that never hold one is unchanged)
+    _held: dict[str, float] | None = None
+
+    def _draw(self) -> None:
+        raise NotImplementedError
+
+    def _on_reset(self) -> None:
+        if self._held is not None:
+            self.factors.set(self._held)
+        else:
+            self._draw()
+
+    def hold_domain(self) -> dict[str, float]:
+        """Draw a new domain, apply it now and keep it across resets; returns its factor values."""
+        self._draw()
+        self._held = self.factors.values()
+        return dict(self._held)
+
+    def release_domain(self) -> None:
+        """Back to a new domain per episode (from the next reset on)."""
+        self._held = None
+
+
+class DomainShift(_EpisodeDomain):
+    """Domain shift Θ ~ N(Θ0, Σ), Σ = σ²I, sampled ONCE per episode at reset ("Dom"), or held (``hold_domain``)."""
 
     _SALT = 4
 
@@ -196,7 +229,7 @@ class DomainShift(_FactorWrapper):
         super().__init__(env, factors)
         self.sigma = check_nonneg(sigma, "domain shift sigma")
 
-    def _on_reset(self) -> None:
+    def _draw(self) -> None:
         if self.sigma == 0.0:
             self.factors.restore()
         else:
@@ -234,8 +267,8 @@ class SystematicShift(_FactorWrapper):
         self.factors.set(self.ratios)
 
 
-class Wind(_FactorWrapper):
-    """Chapter 4 wind: ξ ~ U(low, high) (m/s², force ξ·M0 on the torso) sampled once per episode.
+class Wind(_EpisodeDomain):
+    """Chapter 4 wind: ξ ~ U(low, high) (m/s², force ξ·M0 on the torso) sampled once per episode (or held).
 
     >>> import gymnasium as gym
     >>> env = Wind(gym.make("Walker2d-v5"), -0.5, 0.5)
@@ -252,7 +285,7 @@ class Wind(_FactorWrapper):
             raise ValueError(f"wind low must be <= high, got low={low!r}, high={high!r}")
         (self._bound,) = self.factors.bound
 
-    def _on_reset(self) -> None:
+    def _draw(self) -> None:
         self._bound.set(float(self.np_random.uniform(self.low, self.high)))
 
 

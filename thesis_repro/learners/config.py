@@ -66,7 +66,18 @@ LR_SCHEDULES: tuple[str, ...] = ("linear", "constant")
 #: behaviour AND the earlier config (so the shipped runs keep their keys). The scale table picks one per scale.
 PROTOCOLS: tuple[str, ...] = ("thesis", "kit-v1")
 #: Settings the thesis protocol added (dotted paths into the resolved config), absent under ``kit-v1``.
-THESIS_PROTOCOL_KEYS: tuple[str, ...] = ("lr_schedule",)
+THESIS_PROTOCOL_KEYS: tuple[str, ...] = (
+    "lr_schedule",
+    "sb3.epopt_rank",  # EPOpt ranks whole episodes by their full return (issue 20 item 2)
+    "sb3.epopt_warm_start",  # EPOpt's ε = 1 warm start in iterations (Rajeswaran et al.), replaces epopt_warmup
+    "sb3.domain_per_batch",  # MAML-DG / Reptile-DG: one Θ_i for all of domain i's batches (item 3)
+    "arpl.delta",  # ARPL's δ as §3.2.1 writes it (item 4)
+)
+#: What :class:`~thesis_repro.learners.multidomain.EPOpt` ranks (``sb3.epopt_rank``): complete episodes by their
+#: full return, or (absent: kit-v1) the fragments of the rollout buffer cut at its ends, by partial return.
+EPOPT_RANKS: tuple[str, ...] = ("episodes", "fragments")
+#: ARPL's perturbation (``arpl.delta``): §3.2.1's ε ∇_s‖π(s)‖, or (absent: kit-v1) the gradient rescaled to length ε.
+ARPL_DELTAS: tuple[str, ...] = ("gradient", "rescaled")
 
 
 @cache
@@ -223,6 +234,21 @@ def _validate(cfg: dict[str, Any]) -> None:
             raise ValueError(f"lr_schedule is implemented for the PPO-family learners only, not {cfg['class']}")
     if "meta_update" in sb3:
         check_choice(sb3["meta_update"], META_UPDATES, "meta_update")
+    if cfg.get("arpl") is not None and "delta" in cfg["arpl"]:
+        check_choice(cfg["arpl"]["delta"], ARPL_DELTAS, "arpl.delta")
+    if "epopt_rank" in sb3:
+        check_choice(sb3["epopt_rank"], EPOPT_RANKS, "epopt_rank")
+    if "epopt_warm_start" in sb3:
+        w = sb3["epopt_warm_start"]
+        if isinstance(w, bool) or not isinstance(w, int) or w < 0:
+            raise ValueError(f"epopt_warm_start must be an integer >= 0 (iterations), got {w!r}")
+        if sb3.get("epopt_warmup", 0) != 0:
+            raise ValueError("set epopt_warm_start (the thesis protocol's warm-up), not epopt_warmup (kit-v1's)")
+    if "domain_per_batch" in sb3:
+        if not isinstance(sb3["domain_per_batch"], bool):
+            raise ValueError(f"domain_per_batch must be true or false, got {sb3['domain_per_batch']!r}")
+        if cfg["class"] not in ("MAMLDG", "ReptileDG"):
+            raise ValueError(f"domain_per_batch is implemented for MAMLDG and ReptileDG only, not {cfg['class']}")
     for key in ("damping", "cg_rtol", "inner_lr"):
         if key in sb3:
             check_nonneg(sb3[key], key)

@@ -60,7 +60,8 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
 from torch import nn
 
 from thesis_repro.envs.vec import LeanVecEnv
-from thesis_repro.learners.config import AGGREGATES, META_UPDATES
+from thesis_repro.envs.wrappers import _EpisodeDomain
+from thesis_repro.learners.config import AGGREGATES, EPOPT_RANKS, META_UPDATES
 from thesis_repro.learners.fast import FastPPO, RolloutTensors, ppo_epochs, rollout_tensors
 from thesis_repro.mdl import aggregate as agg
 from thesis_repro.validation import check_choice, check_nonneg
@@ -121,6 +122,40 @@ def epopt_mask(episode_starts: np.ndarray, rewards: np.ndarray, epsilon: float) 
     return mask
 
 
+def complete_episode_mask(episode_starts: np.ndarray, episode_returns: np.ndarray, epsilon: float) -> np.ndarray:
+    """Steps (``(T, n_envs)`` like the buffer) of the COMPLETE episodes in the worst ε fraction by full return.
+
+    ``episode_returns`` is NaN except at the last step of every episode that ended in the buffer, where it holds
+    that episode's full return (VecMonitor's, which counts its steps in earlier batches too). Only episodes that
+    end in the buffer are ranked and kept (EPOpt-ε ranks whole trajectories, Rajeswaran et al. 2016): the
+    fragment of an episode still running at the buffer's end is never kept. No episode ended: all False.
+
+    >>> starts = np.array([[0, 1], [1, 0], [0, 0], [1, 1]])  # env 0: an episode from the last batch ends at t=0
+    >>> ends = np.full((4, 2), np.nan); ends[0, 0], ends[2, 0], ends[2, 1] = -5.0, 9.0, 3.0
+    >>> complete_episode_mask(starts, ends, 0.5).astype(int).tolist()  # 3 ranked (-5, 9, 3): keep -5 and 3
+    [[1, 1], [0, 1], [0, 1], [0, 0]]
+    """
+    starts, returns = np.asarray(episode_starts), np.asarray(episode_returns, dtype=float)
+    if starts.shape != returns.shape or starts.ndim != 2:
+        raise ValueError(f"episode_starts and episode_returns must be (T, n_envs), got {starts.shape}, {returns.shape}")
+    ends = np.isfinite(returns)
+    if (ends[:-1] != starts[1:].astype(bool)).any():
+        raise ValueError("an episode start must follow every episode end (and only an end)")
+    episodes: list[tuple[int, np.ndarray]] = []  # (env, steps of one complete episode)
+    scores: list[float] = []
+    for e in range(starts.shape[1]):
+        seg = trajectory_segments(starts[:, e])
+        for t in np.flatnonzero(ends[:, e]):
+            episodes.append((e, np.flatnonzero(seg == seg[t])))
+            scores.append(float(returns[t, e]))
+    mask = np.zeros(starts.shape, dtype=bool)
+    if not scores:
+        return mask
+    for (e, steps), keep in zip(episodes, worst_fraction(np.array(scores), epsilon), strict=True):
+        mask[steps, e] = keep
+    return mask
+
+
 def reptile_meta_step(module: nn.Module, adapted: dict[str, th.Tensor], optimizer: th.optim.Optimizer) -> None:
     """Alg 2 outer step: the meta-gradient of every parameter is π − π' (so the step moves π towards π').
 
@@ -165,6 +200,16 @@ def post_adaptation_gradient(
     rec = _GradRecorder(list(policy.named_parameters()))
     ppo_epochs(policy, rec, data, n_epochs=1, batch_size=len(data), **ppo_kwargs)
     return rec.grads
+
+
+def episode_domains(env: Any) -> list[_EpisodeDomain]:
+    """The wrappers of a gym env (outermost first) that draw a domain per episode (``dom`` shift, ``wind``)."""
+    found = []
+    while env is not None:
+        if isinstance(env, _EpisodeDomain):
+            found.append(env)
+        env = getattr(env, "env", None)
+    return found
 
 
 class _StepsOnly(BaseCallback):
@@ -296,25 +341,68 @@ class MultiDomainPPO(FastPPO):
 
 
 class EPOpt(MultiDomainPPO):
-    """PPO on the worst ``epsilon`` fraction of the iteration's trajectories (after ``epopt_warmup`` iterations)."""
+    """PPO on the worst ``epsilon`` fraction of the iteration's trajectories, after a warm start on all of them.
 
-    def __init__(self, *args: Any, epsilon: float = 0.1, epopt_warmup: int = 0, **kwargs: Any):
+    ``epopt_rank``: ``"episodes"`` (EPOpt-ε as Rajeswaran et al. 2016) ranks the COMPLETE episodes that end in
+    the iteration's batch by their full return (VecMonitor's, which includes the episode's steps of earlier
+    batches) and trains on the steps in this batch of the worst ε of them; an episode still running at the
+    batch's end is neither ranked nor kept (it is ranked in the batch where it ends). An iteration in which no
+    episode ended trains nothing. ``"fragments"`` (the kit-v1 protocol): the batch's fragments between episode
+    starts and the batch's ends, ranked by partial return (:func:`epopt_mask`).
+
+    Warm start: the first ``epopt_warm_start`` iterations (None: ``epopt_warmup``) train on the whole batch
+    (ε = 1, i.e. PPO-MDL), as Rajeswaran et al. start with ε = 1.
+    """
+
+    def __init__(
+        self,
+        *args: Any,
+        epsilon: float = 0.1,
+        epopt_warmup: int = 0,
+        epopt_rank: str = "fragments",
+        epopt_warm_start: int | None = None,
+        **kwargs: Any,
+    ):
         if not 0.0 < epsilon <= 1.0:
             raise ValueError(f"epsilon must be in (0, 1], got {epsilon!r}")
         self.epsilon, self.epopt_warmup = float(epsilon), int(epopt_warmup)
+        self.epopt_rank = check_choice(epopt_rank, EPOPT_RANKS, "epopt_rank")
+        self.epopt_warm_start = None if epopt_warm_start is None else int(epopt_warm_start)
         super().__init__(*args, **kwargs)
+
+    def collect_rollouts(self, env: VecEnv, callback: BaseCallback, buffer: RolloutBuffer, n_rollout_steps: int):
+        if self.epopt_rank == "episodes":  # full return of each episode, at the step where it ends
+            self._episode_ends = np.full((n_rollout_steps, self.n_envs), np.nan)
+        return super().collect_rollouts(env, callback, buffer, n_rollout_steps)
+
+    def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
+        super()._update_info_buffer(infos, dones)
+        if self.epopt_rank == "episodes":
+            t = self.rollout_buffer.pos  # called before the step is added to the buffer
+            for e, info in enumerate(infos):
+                if "episode" in info:
+                    self._episode_ends[t, e] = float(info["episode"]["r"])
 
     def train(self) -> None:
         """PPO on the selected steps of the rollout buffer."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         buf = self.rollout_buffer
+        warm = self.epopt_warmup if self.epopt_warm_start is None else self.epopt_warm_start
         mask = None
-        if self.iterations_done >= self.epopt_warmup:
+        extra: dict[str, Any] = {}  # (none under kit-v1: its records are unchanged)
+        if self.epopt_rank == "episodes":
+            extra["ranked_episodes"] = int(np.isfinite(self._episode_ends).sum())
+            if self.iterations_done >= warm:
+                mask = complete_episode_mask(buf.episode_starts, self._episode_ends, self.epsilon)
+        elif self.iterations_done >= warm:
             mask = epopt_mask(buf.episode_starts, buf.rewards, self.epsilon)
+        if mask is not None and not mask.any():  # no episode ended in this batch: nothing to rank
+            self._record({"kept_fraction": 0.0, **extra})
+            return
         stats = self._ppo(self.policy, self.policy.optimizer, rollout_tensors(buf, mask=mask), self.n_epochs)
         self._n_updates += stats["epochs"]
-        self._record({"kept_fraction": 1.0 if mask is None else float(mask.mean())})
+        self._record({"kept_fraction": 1.0 if mask is None else float(mask.mean()), **extra})
 
 
 class SubPolicyAggregation(MultiDomainPPO):
@@ -435,13 +523,36 @@ class SubPolicyAggregation(MultiDomainPPO):
 
 
 class _MetaPPO(MultiDomainPPO):
-    """Base of the sequential meta-learners: sub-policies adapt with ``inner_lr`` for ``inner_epochs``."""
+    """Base of the sequential meta-learners: sub-policies adapt with ``inner_lr`` for ``inner_epochs``.
 
-    def __init__(self, *args: Any, inner_lr: float = 1e-3, inner_epochs: int = 1, **kwargs: Any):
+    ``domain_per_batch`` (Alg 1/2's "sample a batch of domains Θ_i ~ p(Θ)"): at the start of domain i's
+    collection in every iteration, its env draws ONE domain Θ_i (:meth:`~thesis_repro.envs.wrappers.
+    _EpisodeDomain.hold_domain`, from the env wrappers' own seeded generators), restarts its episode in it and
+    keeps Θ_i across its episode resets for all of domain i's batches of the iteration (MAML-DG: D_i and D'_i;
+    D'_i continues D_i's episode stream). The restart is the reference MAML sampler's (each task's sampling
+    starts from resets in that task); the episode it cuts is never recorded as a training episode. False (the
+    kit-v1 protocol): each env draws a new domain at every episode start, so one batch spans several domains.
+    Without a per-episode domain wrapper (``dom`` perturbation or ``wind``) there is one domain and no restart.
+    """
+
+    def __init__(
+        self, *args: Any, inner_lr: float = 1e-3, inner_epochs: int = 1, domain_per_batch: bool = False, **kwargs: Any
+    ):
         self.inner_lr, self.inner_epochs = check_nonneg(inner_lr, "inner_lr"), int(inner_epochs)
         if self.inner_epochs < 1:
             raise ValueError(f"inner_epochs must be >= 1, got {inner_epochs!r}")
+        self.domain_per_batch = bool(domain_per_batch)
         super().__init__(*args, **kwargs)
+
+    def _new_domain(self, i: int) -> None:
+        """With ``domain_per_batch``: draw and hold domain ``i``'s Θ_i for this iteration, restart its episode."""
+        if not self.domain_per_batch:
+            return
+        view = self._domain_env(i)
+        held = [w.hold_domain() for w in episode_domains(self.env.unwrapped.envs[i])]  # type: ignore[union-attr]
+        if held:
+            self._domain_obs[i] = view.reset()  # type: ignore[assignment]
+            self._domain_starts[i] = np.ones(1, dtype=bool)
 
     def _setup_model(self) -> None:
         self.sub_lr = self.inner_lr
@@ -465,6 +576,7 @@ class ReptileDG(_MetaPPO):
         for i in self._rng.permutation(self.n_envs).tolist():
             sub = self.sub_policies[i]
             sub.load_state_dict(adapted)
+            self._new_domain(i)  # Θ_i (domain_per_batch)
             if not self._collect_domain(i, sub, steps):
                 return False
             self._adapt(sub, self._domain_buffers[i])
@@ -514,6 +626,7 @@ class MAMLDG(_MetaPPO):
         grads, shifts, post = [], [], []
         for i, sub in enumerate(self.sub_policies):
             sub.load_state_dict(start)
+            self._new_domain(i)  # Θ_i for D_i and D'_i (domain_per_batch)
             if not self._collect_domain(i, sub, steps):  # D_i with π
                 return False
             self._adapt(sub, self._domain_buffers[i])  # π_i
