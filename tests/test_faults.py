@@ -186,6 +186,90 @@ def test_kernel_files_of_a_killed_run_are_removed_by_the_next_run(toy, tmp_path,
     assert sorted(private_tmp.glob("thesis-repro-kernel-*")) == [] and leftovers() == []
 
 
+SLEEPY = """import os
+import time
+from pathlib import Path
+
+
+def sleepy(config, workdir):
+    (Path(config["marker"]) / str(os.getpid())).write_text("")
+    time.sleep(300)
+    return {"ok": 1}
+"""
+
+REF_DRIVER = """import sys
+
+from thesis_repro import figures
+from thesis_repro import jobs as registry
+from thesis_repro.cache import Job
+
+registry.register("sleepy", "sleepy_jobs:sleepy")
+
+if __name__ == "__main__":
+    figures.FIGURES.clear()
+    figures.TRAINING_KINDS = ("sleepy",)
+    grid = [Job("sleepy", {"seed": i, "marker": sys.argv[1]}) for i in range(3)]
+    figures.register("9.1", "toy", kinds=["sleepy"], settings_id="_example")(lambda scale: grid)
+    from thesis_repro.__main__ import main
+
+    sys.exit(main(["reference-runs", "--scale", "smoke", "--kind", "sleepy", "--jobs", "2", "--figures", "9.1"]))
+"""
+
+
+def session_processes(sid: int) -> list[int]:
+    """Pids of the live processes of session ``sid`` (Linux ``/proc``)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[3]) == sid and fields[0] != "Z":
+            found.append(int(stat.parent.name))
+    return found
+
+
+def test_ctrl_c_stops_a_parallel_reference_run_at_once(tmp_path):
+    """`make reference-runs JOBS=2`, Ctrl-C while its workers start: the terminal interrupts the whole process
+    group; the workers print nothing and are ended, no queued run starts, and the generator exits 130 at once
+    (leaving its pool's ``with`` block used to wait for every running and queued run to finish)."""
+    (tmp_path / "sleepy_jobs.py").write_text(SLEEPY)
+    (tmp_path / "drive_ref.py").write_text(REF_DRIVER)
+    marker, log = tmp_path / "started", tmp_path / "stdout"
+    marker.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(tmp_path), "THESIS_REPRO_REFERENCE": str(tmp_path / "layer")}
+    with log.open("w") as out:
+        proc = subprocess.Popen(
+            [sys.executable, str(tmp_path / "drive_ref.py"), str(marker)],
+            env={**env, "PYTHONUNBUFFERED": "1"},
+            cwd=paths.ROOT,
+            start_new_session=True,
+            stdout=out,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+    deadline = time.time() + 120
+    while "running 3 jobs, 2 at a time" not in log.read_text():  # the workers are starting
+        if proc.poll() is not None or time.time() > deadline:
+            os.killpg(proc.pid, signal.SIGKILL)
+            pytest.fail(f"the generator did not start its workers: {proc.communicate()}")
+        time.sleep(0.05)
+    assert len(session_processes(proc.pid)) >= 3  # the generator and its two workers
+    os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("the generator did not stop after Ctrl-C")
+    assert proc.returncode == 130, err
+    assert error_lines(err) == [INTERRUPTED]
+    deadline = time.time() + 10
+    while session_processes(proc.pid) and time.time() < deadline:
+        time.sleep(0.1)
+    assert session_processes(proc.pid) == [], "workers outlived the generator"
+    assert list(marker.iterdir()) == [], "a run started after Ctrl-C"
+
+
 def test_keyboard_interrupt_anywhere_is_one_line_and_code_130(monkeypatch, capsys):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt

@@ -29,8 +29,9 @@ import os
 import shutil
 import subprocess
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -667,7 +668,8 @@ def generate(
         with ProcessPoolExecutor(
             max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent
         ) as ex:
-            futures: dict[Future, Planned] = {ex.submit(execute, p.job, str(cache.root), False): p for p in todo}
+            with _sigint_ignored():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
+                futures: dict[Future, Planned] = {ex.submit(execute, p.job, str(cache.root), False): p for p in todo}
             order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
             log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
             pending, t0 = set(futures), time.time()
@@ -680,15 +682,32 @@ def generate(
                         log(progress_line(running, cache, time.time() - t0))
                     for fut in finished:
                         land(len(done) + 1, futures[fut], fut.result())
-            except BaseException:  # Ctrl-C or a failed run: stop now (interrupted runs resume from their checkpoints)
+            except KeyboardInterrupt:  # Ctrl-C: stop now (the interrupted runs resume from their checkpoints)
                 _stop_pool(ex)
                 raise
     return done
 
 
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT in this block (processes started in it inherit that), where the main thread allows it."""
+    import signal
+
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 def _stop_pool(ex: ProcessPoolExecutor) -> None:
     """End a process pool's workers now and drop its queued jobs (leaving the ``with`` block would otherwise
     wait for every running and queued job to finish)."""
+    workers = list((getattr(ex, "_processes", None) or {}).values())  # shutdown() forgets them
     ex.shutdown(wait=False, cancel_futures=True)
-    for proc in list((getattr(ex, "_processes", None) or {}).values()):
+    for proc in workers:
         proc.terminate()
