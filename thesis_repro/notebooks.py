@@ -421,7 +421,7 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     check_scale(scale)
     parameters = check_parameters(parameters, scale)
     page = page_id(nid)
-    build_root = paths.build(scale).parent
+    build_root = paths.build(scale).parent.absolute()  # absolute: the kernel runs in the repository
     clean_stale(build_root)
     src = paths.notebook(page)
     out = executed_path(nid, scale)
@@ -430,9 +430,9 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     paths.figures(scale).mkdir(parents=True, exist_ok=True)
     stage = build_root / f".staging-{scale}-{page}-{os.getpid()}"
     shutil.rmtree(stage, ignore_errors=True)
-    staged_out = stage / out.relative_to(build_root)
+    staged_out = stage / out.absolute().relative_to(build_root)
     staged_out.parent.mkdir(parents=True)
-    (stage / paths.figures(scale).relative_to(build_root)).mkdir(parents=True)
+    (stage / paths.figures(scale).absolute().relative_to(build_root)).mkdir(parents=True)
     nb = jupytext.read(src)
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
     deps = nbformat.v4.new_code_cell(_DEPS_CODE.format(root=str(paths.PACKAGE) + os.sep))
