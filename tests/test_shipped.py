@@ -47,8 +47,8 @@ def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
     assert runs.cost(job) <= 250_000, f"cheapest shipped run {job.label} costs {runs.cost(job):,.0f} steps"
     shipped = RunCache(tmp_path / "unused", reference=LAYER).load(job)
     assert shipped is not None and shipped.source == "shipped"
-    fresh = RunCache(tmp_path / "runs", reference=False).run(job)
-    assert fresh.source == "computed"
+    # in the numerics the shipped run was made in (kit-v1 runs: native MKL dispatch; later ones: portable)
+    fresh = runs.recompute(job, tmp_path / "runs", shipped)
     # bit-identical where the shipped run was made on this platform; elsewhere the same outcome (runs.OUTCOME_RTOL)
     check = runs.compare_retrain(shipped, fresh)
     print(check.message)

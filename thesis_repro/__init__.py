@@ -10,4 +10,35 @@ import os
 # MUJOCO_GL wins. Set before anything imports mujoco; papermill kernels inherit it.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+#: Portable numerics (issue 19 item 6): the same float kernels on every x86-64 CPU, so a run or an evaluation
+#: gives the same numbers on Intel and AMD. Measured on an AVX-512 Xeon: MKL's CPU dispatch (the sgemm of every
+#: policy forward and PPO update) changes an evaluation's returns in the 7th digit and a training run's weights;
+#: MKL's COMPATIBLE branch is the only one its documentation promises identical on Intel and compatible
+#: processors ("Settings other than AUTO or COMPATIBLE are available only for Intel processors"). ATen's own
+#: kernels (tanh, exp, ...) dispatch on AVX-512 vs AVX2: pinned to AVX2, which every x86-64-v3 CPU has.
+#: Cost: ~5-10 % training throughput. Must be set before torch loads MKL: ``import thesis_repro`` first (the
+#: Makefile exports them too); :func:`numerics` reports what is in effect (kept in every entry's provenance).
+#: ``THESIS_REPRO_NUMERICS=native`` leaves them unset (how the kit-v1 runs were trained: ``make verify`` and the
+#: retrain test recompute an entry in the numerics its provenance records).
+PORTABLE_NUMERICS = {"MKL_CBWR": "COMPATIBLE", "ATEN_CPU_CAPABILITY": "avx2"}
+NUMERICS_ENV = "THESIS_REPRO_NUMERICS"
+if os.environ.get(NUMERICS_ENV, "portable") != "native":
+    for _name, _value in PORTABLE_NUMERICS.items():
+        os.environ.setdefault(_name, _value)
+
+
+def numerics() -> dict[str, str | None]:
+    """The numerics settings in effect in this process: the pinned variables and torch's CPU capability.
+
+    >>> numerics()["MKL_CBWR"]
+    'COMPATIBLE'
+    """
+    import torch
+
+    return {
+        **{k: os.environ.get(k) for k in PORTABLE_NUMERICS},
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+    }
+
+
 __version__ = "0.1.0"

@@ -446,6 +446,12 @@ def platform_info() -> dict[str, Any]:
     }
 
 
+def _numerics() -> dict[str, str | None]:
+    from thesis_repro import numerics
+
+    return numerics()
+
+
 def provenance(start: float, end: float) -> dict[str, Any]:
     """Who/what/when made an entry: command line, git commit (+ dirty flag), package versions, host, times,
     and the :func:`platform_info` that decides its float rounding."""
@@ -459,6 +465,7 @@ def provenance(start: float, end: float) -> dict[str, Any]:
         "packages": _versions(),
         "hostname": platform.node(),
         "platform": platform_info(),
+        "numerics": _numerics(),
         "start": datetime.fromtimestamp(start, UTC).isoformat(timespec="seconds"),
         "end": datetime.fromtimestamp(end, UTC).isoformat(timespec="seconds"),
         "wall_seconds": round(end - start, 3),

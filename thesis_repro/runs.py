@@ -34,6 +34,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -45,6 +46,7 @@ from thesis_repro.cache import (
     Job,
     Result,
     RunCache,
+    entry_identity,
     find_entry,
     platform_info,
     read_entry,
@@ -59,8 +61,12 @@ STATES: tuple[str, ...] = ("cached", "shipped", "corrupt", "partial", "missing")
 #: pickles (optimiser state, env references), replay buffers, resumable checkpoints, optimiser dumps.
 #: (The cache's list: these files are not part of an entry's identity either.)
 EXCLUDE: tuple[str, ...] = UNSHIPPED
-#: Files a shipped entry of a kind must hold for evaluation to work (``load_policy(result)``).
-REQUIRED: dict[str, tuple[str, ...]] = {"train": ("out/policy.pth", "out/learner.json")}
+#: Files a shipped entry of a kind must hold to be usable: a training run's policy (``load_policy(result)``),
+#: an evaluation's values (rollout returns and lengths live in ``arrays.npz``).
+REQUIRED: dict[str, tuple[str, ...]] = {
+    "train": ("out/policy.pth", "out/learner.json"),
+    "evaluate": ("result.json", "arrays.npz"),
+}
 #: Size a shipped run should stay under (snapshots included); larger ones are reported.
 TARGET_BYTES = 1_000_000
 
@@ -210,7 +216,7 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
     kind = json.loads((src / "config.json").read_text())["kind"]
     missing = [f for f in REQUIRED.get(kind, ()) if not (src / f).exists()]
     if missing:
-        raise ValueError(f"cannot ship {src}: it lacks {', '.join(missing)} (what load_policy needs)")
+        raise ValueError(f"cannot ship {src}: it lacks {', '.join(missing)} (what a figure loads from it)")
     dest = layer / kind / src.name
     if dest.resolve() == src.resolve():
         return Exported(dest, _size(dest))
@@ -282,12 +288,26 @@ class StaleRun:
         )
 
 
-def current_keys(scale: str, kinds: Iterable[str] | None = None, figure_ids: Iterable[str] | None = None) -> set[str]:
-    """Keys of every job (of ``kinds``, default all) of every figure (or ``figure_ids``) at ``scale``."""
+def current_keys(
+    scale: str,
+    kinds: Iterable[str] | None = None,
+    figure_ids: Iterable[str] | None = None,
+    layer_root: str | Path | None = None,
+) -> set[str]:
+    """Keys of every job (of ``kinds``, default all) of every figure (or ``figure_ids``) at ``scale``.
+
+    A job of a pinned kind (an evaluation) counts under its key bound to the shipped entries of its dependencies
+    (in ``layer_root``, default ``paths.reference()``), the key its shipped copy has, as well as unbound.
+    """
     kinds = None if kinds is None else set(kinds)
+    shipped_view = RunCache(layer_root if layer_root is not None else paths.reference(), reference=False)
     keys = set()
     for fid in figure_ids or figures.ids():
-        keys.update(j.key for j in figures.jobs(fid, scale) if kinds is None or j.kind in kinds)
+        for j in figures.jobs(fid, scale):
+            if kinds is None or j.kind in kinds:
+                keys.add(j.key)
+                if registry.pinned(j.kind) and (bound := shipped_view.bind(j)) is not None:
+                    keys.add(bound.key)
     return keys
 
 
@@ -327,9 +347,17 @@ def shipped_job(path: str | Path) -> Job:
     return job
 
 
-def cheapest_shipped(kind: str = "train", layer_root: str | Path | None = None) -> Job | None:
-    """The shipped ``kind`` job with the smallest :func:`cost` (for the retrain-and-compare check), or ``None``."""
-    jobs = [shipped_job(p) for p in shipped_entries(layer_root) if p.parent.name == kind]
+def cheapest_shipped(
+    kind: str = "train", layer_root: str | Path | None = None, keys: Iterable[str] | None = None
+) -> Job | None:
+    """The shipped ``kind`` job (with one of ``keys``, if given) with the smallest :func:`cost` (for the
+    retrain-and-compare check), or ``None``."""
+    keys = None if keys is None else set(keys)
+    jobs = [
+        shipped_job(p)
+        for p in shipped_entries(layer_root)
+        if p.parent.name == kind and (keys is None or p.name.rsplit("__", 1)[1] in keys)
+    ]
     return min(jobs, key=lambda j: (cost(j), j.label, j.key), default=None)
 
 
@@ -339,7 +367,7 @@ def check_shipped(scale: str = "small", layer_root: str | Path | None = None) ->
     An empty list means every shipped run is still used; otherwise each :attr:`StaleRun.message` says how
     to regenerate.
     """
-    keys = current_keys(scale) | pending_keys(scale)
+    keys = current_keys(scale, layer_root=layer_root) | pending_keys(scale)
     stale = []
     for path in shipped_entries(layer_root):
         key = path.name.rsplit("__", 1)[1]
@@ -392,11 +420,59 @@ OUTCOME_RTOL = 0.05
 
 
 def same_platform(result_or_path: Result | str | Path) -> bool | None:
-    """Was this run made on a platform equal to this one (:func:`~thesis_repro.cache.platform_info`)?
-    ``None`` if its provenance does not record one (runs made before it was recorded)."""
+    """Was this run made on a platform equal to this one (:func:`~thesis_repro.cache.platform_info`) and in the
+    numerics in effect here (:func:`thesis_repro.numerics`)? ``None`` if its provenance does not record a
+    platform (runs made before it was recorded)."""
     path = Path(getattr(result_or_path, "path", result_or_path))
-    recorded = json.loads((path / "provenance.json").read_text()).get("platform")
-    return None if recorded is None else recorded == json.loads(json.dumps(platform_info()))
+    prov = json.loads((path / "provenance.json").read_text())
+    recorded = prov.get("platform")
+    if recorded is None:
+        return None
+    return recorded == json.loads(json.dumps(platform_info())) and numerics_env(path) == numerics_env(None)
+
+
+def numerics_env(result_or_path: Result | str | Path | None) -> dict[str, str]:
+    """The numerics variables that recompute an entry as it was made: its provenance's ``numerics`` (entries
+    made before they were recorded: native, ``THESIS_REPRO_NUMERICS=native``); ``None``: this process's.
+
+    >>> numerics_env(None)["MKL_CBWR"]
+    'COMPATIBLE'
+    """
+    import thesis_repro
+
+    if result_or_path is None:
+        rec: dict[str, Any] | None = thesis_repro.numerics()
+    else:
+        path = Path(getattr(result_or_path, "path", result_or_path))
+        rec = json.loads((path / "provenance.json").read_text()).get("numerics")
+    if not rec or not rec.get("MKL_CBWR"):
+        return {thesis_repro.NUMERICS_ENV: "native"}
+    return {thesis_repro.NUMERICS_ENV: "portable", **{k: str(rec[k]) for k in thesis_repro.PORTABLE_NUMERICS}}
+
+
+_RECOMPUTE = """
+import json, sys
+from thesis_repro.cache import Job, RunCache
+spec = json.loads(sys.argv[1])
+RunCache(spec["root"], reference=False).run(Job(spec["kind"], spec["config"]))
+"""
+
+
+def recompute(job: Job, root: str | Path, like: Result | str | Path) -> Result:
+    """Compute ``job`` into the cache at ``root`` in a fresh process with the numerics ``like`` was made in
+    (:func:`numerics_env`): how ``make verify`` and the retrain test check a shipped entry bit for bit."""
+    import sys
+
+    import thesis_repro
+
+    env = {k: v for k, v in os.environ.items() if k not in thesis_repro.PORTABLE_NUMERICS}
+    env.update(numerics_env(like))
+    spec = json.dumps({"kind": job.kind, "config": dict(job.config), "root": str(root)})
+    subprocess.run([sys.executable, "-c", _RECOMPUTE, spec], env=env, check=True)
+    result = RunCache(root, reference=False).load(job)
+    if result is None:  # pragma: no cover - the subprocess committed it or failed above
+        raise RuntimeError(f"recompute of {job.label} left no entry in {root}")
+    return result
 
 
 @dataclass(frozen=True)
@@ -527,6 +603,32 @@ def plan(
     return sorted(out.values(), key=lambda p: (rank[p.job.key], p.cost, p.job.kind, p.job.label, p.job.key))
 
 
+def _bind_to_layer(planned: list[Planned], layer: Path, cache: RunCache, log: Callable[[str], None]) -> list[Planned]:
+    """``planned`` with each job of a pinned kind bound to the shipped entries of its dependencies (the key its
+    shipped copy gets, :meth:`RunCache.bind`); jobs whose dependency is not shipped, or differs in the local
+    ``cache`` from the shipped one (the job would load the local one), are left out and counted in the log."""
+    shipped_view = RunCache(layer, reference=False)
+    out, unshipped, differ = [], 0, []
+    for p in planned:
+        bound = shipped_view.bind(p.job)
+        if bound is None:
+            unshipped += 1
+            continue
+        for dep in registry.dependencies(bound.kind, bound.config).values():
+            local = find_entry(cache.root, dep)
+            if local is not None and entry_identity(local) != entry_identity(find_entry(layer, dep)):
+                differ.append(_rel(local))
+                break
+        else:
+            out.append(Planned(bound, p.figures))
+    if unshipped:
+        what = "/".join(sorted({p.job.kind for p in planned}))
+        log(f"{unshipped} {what} jobs skipped: the run they load is not shipped (ship it first)")
+    for path in differ:
+        log(f"skipped: the local {path} differs from its shipped copy (remove it to evaluate the shipped one)")
+    return out
+
+
 def _die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker processes
     """Worker initializer: on Linux, end this worker when the generator process dies (a killed background
     generator must not leave orphan workers training on); ignore Ctrl-C, which the generator handles by
@@ -622,11 +724,18 @@ def generate(
     interrupted run resumes from its workdir checkpoint on the next call), exports each finished one into
     the layer and, with ``commit``, commits it as it lands; every ``heartbeat`` seconds without one landing it
     logs a :func:`progress_line`. Returns the exported runs.
+
+    A job of a pinned kind (an evaluation, ``--kind evaluate``) is keyed by the shipped entries of its
+    dependencies (the training run it evaluates), so a fresh clone finds it: it is computed against the shipped
+    policy and skipped while that policy is not shipped, or while the local cache holds another version of it.
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
-    cache = cache or RunCache(reference=False)
     kinds = tuple(check_choice(k, sorted(registry.KINDS), "job kind") for k in kinds)
+    pinned = any(registry.pinned(k) for k in kinds)
+    cache = cache or RunCache(reference=layer if pinned else False)  # evaluations load the shipped policies
     planned = plan(scale, figure_ids, kinds, by_figure=figure_ids is not None, algos=algos)
+    if pinned:
+        planned = _bind_to_layer(planned, layer, cache, log)
     todo, shipped = [], 0
     for p in planned:
         where = find_entry(layer, p.job)
@@ -668,8 +777,9 @@ def generate(
         with ProcessPoolExecutor(
             max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent
         ) as ex:
+            ref = str(cache.reference) if cache.reference is not None else False
             with _sigint_ignored():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
-                futures: dict[Future, Planned] = {ex.submit(execute, p.job, str(cache.root), False): p for p in todo}
+                futures: dict[Future, Planned] = {ex.submit(execute, p.job, str(cache.root), ref): p for p in todo}
             order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
             log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
             pending, t0 = set(futures), time.time()
