@@ -13,10 +13,13 @@
 # The thesis's caption and claims open the book page (quoted with line numbers from
 # `data/thesis/claims.yaml`, key `fig-5.6`); the verdicts at the end judge each claim on our numbers.
 #
-# What we run (`thesis_repro.arm.curriculum`): every stage is constructive MTL — CMA-ES on the Tucker factors
-# (G, U1, U2, U3) of all tasks of the family, thesis cost (Eq 5.12) only — and the factors are carried from one
-# family to the next (CL) or kept on BIC (NC); both start from the same random policies. A trial is one CMA-ES
-# candidate (one rollout per task). No numbers of this figure were transcribed (plot only).
+# What we run (`thesis_repro.arm.curriculum`), thesis cost (Eq 5.12) only, σ0 = 0.01 for every CMA-ES run
+# (§5.3.2): the first family (Reach in CL; BIC's pre-training in NC) is constructive MTL from random policies —
+# CMA-ES on the Tucker factors (G, U1, U2, U3) of all its tasks. Every later stage extracts the task-agnostic
+# tensor L = G ×1 U1 ×2 U2 and alternates CMA-ES phases on the task vectors s ("fix L, update s") and on L
+# ("fix s, update L"), as Algorithm 5 — the source of the "periodic bumps" of the thesis's curves. A new
+# family's task starts from the s of a random task of the previous family (CL); NC's tasks keep their own.
+# A trial is one CMA-ES candidate (one rollout per task). No numbers of this figure were transcribed (plot only).
 
 # %% tags=["parameters"]
 SCALE = "small"

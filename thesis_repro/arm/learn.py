@@ -288,6 +288,103 @@ def mtl_refine(
     )
 
 
+@dataclass
+class AlternateMTLResult(MTLResult):
+    """:func:`mtl_alternate`'s outcome: an :class:`MTLResult` (``factors[2]`` = the task vectors S (P, K))
+    plus the phase (``"s"`` or ``"L"``) of every generation of the curve."""
+
+    phases: list[str]
+
+
+def mtl_alternate(
+    family: str,
+    tasks: np.ndarray,
+    model: Any,
+    s0: np.ndarray,
+    *,
+    generations: int,
+    phase_generations: int,
+    sigma: float = 0.01,
+    l2: float = 1e-4,
+    popsize: int | None = None,
+    seed: int = 0,
+    config: dict[str, Any] | None = None,
+) -> AlternateMTLResult:
+    """Transfer multi-task RL (Algorithm 5 for a family of P tasks, §5.2.3 / §5.3.4): alternate s and L.
+
+    The task-agnostic tensor ``L = G ×1 U1 ×2 U2`` (D, A, K) is extracted from ``model`` (a
+    :class:`~thesis_repro.arm.transfer.Tucker`; its U3 is dropped) and shared by the P tasks; task ``p``'s
+    policy is ``W_p = L ×3 s_p`` with ``s0`` (P, K) the initial task vectors. Phases of
+    ``phase_generations`` CMA-ES generations alternate, starting with s ("fix L and update s", then "fix s
+    and update L"), until ``generations`` are used (the last phase may be shorter); every phase is a fresh
+    CMA-ES with σ0 = ``sigma``.
+
+    * s-phase: one CMA-ES per task on its ``s_p`` (lockstep; with L fixed the tasks are independent),
+      fitness = cost_p + ``l2 |W_p|²``;
+    * L-phase: one CMA-ES on the factors (G, U1, U2) of L (the kit's tensor reading of Algorithm 5, as
+      :func:`thesis_repro.arm.transfer.alternate`), fitness = mean over tasks of cost_p + ``l2 |W_p|²``.
+
+    Either way a generation is ``popsize`` rollouts of every task (one ``simulate`` call). The curve is
+    the mean task cost of the population over tasks, per generation.
+    """
+    from thesis_repro.arm.transfer import Subspace
+
+    if phase_generations < 1:
+        raise ValueError(f"phase_generations must be >= 1, got {phase_generations}")
+    if generations < 1:
+        raise ValueError(f"generations must be >= 1, got {generations}")
+    G, U1, U2 = model.core, model.factors[0], model.factors[1]
+    s = np.array(s0, dtype=float)
+    P = len(tasks)
+    if s.shape != (P, G.shape[2]):
+        raise ValueError(f"s0 must have shape (P, K) = {(P, G.shape[2])}, got {s.shape}")
+    sub = Subspace("tensor", [G.shape, U1.shape, U2.shape], np.concatenate([G.ravel(), U1.ravel(), U2.ravel()]), s)
+    theta = sub.theta0.copy()
+    f = arm_objective(family, tasks, config=config)
+    curves, succs, phases = [], [], []
+    done, k = 0, 0
+    while done < generations:
+        gens = min(phase_generations, generations - done)
+        phase = "s" if k % 2 == 0 else "L"
+        if phase == "s":
+            L = sub.latent(theta)  # (D, A, K)
+
+            def evaluate(X: np.ndarray, L: np.ndarray = L) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                W = np.einsum("dak,npk->npda", L, X)  # (P, pop, D, A)
+                fit, cost, succ = f(W)
+                return fit + l2 * (W**2).sum(axis=(-2, -1)), cost, succ
+
+            res = cma_lockstep(evaluate, s, sigma, gens, popsize=popsize, seed=seed * 1000 + k)
+            s = res.x
+        else:
+            s_fixed = s
+
+            def evaluate(X: np.ndarray, s_fixed: np.ndarray = s_fixed) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                W = np.einsum("bdak,pk->pbda", sub.latent(X[0]), s_fixed)  # (P, pop, D, A)
+                fit, cost, succ = f(W)
+                fit = fit + l2 * (W**2).sum(axis=(-2, -1))
+                return fit.mean(0)[None], cost.mean(0)[None], succ.mean(0)[None]
+
+            res = cma_lockstep(evaluate, theta[None], sigma, gens, popsize=popsize, seed=seed * 1000 + k)
+            theta = res.x[0]
+        curves.append(res.curve.mean(0))
+        succs.append(res.success.mean(0))
+        phases.extend([phase] * gens)
+        done += gens
+        k += 1
+    G, U1, U2 = _unpack(theta, sub.shapes)
+    L = np.einsum("ijk,di,aj->dak", G, U1, U2)
+    return AlternateMTLResult(
+        core=G,
+        factors=[U1, U2, s],
+        W=np.einsum("dak,pk->pda", L, s),
+        curve=np.concatenate(curves),
+        success=np.concatenate(succs),
+        popsize=res.popsize,
+        phases=phases,
+    )
+
+
 # ------------------------------------------------------------------------------ cached jobs
 #: Bump when a change to this package's learning code alters results (part of every job config).
 ALGO_VERSION: int = 1
