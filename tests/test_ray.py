@@ -222,7 +222,7 @@ def test_killed_worker_is_retried_and_resumes_from_its_checkpoint(on_ray):
     thread.join(timeout=5)
     assert killed, "the slow job finished before it could be killed"
     assert [r.source for r in first] == ["computed"] * 3
-    assert first[2]["timesteps_done"] >= 12_288 and first[2]["resumed_from"] > 0  # resumed, not restarted
+    assert first[2]["timesteps_done"] >= 12_288 and first[2].measured("resumed_from") > 0  # resumed, not restarted
     provenance = [json.loads((r.path / "provenance.json").read_text()) for r in first]
     again = run_jobs([*quick, slow], progress=False)
     assert [r.source for r in again] == ["cached"] * 3  # finished runs are never recomputed

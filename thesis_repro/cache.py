@@ -87,7 +87,7 @@ PROVENANCE_PACKAGES: tuple[str, ...] = (
 #: Result values that are measurements of the computation, not its outcome (they differ between identical
 #: runs): moved from ``result.json`` to ``provenance.json["measured"]``. A job may also return them (and any
 #: other measurement) in a ``"provenance"`` dict. Read them with :meth:`Result.measured`.
-VOLATILE: tuple[str, ...] = ("wall_time", "steps_per_s")
+VOLATILE: tuple[str, ...] = ("wall_time", "steps_per_s", "resumed_from")
 #: Artefacts that stay in the local cache and are never shipped (glob patterns on any file or folder name
 #: under ``out/``): full SB3 models and VecNormalize pickles, replay buffers, resumable checkpoints,
 #: optimiser dumps. They are not part of an entry's :func:`entry_identity` either.
