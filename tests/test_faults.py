@@ -38,6 +38,7 @@ from thesis_repro import paths, report
 out = paths.figures(SCALE) / "fig-9.1.png"
 out.parent.mkdir(parents=True, exist_ok=True)
 out.write_text(f"figure {MODE}")
+print("saved", out)
 report.report("fig-9.1", SCALE, [report.Verdict("9.1", "toy claim", report.NOT_JUDGED, MODE)], display=False)
 if MODE == "fail":
     raise ValueError("the toy notebook failed on purpose")
@@ -99,6 +100,9 @@ def test_failed_notebook_is_one_line_and_leaves_the_previous_outputs_intact(toy,
     assert main(["figure", "9.1", "--scale", "smoke"]) == 0
     good = outputs()
     assert good["fig-9.1.png"] == b"figure ok"
+    # the executed notebook names the figure where it is, not where the kernel wrote it (the staging folder)
+    assert f"saved {paths.figures('smoke') / 'fig-9.1.png'}" in good["fig-9.1.ipynb"].decode()
+    assert ".staging-" not in good["fig-9.1.ipynb"].decode()
     capsys.readouterr()
     # the failing run writes its figure and verdicts before it raises: staged, never swapped in
     assert main(["figure", "9.1", "--scale", "smoke", "-p", "MODE", "fail"]) == 1

@@ -369,9 +369,20 @@ def check_parameters(parameters: dict[str, Any] | None, scale: str) -> dict[str,
     return params
 
 
-def _stamp(out: Path, nid: str, scale: str, parameters: dict[str, Any] | None, seconds: float) -> None:
-    """Remove the dependency cell from the executed notebook and stamp its execution key and modules."""
-    nb = json.loads(out.read_text())
+def _stamp(
+    out: Path,
+    nid: str,
+    scale: str,
+    parameters: dict[str, Any] | None,
+    seconds: float,
+    moved: tuple[Path, Path] | None = None,
+) -> None:
+    """Remove the dependency cell from the executed notebook and stamp its execution key and modules;
+    ``moved`` (staging folder, build folder): the printed paths name the build folder, where the files go."""
+    text = out.read_text()
+    if moved is not None:
+        text = text.replace(json.dumps(str(moved[0]))[1:-1], json.dumps(str(moved[1]))[1:-1])
+    nb = json.loads(text)
     modules = None
     cells = nb["cells"]
     if cells and DEPS_TAG in cells[-1].get("metadata", {}).get("tags", []):
@@ -470,7 +481,7 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
             kill_kernels()  # a no-op unless interrupted or failed before papermill shut the kernel down
         staged.unlink(missing_ok=True)
         seconds = time.time() - t0
-        _stamp(staged_out, nid, scale, parameters, seconds)
+        _stamp(staged_out, nid, scale, parameters, seconds, moved=(stage, build_root))
         _swap_in(stage, build_root, last=staged_out)
         failed.unlink(missing_ok=True)
     finally:
