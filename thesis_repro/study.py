@@ -87,7 +87,7 @@ def _mean_sd(x: np.ndarray) -> str:
 def produce(jobs: Sequence[Job], n_jobs: int = 1, ship: bool = False, commit: bool = False) -> None:
     """Train the jobs that are neither cached nor shipped, ``n_jobs`` at a time; export (and commit) each."""
     from thesis_repro.backends import execute
-    from thesis_repro.runs import export, git_commit, wall_seconds
+    from thesis_repro.runs import _die_with_parent, export, git_commit, wall_seconds
 
     cache = RunCache()
     todo = [j for j in jobs if cache.state(j) not in ("cached", "shipped")]
@@ -110,7 +110,9 @@ def produce(jobs: Sequence[Job], n_jobs: int = 1, ship: bool = False, commit: bo
         return
     import multiprocessing as mp
 
-    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=mp.get_context("spawn")) as pool:
+    with ProcessPoolExecutor(
+        max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent
+    ) as pool:
         futures = {pool.submit(execute, job, str(cache.root), True): job for job in todo}
         pending, t0 = set(futures), time.time()
         while pending:
