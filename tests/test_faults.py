@@ -383,6 +383,17 @@ def test_cli_subprocess_bad_jobs_is_one_line(tmp_path):
     assert_one_error(out.stderr, "--jobs")
 
 
+def test_a_closed_output_pipe_is_no_error():
+    """`python -m thesis_repro runs all | head`: the reader goes away; nothing on stderr."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "thesis_repro", "list"], cwd=paths.ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    proc.stdout.close()  # before the command writes anything
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) != 0
+    assert error_lines(err) == []
+
+
 # ---------------------------------------------------------------- verifiable listings
 @pytest.fixture
 def square_figure(monkeypatch):

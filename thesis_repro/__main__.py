@@ -163,6 +163,10 @@ def _guarded(command: Any) -> int:
     except ValueError as err:
         print(f"error: {_one_line(err)}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader went away (`... runs all | head`): stop quietly
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 1
     except OSError as err:  # an unwritable, full or misplaced folder
         print(f"error: {describe_os_error(err)}", file=sys.stderr)
         return 1
