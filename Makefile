@@ -20,7 +20,7 @@ RAY_STAMP := $(VENV)/.installed-ray
 NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
-.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs runs-% plan-%
+.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs runs-% plan-% verify
 
 venv: $(STAMP)
 
@@ -68,6 +68,13 @@ reference-runs: $(STAMP)
 	nice -n 10 $(BIN)/python -m thesis_repro reference-runs --scale $(SCALE) $(if $(FIGURES),--figures $(FIGURES)) \
 	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS)) $(if $(PROTOCOL),--protocol $(PROTOCOL)) \
 	  $(if $(ALGOS),--algos $(ALGOS)) $(if $(KINDS),--kind $(KINDS))
+
+## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] : recompute a seeded random sample of N shipped evaluations on
+## this machine (temporary cache) and compare: bit-identical on the platform that made them, else rollout means within
+## 5 %; prints a table, fails on a mismatch; TRAIN=1 also retrains the cheapest shipped training run
+verify: $(STAMP)
+	$(BIN)/python -m thesis_repro verify --scale $(SCALE) $(if $(N),-n $(N)) $(if $(SEED),--seed $(SEED)) \
+	  $(if $(TRAIN),--train)
 
 ## make runs-3.3 SCALE=small : where Figure 3.3's runs are (kind, label, key, cached / shipped / missing, path)
 runs-%: $(STAMP)

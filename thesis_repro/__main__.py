@@ -1,5 +1,6 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
-``reference-runs --scale small`` | ``budgets --scale small`` | ``plan 3.3 --scale full --cores 64`` | ``claims ...``.
+``reference-runs --scale small`` | ``budgets --scale small`` | ``plan 3.3 --scale full --cores 64`` | ``claims ...`` |
+``verify --scale small -n 20``.
 
 Every failure a user can cause ends in one ``error: ...`` line on stderr and a non-zero exit code, never a
 traceback: a bad argument or setting (2), a notebook that failed (its own exception, 1), a folder that cannot
@@ -144,6 +145,11 @@ def _main(argv: list[str]) -> int:
     plan_p.add_argument("--envs", nargs="+", default=None, help="only these tasks (a figure's `envs` setting)")
     plan_p.add_argument("--algos", nargs="+", default=None, help="only these learners (a figure's `algos` setting)")
     plan_p.add_argument("--missing", action="store_true", help="only what is neither cached nor shipped yet")
+    ver = sub.add_parser("verify", help="recompute a random sample of shipped evaluations and compare (make verify)")
+    ver.add_argument("--scale", default="small", help="smoke | small | full")
+    ver.add_argument("-n", type=positive_int, default=20, help="how many shipped evaluations, >= 1 (default 20)")
+    ver.add_argument("--seed", type=int, default=None, help="seed of the sample (default: random, printed)")
+    ver.add_argument("--train", action="store_true", help="also retrain the cheapest shipped training run")
     sub.add_parser("claims", help="the thesis's claims ledger (`claims --help` for its commands)", add_help=False)
     if argv[:1] == ["claims"]:  # everything after `claims` is the ledger's own command line
         return _guarded(lambda: _claims(argv[1:]))
@@ -244,6 +250,10 @@ def _command(args: argparse.Namespace) -> int:
             notebooks.execute(nid, args.scale, params)
     elif args.cmd == "plan":
         return _plan_command(args)
+    elif args.cmd == "verify":
+        from thesis_repro import verify
+
+        return verify.main(args)
     elif args.cmd in ("runs", "reference-runs"):
         return _runs_command(args)
     elif args.cmd == "budgets":

@@ -1,0 +1,231 @@
+"""``make verify`` (issue 22 item 3) and shipped evaluations (item 2): the generator ships evaluation entries keyed by
+the shipped policy; ``verify`` recomputes a seeded sample of them and compares (bit-identical on the platform that
+made them, else within ``VERIFY_RTOL``), prints a table and fails on a mismatch. Toy kinds, a temporary layer."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thesis_repro import figures, runs, verify
+from thesis_repro import jobs as registry
+from thesis_repro.__main__ import main
+from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry, save_arrays, write_manifest
+
+
+# ---------------------------------------------------------------- toy kinds (importable by path: the worker imports us)
+def _policy(config: dict, workdir: Path) -> dict:
+    (workdir / "out" / "weights.txt").write_text(str(config["w"]))
+    return {"train_return": float(config["w"])}
+
+
+def _evaluation(config: dict, workdir: Path) -> dict:
+    """An evaluation: loads its policy through the cache that runs it, returns (points x rollouts) returns."""
+    policy = RunCache.current().run(Job("test-verify-policy", config["train"]))
+    if config.get("policy") != policy.identity:
+        raise AssertionError("evaluated another policy than the one its key pins")
+    w = float((policy.out / "weights.txt").read_text())
+    returns = 100.0 * w + np.arange(2 * config["test"]["n"], dtype=np.float64).reshape(2, -1) / 7.0
+    return {"returns": returns, "expected_return": returns.mean(axis=1), "auc": float(returns.sum() / 3.0)}
+
+
+def _deps(config: dict) -> dict:
+    return {"policy": Job("test-verify-policy", config["train"])}
+
+
+registry.register("test-verify-policy", "tests.test_verify:_policy", label=lambda c: f"w{c['w']}")
+registry.register(
+    "test-verify-eval",
+    "tests.test_verify:_evaluation",
+    label=lambda c: f"w{c['train']['w']}__eval",
+    deps="tests.test_verify:_deps",
+    pin=True,
+)
+TRAINS = [{"w": w} for w in (1, 2, 3)]
+
+
+def _eval_job(train: dict) -> Job:
+    return Job("test-verify-eval", {"train": train, "test": {"n": 3}})
+
+
+@pytest.fixture
+def toy_figure(monkeypatch):
+    """A figure making 3 toy policies and their evaluations at every scale; ``verify`` checks the toy kind."""
+
+    @figures.register("_verify", "toy figure", kinds=["test-verify-policy", "test-verify-eval"], settings_id="_example")
+    def _grid(settings):
+        return [Job("test-verify-policy", t) for t in TRAINS] + [_eval_job(t) for t in TRAINS]
+
+    monkeypatch.setattr(verify, "KINDS", ("test-verify-eval",))
+    yield
+    figures.FIGURES.pop("_verify", None)
+
+
+def _generate(layer: Path, kind: str) -> tuple[list[runs.Exported], list[str]]:
+    lines: list[str] = []
+    out = runs.generate("smoke", ["_verify"], kinds=[kind], layer_root=layer, log=lines.append)
+    return out, lines
+
+
+@pytest.fixture
+def layer(toy_figure, tmp_path, monkeypatch) -> Path:
+    """A shipped layer (``THESIS_REPRO_REFERENCE``) with the 3 toy policies and their 3 evaluations."""
+    layer = tmp_path / "reference"
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
+    _generate(layer, "test-verify-policy")
+    _generate(layer, "test-verify-eval")
+    return layer
+
+
+def _evaluations(layer: Path) -> list[Path]:
+    return sorted((layer / "test-verify-eval").iterdir())
+
+
+def _rewrite(entry: Path, edit_returns=None, platform: dict | None = None) -> None:
+    """Forge a shipped entry (a valid manifest, other values or another recorded platform)."""
+    if edit_returns is not None:
+        values, _ = read_entry(entry)
+        returns = edit_returns(np.array(values["returns"]))
+        save_arrays(entry / "arrays.npz", {"returns": returns, "expected_return": returns.mean(axis=1)})
+    if platform is not None:
+        prov = json.loads((entry / "provenance.json").read_text())
+        prov["platform"] = platform
+        (entry / "provenance.json").write_text(json.dumps(prov))
+    write_manifest(entry)
+
+
+# ---------------------------------------------------------------- item 2: the generator ships evaluations
+def test_the_generator_ships_evaluations_keyed_by_the_shipped_policy(toy_figure, tmp_path):
+    layer = tmp_path / "reference"
+    out, lines = _generate(layer, "test-verify-eval")
+    assert out == [] and any("3 test-verify-eval jobs skipped" in line and "not shipped" in line for line in lines)
+
+    assert len(_generate(layer, "test-verify-policy")[0]) == 3
+    out, _ = _generate(layer, "test-verify-eval")
+    assert len(out) == 3 and all(e.path.parent == layer / "test-verify-eval" for e in out)
+    for e in out:
+        files = {p.name for p in e.path.iterdir()}
+        assert {"config.json", "provenance.json", "result.json", "arrays.npz", "manifest.json"} <= files
+        assert e.bytes < 20_000
+    assert _generate(layer, "test-verify-eval")[1][0].endswith(
+        f"3 already shipped, 0 to produce (0 env steps in all) -> {layer}"
+    )
+
+    # a fresh clone loads them (same key: the shipped policy's identity), nothing is re-evaluated
+    clone = RunCache(tmp_path / "clone", reference=layer)
+    assert all(clone.run(_eval_job(t)).source == "shipped" for t in TRAINS)
+    assert runs.check_shipped("smoke", layer) == []  # shipped evaluations count under their bound keys
+
+
+def test_export_requires_an_evaluations_values(tmp_path):
+    cache = RunCache(tmp_path / "runs", reference=False)
+    result = cache.run(Job("square", {"x": 2}))
+    (result.path / "config.json").write_text(
+        json.dumps({**json.loads((result.path / "config.json").read_text()), "kind": "evaluate"})
+    )
+    with pytest.raises(ValueError, match="lacks arrays.npz"):
+        runs.export(result, tmp_path / "layer")
+
+
+# ---------------------------------------------------------------- item 3: make verify
+def test_verify_passes_on_shipped_evaluations(layer, capsys):
+    assert main(["verify", "--scale", "smoke", "-n", "2", "--seed", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "2 of 3 shipped test-verify-eval entries, seed 5 (repeat with --seed 5)" in out
+    assert out.count(" identical") == 2 and "2/2 match" in out and "MISMATCH" not in out
+    header = next(line for line in out.splitlines() if line.startswith("entry"))
+    assert header.split() == ["entry", "shipped", "recomputed", "|diff|", "verdict"]
+    chosen = verify.sample(_evaluations(layer), 2, 5)
+    assert chosen == verify.sample(_evaluations(layer), 2, 5)  # the seed repeats the sample
+    assert all(verify._name(p) in out for p in chosen)
+
+
+def test_verify_fails_on_a_tampered_value_and_applies_the_tolerance_across_platforms(layer, capsys):
+    same, other_ok, other_bad = _evaluations(layer)
+    _rewrite(same, lambda r: r + np.eye(*r.shape))  # one rollout 1.0 higher, on the platform that made it
+    _rewrite(other_ok, lambda r: r * 1.01, platform={"cpu": "another CPU"})  # 1 % off, made elsewhere
+    _rewrite(other_bad, lambda r: r * 1.2, platform={"cpu": "another CPU"})  # 20 % off
+    assert main(["verify", "--scale", "smoke", "-n", "3", "--seed", "0"]) == 1
+    out = capsys.readouterr().out
+    rows = {line.split()[0]: line for line in out.splitlines() if line.startswith("w")}
+    row = rows[verify._name(same)]
+    assert "MISMATCH: same platform but not bit-identical" in row and row.split()[3] == "1"  # |diff|
+    assert "within 5% (another platform" in rows[verify._name(other_ok)]
+    assert "MISMATCH: rollout means differ by" in rows[verify._name(other_bad)]
+    assert "1/3 match; 2 MISMATCH" in out
+
+
+def test_verify_reports_a_corrupt_entry_and_skips_one_whose_policy_is_not_shipped(layer, capsys):
+    by_train = {json.dumps(read_entry(p)[1]["config"]["train"]): p for p in _evaluations(layer)}
+    orphan, corrupt = by_train[json.dumps(TRAINS[0])], by_train[json.dumps(TRAINS[1])]
+    shutil.rmtree(find_entry(layer, Job("test-verify-policy", TRAINS[0])))  # its evaluation is stale now
+    (corrupt / "result.json").write_text("{}")  # fails its manifest
+    assert main(["verify", "--scale", "smoke", "-n", "3", "--seed", "0"]) == 1
+    out = capsys.readouterr().out
+    assert "2 of 2 shipped test-verify-eval entries" in out and "1 other shipped test-verify-eval entries" in out
+    assert verify._name(orphan) not in out
+    rows = {line.split()[0]: line for line in out.splitlines() if line.startswith("w")}
+    assert "MISMATCH: shipped entry is corrupt" in rows[verify._name(corrupt)]
+
+
+def test_verify_with_no_shipped_evaluations_says_so(toy_figure, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path / "empty"))
+    assert main(["verify", "--scale", "smoke"]) == 0
+    out = capsys.readouterr().out
+    assert "no shipped evaluations yet at scale smoke" in out and "nothing verified" in out
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["verify", "-n", "0"], "error: argument -n: invalid value '0'; valid values are integers >= 1"),
+        (["verify", "-n", "-3"], "error: argument -n: invalid value '-3'; valid values are integers >= 1"),
+        (["verify", "--scale", "medium"], "error: unknown scale 'medium'; valid scales are: 'smoke', 'small', 'full'"),
+    ],
+)
+def test_verify_bad_input_is_one_error_line(argv, says, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(says)
+
+
+def test_verify_run_checks_n():
+    with pytest.raises(ValueError, match="valid values are integers >= 1"):
+        verify.run("smoke", 0)
+
+
+# ---------------------------------------------------------------- the rules
+def test_compare_rules():
+    a = {"returns": np.array([[100.0, 200.0]]), "auc": 3.0, "label": "x"}
+    assert verify.compare(a, a, same=True).verdict == "identical"
+    near = {**a, "returns": np.array([[90.0, 211.0]])}  # rollouts differ, their mean by 0.3 %
+    assert not verify.compare(a, near, same=True).ok
+    assert verify.compare(a, near, same=False).ok and verify.compare(a, near, same=None).ok
+    assert "platform not recorded" in verify.compare(a, near, same=None).verdict
+    assert not verify.compare(a, {**a, "auc": 3.0 * 1.2}, same=False).ok
+    assert not verify.compare(a, {**a, "label": "y"}, same=False).ok
+    assert "different values" in verify.compare(a, {"returns": a["returns"], "label": "x"}, same=False).verdict
+    nan = {"returns": np.array([[np.nan, 1.0]])}
+    assert verify.compare(nan, nan, same=True).verdict == "identical"
+    check = verify.compare(a, near, same=False, entry="e")
+    assert check.row()["shipped"] == "150.00" and check.row()["|diff|"] == "11"
+    assert verify.VERIFY_RTOL == runs.OUTCOME_RTOL
+
+
+def _train_entry(tmp_path: Path, resumed_from: int, start: str) -> Result:
+    path = tmp_path / f"r{resumed_from}-{start[:10]}"
+    path.mkdir()
+    (path / "provenance.json").write_text(json.dumps({"start": start}))
+    return Result(path, {"resumed_from": resumed_from}, {}, source="shipped")
+
+
+def test_resume_note_says_whether_the_shipped_run_was_resumed_exactly(tmp_path):
+    assert "without interruption" in verify.resume_note(_train_entry(tmp_path, 0, "2026-11-20T00:00:00+00:00"))
+    before = verify.resume_note(_train_entry(tmp_path, 20480, "2026-11-20T00:00:00+00:00"))
+    assert "resumed from step 20,480 before exact resume landed" in before and "NOT" in before
+    after = verify.resume_note(_train_entry(tmp_path, 20480, "2026-11-25T10:00:00+00:00"))
+    assert "after exact resume landed" in after and "bit-identical" in after

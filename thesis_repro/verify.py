@@ -1,0 +1,427 @@
+"""``make verify SCALE=small [N=20] [SEED=...] [TRAIN=1]``: are the shipped numbers real on this machine?
+
+Picks a seeded random sample (seed printed, so a run can be repeated) of ``N`` shipped evaluation entries of a
+scale (``data/reference/evaluate/``, keys made by that scale's figures), recomputes each into a temporary run
+cache (never ``data/runs``) from the shipped policy it pins, and compares the values with the shipped ones:
+
+* **same platform** (:func:`thesis_repro.runs.same_platform`: the entry's ``provenance.json`` records this
+  machine's CPU, SIMD kernels, PyTorch CPU capability and NumPy SIMD): evaluation is deterministic, so every
+  value must be bit-identical;
+* **another platform, or one not recorded**: individual rollouts may differ (see :data:`VERIFY_RTOL`), the
+  averages over the rollouts must agree within :data:`VERIFY_RTOL`.
+
+It prints a table (entry, shipped value, recomputed value, largest |diff| of any value, verdict) and exits 1 on
+a mismatch. With ``--train`` it also retrains the cheapest shipped training run of the scale from scratch (into
+the temporary cache) and checks it with :func:`thesis_repro.runs.compare_retrain`, saying whether the shipped
+run was resumed after an interruption and whether that resume was exact.
+
+>>> compare({"r": np.array([[1.0, 2.0]])}, {"r": np.array([[1.0, 2.0]])}, same=True).verdict
+'identical'
+>>> compare({"r": np.array([[100.0, 200.0]])}, {"r": np.array([[120.0, 182.0]])}, same=False).verdict
+'within 5% (another platform: rollout means differ by 0.7%)'
+>>> compare({"r": np.array([[100.0, 200.0]])}, {"r": np.array([[100.0, 200.1]])}, same=True).ok
+False
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import secrets
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import thesis_repro
+from thesis_repro import jobs as registry
+from thesis_repro import paths, runs, scales
+from thesis_repro.cache import Result, RunCache, find_entry, read_entry
+
+#: Shipped kinds whose entries ``verify`` recomputes (evaluations: seconds to minutes each, from a shipped policy).
+KINDS: tuple[str, ...] = ("evaluate",)
+#: Tolerance across platforms: |shipped - recomputed| <= VERIFY_RTOL * max(|shipped|, |recomputed|, 1) for every
+#: value averaged over the rollouts (each test point's mean return and length, AUC, scalars). MuJoCo and the
+#: policy's torch forward pass round differently on another CPU (other MKL/oneDNN/ATen SIMD kernels, other float
+#: reduction orders), and a 1,000-step locomotion rollout amplifies those last bits until single rollouts are other
+#: samples (a fall or not); means over the rollouts move far less. 5 % is the kit's cross-platform rule for a
+#: retrained run's returns too (:data:`thesis_repro.runs.OUTCOME_RTOL`). On the platform that made the entry the
+#: rule is bit-identity: the kit claims evaluation is deterministic there.
+VERIFY_RTOL = runs.OUTCOME_RTOL
+#: Default sample size (``make verify N=...``).
+DEFAULT_N = 20
+#: Commit and time at which exact resume landed (58d06f8): a training run resumed in a session that started
+#: earlier is not bit-identical to an uninterrupted one; one resumed later is.
+EXACT_RESUME_COMMIT = "58d06f86adddc45e7c97db6eb2b2491a31e0b4cf"
+EXACT_RESUME_TIME = "2026-11-25T08:51:58+00:00"
+
+
+# ---------------------------------------------------------------- comparing values
+@dataclass(frozen=True)
+class Check:
+    """One compared entry: its name, headline values (shipped, recomputed), largest |diff| and verdict."""
+
+    entry: str
+    shipped: float | None
+    recomputed: float | None
+    diff: float | None
+    verdict: str
+    ok: bool
+
+    def row(self) -> dict[str, str]:
+        def num(v: float | None, fmt: str = ".2f") -> str:
+            return "-" if v is None else format(v, fmt)
+
+        return {
+            "entry": self.entry,
+            "shipped": num(self.shipped),
+            "recomputed": num(self.recomputed),
+            "|diff|": num(self.diff, ".3g"),
+            "verdict": self.verdict,
+        }
+
+
+def _numeric(values: Mapping[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """``values`` split into float arrays (numbers, numeric arrays and lists) and everything else."""
+    nums, other = {}, {}
+    for k, v in values.items():
+        arr = np.asarray(v) if not isinstance(v, Mapping | str) and v is not None else None
+        if arr is not None and arr.dtype.kind in "biuf":
+            nums[k] = arr.astype(np.float64)
+        else:
+            other[k] = v
+    return nums, other
+
+
+def headline(values: Mapping[str, Any]) -> float | None:
+    """The number a row shows: the mean test return (over every point and rollout) of an evaluation, else the
+    first numeric scalar (by name), else ``None``."""
+    for name in ("returns", "expected_return"):
+        if name in values:
+            return float(np.mean(np.asarray(values[name], dtype=np.float64)))
+    nums, _ = _numeric(values)
+    return next((float(a) for k, a in sorted(nums.items()) if a.ndim == 0), None)
+
+
+def _averaged(arr: np.ndarray) -> np.ndarray:
+    """What must agree across platforms: the mean over the last axis (rollouts) of a 2-D or deeper array."""
+    return arr.mean(axis=-1) if arr.ndim >= 2 else arr
+
+
+def compare(
+    shipped: Mapping[str, Any],
+    fresh: Mapping[str, Any],
+    same: bool | None,
+    rtol: float = VERIFY_RTOL,
+    entry: str = "",
+) -> Check:
+    """Compare a shipped entry's values with their recomputation (see the module docstring for the rule)."""
+    a_num, a_other = _numeric(shipped)
+    b_num, b_other = _numeric(fresh)
+    a_h, b_h = headline(shipped), headline(fresh)
+
+    def check(diff: float | None, verdict: str, ok: bool) -> Check:
+        return Check(entry, a_h, b_h, diff, verdict, ok)
+
+    if a_num.keys() != b_num.keys() or any(a_num[k].shape != b_num[k].shape for k in a_num):
+        diff = sorted(a_num.keys() ^ b_num.keys()) or [k for k in a_num if a_num[k].shape != b_num[k].shape]
+        return check(None, f"MISMATCH: different values ({', '.join(diff[:3])})", False)
+    if a_other != b_other:
+        names = sorted(k for k in a_other.keys() | b_other.keys() if a_other.get(k) != b_other.get(k))
+        return check(None, f"MISMATCH: {', '.join(names[:3])} differ", False)
+    diffs = [np.abs(a_num[k] - b_num[k]) for k in a_num if a_num[k].size]
+    nan_same = all(np.array_equal(np.isnan(a_num[k]), np.isnan(b_num[k])) for k in a_num)
+    diff = max((float(np.nanmax(d)) if not np.all(np.isnan(d)) else 0.0 for d in diffs), default=0.0)
+    if nan_same and diff == 0.0:
+        return check(0.0, "identical", True)
+    if same:
+        return check(diff, "MISMATCH: same platform but not bit-identical", False)
+    where = "another platform" if same is False else "platform not recorded"
+    rel = 0.0
+    for k in a_num:
+        x, y = _averaged(a_num[k]), _averaged(b_num[k])
+        if not np.array_equal(np.isnan(x), np.isnan(y)):
+            return check(diff, f"MISMATCH: {k} is NaN in one of them ({where})", False)
+        scale = np.maximum(np.maximum(np.abs(x), np.abs(y)), 1.0)
+        r = np.abs(x - y) / scale
+        if r.size and not np.all(np.isnan(r)):
+            rel = max(rel, float(np.nanmax(r)))
+    if rel <= rtol:
+        return check(diff, f"within {rtol:.0%} ({where}: rollout means differ by {rel:.1%})", True)
+    return check(diff, f"MISMATCH: rollout means differ by {rel:.1%} > {rtol:.0%} ({where})", False)
+
+
+# ---------------------------------------------------------------- which entries
+def shipped_of_scale(scale: str, layer: Path, kinds: Iterable[str] = KINDS) -> tuple[list[Path], list[Path]]:
+    """Shipped entries of ``kinds`` in ``layer`` that ``scale``'s figures make (keys bound to the shipped
+    policies), and the other shipped entries of those kinds (stale, or of another scale)."""
+    kinds = tuple(kinds)
+    entries = [p for p in runs.shipped_entries(layer) if p.parent.name in kinds]
+    if not entries:
+        return [], []
+    keys = runs.current_keys(scale, kinds, layer_root=layer)
+    ours = [p for p in entries if p.name.rsplit("__", 1)[1] in keys]
+    return ours, [p for p in entries if p not in ours]
+
+
+def sample(entries: Sequence[Path], n: int, seed: int) -> list[Path]:
+    """``n`` of ``entries`` (all if fewer) drawn with ``random.Random(seed)``, in listing order."""
+    chosen = random.Random(seed).sample(list(entries), min(n, len(entries)))
+    return sorted(chosen)
+
+
+def _name(path: Path) -> str:
+    label, key = path.name.rsplit("__", 1)
+    return f"{label}__{key[:8]}"
+
+
+# ---------------------------------------------------------------- recomputing
+def numerics_env(path: Path) -> dict[str, str]:
+    """Environment variables that recompute entry ``path`` in the float numerics it was made in
+    (``runs.numerics_env``: MKL's branch and ATen's CPU capability as its provenance records them), so that
+    the same machine gives the same bits; ``{}`` (this process's settings) where the kit does not record them."""
+    fn = getattr(runs, "numerics_env", None)
+    return dict(fn(path)) if fn is not None else {}
+
+
+#: The worker process of :func:`recompute_all` (run with ``python -c``; ``sys.argv[1]`` is its spec file).
+_WORKER = "import sys; from thesis_repro.verify import _worker; _worker(sys.argv[1])"
+
+
+def _worker(spec_file: str) -> None:
+    """Recompute the entries a spec names (``entries``: ``[index, path]``) into ``root``, their dependencies read
+    from ``layer``; write ``{path: fresh entry path or "error: ..."}`` to ``out``."""
+    import importlib
+
+    import torch
+
+    torch.set_num_threads(1)  # as the pool workers that compute a figure's entries
+    spec = json.loads(Path(spec_file).read_text())
+    for module in spec["modules"]:  # modules registering the kinds (a test's own kinds)
+        importlib.import_module(module)
+    cache = RunCache(spec["root"], reference=Path(spec["layer"]))
+    out: dict[str, str] = {}
+    for i, path in spec["entries"]:
+        t0 = time.time()
+        try:
+            fresh = cache.compute(runs.shipped_job(path))  # compute, never load: the shipped entry is in the layer
+            out[path] = str(fresh)
+            said = "recomputed"
+        except Exception as err:  # noqa: BLE001 - a recomputation that fails is a failed check, shown in the table
+            out[path] = f"error: {_one_line(err)}"
+            said = out[path]
+        print(f"  [{i}/{spec['total']}] {_name(Path(path))}: {said} ({time.time() - t0:.0f} s)", flush=True)
+    Path(spec["out"]).write_text(json.dumps(out))
+
+
+def _modules(kinds: Iterable[str]) -> list[str]:
+    hooks = [registry.KINDS.get(k, "") for k in kinds] + [registry.DEPENDENCIES.get(k, "") for k in kinds]
+    return sorted({h.split(":")[0] for h in hooks if h})
+
+
+def recompute_all(entries: Sequence[Path], layer: Path, root: Path) -> dict[Path, Path | str]:
+    """Recompute each shipped entry into a cache at ``root`` (dependencies read from ``layer``; nothing written
+    anywhere else), in one worker process per set of numerics (:func:`numerics_env`), entries that share them
+    together. Returns ``{entry: fresh entry folder, or "error: ..."}``."""
+    root.mkdir(parents=True, exist_ok=True)
+    groups: dict[tuple[tuple[str, str], ...], list[tuple[int, Path]]] = {}
+    for i, path in enumerate(entries, 1):
+        groups.setdefault(tuple(sorted(numerics_env(path).items())), []).append((i, path))
+    pinned = set(getattr(thesis_repro, "PORTABLE_NUMERICS", {}))
+    out: dict[Path, Path | str] = {}
+    for g, (env_items, members) in enumerate(groups.items()):
+        spec_file, out_file = root / f".verify-spec-{g}.json", root / f".verify-out-{g}.json"
+        spec = {
+            "entries": [[i, str(p)] for i, p in members],
+            "total": len(entries),
+            "root": str(root),
+            "layer": str(layer),
+            "out": str(out_file),
+            "modules": _modules({p.parent.name for _, p in members}),
+        }
+        spec_file.write_text(json.dumps(spec))
+        env = {k: v for k, v in os.environ.items() if not (env_items and k in pinned)}
+        env.update(dict(env_items))
+        proc = subprocess.run([sys.executable, "-c", _WORKER, str(spec_file)], env=env, cwd=paths.ROOT, check=False)
+        done = json.loads(out_file.read_text()) if out_file.exists() else {}
+        for _, p in members:
+            got = done.get(str(p), f"error: the worker process ended with code {proc.returncode}")
+            out[p] = got if got.startswith("error: ") else Path(got)
+    return out
+
+
+def _provenance(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads((path / "provenance.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def same_numerics(shipped: Path, fresh: Path) -> bool | None:
+    """Were ``shipped`` and its recomputation ``fresh`` made on equal platforms
+    (:func:`~thesis_repro.cache.platform_info`) in equal numerics (where ``shipped`` records them)? Then the kit
+    claims bit-identity. ``None`` if ``shipped`` does not record its platform."""
+    a, b = _provenance(shipped), _provenance(fresh)
+    if a.get("platform") is None:
+        return None
+    same = a["platform"] == b.get("platform")
+    if a.get("numerics") is not None:
+        same = same and a["numerics"] == b.get("numerics")
+    return same
+
+
+def check_entry(path: Path, fresh: Path | str) -> Check:
+    """Compare shipped entry ``path`` with its recomputation ``fresh`` (or the error that stopped it)."""
+    name = _name(path)
+    try:
+        shipped_values, _ = read_entry(path)
+    except Exception as err:  # noqa: BLE001 - any failure to read means the entry is unusable
+        return Check(name, None, None, None, f"MISMATCH: shipped entry is corrupt ({_one_line(err)})", False)
+    if isinstance(fresh, str):
+        return Check(name, headline(shipped_values), None, None, f"MISMATCH: {fresh.removeprefix('error: ')}", False)
+    fresh_values, _ = read_entry(fresh)
+    return compare(shipped_values, fresh_values, same_numerics(path, fresh), entry=name)
+
+
+def missing_dependencies(path: Path, layer: Path) -> list[str]:
+    """Names of the dependencies (``policy``) of shipped entry ``path`` that ``layer`` does not hold."""
+    job = runs.shipped_job(path)
+    return [n for n, dep in registry.dependencies(job.kind, job.config).items() if find_entry(layer, dep) is None]
+
+
+def _one_line(err: BaseException) -> str:
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+def resume_note(result: Result) -> str:
+    """Whether the shipped training run ``result`` was resumed, and whether that resume was exact."""
+    step = int(result.get("resumed_from") or 0)
+    if step <= 0:
+        return "the shipped run trained without interruption (resumed_from 0)"
+    try:
+        start = datetime.fromisoformat(result.provenance["start"])
+    except (OSError, KeyError, ValueError):
+        start = None
+    if start is not None and start >= datetime.fromisoformat(EXACT_RESUME_TIME):
+        return (
+            f"the shipped run was resumed from step {step:,} after exact resume landed ({EXACT_RESUME_COMMIT[:7]}): "
+            "it equals an uninterrupted run, so a retrain on the same platform must be bit-identical"
+        )
+    return (
+        f"the shipped run was resumed from step {step:,} before exact resume landed ({EXACT_RESUME_COMMIT[:7]}, "
+        f"{EXACT_RESUME_TIME[:10]}): it is NOT the uninterrupted run, so a retrain differs even on the same "
+        "platform (regenerate it)"
+    )
+
+
+def retrain_check(scale: str, layer: Path, root: Path, log: Callable[[str], None] = print) -> bool:
+    """Retrain the cheapest shipped training run of ``scale`` into a cache at ``root`` and compare it with the
+    shipped one (:func:`thesis_repro.runs.compare_retrain`); ``True`` if it passes (or there is none)."""
+    from thesis_repro import figures
+
+    keys = runs.current_keys(scale, figures.TRAINING_KINDS, layer_root=layer)
+    job = runs.cheapest_shipped("train", layer, keys=keys)
+    if job is None:
+        log(f"--train: no shipped training run at scale {scale}; nothing to retrain")
+        return True
+    where = find_entry(layer, job)
+    values, config = read_entry(where)
+    shipped = Result(where, values, config, source="shipped")
+    log(f"--train: retraining the cheapest shipped training run, {job.label} ({runs.cost(job):,.0f} steps) ...")
+    t0 = time.time()
+    recompute = getattr(runs, "recompute", None)  # in the numerics the shipped run was made in, where recorded
+    fresh = recompute(job, root, shipped) if recompute is not None else RunCache(root, reference=False).run(job)
+    check = runs.compare_retrain(shipped, fresh)
+    log(f"--train: {check.message} ({time.time() - t0:.0f} s)")
+    log(f"--train: {resume_note(shipped)}")
+    log(f"--train: {'ok' if check.ok else 'MISMATCH'}")
+    return check.ok
+
+
+# ---------------------------------------------------------------- the command
+def check_n(n: int) -> int:
+    """``-n``: an integer >= 1, else a ``ValueError``."""
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        raise ValueError(f"-n: invalid value {n!r}; valid values are integers >= 1")
+    return int(n)
+
+
+def run(
+    scale: str,
+    n: int = DEFAULT_N,
+    seed: int | None = None,
+    train: bool = False,
+    layer_root: str | Path | None = None,
+    kinds: Iterable[str] | None = None,
+    log: Callable[[str], None] = print,
+) -> int:
+    """``python -m thesis_repro verify``: the exit code (0 all checks pass, 1 a mismatch)."""
+    scales.check_scale(scale)
+    n = check_n(n)
+    layer = Path(layer_root) if layer_root is not None else paths.reference()
+    seed = secrets.randbelow(2**31) if seed is None else int(seed)
+    kinds = tuple(kinds or KINDS)
+    ours, others = shipped_of_scale(scale, layer, kinds)
+    what = "/".join(kinds)
+    tmp = Path(tempfile.mkdtemp(prefix="thesis-repro-verify-"))
+    ok = True
+    try:
+        if not ours:
+            log(
+                f"no shipped evaluations yet at scale {scale} ({what} entries in {layer}: {len(others)} of other "
+                "scales or stale); nothing to re-evaluate"
+            )
+            if not train:
+                log(f"nothing verified; `make verify SCALE={scale} TRAIN=1` retrains the cheapest shipped training run")
+        else:
+            chosen = sample(ours, n, seed)
+            log(
+                f"verify ({scale}): {len(chosen)} of {len(ours)} shipped {what} entries, seed {seed} "
+                f"(repeat with --seed {seed}); recomputed in {tmp}; tolerance across platforms {VERIFY_RTOL:.0%} "
+                "of the rollout means, bit-identical on the platform that made the entry"
+            )
+            if others:
+                log(
+                    f"({len(others)} other shipped {what} entries are not made by the {scale} figures from the shipped "
+                    "policies: of another scale, or stale (`runs --check`); skipped)"
+                )
+            checks: dict[Path, Check] = {}
+            for path in chosen:
+                try:
+                    missing = missing_dependencies(path, layer)
+                except Exception as err:  # noqa: BLE001 - e.g. a config that no longer hashes to its key
+                    checks[path] = check_entry(path, f"error: {_one_line(err)}")
+                    continue
+                if missing:
+                    checks[path] = check_entry(path, f"error: its {', '.join(missing)} is not shipped")
+            todo = [p for p in chosen if p not in checks]
+            for path, fresh in recompute_all(todo, layer, tmp / "runs").items():
+                checks[path] = check_entry(path, fresh)
+            checks = {p: checks[p] for p in chosen}
+            log("")
+            rows = [c.row() for c in checks.values()]
+            log(runs.table(rows, ("entry", "shipped", "recomputed", "|diff|", "verdict")))
+            bad = sum(not c.ok for c in checks.values())
+            ok = not bad
+            log(f"\n{len(checks) - bad}/{len(checks)} match" + (f"; {bad} MISMATCH" if bad else ""))
+        if train:
+            ok = retrain_check(scale, layer, tmp / "train", log) and ok
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0 if ok else 1
+
+
+def main(args: argparse.Namespace) -> int:
+    """The ``verify`` subcommand (``args``: ``scale``, ``n``, ``seed``, ``train``)."""
+    return run(args.scale, args.n, args.seed, args.train)
