@@ -209,8 +209,13 @@ def test_retrain_comparison_is_bit_exact_on_the_same_platform_else_by_outcome(tm
     prov = entry / "provenance.json"
     prov.write_text(json.dumps({"wall_seconds": 1.0}))
     assert runs.same_platform(entry) is None  # runs made before the platform was recorded
-    prov.write_text(json.dumps({"platform": platform_info()}))
+    import thesis_repro
+
+    prov.write_text(json.dumps({"platform": platform_info(), "numerics": thesis_repro.numerics()}))
     assert runs.same_platform(entry) is True
+    # same CPU, other numerics: a run made before the numerics were pinned (native MKL dispatch)
+    prov.write_text(json.dumps({"platform": platform_info()}))
+    assert runs.same_platform(entry) is False
     prov.write_text(json.dumps({"platform": {**platform_info(), "torch_cpu_capability": "NO AVX"}}))
     assert runs.same_platform(entry) is False
     # same platform: only weights count; elsewhere both returns within OUTCOME_RTOL of the larger one
