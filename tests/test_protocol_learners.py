@@ -258,3 +258,28 @@ def test_thesis_protocol_runs_resume_exactly(tmp_path, algo, over):
         th.load(tmp_path / r / "out" / "policy.pth", weights_only=False)["state_dict"] for r in ("straight", "resumed")
     )
     assert all(th.equal(a[k], b[k]) for k in a)
+
+
+# ------------------------------------------------------------- MAML-DG's outer update: cached gradient objects
+def _two_outer_updates(protocol: str) -> tuple[th.Tensor, float]:
+    model = model_for(tiny("ppo-maml-dg", protocol=protocol, seed=2, **DOM))
+    np.random.seed(7)
+    model.learn(2 * 2 * 2 * 64)  # two iterations: two outer updates
+    return th.cat([p.detach().reshape(-1) for p in model.policy.parameters()]), float(np.random.rand())
+
+
+@pytest.mark.parametrize("protocol", ["thesis", "kit-v1"])
+def test_maml_outer_update_with_cached_gradient_objects_is_bit_identical(monkeypatch, protocol):
+    """The PPO outer update builds each sub-policy's gradient recorder and closed-form path once per update;
+    rebuilding them for every gradient (the earlier code) gives the same parameters, bit for bit."""
+    cached, draw = _two_outer_updates(protocol)
+    real, calls = md.post_adaptation_gradient, []
+
+    def fresh(policy, data, recorder=None, manual=None, **kw):
+        calls.append(recorder is not None and manual is not None)  # the update passed its caches ...
+        return real(policy, data, **kw)  # ... which are dropped: fresh objects for every gradient
+
+    monkeypatch.setattr(md, "post_adaptation_gradient", fresh)
+    rebuilt, draw_rebuilt = _two_outer_updates(protocol)
+    assert calls and all(calls)
+    assert th.equal(cached, rebuilt) and draw == draw_rebuilt

@@ -330,7 +330,7 @@ def ppo_epochs(
     normalize_advantage: bool = True,
     target_kl: float | None = None,
     permutation: Any = None,
-    manual: bool | None = None,
+    manual: bool | _ManualActorCritic | None = None,
 ) -> dict[str, Any]:
     """SB3's PPO update (``PPO.train`` minus bookkeeping) on ``data``; returns its training statistics.
 
@@ -338,7 +338,8 @@ def ppo_epochs(
     ``batch_size`` in that order, the clipped surrogate + ``vf_coef``·value + ``ent_coef``·entropy loss,
     grad-norm clipping at ``max_grad_norm``, ``optimizer.step()``; stops when the approximate KL of a
     minibatch exceeds 1.5·``target_kl`` (before stepping it), as SB3. ``manual`` forces (True) or forbids
-    (False) the closed-form path; None: closed form when the policy supports it.
+    (False) the closed-form path; None: closed form when the policy supports it; a prebuilt
+    ``_ManualActorCritic.build(policy)`` is used as is (callers that take many small updates build it once).
 
     Returns the means SB3 logs (``policy_gradient_loss``, ``value_loss``, ``entropy_loss``, ``clip_fraction``
     over all minibatches; ``approx_kl`` over the last epoch; ``loss`` of the last minibatch),
@@ -348,7 +349,12 @@ def ppo_epochs(
     if n == 0:
         raise ValueError("ppo_epochs needs a non-empty batch")
     perm_fn = np.random.permutation if permutation is None else permutation
-    mac = _ManualActorCritic.build(policy) if manual is not False else None
+    if isinstance(manual, _ManualActorCritic):
+        if manual.policy is not policy:
+            raise ValueError("the prebuilt closed-form path belongs to another policy")
+        mac: _ManualActorCritic | None = manual
+    else:
+        mac = _ManualActorCritic.build(policy) if manual is not False else None
     if manual and mac is None:
         raise ValueError(f"policy {type(policy).__name__} has no closed-form PPO path; use manual=None")
     params = mac.params if mac is not None else list(policy.parameters())

@@ -62,7 +62,7 @@ from torch import nn
 from thesis_repro.envs.vec import LeanVecEnv
 from thesis_repro.envs.wrappers import _EpisodeDomain
 from thesis_repro.learners.config import AGGREGATES, EPOPT_RANKS, META_UPDATES
-from thesis_repro.learners.fast import FastPPO, RolloutTensors, ppo_epochs, rollout_tensors
+from thesis_repro.learners.fast import FastPPO, RolloutTensors, _ManualActorCritic, ppo_epochs, rollout_tensors
 from thesis_repro.mdl import aggregate as agg
 from thesis_repro.validation import check_choice, check_nonneg
 
@@ -193,12 +193,20 @@ class _GradRecorder(th.optim.Optimizer):
 
 
 def post_adaptation_gradient(
-    policy: ActorCriticPolicy, data: RolloutTensors, **ppo_kwargs: Any
+    policy: ActorCriticPolicy,
+    data: RolloutTensors,
+    *,
+    recorder: _GradRecorder | None = None,
+    manual: _ManualActorCritic | None = None,
+    **ppo_kwargs: Any,
 ) -> dict[str, th.Tensor]:
     """Gradient of the PPO loss at ``policy``'s CURRENT parameters on ``data`` (one full batch, clipped at
-    ``max_grad_norm`` as every PPO step); the parameters are not changed. ``ppo_kwargs``: of :func:`ppo_epochs`."""
-    rec = _GradRecorder(list(policy.named_parameters()))
-    ppo_epochs(policy, rec, data, n_epochs=1, batch_size=len(data), **ppo_kwargs)
+    ``max_grad_norm`` as every PPO step); the parameters are not changed. ``ppo_kwargs``: of :func:`ppo_epochs`.
+
+    ``recorder`` (a ``_GradRecorder`` of ``policy``) and ``manual`` (``_ManualActorCritic.build(policy)``) may be
+    built once by a caller taking many gradients of one policy: the same numbers, without rebuilding them."""
+    rec = recorder if recorder is not None else _GradRecorder(list(policy.named_parameters()))
+    ppo_epochs(policy, rec, data, n_epochs=1, batch_size=len(data), manual=manual, **ppo_kwargs)
     return rec.grads
 
 
@@ -661,16 +669,21 @@ class MAMLDG(_MetaPPO):
         main = dict(self.policy.named_parameters())
         kwargs = self._ppo_kwargs()
         n = min(len(d) for d in self._post_data)
+        # built once per update (the same numbers as building them per gradient: tests/test_protocol_learners.py)
+        cached = [(_GradRecorder(list(s.named_parameters())), _ManualActorCritic.build(s)) for s in self.sub_policies]
         count = 0
         for _ in range(self.n_epochs):
             perms = [th.as_tensor(np.random.permutation(len(d)), dtype=th.long) for d in self._post_data]
             for lo in range(0, n, self.batch_size):
                 grads = []
-                for sub, shift, data, perm in zip(self.sub_policies, self._shifts, self._post_data, perms, strict=True):
+                for sub, (rec, mac), shift, data, perm in zip(
+                    self.sub_policies, cached, self._shifts, self._post_data, perms, strict=True
+                ):
                     with th.no_grad():
                         for name, p in sub.named_parameters():
                             p.copy_(main[name] + shift[name])
-                    grads.append(post_adaptation_gradient(sub, data.index(perm[lo : lo + self.batch_size]), **kwargs))
+                    batch = data.index(perm[lo : lo + self.batch_size])
+                    grads.append(post_adaptation_gradient(sub, batch, recorder=rec, manual=mac, **kwargs))
                 fomaml_meta_step(self.policy, grads, self.policy.optimizer)
                 count += 1
         return count
