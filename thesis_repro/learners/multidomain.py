@@ -10,12 +10,14 @@ of the rollout (the whole buffer, one env's column or a masked subset); the aggr
 **Domains.** The training VecEnv has one env per domain (``n_envs`` = N, ``n_steps`` = T, so one iteration
 collects N·T steps as the thesis's batches); what differs between domains is what the env settings randomise
 once per episode (chapter 4's wind ξ, chapter 3's dom Θ ~ N(Θ0, Σ)). One ``VecNormalize`` over all of them is
-the shared observation filter. Per iteration:
+the shared observation filter. With ``domain_per_batch`` (thesis protocol) the sequential meta-learners instead
+hold ONE domain Θ_i per env for the whole iteration (Alg 1/2; :class:`_MetaPPO`). Per iteration:
 
 * ``joint`` (= PPO-MDL) is plain PPO on the merged batch, i.e. :class:`~thesis_repro.learners.fast.FastPPO`
   itself (no class here);
-* :class:`EPOpt`: PPO on the trajectories whose return is in the worst ε fraction (:func:`epopt_mask`;
-  Rajeswaran et al. 2016);
+* :class:`EPOpt`: PPO on the trajectories whose return is in the worst ε fraction (Rajeswaran et al. 2016):
+  complete episodes by full return (:func:`complete_episode_mask`, the thesis protocol's ``epopt_rank:
+  episodes``) or batch fragments by partial return (:func:`epopt_mask`, kit-v1);
 * :class:`SubPolicyAggregation` (Alg 3): one sub-policy per domain, each updated by PPO on its own column from
   θ_old; after every epoch (``aggregate_every_epoch``) the sub-policies are aggregated by ``aggregate``:
   ``params_avg`` (Eq 4.6), ``kl_avg`` (Eq 4.10/4.11) or ``kl_exact`` (the exact minimiser of Eq 4.7), value
