@@ -2,11 +2,13 @@
 
 Picks a seeded random sample (seed printed, so a run can be repeated) of ``N`` shipped evaluation entries of a
 scale (``data/reference/evaluate/``, keys made by that scale's figures), recomputes each into a temporary run
-cache (never ``data/runs``) from the shipped policy it pins, and compares the values with the shipped ones:
+cache (never ``data/runs``) from the shipped policy it pins, in a worker process with the float numerics the
+entry records (:func:`numerics_env`), and compares the values with the shipped ones:
 
-* **same platform** (:func:`thesis_repro.runs.same_platform`: the entry's ``provenance.json`` records this
-  machine's CPU, SIMD kernels, PyTorch CPU capability and NumPy SIMD): evaluation is deterministic, so every
-  value must be bit-identical;
+* **same platform** (:func:`same_numerics`: the recomputation's ``provenance.json`` records the same platform
+  as the shipped entry's, as :func:`thesis_repro.runs.same_platform` compares them: CPU, SIMD kernels, PyTorch CPU
+  capability, NumPy SIMD; and the same numerics): evaluation is deterministic, so every value must be
+  bit-identical;
 * **another platform, or one not recorded**: individual rollouts may differ (see :data:`VERIFY_RTOL`), the
   averages over the rollouts must agree within :data:`VERIFY_RTOL`.
 
