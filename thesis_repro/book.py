@@ -262,40 +262,13 @@ def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[s
 
 
 def scoreboard(executed: list[str], scale: str) -> str:
-    """One-screen scoreboard: verdict counts per chapter at ``scale``, plus pages without a verdict."""
-    pages = {notebooks.page_id(n): notebooks.chapter(n) for n in executed}
-    for page in claims():
-        pages.setdefault(page, page.split("-", 1)[1].split("-")[0].split(".")[0])
-    chapters = sorted(set(pages.values()), key=int)
-    cols = [*report.STATUSES, NO_VERDICT]
-    rows = [
-        "| chapter | " + " | ".join(_SHORT.get(c, c) for c in cols) + " |",
-        "|---|" + "---|" * len(cols),
-    ]
-    total: Counter = Counter()
-    for ch in chapters:
-        counts: Counter = Counter()
-        for page, c in pages.items():
-            if c != ch:
-                continue
-            verdicts = report.load(page, scale) if page in {notebooks.page_id(n) for n in executed} else []
-            counts += _status_counts(verdicts) if verdicts else Counter({NO_VERDICT: 1})
-        total += counts
-        cells = " | ".join(str(counts.get(c, 0)) for c in cols)
-        rows.append(f"| {{doc}}`Chapter {ch} <chapter-{ch}>` | {cells} |")
-    rows.append("| **all** | " + " | ".join(f"**{total.get(c, 0)}**" for c in cols) + " |")
-    judged = sum(total.get(s, 0) for s in (report.REPRODUCES, report.PARTLY, report.DOES_NOT))
-    lead = (
-        f"\n\n## Scoreboard at scale `{scale}`\n\n"
-        f"Claims of the thesis judged by this build: **{total.get(report.REPRODUCES, 0)} reproduce**, "
-        f"**{total.get(report.PARTLY, 0)} partly**, **{total.get(report.DOES_NOT, 0)} do not** "
-        f"({judged} judged); {total.get(report.NOT_RUN, 0)} not run and {total.get(report.NOT_JUDGED, 0)} "
-        f"not judged at this scale; {total.get(NO_VERDICT, 0)} page(s) of the thesis without a verdict.\n\n"
-    )
-    tail = "\n\nCounts are claims (one verdict each), except *no verdict*, which counts pages.\n"
-    if scale == "smoke":
-        tail += "At `smoke` nothing is judged: the runs only exercise the plumbing.\n"
-    return lead + "\n".join(rows) + tail
+    """The scoreboard of distinct thesis claims at ``scale``, read from the claims ledger (issue 21:
+    :func:`thesis_repro.claims.ledger.scoreboard`, the same ledger as ``python -m thesis_repro claims``),
+    with the beyond-the-thesis count and the method section (each rule's null pass rate). ``executed`` is
+    kept for the caller; the ledger judges every registered claim from the numbers the pages saved."""
+    from thesis_repro.claims import ledger  # the claims layer judges; the book only shows
+
+    return ledger.scoreboard(scale)
 
 
 def write_toc(executed: list[str], root: Path) -> Path:

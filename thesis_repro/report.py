@@ -32,10 +32,34 @@ PARTLY = "partly reproduces"
 DOES_NOT = "does not reproduce"
 NOT_RUN = "not run at this scale"  # the scale cannot afford this item (e.g. an off-policy row at small)
 NOT_JUDGED = "not judged at this scale"  # smoke: numbers only exercise the plumbing
-STATUSES: tuple[str, ...] = (REPRODUCES, PARTLY, DOES_NOT, NOT_RUN, NOT_JUDGED)
+INCONCLUSIVE = "inconclusive"  # the CI across training seeds spans two outcomes
+INDICATIVE = "indicative"  # one training seed: no CI, the point estimate only leans one way
+NOT_COMPUTED = "not computed"  # the claim's numbers are not in this build (its page was not executed)
+VISUAL = "not judged (visual)"  # the thesis's claim is about what a figure looks like
+STATUSES: tuple[str, ...] = (
+    REPRODUCES,
+    PARTLY,
+    DOES_NOT,
+    INCONCLUSIVE,
+    INDICATIVE,
+    NOT_RUN,
+    NOT_JUDGED,
+    NOT_COMPUTED,
+    VISUAL,
+)
 
 #: Admonition class of each status in the book (MyST ``{admonition}`` with a class).
-_STYLE = {REPRODUCES: "tip", PARTLY: "note", DOES_NOT: "warning", NOT_RUN: "seealso", NOT_JUDGED: "seealso"}
+_STYLE = {
+    REPRODUCES: "tip",
+    PARTLY: "note",
+    DOES_NOT: "warning",
+    INCONCLUSIVE: "note",
+    INDICATIVE: "note",
+    NOT_RUN: "seealso",
+    NOT_JUDGED: "seealso",
+    NOT_COMPUTED: "seealso",
+    VISUAL: "seealso",
+}
 
 
 @dataclass(frozen=True)

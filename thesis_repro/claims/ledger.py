@@ -1,0 +1,624 @@
+"""The claims ledger: one verdict per thesis sentence, from the registry's pre-registered rules.
+
+The registry is ``data/thesis/claims.yaml``: under each page, ``claims`` quote the thesis (a claim with a
+``rule`` is judged on that page; the same ``id`` on another page only repeats its verdict), and ``beyond``
+holds the kit's own extensions (kl_exact, the Eq 4.11 analysis), counted apart. A notebook ends with
+:func:`judge_page`, which saves its per-seed numbers to ``build/<scale>/figures/<page>.data.json`` and
+prints the verdicts of its claims; :func:`ledger` re-judges every claim from those saved numbers (no
+training, no evaluation), so the book's scoreboard and ``python -m thesis_repro claims`` read one ledger.
+
+>>> ids = [s.id for s in specs()]
+>>> len(ids) == len(set(ids)) and "3.3-negative-correlation" in ids
+True
+>>> spec("3.3-negative-correlation").page
+'fig-3.3'
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from thesis_repro import paths, report
+from thesis_repro.claims import measures as M
+from thesis_repro.claims.stats import CountRule, Unit, _point, combine_groups, null_pass_rate
+
+#: Statuses counted on the scoreboard, in its column order.
+COUNTED: tuple[str, ...] = (
+    report.REPRODUCES,
+    report.PARTLY,
+    report.DOES_NOT,
+    report.INCONCLUSIVE,
+    report.INDICATIVE,
+    report.NOT_RUN,
+    report.NOT_JUDGED,
+    report.NOT_COMPUTED,
+    report.VISUAL,
+)
+SHORT = {
+    report.REPRODUCES: "reproduces",
+    report.PARTLY: "partly",
+    report.DOES_NOT: "does not",
+    report.INCONCLUSIVE: "inconclusive",
+    report.INDICATIVE: "indicative",
+    report.NOT_RUN: "not run",
+    report.NOT_JUDGED: "not judged",
+    report.NOT_COMPUTED: "not computed",
+    report.VISUAL: "visual",
+}
+UNIT_OF_REPLICATION = "training seeds (values averaged over rollouts / episodes inside each seed first)"
+#: Fraction of the thesis's own k/n a "thesis"-tied threshold asks for.
+THESIS_SHARE = 0.75
+NULL_DRAWS = 60
+
+
+# ---------------------------------------------------------------- registry
+@dataclass(frozen=True)
+class Spec:
+    """One registered claim: its sentence (or the kit's wording, ``beyond``), page, rule and pages repeating it."""
+
+    id: str
+    page: str
+    text: str
+    lines: tuple[int, ...]
+    rule: Mapping[str, Any]
+    beyond: bool = False
+    pages: tuple[str, ...] = ()
+    evidence: str = ""
+
+    @property
+    def data_pages(self) -> list[str]:
+        """Pages whose saved numbers the measure reads (default: its own page)."""
+        return list(self.rule.get("data", [self.page]))
+
+
+@cache
+def registry() -> dict[str, Any]:
+    """``data/thesis/claims.yaml`` as loaded."""
+    return yaml.safe_load((paths.THESIS_DATA / "claims.yaml").read_text())
+
+
+@cache
+def specs() -> tuple[Spec, ...]:
+    """Every claim with a rule (thesis claims, then beyond-the-thesis ones), each once."""
+    out: dict[str, Spec] = {}
+    repeats: dict[str, list[str]] = {}
+    for page, entry in registry().items():
+        for beyond, items in ((False, entry.get("claims", [])), (True, entry.get("beyond", []))):
+            for c in items:
+                cid = c.get("id")
+                if cid is None:
+                    raise ValueError(f"claims.yaml: a claim of {page} has no id: {c.get('text', '')[:60]!r}")
+                if c.get("context"):
+                    continue
+                if "rule" not in c:
+                    repeats.setdefault(cid, []).append(page)
+                    continue
+                if cid in out:
+                    raise ValueError(f"claims.yaml: claim {cid!r} has a rule on {out[cid].page} and on {page}")
+                lines = tuple(int(n) for n in c.get("lines", []))
+                out[cid] = Spec(cid, page, c["text"], lines, c["rule"], beyond, (), c.get("evidence", page))
+    missing = sorted(set(repeats) - set(out))
+    if missing:
+        raise ValueError(f"claims.yaml: claims repeated but never given a rule: {missing}")
+    return tuple(
+        Spec(s.id, s.page, s.text, s.lines, s.rule, s.beyond, tuple(repeats.get(s.id, [])), s.evidence)
+        for s in out.values()
+    )
+
+
+def spec(claim_id: str) -> Spec:
+    """The registered claim ``claim_id``."""
+    for s in specs():
+        if s.id == claim_id:
+            return s
+    raise ValueError(f"unknown claim {claim_id!r}; known: {', '.join(s.id for s in specs())}")
+
+
+def page_claims(page: str) -> list[Spec]:
+    """Claims a page shows: those judged on it, those it repeats, and its beyond-the-thesis ones."""
+    return [s for s in specs() if s.page == page or page in s.pages]
+
+
+# ---------------------------------------------------------------- thresholds (from the thesis's own numbers)
+#: The thesis table(s) whose learners a page's thesis-tied threshold is counted on.
+THESIS_TABLES: dict[str, tuple[str, ...]] = {
+    "table-3.4": ("table3_4",),
+    "table-3.5": ("table3_5",),
+    "fig-3.5": ("table3_5",),
+    "table-3.6": ("table3_6",),
+    "table-3.7": ("table3_7",),
+}
+
+
+def thesis_data(page: str = "") -> dict[str, pd.DataFrame]:
+    """The thesis's Tables 3.3-3.7 as one-pseudo-seed frames (its means), for thesis-tied thresholds; AUCs of
+    the page's own table (:data:`THESIS_TABLES`; all four tables otherwise)."""
+    from thesis_repro import reference
+
+    names = THESIS_TABLES.get(page, ("table3_4", "table3_5", "table3_6", "table3_7"))
+    frames = [reference.load(n) for n in names]
+    t = pd.concat(frames).drop_duplicates(subset=["env", "test", "method"])
+    aucs = t.assign(seed=0, value=t["mean"])[["env", "test", "method", "seed", "value"]]
+    b = reference.load("table3_3b")
+    method = [("ppo" if s == 0 else M.NOISY[n]) for n, s in zip(b["noise_type"], b["train_sigma"], strict=True)]
+    ret = pd.DataFrame(
+        {
+            "env": "Walker2d",
+            "method": method,
+            "seed": 0,
+            "test": b["noise_type"],
+            "sigma": b["sigma_te"],
+            "return": b["mean"],
+        }
+    )
+    a = reference.load("table3_3a")
+    names = {"none": "ppo", "obs": M.NOISY["obs"], "act": M.NOISY["act"], "env": M.NOISY["env"], "mdl": "ppo-mdl"}
+    train = pd.DataFrame(
+        {"env": "Walker2d", "method": [names[n] for n in a["noise_type"]], "seed": 0, "value": a["mean"]}
+    )
+    return {"aucs": aucs, "returns": ret, "train": train}
+
+
+@cache
+def thesis_fractions(claim_id: str) -> dict[str, tuple[int, int]]:
+    """Per group of a claim: the thesis's own (k, n), its rule's units counted on the thesis's means."""
+    s = spec(claim_id)
+    groups = M.MEASURES[s.rule["measure"]](thesis_data(s.page), s.rule)
+    return {g: (sum(_point(u) == "yes" for u in us), len(us)) for g, us in groups.items()}
+
+
+def rule_for(s: Spec, group: str = "") -> tuple[CountRule, str]:
+    """The count rule of a claim's group and the sentence saying where its threshold comes from."""
+    r = dict(s.rule)
+    r.update((r.get("groups") or {}).get(group, {}))
+    partly = r.get("partly", 0.25)
+    absolute = bool(r.get("absolute", False))
+    if r.get("reproduces") == "thesis":
+        k, n = r["thesis_k_n"] if "thesis_k_n" in r else thesis_fractions(s.id).get(group, (0, 0))
+        floor = float(r.get("floor", 0.5))
+        q = max(floor, round(THESIS_SHARE * k / n, 3)) if n else floor
+        basis = f"thesis {k}/{n} on its own table; threshold max({floor:g}, {THESIS_SHARE:g} x {k}/{n}) = {q:.3g}"
+    else:
+        q = float(r.get("reproduces", 0.5))
+        basis = r.get("basis", "the sentence's wording (the thesis reports no k/n)")
+    return CountRule(q, None if partly is None else float(partly), absolute, bool(r.get("bonferroni", False))), basis
+
+
+# ---------------------------------------------------------------- saved page numbers
+def data_path(page: str, scale: str) -> Path:
+    """``build/<scale>/figures/<page>.data.json``: the per-seed numbers a notebook saved for its claims."""
+    return paths.figures(scale) / f"{page}.data.json"
+
+
+def save_page(page: str, scale: str, frames: Mapping[str, pd.DataFrame], meta: Mapping[str, Any]) -> Path:
+    """Write a page's per-seed frames (records) and meta (scale, seeds, budget note) atomically."""
+    out = data_path(page, scale)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    blob = {
+        "page": page,
+        "scale": scale,
+        "meta": dict(meta),
+        "frames": {k: json.loads(v.to_json(orient="records")) for k, v in frames.items()},
+    }
+    tmp = out.with_suffix(".tmp")
+    tmp.write_text(json.dumps(blob, default=_jsonable))
+    tmp.replace(out)
+    return out
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, (np.integer, np.floating)):
+        return x.item()
+    if isinstance(x, (set, tuple)):
+        return list(x)
+    return str(x)
+
+
+def load_page(page: str, scale: str) -> dict[str, Any] | None:
+    """The saved blob of ``page`` (frames as DataFrames) or None."""
+    p = data_path(page, scale)
+    if not p.exists():
+        return None
+    blob = json.loads(p.read_text())
+    blob["frames"] = {k: pd.DataFrame(v) for k, v in blob["frames"].items()}
+    return blob
+
+
+# ---------------------------------------------------------------- judging
+@dataclass
+class Row:
+    """One ledger row (JSON-ready through :meth:`as_dict`)."""
+
+    spec: Spec
+    status: str
+    n_seeds: int = 0
+    statistic: dict[str, Any] = field(default_factory=dict)
+    groups: dict[str, Any] = field(default_factory=dict)
+    null_pass_rate: float | None = None
+    note: str = ""
+    diagnosis: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        s = self.spec
+        return {
+            "id": s.id,
+            "page": s.page,
+            "repeated_on": list(s.pages),
+            "beyond_the_thesis": s.beyond,
+            "thesis_lines": list(s.lines),
+            "claim": s.text,
+            "rule": rule_text(s),
+            "unit": UNIT_OF_REPLICATION,
+            "n_seeds": self.n_seeds,
+            "statistic": self.statistic,
+            "verdict": self.status,
+            "null_pass_rate": self.null_pass_rate,
+            "note": self.note,
+            "diagnosis": self.diagnosis,
+            "groups": self.groups,
+        }
+
+
+def rule_text(s: Spec) -> str:
+    """The pre-registered rule in one paragraph: statistic, units, thresholds and what each verdict means."""
+    r = s.rule
+    if r.get("visual"):
+        return "not judged: the sentence is about what the figure looks like (the frames are shown on the page)"
+    if "page_verdict" in r:
+        return "the analysis page's own rule (thesis_repro.mdl.kl_analysis.verdict: share of synthetic problems)"
+    if r.get("derived"):
+        return f"derived: reproduces iff every one of {', '.join(r['derived'])} reproduces (statuses combined)"
+    parts = [f"statistic: {r.get('statistic', '')}", f"units: {r.get('units', '')}"]
+    groups = list((r.get("groups") or {}).keys()) or [""]
+    for g in groups:
+        rule, basis = rule_for(s, g)
+        scale = "units (count)" if rule.absolute else "of the units"
+        part = f" {rule.partly:g}" if rule.partly is not None else " (no partly region)"
+        parts.append(
+            f"{g + ': ' if g else ''}reproduces if the yes-share interval is >= {rule.reproduces:g} {scale}, "
+            f"partly if >= {part.strip()}, does not below; inconclusive if the interval spans two regions "
+            f"({basis})"
+        )
+    parts.append(
+        "a unit is 'yes' when its 95 % CI across training seeds is on the claim's side"
+        + (" (Bonferroni over units)" if r.get("bonferroni") else "")
+    )
+    parts.append("one seed: at most indicative")
+    return "; ".join(parts)
+
+
+def page_data(s: Spec, scale: str) -> tuple[dict[str, pd.DataFrame], dict[str, Any]] | None:
+    """The frames a claim's measure reads (``name`` for its own page, ``name@page`` for others) and meta."""
+    frames: dict[str, pd.DataFrame] = {}
+    meta: dict[str, Any] = {}
+    found = False
+    for p in s.data_pages:
+        blob = load_page(p, scale)
+        if blob is None:
+            continue
+        found = True
+        meta = meta or blob["meta"]
+        for k, v in blob["frames"].items():
+            frames[f"{k}@{p}"] = v
+            if p == s.page or len(s.data_pages) == 1:
+                frames[k] = v
+    return (frames, meta) if found else None
+
+
+def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
+    """One claim's ledger row at ``scale`` from the saved numbers of its page(s)."""
+    r = s.rule
+    if r.get("visual"):
+        return Row(s, report.VISUAL, note="the claim is about the gait's look; the page shows the key frames")
+    if "page_verdict" in r:
+        saved = report.load(s.page, scale)
+        if len(saved) <= int(r["page_verdict"]):
+            return Row(s, report.NOT_COMPUTED, note=f"{s.page} not executed at {scale}")
+        v = saved[int(r["page_verdict"])]
+        return Row(s, v.status, note=v.evidence)
+    if r.get("derived"):
+        rows = [judge(spec(i), scale, with_null) for i in r["derived"]]
+        status = combine_groups([x.status for x in rows])
+        rates = [x.null_pass_rate for x in rows if x.null_pass_rate is not None]
+        return Row(
+            s,
+            status,
+            min((x.n_seeds for x in rows), default=0),
+            {"parts": {x.spec.id: x.status for x in rows}},
+            null_pass_rate=min(rates) if rates else None,
+            note="derived from " + ", ".join(f"{x.spec.id}: {x.status}" for x in rows),
+        )
+    got = page_data(s, scale)
+    if got is None:
+        pages = ", ".join(s.data_pages)
+        return Row(s, report.NOT_COMPUTED, note=f"no saved numbers of {pages} at {scale}: execute the page(s) first")
+    frames, meta = got
+    try:
+        groups = M.MEASURES[r["measure"]](frames, r)
+    except M.NotRun as err:
+        return Row(s, report.NOT_RUN, note=str(err))
+    except M.Inconclusive as err:
+        return Row(s, report.INCONCLUSIVE, note=str(err))
+    run = {g: us for g, us in groups.items() if us}
+    not_run = [g for g, us in groups.items() if not us]
+    if not run:
+        return Row(s, report.NOT_COMPUTED, note="no unit could be computed from the saved numbers")
+    judged = {g: rule_for(s, g)[0].judge(us) for g, us in run.items()}
+    status = combine_groups([j.status for j in judged.values()])
+    if not_run and status == report.REPRODUCES:
+        status = report.PARTLY
+    n_seeds = min(j.n_seeds for j in judged.values())
+    stat = {g or "all": j.statistic() for g, j in judged.items()}
+    gsum = {g or "all": {"verdict": j.status, "leaning": j.leaning, "units": j.units} for g, j in judged.items()}
+    if scale == "smoke":
+        status = report.NOT_JUDGED
+    note = ""
+    if status == report.INDICATIVE:
+        lean = combine_groups([j.leaning for j in judged.values()])
+        note = f"one training seed: no CI; the point estimates lean '{lean}'"
+    if not_run:
+        note += ("; " if note else "") + "not judged (not run): " + ", ".join(not_run)
+    rate = _null_rate(s, scale, run) if with_null else None
+    row = Row(s, status, n_seeds, stat if len(stat) > 1 else next(iter(stat.values())), gsum, rate, note)
+    if status in (report.DOES_NOT, report.PARTLY, report.INCONCLUSIVE):
+        row.diagnosis = diagnose(judged, meta)
+    return row
+
+
+def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]]) -> float:
+    """:func:`~thesis_repro.claims.stats.null_pass_rate` of a claim, cached per saved-data version."""
+    key = f"{s.id}|" + "|".join(
+        str(data_path(p, scale).stat().st_mtime_ns) for p in s.data_pages if data_path(p, scale).exists()
+    )
+    store = paths.figures(scale) / "claims-null.json"
+    known = json.loads(store.read_text()) if store.exists() else {}
+    if key not in known:
+        known = {k: v for k, v in known.items() if not k.startswith(f"{s.id}|")}
+        known[key] = null_pass_rate(run, {g: rule_for(s, g)[0] for g in run}, NULL_DRAWS)
+        store.parent.mkdir(parents=True, exist_ok=True)
+        tmp = store.with_suffix(f".{s.id}.tmp")
+        tmp.write_text(json.dumps(known))
+        tmp.replace(store)
+    return float(known[key])
+
+
+def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any]) -> str:
+    """Why a claim does not (fully) reproduce, from the kit's own measurements: seed spread, training regime
+    (half vs final budget, :mod:`thesis_repro.budgets`), protocol sensitivity where measured."""
+    widths, against = [], []
+    for j in judged.values():
+        for u in j.units:
+            for c in u["contrasts"]:
+                lo, hi = c["ci"]
+                if lo is not None and hi is not None:
+                    widths.append(hi - lo)
+            if u["outcome"] == "no":
+                against.append(u["label"])
+    bits = []
+    if widths:
+        bits.append(f"seed spread: median 95 % CI width {np.median(widths):.3g} over {len(widths)} contrasts")
+    if against:
+        bits.append(
+            f"{len(against)} unit(s) significantly against the claim ({', '.join(against[:4])}"
+            + (", ..." if len(against) > 4 else "")
+            + ")"
+        )
+    b = meta.get("budgets")
+    if b:
+        bits.append(
+            f"training regime: {b.get('trained', 0)}/{b.get('runs', 0)} runs trained, {b.get('still learning', 0)} "
+            f"still learning (return at half vs final budget, make budgets), {b.get('fell from its peak', 0)} fell "
+            "from their peak"
+        )
+    if meta.get("protocol"):
+        bits.append(f"protocol sensitivity: {meta['protocol']}")
+    if meta.get("note"):
+        bits.append(str(meta["note"]))
+    return "; ".join(bits)
+
+
+def ledger(scale: str, with_null: bool = True) -> list[Row]:
+    """Every registered claim judged at ``scale`` from saved numbers (thesis claims first, then beyond)."""
+    rows = [judge(s, scale, with_null) for s in specs()]
+    return sorted(rows, key=lambda r: r.spec.beyond)
+
+
+def counts(rows: Sequence[Row], beyond: bool = False) -> Counter:
+    """Status counts of distinct claims (each claim once, whichever pages repeat it)."""
+    return Counter(r.status for r in rows if r.spec.beyond == beyond)
+
+
+# ---------------------------------------------------------------- output
+def describe(row: Row) -> str:
+    """One paragraph of evidence: statistic with its interval, seeds, null pass rate, note, diagnosis."""
+    st = row.statistic
+    parts = []
+    if "ci" in st:
+        parts.append(_stat_text(st))
+    elif st and "parts" not in st:
+        parts.append("; ".join(f"{g}: {_stat_text(v)}" for g, v in st.items()))
+    if row.n_seeds:
+        parts.append(f"{row.n_seeds} training seed(s)")
+    if row.null_pass_rate is not None:
+        parts.append(f"null pass rate {row.null_pass_rate:.2f}")
+    if row.note:
+        parts.append(row.note)
+    if row.diagnosis:
+        parts.append("why: " + row.diagnosis)
+    return "; ".join(parts)
+
+
+def _stat_text(st: Mapping[str, Any]) -> str:
+    if not st.get("n"):
+        return "no units"
+    lo, hi = st["ci"]
+    pt = st.get("value")
+    head = f"{st['k']}/{st['n']} units yes (CI-supported)"
+    if st.get("undecided"):
+        head += f", {st['undecided']} undecided: yes-share in [{lo:.2f}, {hi:.2f}]"
+    if pt is not None:
+        head += f", point estimate {pt:.2f}"
+    return head
+
+
+def units_table(row: Row) -> pd.DataFrame:
+    """Per unit: group, label, outcome and each contrast's estimate ± its 95 % CI across seeds."""
+    recs = []
+    for g, info in row.groups.items():
+        for u in info["units"]:
+            for c in u["contrasts"]:
+                lo, hi = c["ci"]
+                ci = "" if lo is None else f"[{lo:.3g}, {hi:.3g}]"
+                est = "" if c["estimate"] is None else f"{c['estimate']:.3g}"
+                recs.append(
+                    {
+                        "group": g,
+                        "unit": u["label"],
+                        "outcome": u["outcome"],
+                        "contrast": c["label"],
+                        "estimate": est,
+                        "95% CI": ci,
+                        "seeds": c["n"],
+                    }
+                )
+    return pd.DataFrame(recs)
+
+
+def verdicts(page: str, scale: str) -> list[report.Verdict]:
+    """A page's claims as :class:`~thesis_repro.report.Verdict` (repeats say where they are judged)."""
+    out = []
+    for s in page_claims(page):
+        row = judge(s, scale)
+        where = f"thesis l. {', '.join(map(str, s.lines))}" if s.lines else "kit extension"
+        tag = "[beyond the thesis] " if s.beyond else ""
+        again = f" (judged on {s.page}; repeated here, counted once)" if s.page != page else ""
+        out.append(
+            report.Verdict(page.removeprefix("fig-"), f"{tag}{s.text} ({where}){again}", row.status, describe(row))
+        )
+    return out
+
+
+def judge_page(
+    page: str,
+    scale: str,
+    frames: Mapping[str, pd.DataFrame],
+    meta: Mapping[str, Any] | None = None,
+    kit_checks: Sequence[report.Verdict] = (),
+    display: bool = True,
+) -> list[report.Verdict]:
+    """A notebook's last call: save its per-seed numbers, print / display its claims' verdicts (each with
+    its units table) and the kit-made checks (outside the scoreboard); writes ``<page>.verdicts.json``."""
+    save_page(page, scale, frames, {"scale": scale, **dict(meta or {})})
+    vs = verdicts(page, scale)
+    report.report(page, scale, vs, display=display)
+    if display:
+        _show_units(page, scale)
+    for k in kit_checks:
+        print(f"[kit check, not a thesis claim] {k}")
+    return vs
+
+
+def _show_units(page: str, scale: str) -> None:
+    try:
+        from IPython import get_ipython
+        from IPython.display import display as show
+    except ImportError:  # pragma: no cover
+        return
+    if get_ipython() is None:
+        return
+    for s in page_claims(page):
+        if s.page != page:
+            continue
+        t = units_table(judge(s, scale, with_null=False))
+        if len(t):
+            print(f"{s.id}: units (95 % CI across training seeds)")
+            show(t)
+
+
+def as_json(rows: Sequence[Row]) -> dict[str, Any]:
+    """The ledger as one JSON-ready object: thesis claims, beyond-the-thesis claims and both counts."""
+    return {
+        "claims": [r.as_dict() for r in rows if not r.spec.beyond],
+        "beyond_the_thesis": [r.as_dict() for r in rows if r.spec.beyond],
+        "counts": dict(counts(rows)),
+        "beyond_counts": dict(counts(rows, beyond=True)),
+    }
+
+
+def scoreboard(scale: str, rows: Sequence[Row] | None = None) -> str:
+    """Markdown scoreboard of distinct thesis claims per chapter, the beyond-the-thesis count, and the method
+    (each rule's null pass rate)."""
+    rows = ledger(scale) if rows is None else rows
+    cols = list(COUNTED)
+    head = ["| chapter | " + " | ".join(SHORT[c] for c in cols) + " |", "|---|" + "---|" * len(cols)]
+    total: Counter = Counter()
+    by_ch: dict[str, Counter] = {}
+    for r in rows:
+        if r.spec.beyond:
+            continue
+        ch = r.spec.page.split("-", 1)[1].split("-")[0].split(".")[0]
+        by_ch.setdefault(ch, Counter())[r.status] += 1
+        total[r.status] += 1
+    for ch in sorted(by_ch, key=int):
+        head.append(
+            f"| {{doc}}`Chapter {ch} <chapter-{ch}>` | " + " | ".join(str(by_ch[ch].get(c, 0)) for c in cols) + " |"
+        )
+    head.append("| **all** | " + " | ".join(f"**{total.get(c, 0)}**" for c in cols) + " |")
+    extra = counts(rows, beyond=True)
+    lead = (
+        f"\n\n## Scoreboard at scale `{scale}`\n\n"
+        f"Distinct claims of the thesis: **{sum(total.values())}**; **{total.get(report.REPRODUCES, 0)} reproduce**, "
+        f"**{total.get(report.PARTLY, 0)} partly**, **{total.get(report.DOES_NOT, 0)} do not**, "
+        f"{total.get(report.INCONCLUSIVE, 0)} inconclusive (the CI across training seeds spans two outcomes), "
+        f"{total.get(report.INDICATIVE, 0)} indicative (one training seed: no CI), "
+        f"{total.get(report.NOT_RUN, 0)} not run, {total.get(report.NOT_COMPUTED, 0)} not computed in this build.\n\n"
+        f"Beyond the thesis (the kit's own extensions: kl_exact, the Eq 4.11 analysis): "
+        + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(extra.items()))
+        + " (not in the counts above).\n\n"
+    )
+    tail = (
+        "\n\nEach thesis sentence is one claim, judged once by the rule registered for it in "
+        "`data/thesis/claims.yaml` (pages that repeat it show the same verdict). Kit-made checks such as the "
+        "agreement of the Welch bolding are shown on their pages and not counted. `python -m thesis_repro claims "
+        f"--scale {scale} --json` prints this ledger.\n"
+    )
+    if scale == "smoke":
+        tail += "At `smoke` nothing is judged: the runs only exercise the plumbing.\n"
+    return lead + "\n".join(head) + tail + method(rows)
+
+
+def method(rows: Sequence[Row]) -> str:
+    """The method section: how a verdict is decided, and each rule's null pass rate."""
+    out = [
+        "\n\n## Method: rules fixed in advance, statistics across training seeds\n",
+        "Every claim has a rule registered before results were seen (`data/thesis/claims.yaml`): a statistic, "
+        "its units (rows, cells, panels), and thresholds, tied to the thesis's own k/n where it reports one "
+        f"({THESIS_SHARE:g} x its share). The unit of replication is the training seed: each unit compares "
+        "per-seed values with a 95 % CI (Welch across seeds, or a one-sample / paired t interval, or "
+        "Clopper-Pearson for success shares; `scipy.stats`). The yes-share interval [CI-supported yes, yes + "
+        "undecided] decides: inside one region -> that verdict, across two -> inconclusive. One seed -> at most "
+        "indicative. **Null pass rate**: the share of synthetic null draws (every contrast redrawn at its null "
+        f"boundary with its observed spread and >= 3 seeds; {NULL_DRAWS} draws) the rule judges *reproduces*.\n",
+        "| claim | page | verdict | null pass rate |",
+        "|---|---|---|---|",
+    ]
+    for r in rows:
+        rate = "n/a (not computed)" if r.null_pass_rate is None else f"{r.null_pass_rate:.2f}"
+        tag = " (beyond)" if r.spec.beyond else ""
+        out.append(f"| {r.spec.id}{tag} | {r.spec.page} | {r.status} | {rate} |")
+    return "\n".join(out) + "\n"
+
+
+def _finite(x: float | None) -> bool:
+    return x is not None and math.isfinite(x)
