@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback
 
+from tests.interrupt import Interrupt
 from thesis_repro.cache import Job, RunCache, canonical_json
 from thesis_repro.learners import ALGORITHMS, load_policy, snapshots, train_config, train_job
 from thesis_repro.learners import train as lt
@@ -224,21 +224,10 @@ def test_arpl_wrapper_attacks_the_configured_fraction():
 # ---- training job ------------------------------------------------------------------------------
 
 
-class _Interrupt(BaseCallback):
-    def __init__(self, at: int):
-        super().__init__()
-        self.at = at
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self.at:
-            raise KeyboardInterrupt("simulated interruption")
-        return True
-
-
 def test_resume_after_interruption_continues_from_checkpoint(tmp_path):
     cfg = tiny(timesteps=768, checkpoint_every=128, snapshot_every=256)
     with pytest.raises(KeyboardInterrupt):
-        train_job(cfg, tmp_path, callback=_Interrupt(at=400))
+        train_job(cfg, tmp_path, callback=Interrupt(at=400))
     ckpts = sorted(tmp_path.glob("ckpt-*"))
     assert len(ckpts) == 1 and int(ckpts[0].name.split("-")[1]) == 384  # last iteration boundary
     out = train_job(cfg, tmp_path)
@@ -298,7 +287,7 @@ def test_resume_other_learners(tmp_path, algo):
     multi-domain learners: tests/test_mdl.py."""
     cfg = tiny(algo, timesteps=384, checkpoint_every=100, **(OFF_POLICY_TINY if algo in ("sac", "ddpg") else {}))
     with pytest.raises(KeyboardInterrupt):
-        train_job(cfg, tmp_path, callback=_Interrupt(at=260))
+        train_job(cfg, tmp_path, callback=Interrupt(at=260))
     out = train_job(cfg, tmp_path)
     assert 0 < out["resumed_from"] < 260 and out["timesteps_done"] >= 384
     assert load_policy(tmp_path / "out")(np.zeros((2, 4))).shape == (2, 1)
@@ -336,7 +325,7 @@ def test_training_env_seeds_stay_below_the_testing_range_also_after_a_resume(tmp
     monkeypatch.setattr(lt.TrainingVecEnv, "seed", recording)
     cfg = tiny(timesteps=384, seed=2**32 - 1, checkpoint_every=128)
     with pytest.raises(KeyboardInterrupt):
-        train_job(cfg, tmp_path, callback=_Interrupt(at=200))
+        train_job(cfg, tmp_path, callback=Interrupt(at=200))
     assert train_job(cfg, tmp_path)["resumed_from"] == 128
     # a resumed run restores its envs' state exactly (tests/test_resume.py): whatever seeding the rebuild
     # does is overwritten, and every seed drawn stays below the testing range

@@ -163,8 +163,8 @@ def test_sb3_view_selects_actor_parameters():
 
 # ------------------------------------------------------------------------------------------ learners
 # The multi-domain learners are SB3 algorithms (thesis_repro.learners.multidomain) trained by the one train_job.
-from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 
+from tests.interrupt import Interrupt  # noqa: E402
 from thesis_repro.envs import make_env  # noqa: E402
 from thesis_repro.learners import MULTI_DOMAIN, load_policy, train_config, train_job  # noqa: E402
 from thesis_repro.learners import multidomain as md  # noqa: E402
@@ -381,23 +381,12 @@ def test_kl_exact_is_never_worse_than_params_avg_on_eq_4_7():
     assert stats["eq47"] == pytest.approx(sum(stats["kl"]))
 
 
-class _Interrupt(BaseCallback):
-    def __init__(self, at: int):
-        super().__init__()
-        self.at = at
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self.at:
-            raise KeyboardInterrupt("simulated interruption")
-        return True
-
-
 @pytest.mark.parametrize("algo", MULTI_DOMAIN)
 def test_every_multi_domain_learner_trains_resumes_and_loads_through_the_one_train_job(algo, tmp_path):
     cfg = tiny(algo, timesteps=384, seed=1, checkpoint_every=64, **({"epsilon": 0.3} if algo == "ppo-epopt" else {}))
     per_iter = 128 if algo == "ppo-maml-dg" else 64
     with pytest.raises(KeyboardInterrupt):
-        train_job(cfg, tmp_path, callback=_Interrupt(at=per_iter * 2 + 5))
+        train_job(cfg, tmp_path, callback=Interrupt(at=per_iter * 2 + 5))
     res = train_job(cfg, tmp_path)
     assert res["resumed_from"] == per_iter * 2 and res["timesteps_done"] == 384  # checkpoints in env steps
     n = 384 // per_iter

@@ -9,6 +9,7 @@ import pytest
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
+from tests.interrupt import Interrupt
 from thesis_repro.learners import multidomain as md
 from thesis_repro.learners import train as lt
 from thesis_repro.learners import train_config, train_job
@@ -222,17 +223,6 @@ def test_arpl_form_follows_the_protocol():
 
 
 # ------------------------------------------------------------------------- exact resume of the new state
-class _Interrupt(BaseCallback):
-    def __init__(self, at: int):
-        super().__init__()
-        self.at = at
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self.at:
-            raise KeyboardInterrupt("simulated interruption")
-        return True
-
-
 @pytest.mark.parametrize(
     ("algo", "over"),
     [
@@ -249,7 +239,7 @@ def test_thesis_protocol_runs_resume_exactly(tmp_path, algo, over):
                        **{**kw, **over})  # fmt: skip
     straight = train_job(cfg, tmp_path / "straight")
     with pytest.raises(KeyboardInterrupt):
-        train_job(cfg, tmp_path / "resumed", callback=_Interrupt(at=timesteps // 2 + 37))
+        train_job(cfg, tmp_path / "resumed", callback=Interrupt(at=timesteps // 2 + 37))
     resumed = train_job(cfg, tmp_path / "resumed")
     assert resumed["resumed_from"] > 0
     for key in ("episode_returns", "episode_lengths", "curve_return"):

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback
 
+from tests.interrupt import Interrupt
 from thesis_repro.learners import train_config, train_job
 from thesis_repro.learners.resume import ResumeMismatch, capture, restore
 
@@ -33,17 +33,6 @@ CASES = [
 ]
 
 
-class _Interrupt(BaseCallback):
-    def __init__(self, at: int):
-        super().__init__()
-        self.at = at
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self.at:
-            raise KeyboardInterrupt("simulated interruption")
-        return True
-
-
 def _params(workdir) -> dict[str, th.Tensor]:
     return th.load(workdir / "out" / "policy.pth", weights_only=False)["state_dict"]
 
@@ -56,9 +45,9 @@ def test_interrupted_and_resumed_run_is_bit_identical_to_an_uninterrupted_one(tm
     # an interrupt at an arbitrary step (mid-iteration, mid-episode), then another one after the resume
     first, second = (293, 517) if algo != "ppo-maml-dg" else (593, 1037)
     with pytest.raises(KeyboardInterrupt):
-        train_job(cfg, tmp_path / "resumed", callback=_Interrupt(at=first))
+        train_job(cfg, tmp_path / "resumed", callback=Interrupt(at=first))
     with pytest.raises(KeyboardInterrupt):
-        train_job(cfg, tmp_path / "resumed", callback=_Interrupt(at=second))
+        train_job(cfg, tmp_path / "resumed", callback=Interrupt(at=second))
     resumed = train_job(cfg, tmp_path / "resumed")
     assert 0 < resumed["resumed_from"] <= second
     for key in ("episode_returns", "episode_lengths", "episode_timesteps", "curve_return"):
@@ -74,7 +63,7 @@ def test_a_checkpoint_without_live_state_is_discarded_and_the_run_starts_afresh(
     cfg = train_config("ppo", "InvertedPendulum", 0, 384, max_episode_steps=60, checkpoint_every=1, **PPO)
     straight = train_job(cfg, tmp_path / "straight")
     with pytest.raises(KeyboardInterrupt):
-        train_job(cfg, tmp_path / "old", callback=_Interrupt(at=200))
+        train_job(cfg, tmp_path / "old", callback=Interrupt(at=200))
     for ckpt in (tmp_path / "old").glob("ckpt-*"):
         (ckpt / "live.pkl").unlink()  # as an older kit wrote it
     res = train_job(cfg, tmp_path / "old")
