@@ -49,6 +49,7 @@ from typing import Any
 from jupyter_client import AsyncKernelManager
 
 from thesis_repro import paths
+from thesis_repro.cache import pid_alive
 from thesis_repro.scales import check_scale
 from thesis_repro.validation import check_choice
 
@@ -285,16 +286,6 @@ def kill_kernels() -> None:
 atexit.register(kill_kernels)
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process
-        return True
-    return True
-
-
 def _owner_pid(name: str, prefix: str, sep: str = "-") -> int | None:
     """The pid in ``<prefix><pid>-...`` (``sep`` ``"-"``) or ``<prefix>...-<pid>`` (``sep`` ``""``), else None.
 
@@ -315,7 +306,7 @@ def clean_stale(build_root: Path | None = None) -> list[Path]:
     tmp = Path(tempfile.gettempdir())
     for p in tmp.glob(f"{KERNEL_PREFIX}*"):
         pid = _owner_pid(p.name, KERNEL_PREFIX)
-        if pid is not None and pid != os.getpid() and not _pid_alive(pid):
+        if pid is not None and pid != os.getpid() and not pid_alive(pid):
             with contextlib.suppress(OSError):
                 p.unlink()
                 removed.append(p)
@@ -323,7 +314,7 @@ def clean_stale(build_root: Path | None = None) -> list[Path]:
     if root.is_dir():
         for p in root.glob(".staging-*"):
             pid = _owner_pid(p.name, ".staging-", "")
-            if pid is not None and pid != os.getpid() and not _pid_alive(pid):
+            if pid is not None and pid != os.getpid() and not pid_alive(pid):
                 shutil.rmtree(p, ignore_errors=True)
                 removed.append(p)
     return removed
