@@ -28,7 +28,7 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch3, plot
 from thesis_repro.learners import iteration_steps
 
@@ -58,4 +58,4 @@ plot.save(fig, SCALE, "fig-3.2", dpi=120)
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = report.report("fig-3.2", SCALE, ch3.overfitting_verdict(curve, settings))
+_ = claims.judge_page("fig-3.2", SCALE, {"curve": curve}, figures.claim_meta("3.2", settings))

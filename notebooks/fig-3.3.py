@@ -28,7 +28,7 @@ SELECTION = "best"  # "best": best-training seed per variant (the thesis); "mean
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import budgets, figures, report
+from thesis_repro import budgets, claims, figures
 from thesis_repro.figures import ch3, plot
 
 settings = figures.settings("3.3", SCALE)
@@ -85,4 +85,4 @@ wide.round(3)
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = report.report("fig-3.3", SCALE, ch3.pareto_verdict(ours, points, settings, SELECTION, trained))
+_ = claims.judge_page("fig-3.3", SCALE, {"points": ch3.seed_points(res)}, figures.claim_meta("3.3", settings))

@@ -21,7 +21,7 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch3_curves, ch3_tables, plot
 
 settings = ch3_tables.settings("3.4", SCALE)
@@ -46,4 +46,9 @@ comp.style("Testing AUC on the task of Fig 3.4: thesis (Table 3.4) beside reprod
 
 # %%
 verdicts = ch3_curves.curve_verdicts("3.4", res, comp, settings) + ch3_curves.heat_verdicts(heat, settings)
-_ = report.report("fig-3.4", SCALE, verdicts)
+_ = claims.judge_page(
+    "fig-3.4",
+    SCALE,
+    {**ch3_tables.seed_frames(res), "heat": ch3_curves.heat_seeds(heat)},
+    figures.claim_meta("3.4", settings),
+)

@@ -23,7 +23,7 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch3_curves, ch3_tables, plot
 
 settings = ch3_tables.settings("3.5", SCALE)
@@ -39,4 +39,4 @@ bars.pivot_table(index=["panel", "method"], columns=["test", "source"], values="
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = report.report("fig-3.5", SCALE, ch3_curves.bar_verdicts("3.5", bars, settings))
+_ = claims.judge_page("fig-3.5", SCALE, ch3_tables.seed_frames(res), figures.claim_meta("3.5", settings))

@@ -24,7 +24,7 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch3_curves, ch3_tables, plot
 
 settings = ch3_tables.settings("3.8", SCALE)
@@ -42,4 +42,4 @@ comp.style("Testing AUC of the curves: thesis (Tables 3.4-3.7) beside reproduced
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = report.report("fig-3.8", SCALE, ch3_curves.curve_verdicts("3.8", res, comp, settings))
+_ = claims.judge_page("fig-3.8", SCALE, ch3_tables.seed_frames(res), figures.claim_meta("3.8", settings))

@@ -25,7 +25,7 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.1", SCALE)
@@ -54,4 +54,4 @@ plot.save(fig, SCALE, "fig-4.1")
 
 # %%
 print(ch4.late_returns(curves))
-_ = report.report("fig-4.1", SCALE, ch4.verdict_4_1(curves, settings))
+_ = claims.judge_page("fig-4.1", SCALE, {"curves": curves}, figures.claim_meta("4.1", settings))

@@ -24,7 +24,7 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.3", SCALE)
@@ -56,4 +56,4 @@ plot.save(fig, SCALE, "fig-4.3")
 
 # %%
 print(ch4.compare(wind, "return"))
-_ = report.report("fig-4.3", SCALE, ch4.verdict_4_3(wind, settings))
+_ = claims.judge_page("fig-4.3", SCALE, {"wind": wind}, figures.claim_meta("4.3", settings))

@@ -26,7 +26,7 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.4", SCALE)
@@ -56,4 +56,9 @@ plot.save(fig, SCALE, "fig-4.4")
 # (a) mean testing return over the wind grid; (b) mean over the off-centre cells (all but mass = friction = 1).
 
 # %%
-_ = report.report("fig-4.4", SCALE, ch4.verdict_4_4(wind, heat, settings))
+_ = claims.judge_page(
+    "fig-4.4",
+    SCALE,
+    {"wind": wind, "heat": heat, "curves": ch4.curves_frame(runs)},
+    figures.claim_meta("4.4", settings),
+)

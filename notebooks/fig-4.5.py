@@ -25,7 +25,7 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.5", SCALE)
@@ -53,4 +53,4 @@ plot.save(fig, SCALE, "fig-4.5")
 
 # %%
 print(ch4.compare(ch4.off_centre(heat), "return"))
-_ = report.report("fig-4.5", SCALE, ch4.verdict_4_5(heat, settings))
+_ = claims.judge_page("fig-4.5", SCALE, {"heat": heat}, figures.claim_meta("4.5", settings))

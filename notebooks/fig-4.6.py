@@ -26,7 +26,7 @@ SCALE = "small"
 # %%
 import pandas as pd
 
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.6", SCALE)
@@ -66,4 +66,4 @@ plot.save(fig, SCALE, "fig-4.6")
 # %%
 aucs = ch4.noise_aucs(noise)
 print(aucs.pivot_table(index=["noise", "panel"], columns="algo", values="auc"))
-_ = report.report("fig-4.6", SCALE, ch4.verdict_4_6(aucs, settings))
+_ = claims.judge_page("fig-4.6", SCALE, {"noise": noise}, figures.claim_meta("4.6", settings))

@@ -27,7 +27,7 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.7", SCALE)
@@ -51,4 +51,4 @@ plot.save(fig, SCALE, "fig-4.7")
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = report.report("fig-4.7", SCALE, ch4.verdict_4_7(curves, settings))
+_ = claims.judge_page("fig-4.7", SCALE, {"curves": curves}, figures.claim_meta("4.7", settings))

@@ -25,7 +25,7 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.arm import ArmConfig
 from thesis_repro.backends import run_jobs
 from thesis_repro.figures import ch5, plot
@@ -54,4 +54,4 @@ plot.save(fig, SCALE, "fig-5.3", dpi=120)
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = report.report("fig-5.3", SCALE, ch5.catch_verdict(summary, settings))
+_ = claims.judge_page("fig-5.3", SCALE, {"catch": summary}, figures.claim_meta("5.3", settings))

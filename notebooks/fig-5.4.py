@@ -28,7 +28,7 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.4", SCALE)
@@ -79,4 +79,4 @@ plot.save(fig, SCALE, "fig-5.4b", dpi=120)
 # ## Do the claims reproduce at this scale?
 
 # %%
-_ = report.report("fig-5.4", SCALE, ch5.transfer_verdict(summary, settings))
+_ = claims.judge_page("fig-5.4", SCALE, {"summary": summary, "curves": curves}, figures.claim_meta("5.4", settings))

@@ -28,7 +28,7 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.5", SCALE)
@@ -58,4 +58,4 @@ plot.save(fig, SCALE, "fig-5.5", dpi=120)
 # ## Do the claims reproduce at this scale?
 
 # %%
-_ = report.report("fig-5.5", SCALE, ch5.competitor_verdict(summary, curves, settings))
+_ = claims.judge_page("fig-5.5", SCALE, {"summary": summary, "curves": curves}, figures.claim_meta("5.5", settings))

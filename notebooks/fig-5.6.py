@@ -28,7 +28,7 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.6", SCALE)
@@ -55,4 +55,4 @@ plot.save(fig, SCALE, "fig-5.6", dpi=120)
 
 # %%
 print(ch5.curriculum_end(curves).round(3))
-_ = report.report("fig-5.6", SCALE, ch5.curriculum_verdict(curves, final, pretraining, settings))
+_ = claims.judge_page("fig-5.6", SCALE, {"final": final, "curves": curves}, figures.claim_meta("5.6", settings))

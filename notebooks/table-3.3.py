@@ -23,7 +23,7 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch3_tables
 
 settings = ch3_tables.settings("table-3.3", SCALE)
@@ -41,4 +41,4 @@ text_b.style.set_caption(f"Table 3.3(b): testing return η_σte on {settings['en
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = report.report("table-3.3", SCALE, ch3_tables.table33_verdicts(ours, settings))
+_ = claims.judge_page("table-3.3", SCALE, ch3_tables.seed_frames(res), figures.claim_meta("table-3.3", settings))

@@ -25,7 +25,7 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import figures, report
+from thesis_repro import claims, figures
 from thesis_repro.figures import ch3_tables
 
 settings = ch3_tables.settings("table-3.7", SCALE)
@@ -39,4 +39,10 @@ comp.style("Table 3.7: testing AUC, thesis beside reproduced (bold: best or not 
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = report.report("table-3.7", SCALE, ch3_tables.table_verdicts("table-3.7", comp, settings))
+_ = claims.judge_page(
+    "table-3.7",
+    SCALE,
+    ch3_tables.seed_frames(res),
+    figures.claim_meta("table-3.7", settings),
+    kit_checks=[ch3_tables.bold_verdict("table-3.7", comp, settings)],
+)

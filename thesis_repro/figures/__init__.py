@@ -181,6 +181,29 @@ def budget_note(settings: Mapping[str, Any], n_algos: int | None = None, extra: 
     return ", ".join(parts) + "."
 
 
+def claim_meta(figure_id: str, settings: Mapping[str, Any]) -> dict[str, Any]:
+    """What a page hands the claims layer beside its numbers: scale, seeds, the budget sentence and how many
+    of its training runs are trained / still learning (:mod:`thesis_repro.budgets`: half vs final budget)."""
+    from thesis_repro import budgets  # at call time: budgets imports this registry
+
+    fig = get(figure_id)
+    full = fig.settings("full")
+    seeds = settings.get("train_seeds", len(settings.get("seeds", [])))
+    thesis_seeds = full.get("train_seeds", len(full.get("seeds", [])))
+    note = f"scale {settings['scale']}: {seeds} training seed(s) (thesis: {thesis_seeds})"
+    if "timesteps" in settings:
+        note = budget_note(dict(settings, figure=settings.get("figure", figure_id)))
+    out: dict[str, Any] = {"figure": fig.id, "note": note}
+    if any(k in TRAINING_KINDS for k in fig.kinds):
+        table = budgets.table(settings["scale"], [fig.id])
+        if len(table) and "verdict" in table:
+            out["budgets"] = {
+                "runs": int(len(table)),
+                **{str(k): int(v) for k, v in table["verdict"].value_counts().items()},
+            }
+    return out
+
+
 # Chapter modules register their items on import (add a new module's import here).
 from thesis_repro.figures import ch3, ch3_curves, ch3_tables, ch4, ch5  # noqa: E402
 
@@ -189,6 +212,7 @@ __all__ = [
     "TRAINING_KINDS",
     "Figure",
     "budget_note",
+    "claim_meta",
     "ch3",
     "ch3_curves",
     "ch3_tables",

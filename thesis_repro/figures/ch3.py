@@ -300,6 +300,26 @@ def points_table(res: BenchmarkResult, how: str = "best") -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def seed_points(res: BenchmarkResult) -> pd.DataFrame:
+    """Per-seed points for the claims layer: ``env, test, algo, seed, train_return, auc`` (no seed selection)."""
+    rows = []
+    for test, auc in res.auc.items():
+        for s, seed in enumerate(res.seeds):
+            for j, env in enumerate(res.envs):
+                for k, algo in enumerate(res.algos):
+                    rows.append(
+                        {
+                            "env": env,
+                            "test": test,
+                            "algo": algo,
+                            "seed": seed,
+                            "train_return": float(res.train_return[s, j, k]),
+                            "auc": float(auc[s, j, k]),
+                        }
+                    )
+    return pd.DataFrame(rows)
+
+
 def correlation_wide(ours: pd.DataFrame) -> pd.DataFrame:
     """Fig 3.3(c) as ``env × (source, test)``: the thesis's coefficients beside ours (tasks run here)."""
     thesis = reference.load("fig3_3c")

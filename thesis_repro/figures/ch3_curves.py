@@ -137,6 +137,13 @@ def run_heat(settings: Mapping[str, Any], n_jobs: int | None = None) -> pd.DataF
     return pd.concat(parts, ignore_index=True)
 
 
+def heat_seeds(heat: pd.DataFrame) -> pd.DataFrame:
+    """Per-seed heat-map cells for the claims layer: ``method, seed, row_shift, col_shift, return`` (mean over
+    testing rollouts inside the seed)."""
+    by = ["method", "seed", "row_shift", "col_shift"]
+    return heat.groupby(by, as_index=False, sort=False)["return"].mean()
+
+
 # ---------------------------------------------------------------- Figs 3.4, 3.7, 3.8: curves and heat maps
 def curve_cells(res: Results) -> pd.DataFrame:
     """Mean ± std testing return per ``env, method, test, sigma`` over seeds × rollouts."""

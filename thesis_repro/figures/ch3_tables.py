@@ -204,6 +204,16 @@ def run(settings: Mapping[str, Any], n_jobs: int | None = None) -> Results:
     )
 
 
+def seed_frames(res: Results) -> dict[str, pd.DataFrame]:
+    """Per-seed numbers for the claims layer: ``aucs`` (env, test, method, seed, value), ``returns`` (env,
+    method, test, sigma, seed, return) and ``train`` (env, method, seed, value: the training return), each the
+    mean over testing rollouts / training episodes INSIDE the seed (the unit of replication is the seed)."""
+    aucs = res.aucs.groupby(["env", "test", "method", "seed"], as_index=False, sort=False)["value"].mean()
+    rets = res.returns.groupby(["env", "method", "test", "sigma", "seed"], as_index=False, sort=False)["return"].mean()
+    train = res.episodes.groupby(["env", "method", "seed"], as_index=False, sort=False)["value"].mean()
+    return {"aucs": aucs, "returns": rets, "train": train}
+
+
 # ---------------------------------------------------------------- cells: ours and the thesis's
 def our_cells(res: Results) -> pd.DataFrame:
     """AUC cells ``env, test, method, mean, std, n`` over seeds × testing rollouts."""
