@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -345,7 +346,9 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
         return Row(s, report.NOT_COMPUTED, note=f"no saved numbers of {pages} at {scale}: execute the page(s) first")
     frames, meta = got
     try:
-        groups = M.MEASURES[r["measure"]](frames, r)
+        with warnings.catch_warnings():  # empty slices of a scale's missing cells are skipped as NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            groups = M.MEASURES[r["measure"]](frames, r)
     except M.NotRun as err:
         return Row(s, report.NOT_RUN, note=str(err))
     except M.Inconclusive as err:

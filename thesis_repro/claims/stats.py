@@ -329,6 +329,9 @@ def combine_groups(statuses: Sequence[str]) -> str:
     """
     if not statuses or NOT_COMPUTED in statuses:
         return NOT_COMPUTED
+    other = [s for s in statuses if s not in (REPRODUCES, PARTLY, DOES_NOT, INCONCLUSIVE, INDICATIVE)]
+    if other:  # not judged (smoke) / not run: the claim is not judged either
+        return other[0]
     if INCONCLUSIVE in statuses:
         return INCONCLUSIVE
     if INDICATIVE in statuses:
