@@ -18,9 +18,10 @@
 # return of the last 100 training episodes at that point. The thesis gives only the curve, so the comparison is
 # of shape. The caption's "with non-deterministic observations" is read as the *testing* condition (the AUC is
 # under observation noise); training is on the deterministic task, as for every chapter-3 benchmark policy
-# (§3.3.1 trains on the default environment and tests under noise). The verdict compares moving averages over
-# `smooth_snapshots` consecutive snapshots (the thick line): one noisy snapshot makes neither the peak nor the
-# end. Logic: `thesis_repro.figures.ch3`.
+# (§3.3.1 trains on the default environment and tests under noise). The thick line is a moving average over
+# `smooth_snapshots` consecutive snapshots; the verdict compares the early, middle and late quarters of each
+# seed's snapshots (`thesis_repro.claims`), so one noisy snapshot makes neither a peak nor the end. Logic:
+# `thesis_repro.figures.ch3`.
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -43,7 +44,7 @@ steps = iteration_steps(ch3.overfitting_configs(settings)[0])
 fig, ax = plt.subplots(figsize=(6.5, 4))
 ax2 = ax.twinx()
 ax.plot(mean.iteration, mean.test_auc, "C0-o", ms=3, alpha=0.5, label="testing AUC (obs noise), reproduced")
-w = settings.get("smooth_snapshots", 1)  # the verdict judges these moving averages
+w = settings.get("smooth_snapshots", 1)  # the thick line (the verdict uses quarters of the snapshots)
 ax.plot(mean.iteration, mean.test_auc.rolling(w, center=True).mean(), "C0-", lw=2.5, label=f"its {w}-snapshot mean")
 ax2.plot(mean.iteration, mean.train_return, "C3-s", ms=3, label="training return, reproduced")
 ax.set(xlabel=f"PPO iteration ({steps} steps)", ylabel="testing AUC", title=f"{settings['env']} PPO ({SCALE})")

@@ -45,7 +45,6 @@ comp.style("Testing AUC on the task of Fig 3.4: thesis (Table 3.4) beside reprod
 # ## Does the claim reproduce at this scale?
 
 # %%
-verdicts = ch3_curves.curve_verdicts("3.4", res, comp, settings) + ch3_curves.heat_verdicts(heat, settings)
 _ = claims.judge_page(
     "fig-3.4",
     SCALE,

@@ -41,5 +41,5 @@ _ = claims.judge_page(
     SCALE,
     ch3_tables.seed_frames(res),
     figures.claim_meta("table-3.6", settings),
-    kit_checks=[ch3_tables.bold_verdict("table-3.6", comp, settings)],
+    kit_checks=[claims.bolding_check("table-3.6", comp.agreement, SCALE)],
 )

@@ -1,8 +1,9 @@
-"""Chapter-3 figure logic (thesis_repro.figures.ch3): seed selection, correlation table, overfitting, budgets."""
+"""Chapter-3 figure logic (thesis_repro.figures.ch3): seed selection, correlation table, frontier, budgets."""
 
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from thesis_repro.evaluation import BenchmarkResult
@@ -47,15 +48,6 @@ def test_training_return_at_uses_episodes_finished_by_then():
     assert np.isnan(out[0]) and out[1] == 1.5 and out[2] == 3.5
 
 
-def test_overfitting_summary_detects_peak_then_fall():
-    it = np.arange(6.0)
-    up = np.array([1, 2, 3, 4, 5, 6.0])
-    peaked = np.array([10, 30, 50, 40, 30, 20.0])
-    s = ch3.overfitting_summary(it, up, peaked)
-    assert s["overfits"] and s["peak_iteration"] == 2 and s["auc_drop_from_peak"] == pytest.approx(0.6)
-    assert not ch3.overfitting_summary(it, up, up * 10)["overfits"]
-
-
 def test_timesteps_for_per_env_budgets():
     assert ch3.timesteps_for(100, "Hopper") == 100
     assert ch3.timesteps_for({"Hopper": 5, "default": 7}, "Hopper") == 5
@@ -93,28 +85,9 @@ def test_snapshot_steps_follow_iteration_boundaries():
         ch3.snapshot_steps({**cfg, "class": "SAC"})
 
 
-def test_pareto_verdict_counts_negative_cells_and_frontiers():
-    import pandas as pd
-
-    from thesis_repro import figures, report
-
-    settings = figures.settings("3.3", "small")
-    ours = pd.DataFrame(
-        {"env": ["Walker2d"] * 4, "test": ["obs", "act", "env", "dom"], "value": [-0.5, -0.2, 0.3, -0.1]}
-    )
-    points = pd.DataFrame(
-        {
-            "env": "Walker2d",
-            "test": "act",
-            "algo": ["a", "b", "c"],
-            "train_return": [1.0, 2.0, 3.0],
-            "auc": [3.0, 2.0, 1.0],
-        }
-    )
-    points = pd.concat([points, points.assign(env="HalfCheetah", test="obs", auc=[1.0, 2.0, 3.0])])
-    corr, front = ch3.pareto_verdict(ours, points, settings)
-    assert corr.status == report.REPRODUCES and "3/4 defined cells negative" in corr.evidence
-    assert front.status == report.PARTLY  # Walker2d/act trades off, HalfCheetah/obs has one dominant variant
-    trained = pd.DataFrame({"verdict": ["trained", "still learning", "trained"]})
-    corr, _ = ch3.pareto_verdict(ours, points, settings, trained=trained)
-    assert corr.evidence.endswith("Policies: 2/3 runs in the trained regime (make budgets).")
+def test_frontier_keeps_the_pareto_optimal_variants_of_a_panel():
+    trade = pd.DataFrame({"algo": ["a", "b", "c"], "train_return": [1.0, 2.0, 3.0], "auc": [3.0, 2.0, 1.0]})
+    assert ch3.frontier(trade).algo.tolist() == ["a", "b", "c"]  # every variant trades one for the other
+    dominant = trade.assign(auc=[1.0, 2.0, 3.0])
+    assert ch3.frontier(dominant).algo.tolist() == ["c"]  # one variant is best at both
+    assert ch3.frontier(trade.assign(auc=np.nan)).empty  # no finite point (a smoke run)

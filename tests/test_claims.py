@@ -173,3 +173,15 @@ def test_stats_match_scipy():
     e = Contrast("a - b", tuple(a), tuple(b)).estimate()
     ci = st.ttest_ind(a, b, equal_var=False).confidence_interval(0.95)
     assert e.lo == pytest.approx(ci.low, abs=1e-3) and e.hi == pytest.approx(ci.high, abs=1e-3)
+
+
+def test_bolding_agreement_is_a_kit_check_judged_here_not_on_the_scoreboard():
+    """The Welch-bolding agreement (a figure's ``Comparison.agreement``) is judged by the claims layer."""
+    a = {"rows": 20, "best_same": 20, "same": 120, "cells": 120, "bold_both": 30, "bold_ours": 30, "bold_thesis": 30}
+    v = L.bolding_check("table-3.6", a, "full")
+    assert v.status == report.REPRODUCES and v.evidence.startswith("best learner the same in 20/20 rows")
+    assert "n = 240, alpha = 0.05" in v.evidence
+    assert L.bolding_check("table-3.6", {**a, "best_same": 0}, "small").status == report.DOES_NOT
+    assert L.bolding_check("table-3.6", a, "smoke").status == report.NOT_JUDGED
+    assert L.bolding_check("table-3.6", {**a, "rows": 0, "best_same": 0}, "small").status == report.NOT_JUDGED
+    assert v.claim not in {s.text for s in L.specs()}  # not a registered thesis claim

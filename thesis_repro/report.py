@@ -1,9 +1,10 @@
 """Verdicts: one wording for "does the thesis's claim reproduce at this scale?", for every figure and table.
 
-A figure's ``verdict()`` (in :mod:`thesis_repro.figures`) returns :class:`Verdict` objects; the notebook
-ends with ``report(figure, scale, verdicts)``, which prints one line per claim (the terminal and the
-executed notebook), displays each as a visible admonition in the book, and writes
-``build/<scale>/figures/<figure>.verdicts.json`` for the chapter summaries and the book's scoreboard.
+The claims layer (:func:`thesis_repro.claims.judge_page`, the last call of every figure and table
+notebook) judges a page's numbers into :class:`Verdict` objects and hands them to ``report(figure, scale,
+verdicts)``, which prints one line per claim (the terminal and the executed notebook), displays each as a
+visible admonition in the book, and writes ``build/<scale>/figures/<figure>.verdicts.json`` for the chapter
+summaries (:mod:`thesis_repro.book`). The figure layer computes numbers only and builds no verdict.
 
 >>> v = Verdict("3.3", "Training return and testing AUC are negatively correlated",
 ...             REPRODUCES, "15/20 cells negative (thesis: 18/20)")

@@ -13,6 +13,6 @@ The book's scoreboard and ``python -m thesis_repro claims`` read that one ledger
 """
 
 from thesis_repro.claims import ledger
-from thesis_repro.claims.ledger import judge, judge_page, scoreboard, spec, specs
+from thesis_repro.claims.ledger import bolding_check, judge, judge_page, scoreboard, spec, specs
 
-__all__ = ["judge", "judge_page", "ledger", "scoreboard", "spec", "specs"]
+__all__ = ["bolding_check", "judge", "judge_page", "ledger", "scoreboard", "spec", "specs"]

@@ -532,6 +532,29 @@ def judge_page(
     return vs
 
 
+def bolding_check(page: str, agreement: Mapping[str, int], scale: str) -> report.Verdict:
+    """Kit check (not a thesis claim, shown through ``judge_page(kit_checks=...)``): does our Welch bolding
+    agree with the thesis's? ``agreement`` is :func:`thesis_repro.evaluation.tables.bold_agreement`'s count
+    (a page's ``Comparison.agreement``); holds if the best learner is the thesis's in most rows.
+
+    >>> a = {"rows": 4, "best_same": 1, "same": 10, "cells": 16, "bold_both": 2, "bold_ours": 3, "bold_thesis": 4}
+    >>> bolding_check("table-3.4", a, "small").status
+    'partly reproduces'
+    """
+    from thesis_repro.evaluation import tables  # at call time: the package imports the learners (2 s)
+
+    a = agreement
+    claim = "The best learner of each row (bold, Welch p >= alpha) is the thesis's"
+    ev = (
+        f"best learner the same in {a['best_same']}/{a['rows']} rows; bold/not-bold agrees in {a['same']}/"
+        f"{a['cells']} cells ({a['bold_both']} bold in both; {a['bold_ours']} bold reproduced, "
+        f"{a['bold_thesis']} bold thesis, on the learners run); thesis bolding derived from its mean ± std with "
+        f"n = {tables.thesis_n()}, alpha = {tables.significance_level()}"
+    )
+    holds = None if not a["rows"] else a["best_same"] > a["rows"] / 2
+    return report.Verdict(page, claim, report.status(holds, scale, partly=a["best_same"] > 0), ev)
+
+
 def _show_units(page: str, scale: str) -> None:
     try:
         from IPython import get_ipython

@@ -1,4 +1,4 @@
-"""Chapter 3, Figures 3.2 and 3.3: job grids, tidy result tables and verdicts.
+"""Chapter 3, Figures 3.2 and 3.3: job grids and tidy result tables (the claims layer judges them).
 
 Arrays follow the kit's axis order ``(training seeds, tasks, algorithms, ...)``.
 
@@ -17,12 +17,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import reference, report
+from thesis_repro import reference
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job, Result
 from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
 from thesis_repro.evaluation.jobs import check_test
-from thesis_repro.figures import budget_note, register
+from thesis_repro.figures import register
 from thesis_repro.learners import iteration_steps, n_iterations, train_config
 from thesis_repro.validation import check_choice
 
@@ -161,66 +161,6 @@ def overfitting_curve(settings: Mapping[str, Any], n_jobs: int | None = None) ->
     return pd.DataFrame(rows)
 
 
-def overfitting_summary(
-    iterations: np.ndarray, train_return: np.ndarray, test_auc: np.ndarray, window: int = 1
-) -> dict[str, Any]:
-    """Did testing AUC peak before the end while training return kept rising? (the claim of Fig 3.2).
-
-    Both curves are first averaged over ``window`` consecutive snapshots (a moving average; ``1``: the raw
-    curves), so that one noisy snapshot neither makes the peak nor the end: the peak of a flat noisy curve
-    is always above its last point. ``overfits`` is True when the final (smoothed) AUC is at least 10 %
-    below its (smoothed) peak and the final training return is at least that at the AUC peak.
-
-    >>> it, up = np.arange(8.0), np.arange(8.0)
-    >>> flat = np.array([10, 12, 9, 13, 10, 12, 9, 10.0])  # noise around 10.6: raw 'peak' 13, end 10
-    >>> overfitting_summary(it, up, flat)["overfits"], overfitting_summary(it, up, flat, window=4)["overfits"]
-    (True, False)
-    """
-    it, tr, auc = (np.asarray(a, float) for a in (iterations, train_return, test_auc))
-    w = max(1, min(int(window), len(auc)))
-    if w > 1:  # moving average; each value sits at the centre of its window
-        kernel = np.ones(w) / w
-        it, tr, auc = (np.convolve(a, kernel, mode="valid") for a in (it, tr, auc))
-    k = int(np.nanargmax(auc))
-    drop = float((auc[k] - auc[-1]) / abs(auc[k])) if auc[k] != 0 else 0.0
-    overfits = bool(k < len(auc) - 1 and drop >= 0.10 and tr[-1] >= tr[k])
-    return {
-        "window": w,
-        "peak_iteration": float(it[k]),
-        "peak_auc": float(auc[k]),
-        "final_auc": float(auc[-1]),
-        "auc_drop_from_peak": drop,
-        "train_return_at_peak": float(tr[k]),
-        "final_train_return": float(tr[-1]),
-        "overfits": overfits,
-    }
-
-
-def overfitting_verdict(curve: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 3.2's claim judged on the seed-mean curve of :func:`overfitting_curve`."""
-    claim = "Testing AUC peaks and then falls while the training return keeps rising (overfitting)"
-    mean = curve.groupby("iteration")[["train_return", "test_auc"]].mean().reset_index().dropna()
-    note = budget_note(settings)
-    if len(mean) < 3:
-        return [
-            report.Verdict(
-                "3.2", claim, report.status(None, settings["scale"]), f"{len(mean)} usable snapshots; {note}"
-            )
-        ]
-    arrays = mean.iteration.to_numpy(), mean.train_return.to_numpy(), mean.test_auc.to_numpy()
-    s = overfitting_summary(*arrays, window=settings.get("smooth_snapshots", 1))
-    raw = overfitting_summary(*arrays)
-    evidence = (
-        f"reproduced testing AUC ({s['window']}-snapshot moving average of the seed mean) peaks at iteration "
-        f"{s['peak_iteration']:.0f} ({s['peak_auc']:.1f}) and ends at {s['final_auc']:.1f} "
-        f"({100 * s['auc_drop_from_peak']:.0f} % below the peak; the claim needs >= 10 %); training return "
-        f"{s['train_return_at_peak']:.1f} at the peak, {s['final_train_return']:.1f} at the end; unsmoothed: peak "
-        f"{raw['peak_auc']:.1f} at iteration {raw['peak_iteration']:.0f}, end {raw['final_auc']:.1f} "
-        f"({100 * raw['auc_drop_from_peak']:.0f} % below) (thesis: the curve only, no numbers); {note}"
-    )
-    return [report.Verdict("3.2", claim, report.status(s["overfits"], settings["scale"]), evidence)]
-
-
 # ---------------------------------------------------------------- Figure 3.3: training return vs testing AUC
 def benchmark(
     algos: Sequence[str],
@@ -336,54 +276,3 @@ def frontier(points: pd.DataFrame) -> pd.DataFrame:
     if ok.empty:
         return ok
     return ok.iloc[pareto_frontier(ok.train_return, ok.auc)]
-
-
-def pareto_verdict(
-    ours: pd.DataFrame,
-    points: pd.DataFrame,
-    settings: Mapping[str, Any],
-    selection: str = "best",
-    trained: pd.DataFrame | None = None,
-) -> list[report.Verdict]:
-    """Fig 3.3's two claims: (c) mostly negative correlations; (a, b) a trade-off frontier in each panel.
-
-    ``trained`` (a :func:`thesis_repro.budgets.table`) adds how many of the runs are in the trained regime,
-    since the thesis's claim is about trained policies."""
-    scale, n_algos = settings["scale"], len(settings["algos"])
-    thesis = reference.load("fig3_3c")
-    merged = ours.merge(thesis, on=["env", "test"], suffixes=("_reproduced", "_thesis"))
-    defined = merged.dropna(subset=["value_reproduced"])
-    n_neg = int((defined.value_reproduced < 0).sum())
-    agree = int((np.sign(defined.value_reproduced) == np.sign(defined.value_thesis)).sum())
-    note = budget_note(settings, n_algos)
-    evidence = (
-        f"reproduced: {n_neg}/{len(defined)} defined cells negative, sign agrees with the thesis in "
-        f"{agree}/{len(defined)} (selection={selection}); thesis: {int((thesis.value < 0).sum())}/{len(thesis)} "
-        f"negative ({int((merged.value_thesis < 0).sum())}/{len(merged)} on the tasks run here); {note}"
-    )
-    if trained is not None and "verdict" in trained:
-        n_trained = int((trained["verdict"] == "trained").sum())
-        evidence += f" Policies: {n_trained}/{len(trained)} runs in the trained regime (make budgets)."
-    holds = None if defined.empty else n_neg > len(defined) / 2
-    out = [
-        report.Verdict(
-            "3.3",
-            "Training return and testing AUC are mostly negatively correlated across variants (Fig 3.3c)",
-            report.status(holds, scale),
-            evidence,
-        )
-    ]
-    panels, trade = [], []
-    for env, test in settings["panels"]:
-        front = frontier(points[(points.env == env) & (points.test == test)])
-        trade.append(len(front) >= 2)
-        panels.append(f"{env}/{test}: {len(front)} variant(s) on the frontier ({', '.join(front.algo)})")
-    out.append(
-        report.Verdict(
-            "3.3",
-            "A Pareto frontier trades training return against testing AUC (Fig 3.3a,b: >= 2 variants on it)",
-            report.status(all(trade), scale, partly=any(trade)),
-            "reproduced: " + "; ".join(panels) + " (thesis: a frontier of several variants in both panels)",
-        )
-    )
-    return out

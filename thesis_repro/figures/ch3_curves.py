@@ -1,8 +1,9 @@
 """Chapter 3, Figures 3.4-3.8: testing-return curves (3.4 top, 3.7, 3.8), heat maps over domain shifts (3.4
-bottom) and normalised-AUC bars (3.5, 3.6), thesis beside reproduced, with one verdict per claim (§3.3).
+bottom) and normalised-AUC bars (3.5, 3.6), thesis beside reproduced; the claims layer
+(:mod:`thesis_repro.claims`) judges the per-seed frames.
 
-The runs, evaluation jobs, cells and the claim machinery are those of :mod:`thesis_repro.figures.ch3_tables`
-(every chapter-3 item shares them); this module adds the heat-map jobs, the figure-specific claims and plots.
+The runs, evaluation jobs and cells are those of :mod:`thesis_repro.figures.ch3_tables` (every chapter-3 item
+shares them); this module adds the heat-map jobs, the heat-map and bar numbers and the plots.
 
 >>> shift_value("Walker2d", "body_mass", -0.2), round(shift_value("Walker2d", "wind", 0.2), 3)
 (0.8, 1.962)
@@ -11,7 +12,7 @@ The runs, evaluation jobs, cells and the claim machinery are those of :mod:`thes
 from __future__ import annotations
 
 import itertools
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import matplotlib.pyplot as plt
@@ -19,7 +20,6 @@ import numpy as np
 import pandas as pd
 import seaborn as sns
 
-from thesis_repro import report
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job
 from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE
@@ -28,26 +28,14 @@ from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.jobs import check_test
 from thesis_repro.figures import register
 from thesis_repro.figures.ch3_tables import (
-    Claim,
-    Comparison,
     Results,
-    Stat,
-    all_better,
     benchmarks,
-    best_in,
-    every,
     grid,
     identity,
     item_envs,
-    judge,
     learners,
-    majority,
-    noisy_learners,
-    note,
     skipped,
     thesis_cells,
-    two_or_more,
-    wide,
 )
 from thesis_repro.validation import check_choice
 
@@ -144,90 +132,7 @@ def heat_seeds(heat: pd.DataFrame) -> pd.DataFrame:
     return heat.groupby(by, as_index=False, sort=False)["return"].mean()
 
 
-# ---------------------------------------------------------------- Figs 3.4, 3.7, 3.8: curves and heat maps
-def curve_cells(res: Results) -> pd.DataFrame:
-    """Mean ± std testing return per ``env, method, test, sigma`` over seeds × rollouts."""
-    return tables.cells(res.returns, value="return", by=("env", "method", "test", "sigma"))
-
-
-def degrade(curves: pd.DataFrame) -> tuple[int, int]:
-    """Curves (task × learner × test) whose return at the largest σ is below that at σ = 0."""
-    k = n = 0
-    for _, c in curves.groupby(["env", "method", "test"], sort=False):
-        c = c.sort_values("sigma")
-        if len(c) > 1:
-            k, n = k + int(c["mean"].iloc[-1] < c["mean"].iloc[0]), n + 1
-    return k, n
-
-
-def obs_most_sensitive(w: pd.DataFrame) -> tuple[int, int]:
-    """Learners (per task) whose observation-noise AUC is below both their action- and env-noise AUCs."""
-    k = n = 0
-    for env in dict.fromkeys(w.index.get_level_values("env")):
-        sub = w.xs(env, level="env")
-        if not {"obs", "act", "env"} <= set(sub.index):
-            continue
-        for m in sub.columns:
-            v = sub.loc[["obs", "act", "env"], m]
-            if v.notna().all():
-                k, n = k + int(v["obs"] < min(v["act"], v["env"])), n + 1
-    return k, n
-
-
-def env_winners(w: pd.DataFrame) -> tuple[int, int]:
-    """(different best learners over tasks, tasks); a task's best has the highest mean AUC over its tests."""
-    per_env = w.groupby(level="env", sort=False).mean().dropna(how="all")
-    return (int(per_env.idxmax(axis=1).nunique()), int(len(per_env))) if len(per_env) else (0, 0)
-
-
-CURVE_CLAIMS: dict[str, list[Claim]] = {
-    "3.4": [
-        Claim(
-            "Policies are relatively sensitive to observation noise compared to the other noise types (Fig 3.4a-c)",
-            (),
-            obs_most_sensitive,
-            "learners with their obs-noise AUC below their act- and env-noise AUCs",
-        ),
-        Claim(
-            "SAC is usually the most robust algorithm in this environment (§3.3.2)",
-            ("sac",),
-            best_in(["sac"]),
-            "rows (tests) with SAC best",
-        ),
-    ],
-    "3.7": [
-        Claim(
-            "There is no consistent winner in algorithm robustness across environments (§3.3.2)",
-            (),
-            env_winners,
-            "{k} different best basic learners over {n} tasks (mean AUC over the tests)",
-            two_or_more,
-        )
-    ],
-    "3.8": [
-        Claim(
-            "For PPO-Ent, PPO-MDL and PPO-MAML-DG the improvement over the PPO baseline is usually clear (§3.3.4)",
-            ("ppo", "ppo-ent", "ppo-mdl", "ppo-maml-dg"),
-            all_better([("ppo-ent", "ppo"), ("ppo-mdl", "ppo"), ("ppo-maml-dg", "ppo")]),
-            "rows (each selected learner vs PPO) above PPO",
-        )
-    ],
-}
-
-
-def degrade_verdict(item: str, res: Results, settings: Mapping[str, Any]) -> report.Verdict:
-    """Testing return falls as testing noise / shift grows (Figs 3.4a-d, 3.7, 3.8; the thesis gives curves)."""
-    k, n = degrade(curve_cells(res))
-    holds, partly = majority(k, n) if n else (None, False)
-    ev = (
-        f"reproduced: {k}/{n} curves (task × learner × test) end below their σ = 0 value; thesis: curves only "
-        f"(§3.3.2: 'performance degradation ... as increasing observation, action, and environmental noise are "
-        f"added'); {note(settings)}"
-    )
-    claim = "Testing return degrades as testing noise and domain shift grow"
-    return report.Verdict(item, claim, report.status(holds, settings["scale"], partly), ev)
-
-
+# ---------------------------------------------------------------- Fig 3.4: heat-map summary
 def heat_summary(heat: pd.DataFrame) -> pd.DataFrame:
     """Per learner: mean return at the training domain (centre) and drops along each factor's axis.
 
@@ -252,42 +157,6 @@ def heat_summary(heat: pd.DataFrame) -> pd.DataFrame:
             }
         )
     return pd.DataFrame(rows)
-
-
-def heat_verdicts(heat: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 3.4(e-h): return degrades away from the training domain, and more along mass than along wind."""
-    f_row, f_col = settings["heat_factors"]
-    s = heat_summary(heat)
-    text = note(settings)
-    k1, n1 = int((s["drop_ring"] > 0).sum()), len(s)
-    k2, n2 = int((s["drop_row"] > s["drop_col"]).sum()), len(s)
-    detail = "; ".join(
-        f"{r.method}: centre {r.centre:.0f}, drop {f_row} {r.drop_row:.0f}, drop {f_col} {r.drop_col:.0f}"
-        for r in s.itertuples()
-    )
-    out = []
-    for claim, k, n in (
-        ("Expected return degrades as the environment parameters are shifted from training (Fig 3.4e-h)", k1, n1),
-        (
-            f"Greater sensitivity to {f_row} than to {f_col} at equal shifts (Fig 3.4e-h: 'greater mass-sensitivity "
-            "than wind')",
-            k2,
-            n2,
-        ),
-    ):
-        holds, partly = majority(k, n) if n else (None, False)
-        ev = f"reproduced: {k}/{n} learners ({detail}); thesis: heat maps only; {text}"
-        out.append(report.Verdict("3.4", claim, report.status(holds, settings["scale"], partly), ev))
-    return out
-
-
-def curve_verdicts(item: str, res: Results, comp: Comparison, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Claims of Figs 3.4 (top), 3.7 and 3.8: degradation, plus the item's AUC claims (thesis: Tables 3.4-3.7)."""
-    text = note(settings)
-    ours_w, thesis_w = wide(comp.ours), wide(comp.thesis)
-    return [degrade_verdict(item, res, settings)] + [
-        judge(item, c, ours_w, thesis_w, settings, text) for c in CURVE_CLAIMS.get(item, [])
-    ]
 
 
 # ---------------------------------------------------------------- Figs 3.5, 3.6: normalised AUC change
@@ -315,71 +184,6 @@ def bars(item: str, ours: pd.DataFrame, settings: Mapping[str, Any]) -> pd.DataF
             parts.append(b.assign(panel=panel, baseline=base, source=source))
     cols = ["panel", "baseline", "test", "method", "change", "n_envs", "source"]
     return pd.concat(parts, ignore_index=True)[cols] if parts else pd.DataFrame(columns=cols)
-
-
-def _bar_wide(b: pd.DataFrame, source: str) -> pd.DataFrame:
-    sub = b[b["source"] == source]
-    return sub.pivot_table(index="test", columns="method", values="change", sort=False)
-
-
-def positive_bars(methods: Sequence[str], tests: Sequence[str] | None = None, below: bool = False) -> Stat:
-    """Bars (rows: tests; columns: methods) above zero (``below``: at or below zero)."""
-
-    def stat(w: pd.DataFrame) -> tuple[int, int]:
-        cols = [m for m in methods if m in w]
-        sub = w[cols] if tests is None else w.loc[[t for t in tests if t in w.index], cols]
-        v = sub.to_numpy(dtype=float).ravel()
-        v = v[np.isfinite(v)]
-        return int(((v <= 0) if below else (v > 0)).sum()), int(v.size)
-
-    return stat
-
-
-BAR_CLAIMS: dict[str, list[Claim]] = {
-    "3.5": [
-        Claim(
-            "Training with noisy or multiple environments improves generalisation over vanilla PPO (positive bars)",
-            ("ppo", *noisy_learners().values()),
-            positive_bars(list(noisy_learners().values())),
-            "bars (learner × test) above 0",
-        ),
-        Claim(
-            "MDL training also improves robustness to observation, action and environment noise (§3.3.3)",
-            ("ppo", "ppo-mdl"),
-            positive_bars(["ppo-mdl"], ["obs", "act", "env"]),
-            "PPO-MDL bars (obs, act, env) above 0",
-            every,
-        ),
-    ],
-    "3.6": [
-        Claim(
-            "(a) Smaller nets (PPO-16, SCN-16) and entropy regularisation (PPO-Ent) improve on vanilla PPO",
-            ("ppo", "ppo-16", "ppo-scn-16", "ppo-ent"),
-            positive_bars(["ppo-16", "ppo-scn-16", "ppo-ent"]),
-            "bars above 0",
-        ),
-        Claim(
-            "(b) MAML-DG and Reptile-DG improve generalisation over PPO-MDL",
-            ("ppo-mdl", "ppo-maml-dg", "ppo-reptile-dg"),
-            positive_bars(["ppo-maml-dg", "ppo-reptile-dg"]),
-            "bars above 0",
-        ),
-        Claim(
-            "(b) EPOpt does not generalise better than PPO-MDL",
-            ("ppo-mdl", "ppo-epopt"),
-            positive_bars(["ppo-epopt"], below=True),
-            "EPOpt bars at or below 0",
-        ),
-    ],
-}
-
-
-def bar_verdicts(item: str, b: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Claims of Figs 3.5, 3.6 on the bars (thesis bars derived from its tables with the same normalisation)."""
-    text = note(settings)
-    text += f" Normalisation: {settings['normalisation']} (thesis_repro.evaluation.tables.auc_change)."
-    ours_w, thesis_w = _bar_wide(b, "reproduced"), _bar_wide(b, "thesis")
-    return [judge(item, c, ours_w, thesis_w, settings, text) for c in BAR_CLAIMS[item]]
 
 
 # ---------------------------------------------------------------- plots

@@ -1,8 +1,8 @@
-"""Chapter 4, Figures 4.1-4.7 (kl_avg, kl_exact vs params_avg, joint): job grids, tidy frames and verdicts.
+"""Chapter 4, Figures 4.1-4.7 (kl_avg, kl_exact vs params_avg, joint): job grids and tidy frames.
 
 Every figure trains the thesis's kl_avg (Eq 4.11) and our kl_exact (the exact Eq 4.7 minimiser, issue 12)
-beside the baselines params_avg and joint, and ends with one verdict per claim for EACH of the two
-aggregates, judged against params_avg and joint only (:data:`JUDGED`, :data:`BASELINES`).
+beside the baselines params_avg and joint; the claims layer (:mod:`thesis_repro.claims`) judges each claim
+for each of the two aggregates, against params_avg and joint only.
 
 Training runs are ``train`` jobs of :func:`thesis_repro.learners.train_config` built by :func:`run_config`
 from a figure's settings; the config depends only on the run's identity (algorithm, condition, seed) and the
@@ -16,7 +16,6 @@ the deterministic (mean-action) policy under testing seeds.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
@@ -24,24 +23,20 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import reference, report
+from thesis_repro import reference
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation.metrics import auc
-from thesis_repro.figures import budget_note, register
-from thesis_repro.learners import iteration_steps, load_policy, n_iterations, train_config
+from thesis_repro.figures import register
+from thesis_repro.learners import iteration_steps, load_policy, train_config
 from thesis_repro.validation import check_choice
 
 EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
-#: The thesis's spelling of the learners (figures, tables and verdicts show these names; configs use the ids).
+#: The thesis's spelling of the learners (figures and tables show these names; configs use the ids).
 THESIS_NAMES: dict[str, str] = {"kl-avg": "kl_avg", "params-avg": "params_avg", "kl-exact": "kl_exact"}
 #: The thesis's method (the claims of chapter 4 are about it), as figures name it.
 OURS = "kl_avg"
-#: The aggregates whose claims each figure judges: the thesis's kl_avg and the exact Eq 4.7 minimiser (issue 12).
-JUDGED: tuple[str, ...] = ("kl_avg", "kl_exact")
-#: What a judged aggregate is compared with (the thesis's baselines); the other aggregate is never a baseline.
-BASELINES: tuple[str, ...] = ("params_avg", "joint")
 
 
 # ---------------------------------------------------------------- conditions, configs, runs
@@ -238,7 +233,7 @@ register("4.6", "Testing return vs observation- and action-noise scale", _BOTH)(
 register("4.7", "Policy entropy during training", _TRAIN)(_grid())
 
 
-# ---------------------------------------------------------------- tables behind the verdicts
+# ---------------------------------------------------------------- tables of the figures
 def compare(frame: pd.DataFrame, value: str, by: Sequence[str] = ("panel",), ours: str = OURS) -> pd.DataFrame:
     """Mean of ``value`` per (by..., algo), the best algorithm of each group and whether it is ``ours``.
 
@@ -288,196 +283,6 @@ def best_seeds(runs: pd.DataFrame, last: int = 3) -> pd.DataFrame:
         for r in runs["result"]
     ]
     return runs.loc[runs.groupby("algo")["final_return"].idxmax()].set_index("algo")
-
-
-# ---------------------------------------------------------------- verdicts
-def judged(settings_or_algos: Mapping[str, Any] | Sequence[str]) -> list[str]:
-    """The aggregates whose claims a figure judges (thesis names, in :data:`JUDGED` order): those it trains.
-
-    >>> judged(["kl-avg", "params-avg", "kl-exact", "joint"])
-    ['kl_avg', 'kl_exact']
-    """
-    algos = settings_or_algos["algos"] if isinstance(settings_or_algos, Mapping) else settings_or_algos
-    names = {THESIS_NAMES.get(a, a) for a in algos}
-    return [a for a in JUDGED if a in names]
-
-
-def panel_lines(
-    table: pd.DataFrame, easy: Sequence[str] = (), tol: float = 0.1, what: str = "mean return", ours: str = OURS
-) -> tuple[list[str], list[bool]]:
-    """Per panel of a higher-is-better ``table`` (from :func:`compare`): a sentence and whether the claim holds.
-
-    The claim: ``ours`` is similar (within ``tol`` relative to the best baseline) in the ``easy`` panels and
-    strictly better than every baseline in the others. The baselines are :data:`BASELINES` (params_avg,
-    joint) present in the table, never the other aggregate of :data:`JUDGED`: kl_avg and kl_exact are each
-    judged against params_avg and joint only.
-    """
-    check_choice(ours, JUDGED, "judged aggregate")
-    if ours not in table.columns:
-        raise ValueError(f"the table has no column {ours!r}; its columns are {list(table.columns)}")
-    baselines = [b for b in BASELINES if b in table.columns]
-    if not baselines:
-        raise ValueError(f"the table has no baseline column ({', '.join(BASELINES)}); columns: {list(table.columns)}")
-    lines, holds = [], []
-    for panel, row in table.iterrows():
-        best_name = max(baselines, key=lambda b: float(row[b]))
-        base = float(row[best_name])
-        mine = float(row[ours])
-        if panel in easy:
-            good = mine >= base - tol * max(abs(base), 1e-9)
-            word, thesis = ("similar or better" if good else "worse"), "similar"
-        else:
-            good = mine > base
-            word, thesis = ("better" if good else "not better"), "better"
-        lines.append(
-            f"panel {panel}: {ours} {what} {mine:.3g} vs best baseline ({best_name}) {base:.3g} -> {word}"
-            f" (thesis: {thesis})"
-        )
-        holds.append(bool(good))
-    return lines, holds
-
-
-def caveat(settings: Mapping[str, Any]) -> str:
-    """The honest fine print of a chapter-4 run: budget in env steps and iterations vs the thesis's, seeds."""
-    cfg = runs(settings)["config"].iloc[0]
-    text = budget_note(settings, extra=f"{n_iterations(cfg)} iteration(s) of {iteration_steps(cfg):,} steps")
-    if int(settings["train_seeds"]) < 3:
-        text += " With so few seeds there are no error bars: small differences are not evidence either way."
-    return text
-
-
-def claim_verdict(
-    figure: str,
-    claim: str,
-    table: pd.DataFrame,
-    settings: Mapping[str, Any],
-    easy: Sequence[str] = (),
-    what: str = "mean return",
-    tol: float = 0.1,
-    ours: str = OURS,
-) -> report.Verdict:
-    """One :class:`~thesis_repro.report.Verdict` for an ``ours``-vs-baselines claim judged panel by panel.
-
-    ``claim`` may hold ``{ours}`` (filled with the judged aggregate's name).
-    """
-    lines, holds = panel_lines(table, easy, tol, what, ours=ours)
-    status = report.status(all(holds), settings["scale"], partly=any(holds))
-    evidence = "reproduced: " + "; ".join(lines) + ". " + caveat(settings)
-    return report.Verdict(figure, claim.format(ours=_who(ours)), status, evidence)
-
-
-def _who(ours: str) -> str:
-    """How a claim names the judged aggregate: the thesis's kl_avg, or kl_exact marked as ours."""
-    return ours if ours == OURS else f"{ours} (ours: the exact Eq 4.7 minimiser, not in the thesis)"
-
-
-def _each(
-    figure: str,
-    claim: str,
-    table: pd.DataFrame,
-    settings: Mapping[str, Any],
-    easy: Sequence[str] = (),
-    what: str = "mean return",
-) -> list[report.Verdict]:
-    """One :func:`claim_verdict` per aggregate of :func:`judged` (kl_avg, then kl_exact) on the same table."""
-    return [claim_verdict(figure, claim, table, settings, easy, what, ours=a) for a in judged(settings)]
-
-
-def verdict_4_1(curves: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 4.1: kl_avg (and kl_exact) learns as well in the easy condition (a) and better in the harder ones."""
-    claim = "{ours} learns like the baselines in the easy condition (a) and better in the harder ones"
-    return _each("4.1", claim, late_returns(curves), settings, easy=("a",), what="late training return")
-
-
-def verdict_4_2(returns: pd.Series, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 4.2 (visual gait claim): the measurable proxy, testing return at ξ = 0 of the best seeds.
-
-    The figure compares the aggregates with params_avg only (the thesis's two walking cycles).
-    """
-    out = []
-    base = float(returns["params_avg"])
-    for ours in judged(settings):
-        mine = float(returns[ours])
-        evidence = (
-            f"reproduced testing return at ξ = 0 of the best seeds: {ours} {mine:.1f}, params_avg {base:.1f}; "
-            f"naturalness itself is visual (see the key frames). {caveat(settings)}"
-        )
-        claim = f"{_who(ours)}'s gait is more natural than params_avg's (proxy: higher testing return at ξ = 0)"
-        out.append(report.Verdict("4.2", claim, report.status(mine >= base, settings["scale"]), evidence))
-    return out
-
-
-def verdict_4_3(wind: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 4.3: kl_avg (and kl_exact) extrapolates better over unseen wind speeds when training is harder."""
-    claim = "{ours} is competitive in the easy condition (a) and more robust to unseen winds in the harder ones"
-    return _each("4.3", claim, compare(wind, "return"), settings, easy=("a",), what="mean testing return over winds")
-
-
-def verdict_4_4(wind: pd.DataFrame, heat: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 4.4 (Hopper): kl_avg (and kl_exact) degrades less under unseen winds (a) and mass/friction (b)."""
-    return [
-        *_each(
-            "4.4",
-            "(a) On Hopper {ours} is the most robust to unseen wind speeds",
-            compare(wind, "return"),
-            settings,
-            what="mean return over winds",
-        ),
-        *_each(
-            "4.4",
-            "(b) On Hopper {ours} is the most robust to mass × friction changes",
-            compare(off_centre(heat), "return"),
-            settings,
-            what="mean off-centre return",
-        ),
-    ]
-
-
-def verdict_4_5(heat: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 4.5: kl_avg (and kl_exact) stays robust over a wide range of mass × friction (off-centre mean)."""
-    claim = "{ours} is the most robust to unseen mass × friction combinations in every condition"
-    return _each("4.5", claim, compare(off_centre(heat), "return"), settings, what="mean off-centre return")
-
-
-def verdict_4_6(aucs: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 4.6: kl_avg's (and kl_exact's) testing return degrades more slowly under obs/act noise (AUC)."""
-    return [
-        v
-        for kind in ("obs", "act")
-        for v in _each(
-            "4.6",
-            f"{{ours}} degrades more slowly than the baselines under {kind} noise (higher AUC, Eq 3.6)",
-            compare(aucs[aucs["noise"] == kind], "auc"),
-            settings,
-            what=f"{kind}-noise AUC",
-        )
-    ]
-
-
-def verdict_4_7(curves: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 4.7: kl_avg (and kl_exact) keeps the highest policy entropy (final iteration).
-
-    The thesis reads the higher entropy as a benefit (a "soft entropy regularisation"). A policy whose
-    log-std grows because it stopped learning also has a high entropy, so each verdict's evidence adds the
-    aggregate's late training return (:func:`late_returns`) beside the best baseline's and says so when it
-    is lower: the literal claim is judged, the context is printed.
-    """
-    final = curves[curves["iteration"] == curves["iteration"].max()]
-    claim = "{ours} keeps a higher policy entropy than params_avg and joint"
-    verdicts = _each("4.7", claim, compare(final, "entropy"), settings, what="final entropy")
-    late = late_returns(curves).iloc[0]
-    base = max(BASELINES, key=lambda b: late.get(b, -np.inf))
-    out = []
-    for v, ours in zip(verdicts, judged(settings), strict=True):
-        mine, best = float(late[ours]), float(late[base])
-        note = f" Context: late training return {ours} {mine:,.0f} vs {base} {best:,.0f}"
-        if mine < best:
-            note += f"; {ours}'s higher entropy comes with a policy that learns less, so it is not a sign of"
-            note += " better learning here."
-        else:
-            note += "."
-        out.append(dataclasses.replace(v, evidence=v.evidence + note))
-    return out
 
 
 # ---------------------------------------------------------------- Figure 4.2: rendering

@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import report
 from thesis_repro.arm.baselines import COMPETITORS, STRATEGIES, TARGET_DEFAULTS, TRANSFER
 from thesis_repro.arm.curriculum import CONDITIONS, CURRICULUM_DEFAULTS
 from thesis_repro.arm.learn import source_config
@@ -75,22 +74,6 @@ def catch_summary(results: Sequence[Result | Mapping[str, Any]], seeds: Sequence
             }
         )
     return pd.DataFrame(rows)
-
-
-def catch_verdict(summary: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 5.3: a learned BIC movement catches the ball after taut and slack string phases."""
-    ok = summary[summary.success]
-    times = ", ".join(f"{t:.2f}" for t in ok.catch_time)
-    evidence = (
-        f"reproduced: {len(ok)}/{len(summary)} CMA-ES runs caught the ball within {settings['generations']} "
-        f"generations" + (f" (catch times {times} s)" if len(ok) else "") + f"; {int(ok.taut_and_slack.sum())} "
-        f"alternate taut and slack string phases before the catch; {int(ok.moves_right_first.sum())} first move "
-        "right as the thesis's movement does (thesis: one successful movement from demonstrations, shown as a "
-        "figure; the discount γ^m of Eq 5.12 rewards early catches, so learned movements can be quicker flicks)"
-    )
-    holds = bool(ok.taut_and_slack.any())
-    claim = "A learned movement catches the ball after taut and slack string phases (Fig 5.3)"
-    return [report.Verdict("5.3", claim, report.status(holds, settings["scale"]), evidence)]
 
 
 # ---------------------------------------------------------------- Figures 5.4 / 5.5: the transfer grid
@@ -201,82 +184,11 @@ def pair_wins(summary: pd.DataFrame, methods: Sequence[str]) -> pd.Series:
     return (per_pair.idxmin(axis=1).value_counts(normalize=True) * 100).reindex(list(methods), fill_value=0.0)
 
 
-def transfer_verdict(summary: pd.DataFrame, settings: Mapping[str, Any]) -> list[report.Verdict]:
-    """Fig 5.4's three claims: scratch fails on BIC/Cast; cost tensor < matrix < direct; tensor succeeds most."""
-    scale = settings["scale"]
-    mean = strategy_means(summary, TRANSFER)
-    hard = summary[summary.target.isin(["bic", "cast"]) & (summary.strategy == "scratch")]
-    scratch_hard = float(hard.success_rate.mean()) if len(hard) else float("nan")
-    order = list(mean.sort_values("total_cost").index)
-    n_pairs = summary.pair.nunique()
-    tensor_pairs = int(((summary.strategy == "tensor") & (summary.success_rate >= 0.5)).sum())
-    best_success = mean.success_rate.idxmax()
-    means = ", ".join(f"{s} {c:.3g} / {r:.2f}" for s, (c, r) in mean.iterrows())
-    return [
-        report.Verdict(
-            "5.4",
-            "(i) Learning from scratch mostly fails on BIC and Cast targets",
-            report.status(None if hard.empty else scratch_hard < 0.5, scale),
-            f"reproduced scratch success rate on BIC/Cast targets: {scratch_hard:.2f} (thesis: mostly fails)",
-        ),
-        report.Verdict(
-            "5.4",
-            "(ii) Total cost of learning: tensor < matrix < direct",
-            report.status(
-                order.index("tensor") < order.index("matrix") < order.index("direct"),
-                scale,
-                partly=order.index("tensor") < order.index("direct"),
-            ),
-            f"reproduced ordering by mean total cost: {' < '.join(order)} (mean total cost / success rate: {means})",
-        ),
-        report.Verdict(
-            "5.4",
-            "(iii) Tensor transfer has the highest success rate, high on most pairs",
-            report.status(
-                best_success == "tensor" and tensor_pairs > n_pairs / 2,
-                scale,
-                partly=best_success == "tensor" or tensor_pairs > n_pairs / 2,
-            ),
-            f"reproduced: highest mean success rate: {best_success}; tensor >= 50 % success on "
-            f"{tensor_pairs}/{n_pairs} pairs",
-        ),
-    ]
-
-
 def cast_to_bic(curves: pd.DataFrame, families: Sequence[str]) -> tuple[str, str, pd.DataFrame]:
     """Fig 5.5(a)'s pair (Cast → BIC, or the nearest families run) and its curves."""
     src = "cast" if "cast" in families else families[0]
     tgt = "bic" if "bic" in families else families[-1]
     return src, tgt, curves[(curves.source == src) & (curves.target == tgt)]
-
-
-def competitor_verdict(
-    summary: pd.DataFrame, curves: pd.DataFrame, settings: Mapping[str, Any]
-) -> list[report.Verdict]:
-    """Fig 5.5's claims: (a) on Cast → BIC tensor starts and ends best; (b) best average cost, most pairs won."""
-    scale = settings["scale"]
-    src, tgt, d = cast_to_bic(curves, settings["families"])
-    start = d.groupby("strategy").cost.apply(lambda c: c.iloc[:5].mean()).reindex(list(FIG55_METHODS))
-    end = d.groupby("strategy").cost.apply(lambda c: c.iloc[-5:].mean()).reindex(list(FIG55_METHODS))
-    avg = strategy_means(summary, FIG55_METHODS).total_cost
-    wins = pair_wins(summary, FIG55_METHODS)
-    a = [start.idxmin() == "tensor", end.idxmin() == "tensor"]
-    b = [avg.idxmin() == "tensor", bool(wins.idxmax() == "tensor" and wins["tensor"] > 50.0)]
-    fmt = lambda s: ", ".join(f"{k} {v:.3g}" for k, v in s.items())  # noqa: E731
-    return [
-        report.Verdict(
-            "5.5",
-            f"(a) On {src} → {tgt} tensor transfer starts better and converges to a better cost",
-            report.status(all(a), scale, partly=any(a)),
-            f"reproduced mean cost of the first 5 generations: {fmt(start)}; of the last 5: {fmt(end)}",
-        ),
-        report.Verdict(
-            "5.5",
-            "(b) Tensor transfer has by far the best average total cost and wins most pairs",
-            report.status(all(b), scale, partly=any(b)),
-            f"reproduced average total cost: {fmt(avg)}; % of pairs won: {fmt(wins)}",
-        ),
-    ]
 
 
 # ---------------------------------------------------------------- Figure 5.6: curriculum
@@ -342,37 +254,3 @@ def curriculum_end(curves: pd.DataFrame) -> pd.DataFrame:
         lambda d: d.iloc[-max(1, len(d) // 10) :].mean()
     )
     return tail.groupby("condition").mean().reindex(list(CONDITIONS))
-
-
-def curriculum_verdict(
-    curves: pd.DataFrame, final: pd.DataFrame, pretraining: pd.DataFrame, settings: Mapping[str, Any]
-) -> list[report.Verdict]:
-    """Fig 5.6: the curriculum beats no curriculum on BIC and solves it; NC fails (the thesis's premise)."""
-    scale = settings["scale"]
-    end = curriculum_end(curves)
-    fin = final.groupby("condition").final_success.mean().reindex(list(CONDITIONS))
-    cl, nc = end.loc["CL"], end.loc["NC"]
-    better = bool(cl["cost"] < nc["cost"] and cl["success"] > nc["success"])
-    nc_pre = pretraining[(pretraining.condition == "NC") & (pretraining.stage == "bic")].population_success.mean()
-    return [
-        report.Verdict(
-            "5.6",
-            "With the curriculum BIC is learned better than without (lower cost, higher success)",
-            report.status(better, scale, partly=bool(cl["cost"] < nc["cost"] or cl["success"] > nc["success"])),
-            f"reproduced, last 10 % of BIC trials: CL cost {cl['cost']:.3g} / success {cl['success']:.2f}, "
-            f"NC cost {nc['cost']:.3g} / success {nc['success']:.2f}",
-        ),
-        report.Verdict(
-            "5.6",
-            "The curriculum solves BIC (final success of the learned policies >= 50 %)",
-            report.status(bool(fin["CL"] >= 0.5), scale),
-            f"reproduced final success rate: CL {fin['CL']:.2f}, NC {fin['NC']:.2f}",
-        ),
-        report.Verdict(
-            "5.6",
-            "Without the curriculum BIC is not learned (the thesis's premise)",
-            report.status(bool(nc_pre <= 0.1 and fin["NC"] < 0.5), scale),
-            f"reproduced: MTL on BIC alone reaches a population success rate of {nc_pre:.2f} during pre-training "
-            f"and a final success rate of {fin['NC']:.2f}",
-        ),
-    ]
