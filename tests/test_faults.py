@@ -439,7 +439,9 @@ def test_runs_listing_shows_corrupt_local_and_shipped_entries(square_figure, cap
 # ---------------------------------------------------------------- the claims ledger
 def test_claims_subcommand(monkeypatch, capsys):
     # not importable: a package without the module (the real one may already be imported by other tests)
-    monkeypatch.setitem(sys.modules, "thesis_repro.claims", types.ModuleType("thesis_repro.claims"))
+    hidden = types.ModuleType("thesis_repro.claims")
+    hidden.__path__ = []  # a package, whose cli submodule cannot be imported
+    monkeypatch.setitem(sys.modules, "thesis_repro.claims", hidden)
     monkeypatch.setitem(sys.modules, "thesis_repro.claims.cli", None)
     assert main(["claims", "list"]) == 1
     assert_one_error(capsys.readouterr().err, "the claims ledger is not available")
