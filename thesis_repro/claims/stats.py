@@ -66,6 +66,16 @@ def _clean(x: Sequence[float] | None) -> np.ndarray | None:
     return a[np.isfinite(a)]
 
 
+def _mean(x: Sequence[float]) -> float:
+    """Mean of the finite values; NaN (silently) when there are none, e.g. a diverged run's.
+
+    >>> _mean([1.0, float("nan"), 3.0]), _mean([float("nan")])
+    (2.0, nan)
+    """
+    a = _clean(x)
+    return float(a.mean()) if a is not None and len(a) else float("nan")
+
+
 @lru_cache(maxsize=4096)
 def _tq(level: float, df: float) -> float:
     """Two-sided ``level`` quantile of Student's t with ``df`` degrees of freedom (``scipy.stats.t``)."""
@@ -305,10 +315,7 @@ class CountRule:
 
 def _point(u: Unit) -> str:
     """The unit's outcome from point estimates only (no CI)."""
-    pts = [
-        replace(c, a=(float(np.mean(_clean(c.a))),), b=None if c.b is None else (float(np.mean(_clean(c.b))),))
-        for c in u.contrasts()
-    ]
+    pts = [replace(c, a=(_mean(c.a),), b=None if c.b is None else (_mean(c.b),)) for c in u.contrasts()]
     if u.groups:
         it = iter(pts)
         groups = tuple(tuple(next(it) for _ in g) for g in u.groups)
