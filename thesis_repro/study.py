@@ -69,6 +69,18 @@ def summary(jobs: Sequence[Job], cache: RunCache | None = None) -> str:
                 continue
             cells = [_mean_sd(vals[:, i]) for i in (0, 1)]
             lines.append(f"| {env} | {schedule} | {len(vals)}/{n_seeds} | {cells[0]} | {cells[1]} |")
+    for env in LR_STUDY["envs"]:
+        a, b = (np.array(rows.get((env, sch), []), dtype=float).reshape(-1, 2)[:, 0] for sch in LR_STUDY["schedules"])
+        if len(a) >= 2 and len(b) >= 2:
+            from scipy.stats import ttest_ind
+
+            test = ttest_ind(a, b, equal_var=False)
+            lo, hi = test.confidence_interval(0.95)
+            first, second = LR_STUDY["schedules"]
+            lines.append(
+                f"\n{env}: final return {first} - {second} = {a.mean() - b.mean():,.0f} (Welch 95 % CI "
+                f"{lo:,.0f} to {hi:,.0f}, p = {test.pvalue:.2f}, {len(a)} vs {len(b)} seeds)"
+            )
     return "\n".join(lines)
 
 
@@ -76,12 +88,12 @@ def _mean_sd(x: np.ndarray) -> str:
     """``mean ± sd`` (sample sd, ddof 1) with the values, or the single value.
 
     >>> _mean_sd(np.array([1.0, 3.0]))
-    '2 ± 1.4 (1, 3)'
+    '2 ± 1 (1, 3)'
     """
     vals = ", ".join(f"{v:,.0f}" for v in x)
     if len(x) == 1:
         return f"{x[0]:,.0f} (1 seed)"
-    return f"{x.mean():,.0f} ± {x.std(ddof=1):,.2g} ({vals})"
+    return f"{x.mean():,.0f} ± {x.std(ddof=1):,.0f} ({vals})"
 
 
 def produce(jobs: Sequence[Job], n_jobs: int = 1, ship: bool = False, commit: bool = False) -> None:
