@@ -108,3 +108,28 @@ def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
     jobs = {j.key: j for fid in figures.ids() for j in figures.jobs(fid, "small") if j.kind == "train"}
     missing = sorted(j.label for j in jobs.values() if cache.state(j) != "shipped")
     assert not missing, f"small training runs neither shipped nor cached: {missing}"
+
+
+def test_the_thesis_protocol_brings_small_3_seeds_and_10_rollouts(monkeypatch):
+    """Issue 22's evidence at small (3 training seeds x 10 test rollouts) comes with the thesis protocol; the
+    kit-v1 small runs keep their 1 seed x 3 rollouts (their shipped keys); chapter 5 keeps its own seeds."""
+    monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
+    assert (
+        scales.figure_settings("3.3", "small")["train_seeds"],
+        scales.figure_settings("3.3", "small")["test_rollouts"],
+    ) == (1, 3)
+    monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
+    for fid in ("3.3", "3.2", "4.1", "table-3.7"):
+        s = scales.figure_settings(fid, "small")
+        assert (s["train_seeds"], s["test_rollouts"]) == (3, 10), fid
+    assert scales.figure_settings("5.6", "small")["seeds"] == [0, 1, 2]
+    assert scales.figure_settings("3.3", "full")["train_seeds"] == 12
+
+
+def test_the_generator_can_take_one_seed_first(monkeypatch):
+    from thesis_repro import runs
+
+    monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
+    planned = runs.plan("small", ["3.3"], seeds=[0], algos=["ppo"])
+    assert {p.job.config["seed"] for p in planned} == {0} and {p.job.config["algorithm"] for p in planned} == {"ppo"}
+    assert len(runs.plan("small", ["3.3"], algos=["ppo"])) == 3 * len(planned)

@@ -38,8 +38,8 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"error: {message} (see `{self.prog} --help`)\n")
 
 
-def positive_int(text: str) -> int:
-    """``--jobs``/``--cores`` values: an integer >= 1.
+def positive_int(text: str, low: int = 1) -> int:
+    """``--jobs``/``--cores`` values: an integer >= 1 (``low``).
 
     >>> positive_int("2")
     2
@@ -51,10 +51,19 @@ def positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"invalid value {text!r}; valid values are integers >= 1")
+        value = low - 1
+    if value < low:
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}; valid values are integers >= {low}")
     return value
+
+
+def nonneg_int(text: str) -> int:
+    """``--seeds`` values: an integer >= 0.
+
+    >>> nonneg_int("0")
+    0
+    """
+    return positive_int(text, low=0)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -127,6 +136,9 @@ def _main(argv: list[str]) -> int:
     ref.add_argument("--kind", nargs="+", default=None, help="job kinds to ship (default: train)")
     ref.add_argument("--commit", action="store_true", help="git-commit each run as it lands")
     ref.add_argument("--algos", nargs="+", default=None, help="only these learners' runs (default: all)")
+    ref.add_argument(
+        "--seeds", nargs="+", type=nonneg_int, default=None, help="only these training seeds (default: all)"
+    )
     ref.add_argument(
         "--protocol", default=None, help="training protocol: thesis | kit-v1 (default: the scale's, scales.yaml)"
     )
@@ -363,7 +375,8 @@ def _runs_command(args: argparse.Namespace) -> int:
             os.environ[scales.PROTOCOL_ENV] = check_choice(args.protocol, PROTOCOLS, "protocol")
         for algo in args.algos or ():
             check_choice(algo, ALGORITHMS, "algorithm")
-        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1, algos=args.algos)
+        only = {"algos": args.algos, "seeds": args.seeds}
+        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1, **only)
         return 0
     if args.check:
         stale, corrupt, local = runs.check_shipped(args.scale), runs.verify_shipped(), runs.verify_local()

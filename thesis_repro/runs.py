@@ -580,24 +580,35 @@ def job_algorithm(job: Job) -> str | None:
     return cfg.get("algorithm") if isinstance(cfg, Mapping) else None
 
 
+def job_seed(job: Job) -> int | None:
+    """The training seed of a job (an evaluation: its policy's), or ``None`` if it has none."""
+    cfg = job.config.get("train", job.config)
+    seed = cfg.get("seed") if isinstance(cfg, Mapping) else None
+    return None if seed is None else int(seed)
+
+
 def plan(
     scale: str,
     figure_ids: Iterable[str] | None = None,
     kinds: Iterable[str] = figures.TRAINING_KINDS,
     by_figure: bool = False,
     algos: Iterable[str] | None = None,
+    seeds: Iterable[int] | None = None,
 ) -> list[Planned]:
     """The jobs of ``kinds`` of every figure (or ``figure_ids``) at ``scale``, deduplicated by key, cheapest
     first; with ``by_figure``, the first figure's jobs first (each figure's cheapest first), so that the
-    figures finish in the order given; with ``algos``, only the jobs of those learners."""
+    figures finish in the order given; with ``algos`` / ``seeds``, only the jobs of those learners / seeds."""
     kinds = set(kinds)
     keep = None if algos is None else set(algos)
+    keep_seeds = None if seeds is None else {int(s) for s in seeds}
     out: dict[str, Planned] = {}
     rank: dict[str, int] = {}
     for i, fid in enumerate(figure_ids or figures.ids()):
         notebook_id = figures.get(fid).notebook_id
         for job in figures.jobs(fid, scale):
-            if job.kind in kinds and (keep is None or job_algorithm(job) in keep):
+            if job.kind not in kinds or (keep is not None and job_algorithm(job) not in keep):
+                continue
+            if keep_seeds is None or job_seed(job) in keep_seeds:
                 out.setdefault(job.key, Planned(job)).figures.append(notebook_id)
                 rank.setdefault(job.key, i if by_figure else 0)
     return sorted(out.values(), key=lambda p: (rank[p.job.key], p.cost, p.job.kind, p.job.label, p.job.key))
@@ -715,6 +726,7 @@ def generate(
     log: Callable[[str], None] = print,
     heartbeat: float = HEARTBEAT_SECONDS,
     algos: Iterable[str] | None = None,
+    seeds: Iterable[int] | None = None,
 ) -> list[Exported]:
     """Produce the shipped reference runs of ``scale`` (``make reference-runs``).
 
@@ -733,7 +745,7 @@ def generate(
     kinds = tuple(check_choice(k, sorted(registry.KINDS), "job kind") for k in kinds)
     pinned = any(registry.pinned(k) for k in kinds)
     cache = cache or RunCache(reference=layer if pinned else False)  # evaluations load the shipped policies
-    planned = plan(scale, figure_ids, kinds, by_figure=figure_ids is not None, algos=algos)
+    planned = plan(scale, figure_ids, kinds, by_figure=figure_ids is not None, algos=algos, seeds=seeds)
     if pinned:
         planned = _bind_to_layer(planned, layer, cache, log)
     todo, shipped = [], 0

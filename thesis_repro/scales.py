@@ -77,6 +77,10 @@ def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]
         from thesis_repro.learners.config import PROTOCOLS
 
         settings["protocol"] = check_choice(os.environ[PROTOCOL_ENV], PROTOCOLS, f"{PROTOCOL_ENV} protocol")
+    protocol_overrides = (table.get("protocol_overrides") or {}).get(settings.get("protocol"), {}) or {}
+    for key, value in (protocol_overrides.get(scale) or {}).items():
+        if key in settings:
+            settings[key] = copy.deepcopy(value)
     settings["figure"] = figure
     settings["scale"] = scale
     return settings
