@@ -9,6 +9,11 @@ keys), so they can be shipped and rechecked like any other.
     python -m thesis_repro.study lr-schedule [--jobs 2] [--ship] [--commit]   # train what is missing, then
     python -m thesis_repro.study lr-schedule --summary                        # the table, no training
 
+The claims ledger reads a study's result as a *protocol sensitivity* (:data:`STUDIES`, :func:`sensitivity`):
+per task the difference of the compared settings with its Welch 95 % CI across seeds, computed from the
+cached / shipped runs (never trained here; ``None`` when the runs are not available). This module imports
+neither the claims layer nor the figures (the claims layer imports it).
+
 >>> [j.config["lr_schedule"] for j in lr_schedule_jobs()][:2]
 ['linear', 'constant']
 """
@@ -18,13 +23,13 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
 
 import numpy as np
 
 from thesis_repro.cache import Job, RunCache
-from thesis_repro.learners import train_config
 
 #: The lr-schedule study: tasks with their budget, training seeds and the schedules compared.
 LR_STUDY = {
@@ -36,6 +41,8 @@ LR_STUDY = {
 
 def lr_schedule_jobs() -> list[Job]:
     """One PPO training job per (task, seed, schedule), thesis protocol, no other override (Fig 3.3's configs)."""
+    from thesis_repro.learners import train_config  # at call time: importing this module stays cheap (claims)
+
     return [
         Job("train", train_config("ppo", env, seed, budget, protocol="thesis", lr_schedule=schedule))
         for env, budget in LR_STUDY["envs"].items()
@@ -44,9 +51,55 @@ def lr_schedule_jobs() -> list[Job]:
     ]
 
 
-def summary(jobs: Sequence[Job], cache: RunCache | None = None) -> str:
-    """Markdown table: final training return (mean of the last 100 episodes) and the peak of the training
-    curve, mean ± sd over the seeds per task and schedule; runs neither cached nor shipped are counted out."""
+#: Short task names for one-line texts (the ledger's "why").
+SHORT = {"InvertedDoublePendulum": "IDP", "InvertedPendulum": "IP", "HalfCheetah": "HalfCheetah"}
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One task's difference of the study's two settings (``first - second``) in mean final training return,
+    with its Welch 95 % CI and p across training seeds (``n`` seeds per setting)."""
+
+    task: str
+    difference: float
+    ci: tuple[float, float]
+    pvalue: float
+    n: tuple[int, int]
+
+    @property
+    def within_spread(self) -> bool:
+        """Whether the CI contains 0 (the settings are not distinguishable over these seeds)."""
+        return self.ci[0] <= 0.0 <= self.ci[1]
+
+
+@dataclass(frozen=True)
+class Sensitivity:
+    """A protocol study's result as the claims ledger reads it: what was varied, on which learner and budget,
+    the measured quantity, and one :class:`Effect` per task with enough seeds."""
+
+    study: str
+    setting: str
+    learner: str
+    budget: str
+    contrast: str
+    measure: str
+    effects: tuple[Effect, ...]
+
+    @property
+    def seeds(self) -> str:
+        """``"3 seeds"`` (or ``"2-3 seeds"`` when tasks or settings differ)."""
+        ns = sorted({n for e in self.effects for n in e.n})
+        return f"{ns[0]} seeds" if len(ns) == 1 else f"{ns[0]}-{ns[-1]} seeds"
+
+    @property
+    def within_spread(self) -> bool:
+        """Every task's CI contains 0."""
+        return all(e.within_spread for e in self.effects)
+
+
+def final_returns(jobs: Sequence[Job], cache: RunCache | None = None) -> dict[tuple[str, str], np.ndarray]:
+    """Per (task, schedule): one row (final training return, peak of the training curve) per loaded seed.
+    Runs neither cached nor shipped are left out (nothing is trained)."""
     cache = cache or RunCache()
     rows: dict[tuple[str, str], list[tuple[float, float]]] = {}
     for job in jobs:
@@ -56,6 +109,69 @@ def summary(jobs: Sequence[Job], cache: RunCache | None = None) -> str:
         curve = np.asarray(res["curve_return"], dtype=float)
         key = (job.config["env"], job.config["lr_schedule"])
         rows.setdefault(key, []).append((float(res["train_return"]), float(np.nanmax(curve))))
+    return {k: np.array(v, dtype=float).reshape(-1, 2) for k, v in rows.items()}
+
+
+def schedule_effects(returns: dict[tuple[str, str], np.ndarray]) -> dict[str, Effect]:
+    """Per task with >= 2 seeds of each schedule: first - second schedule (:data:`LR_STUDY`) in mean final
+    training return, Welch 95 % CI across seeds (``scipy.stats.ttest_ind``, unequal variances).
+
+    >>> r = {("Hopper", "linear"): np.array([[3.0, 0], [5.0, 0]])}
+    >>> r[("Hopper", "constant")] = np.array([[1.0, 0], [3.0, 0]])
+    >>> e = schedule_effects(r)["Hopper"]
+    >>> e.difference, e.n, e.within_spread
+    (2.0, (2, 2), True)
+    """
+    from scipy.stats import ttest_ind
+
+    first, second = LR_STUDY["schedules"]
+    out = {}
+    for env in LR_STUDY["envs"]:
+        a, b = (returns.get((env, sch), np.empty((0, 2)))[:, 0] for sch in (first, second))
+        if len(a) < 2 or len(b) < 2:
+            continue
+        test = ttest_ind(a, b, equal_var=False)
+        lo, hi = test.confidence_interval(0.95)
+        out[env] = Effect(env, float(a.mean() - b.mean()), (float(lo), float(hi)), float(test.pvalue), (len(a), len(b)))
+    return out
+
+
+def lr_schedule_sensitivity(cache: RunCache | None = None) -> Sensitivity | None:
+    """The lr-schedule study as a protocol sensitivity, from the cached / shipped runs; ``None`` when no task
+    has >= 2 seeds of each schedule available (nothing is trained)."""
+    effects = schedule_effects(final_returns(lr_schedule_jobs(), cache))
+    if not effects:
+        return None
+    budgets = sorted(set(LR_STUDY["envs"].values()))
+    first, second = LR_STUDY["schedules"]
+    return Sensitivity(
+        study="lr-schedule",
+        setting="lr schedule",
+        learner="PPO",
+        budget="/".join(f"{b / 1e6:g}M" for b in budgets) + " steps",
+        contrast=f"{first} - {second}",
+        measure="final training return",
+        effects=tuple(effects[env] for env in LR_STUDY["envs"] if env in effects),
+    )
+
+
+#: Protocol studies the claims registry may name (``sensitivity: [lr-schedule]``): name -> its result.
+STUDIES: dict[str, Callable[[], Sensitivity | None]] = {"lr-schedule": lr_schedule_sensitivity}
+
+
+def sensitivity(name: str) -> Sensitivity | None:
+    """The result of the study ``name`` (:data:`STUDIES`) from the runs available, or ``None``."""
+    if name not in STUDIES:
+        raise ValueError(f"unknown protocol study {name!r}; valid: {', '.join(STUDIES)}")
+    return STUDIES[name]()
+
+
+def summary(jobs: Sequence[Job], cache: RunCache | None = None) -> str:
+    """Markdown table: final training return (mean of the last 100 episodes) and the peak of the training
+    curve, mean ± sd over the seeds per task and schedule, then each task's Welch contrast
+    (:func:`schedule_effects`, the numbers the claims ledger reads); runs neither cached nor shipped are
+    counted out."""
+    rows = final_returns(jobs, cache)
     n_seeds = len(LR_STUDY["seeds"])
     lines = [
         "| task (1M steps) | schedule | seeds | final training return | peak of the training curve |",
@@ -63,24 +179,19 @@ def summary(jobs: Sequence[Job], cache: RunCache | None = None) -> str:
     ]
     for env in LR_STUDY["envs"]:
         for schedule in LR_STUDY["schedules"]:
-            vals = np.array(rows.get((env, schedule), []), dtype=float).reshape(-1, 2)
+            vals = rows.get((env, schedule), np.empty((0, 2)))
             if not len(vals):
                 lines.append(f"| {env} | {schedule} | 0/{n_seeds} | not run | not run |")
                 continue
             cells = [_mean_sd(vals[:, i]) for i in (0, 1)]
             lines.append(f"| {env} | {schedule} | {len(vals)}/{n_seeds} | {cells[0]} | {cells[1]} |")
-    for env in LR_STUDY["envs"]:
-        a, b = (np.array(rows.get((env, sch), []), dtype=float).reshape(-1, 2)[:, 0] for sch in LR_STUDY["schedules"])
-        if len(a) >= 2 and len(b) >= 2:
-            from scipy.stats import ttest_ind
-
-            test = ttest_ind(a, b, equal_var=False)
-            lo, hi = test.confidence_interval(0.95)
-            first, second = LR_STUDY["schedules"]
-            lines.append(
-                f"\n{env}: final return {first} - {second} = {a.mean() - b.mean():,.0f} (Welch 95 % CI "
-                f"{lo:,.0f} to {hi:,.0f}, p = {test.pvalue:.2f}, {len(a)} vs {len(b)} seeds)"
-            )
+    first, second = LR_STUDY["schedules"]
+    for env, e in schedule_effects(rows).items():
+        lo, hi = e.ci
+        lines.append(
+            f"\n{env}: final return {first} - {second} = {e.difference:,.0f} (Welch 95 % CI "
+            f"{lo:,.0f} to {hi:,.0f}, p = {e.pvalue:.2f}, {e.n[0]} vs {e.n[1]} seeds)"
+        )
     return "\n".join(lines)
 
 

@@ -2,7 +2,10 @@
 
 The registry is ``data/thesis/claims.yaml``: under each page, ``claims`` quote the thesis (a claim with a
 ``rule`` is judged on that page; the same ``id`` on another page only repeats its verdict), and ``beyond``
-holds the kit's own extensions (kl_exact, the Eq 4.11 analysis), counted apart. A notebook ends with
+holds the kit's own extensions (kl_exact, the Eq 4.11 analysis), counted apart. A claim may name the protocol
+studies its evidence rests on (``sensitivity: [lr-schedule]``, :data:`thesis_repro.study.STUDIES`): a claim
+that does not (fully) reproduce then shows each study's measured difference in its "why" (from the study's
+cached / shipped runs; nothing when they are not available, never trained here). A notebook ends with
 :func:`judge_page`, which saves its per-seed numbers to ``build/<scale>/figures/<page>.data.json`` and
 prints the verdicts of its claims; :func:`ledger` re-judges every claim from those saved numbers (no
 training, no evaluation), so the book's scoreboard and ``python -m thesis_repro claims`` read one ledger.
@@ -76,6 +79,7 @@ class Spec:
     beyond: bool = False
     pages: tuple[str, ...] = ()
     evidence: str = ""
+    sensitivity: tuple[str, ...] = ()
 
     @property
     def data_pages(self) -> list[str]:
@@ -92,9 +96,31 @@ def registry() -> dict[str, Any]:
 @cache
 def specs() -> tuple[Spec, ...]:
     """Every claim with a rule (thesis claims, then beyond-the-thesis ones), each once."""
+    return parse_specs(registry())
+
+
+def _sensitivity_names(cid: str, c: Mapping[str, Any]) -> tuple[str, ...]:
+    """A claim's ``sensitivity`` field: protocol-study names, each one of :data:`thesis_repro.study.STUDIES`."""
+    from thesis_repro.study import STUDIES  # cheap: the study module imports no learner until it runs
+
+    names = c.get("sensitivity", [])
+    if isinstance(names, str) or not isinstance(names, list):
+        raise ValueError(f"claims.yaml: claim {cid!r}: 'sensitivity' must be a list of study names, got {names!r}")
+    for name in names:
+        if name not in STUDIES:
+            raise ValueError(
+                f"claims.yaml: claim {cid!r}: unknown sensitivity study {name!r}; valid: {', '.join(STUDIES)}"
+            )
+    if names and "rule" not in c:
+        raise ValueError(f"claims.yaml: claim {cid!r}: 'sensitivity' goes with the entry that carries the rule")
+    return tuple(names)
+
+
+def parse_specs(reg: Mapping[str, Any]) -> tuple[Spec, ...]:
+    """The claims of a loaded registry (:func:`registry`), validated: ids, one rule per id, sensitivity names."""
     out: dict[str, Spec] = {}
     repeats: dict[str, list[str]] = {}
-    for page, entry in registry().items():
+    for page, entry in reg.items():
         for beyond, items in ((False, entry.get("claims", [])), (True, entry.get("beyond", []))):
             for c in items:
                 cid = c.get("id")
@@ -102,18 +128,19 @@ def specs() -> tuple[Spec, ...]:
                     raise ValueError(f"claims.yaml: a claim of {page} has no id: {c.get('text', '')[:60]!r}")
                 if c.get("context"):
                     continue
+                sens = _sensitivity_names(cid, c)
                 if "rule" not in c:
                     repeats.setdefault(cid, []).append(page)
                     continue
                 if cid in out:
                     raise ValueError(f"claims.yaml: claim {cid!r} has a rule on {out[cid].page} and on {page}")
                 lines = tuple(int(n) for n in c.get("lines", []))
-                out[cid] = Spec(cid, page, c["text"], lines, c["rule"], beyond, (), c.get("evidence", page))
+                out[cid] = Spec(cid, page, c["text"], lines, c["rule"], beyond, (), c.get("evidence", page), sens)
     missing = sorted(set(repeats) - set(out))
     if missing:
         raise ValueError(f"claims.yaml: claims repeated but never given a rule: {missing}")
     return tuple(
-        Spec(s.id, s.page, s.text, s.lines, s.rule, s.beyond, tuple(repeats.get(s.id, [])), s.evidence)
+        Spec(s.id, s.page, s.text, s.lines, s.rule, s.beyond, tuple(repeats.get(s.id, [])), s.evidence, s.sensitivity)
         for s in out.values()
     )
 
@@ -249,6 +276,7 @@ class Row:
     null_pass_rate: float | None = None
     note: str = ""
     diagnosis: str = ""
+    sensitivity: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         s = self.spec
@@ -267,6 +295,8 @@ class Row:
             "null_pass_rate": self.null_pass_rate,
             "note": self.note,
             "diagnosis": self.diagnosis,
+            "sensitivity_studies": list(s.sensitivity),
+            "protocol_sensitivity": self.sensitivity,
             "groups": self.groups,
         }
 
@@ -375,8 +405,62 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
     rate = _null_rate(s, scale, run) if with_null else None
     row = Row(s, status, n_seeds, stat if len(stat) > 1 else next(iter(stat.values())), gsum, rate, note)
     if status in (report.DOES_NOT, report.PARTLY, report.INCONCLUSIVE):
-        row.diagnosis = diagnose(judged, meta)
+        measured = [m for m in (study_result(n) for n in s.sensitivity) if m is not None]
+        row.diagnosis = diagnose(judged, meta, measured)
+        row.sensitivity = [_sensitivity_dict(m) for m in measured]
     return row
+
+
+# ---------------------------------------------------------------- protocol sensitivity (thesis_repro.study)
+_STUDY_RESULTS: dict[tuple[Any, ...], Any] = {}
+
+
+def study_result(name: str) -> Any:
+    """The protocol study ``name``'s :class:`~thesis_repro.study.Sensitivity` from the runs available in the
+    run cache and the shipped layer, or ``None`` (never trains). Computed once per study function and cache
+    location in a process."""
+    from thesis_repro import study
+
+    fn = study.STUDIES[name]
+    key = (name, fn, str(paths.runs()), None if paths.retrain() else str(paths.reference()))
+    if key not in _STUDY_RESULTS:
+        _STUDY_RESULTS[key] = fn()
+    return _STUDY_RESULTS[key]
+
+
+def sensitivity_text(m: Any) -> str:
+    """One "why" clause from a :class:`~thesis_repro.study.Sensitivity`: per task the difference with its Welch
+    95 % CI across seeds, and whether every CI contains 0 (within seed spread)."""
+    from thesis_repro.study import SHORT
+
+    cells = []
+    for i, e in enumerate(m.effects):
+        lo, hi = e.ci
+        ci = f"{'95 % CI ' if i == 0 else ''}{lo:,.0f} to {hi:,.0f}"
+        cells.append(f"{SHORT.get(e.task, e.task)} {e.difference:+,.0f} ({ci})")
+    if m.within_spread:
+        verdict = "within seed spread"
+    else:
+        moved = [SHORT.get(e.task, e.task) for e in m.effects if not e.within_spread]
+        verdict = f"outside seed spread on {', '.join(moved)} (the CI excludes 0)"
+    head = f"{m.setting}, {m.learner}, {m.budget}, {m.seeds}; {m.measure}, {m.contrast}"
+    return f"protocol sensitivity ({head}): {', '.join(cells)}: {verdict}"
+
+
+def _sensitivity_dict(m: Any) -> dict[str, Any]:
+    return {
+        "study": m.study,
+        "setting": m.setting,
+        "learner": m.learner,
+        "budget": m.budget,
+        "contrast": m.contrast,
+        "measure": m.measure,
+        "within_seed_spread": m.within_spread,
+        "effects": [
+            {"task": e.task, "difference": e.difference, "ci": list(e.ci), "p": e.pvalue, "seeds": list(e.n)}
+            for e in m.effects
+        ],
+    }
 
 
 def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]]) -> float:
@@ -396,9 +480,10 @@ def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]]) -> float:
     return float(known[key])
 
 
-def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any]) -> str:
+def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any], sensitivities: Sequence[Any] = ()) -> str:
     """Why a claim does not (fully) reproduce, from the kit's own measurements: seed spread, training regime
-    (half vs final budget, :mod:`thesis_repro.budgets`), protocol sensitivity where measured."""
+    (half vs final budget, :mod:`thesis_repro.budgets`), protocol sensitivity where measured (a page's
+    ``meta["protocol"]``, and the claim's registered studies' results, :func:`study_result`)."""
     widths, against = [], []
     for j in judged.values():
         for u in j.units:
@@ -426,6 +511,7 @@ def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any]) -> str:
         )
     if meta.get("protocol"):
         bits.append(f"protocol sensitivity: {meta['protocol']}")
+    bits.extend(sensitivity_text(m) for m in sensitivities)
     if meta.get("note"):
         bits.append(str(meta["note"]))
     return "; ".join(bits)
@@ -636,6 +722,7 @@ def method(rows: Sequence[Row]) -> str:
         "undecided] decides: inside one region -> that verdict, across two -> inconclusive. One seed -> at most "
         "indicative. **Null pass rate**: the share of synthetic null draws (every contrast redrawn at its null "
         f"boundary with its observed spread and >= 3 seeds; {NULL_DRAWS} draws) the rule judges *reproduces*.\n",
+        sensitivity_method(),
         "| claim | page | verdict | null pass rate |",
         "|---|---|---|---|",
     ]
@@ -644,6 +731,28 @@ def method(rows: Sequence[Row]) -> str:
         tag = " (beyond)" if r.spec.beyond else ""
         out.append(f"| {r.spec.id}{tag} | {r.spec.page} | {r.status} | {rate} |")
     return "\n".join(out) + "\n"
+
+
+def sensitivity_method() -> str:
+    """The method's line on protocol sensitivity: what it is, which claims carry which study, and each study's
+    result from the runs available (left out when they are not)."""
+    carriers: dict[str, list[str]] = {}
+    for s in specs():
+        for name in s.sensitivity:
+            carriers.setdefault(name, []).append(s.id)
+    studies = []
+    for name, ids in carriers.items():
+        m = study_result(name)
+        result = sensitivity_text(m) if m is not None else "its runs are not available here"
+        studies.append(f"`{name}`, declared on {', '.join(ids)}: {result}")
+    return (
+        "**Protocol sensitivity**: a claim that does not fully reproduce and whose evidence rests on runs a protocol "
+        "study varied (`sensitivity:` in the registry; `python -m thesis_repro.study`) shows in its *why* the "
+        "setting's effect with its Welch 95 % CI across seeds, from the study's cached / shipped runs (left out when "
+        "they are not available); a CI containing 0 means the setting moves the result less than the seed spread. "
+        + ("; ".join(studies) if studies else "No claim names a study")
+        + ".\n"
+    )
 
 
 def _finite(x: float | None) -> bool:
