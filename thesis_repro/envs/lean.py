@@ -22,10 +22,28 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.envs.mujoco.hopper_v5 import HopperEnv
 from gymnasium.envs.mujoco.walker2d_v5 import Walker2dEnv
+from numpy._core.umath import clip as _clip  # what np.clip(float array, lo, hi) calls
+
+_add_reduce = np.add.reduce  # what np.sum(ndarray) calls
 
 
 class _LeanLocomotion:
-    """``step`` of Hopper/Walker2d v5 with one health evaluation (needs ``is_healthy`` and ``_get_obs``)."""
+    """``step`` of Hopper/Walker2d v5 with one health evaluation (needs ``is_healthy``), and Gymnasium's
+    ``_get_obs``, ``control_cost`` and ``do_simulation`` with the same numpy kernels called directly (the
+    ``clip`` and ``add.reduce`` ufuncs that ``np.clip``/``np.sum`` dispatch to) and no copy of the action."""
+
+    def do_simulation(self, ctrl, n_frames) -> None:
+        if np.shape(ctrl) != (self.model.nu,):  # MujocoEnv's check, without np.array's copy of the action
+            raise ValueError(f"Action dimension mismatch. Expected {(self.model.nu,)}, found {np.shape(ctrl)}")
+        self._step_mujoco_simulation(ctrl, n_frames)
+
+    def _get_obs(self):
+        data = self.data
+        position = data.qpos[1:] if self._exclude_current_positions_from_observation else data.qpos
+        return np.concatenate((position, _clip(data.qvel, -10, 10)))  # = concatenate((qpos, clip(qvel))).ravel()
+
+    def control_cost(self, action):
+        return self._ctrl_cost_weight * _add_reduce(np.square(action), axis=None)  # = np.sum(np.square(action))
 
     def step(self, action):
         data = self.data

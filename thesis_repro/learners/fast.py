@@ -140,7 +140,9 @@ def _linear_layers(seq: nn.Sequential) -> tuple[list[nn.Linear], str] | None:
 
 
 def _tensors(layers: list[nn.Linear]) -> list[SimpleNamespace]:
-    return [SimpleNamespace(weight=lin.weight, bias=lin.bias) for lin in layers]
+    # wt: the transposed VIEW ``weight.t()`` (same strides as a fresh ``.t()``, so the same kernels), made once
+    # per build instead of once per matmul; the optimiser updates ``weight`` in place, which the view sees
+    return [SimpleNamespace(weight=lin.weight, bias=lin.bias, wt=lin.weight.t()) for lin in layers]
 
 
 class _ManualActorCritic:
@@ -153,6 +155,11 @@ class _ManualActorCritic:
         self.log_std: nn.Parameter = policy.log_std
         # parameters in policy.parameters() order, each with the slot of its gradient
         self.params = list(policy.parameters())
+
+    def refresh(self) -> None:
+        """Re-take the transposed weight views (in case a parameter's ``.data`` was replaced since the build)."""
+        for layer in (*self.pi, *self.vf, self.action_net, self.value_net):
+            layer.wt = layer.weight.t()
 
     @staticmethod
     def build(policy: nn.Module) -> _ManualActorCritic | None:
@@ -192,7 +199,7 @@ class _ManualActorCritic:
     def _mlp(self, x: th.Tensor, layers: list[nn.Linear]) -> list[th.Tensor]:
         hs = [x]
         for lin in layers:
-            hs.append(self._act(th.addmm(lin.bias, hs[-1], lin.weight.t())))
+            hs.append(self._act(th.addmm(lin.bias, hs[-1], lin.wt)))
         return hs
 
     def _mlp_backward(self, g: th.Tensor, hs: list[th.Tensor], layers: list[nn.Linear], grads: dict) -> None:
@@ -209,8 +216,8 @@ class _ManualActorCritic:
         hp = self._mlp(x, self.pi)
         latent_pi = th.cat([x, hp[-1]], dim=1) if self.scn else hp[-1]
         hv = self._mlp(x, self.vf)
-        mean = th.addmm(self.action_net.bias, latent_pi, self.action_net.weight.t())
-        values = th.addmm(self.value_net.bias, hv[-1], self.value_net.weight.t()).flatten()
+        mean = th.addmm(self.action_net.bias, latent_pi, self.action_net.wt)
+        values = th.addmm(self.value_net.bias, hv[-1], self.value_net.wt).flatten()
         log_std = self.log_std
         inv_var = th.exp(-2 * log_std)
         diff = actions - mean
@@ -219,26 +226,43 @@ class _ManualActorCritic:
         cache = {"x": x, "hp": hp, "hv": hv, "latent_pi": latent_pi, "diff": diff, "sq": sq, "inv_var": inv_var}
         return cache, log_prob, values
 
-    def sample(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    def sample(self, obs: th.Tensor, frozen: dict | None = None) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """``policy(obs)`` (SB3's ``ActorCriticPolicy.forward``, stochastic): the same torch draw and formulas,
-        so the same actions, values (B, 1) and log-probs."""
+        so the same actions, values (B, 1) and log-probs.
+
+        ``frozen``: a dict the caller keeps for as long as the parameters do not change (one rollout); the
+        std-only terms (``std``, ``2 std²``, ``log std``, each of the batch's shape) are computed into it once
+        per batch shape, by the same ops on the same values, instead of at every call."""
         x = obs.float()
         hp = self._mlp(x, self.pi)
         latent_pi = th.cat([x, hp[-1]], dim=1) if self.scn else hp[-1]
-        values = th.addmm(self.value_net.bias, self._mlp(x, self.vf)[-1], self.value_net.weight.t())
-        mean = th.addmm(self.action_net.bias, latent_pi, self.action_net.weight.t())
-        std = th.ones_like(mean) * self.log_std.exp()
+        values = th.addmm(self.value_net.bias, self._mlp(x, self.vf)[-1], self.value_net.wt)
+        mean = th.addmm(self.action_net.bias, latent_pi, self.action_net.wt)
+        terms = None if frozen is None else frozen.get(mean.shape)
+        if terms is None:
+            std = th.ones_like(mean) * self.log_std.exp()
+            terms = (std, 2 * std**2, std.log())
+            if frozen is not None:
+                frozen[mean.shape] = terms
+        std, two_var, log_std = terms
         actions = mean + th.empty(mean.shape, dtype=mean.dtype, device=mean.device).normal_() * std
-        log_prob = (-((actions - mean) ** 2) / (2 * std**2) - std.log() - _LOG_SQRT_2PI).sum(dim=1)
+        log_prob = (-((actions - mean) ** 2) / two_var - log_std - _LOG_SQRT_2PI).sum(dim=1)
         return actions, values, log_prob
 
     def entropy(self) -> th.Tensor:
         """Per-sample entropy of the diagonal Gaussian (the same for every sample)."""
         return (0.5 + 0.5 * math.log(2 * math.pi) + self.log_std).sum()
 
-    def backward(self, cache: dict[str, Any], g_log_prob: th.Tensor, g_values: th.Tensor, g_log_std_extra: float):
-        """Set ``p.grad`` of every parameter from dLoss/dlog_prob (B,), dLoss/dvalues (B,) and a constant
-        dLoss/dlog_std term (entropy)."""
+    def backward(
+        self,
+        cache: dict[str, Any],
+        g_log_prob: th.Tensor,
+        g_values: th.Tensor,
+        g_log_std_extra: float,
+        attach: bool = True,
+    ) -> list[th.Tensor]:
+        """The gradient of every parameter (in ``params`` order) from dLoss/dlog_prob (B,), dLoss/dvalues (B,)
+        and a constant dLoss/dlog_std term (entropy); also set as ``p.grad`` unless ``attach`` is False."""
         grads: dict[int, th.Tensor] = {}
         # actor: d log_prob / d mean = diff / var; d log_prob / d log_std = diff^2 / var - 1
         g_mean = g_log_prob[:, None] * cache["diff"] * cache["inv_var"]
@@ -256,8 +280,11 @@ class _ManualActorCritic:
         grads[id(self.value_net.bias)] = g_v.sum(0)
         if self.vf:
             self._mlp_backward(g_v.mm(self.value_net.weight), cache["hv"], self.vf, grads)
-        for p in self.params:
-            p.grad = grads[id(p)]
+        out = [grads[id(p)] for p in self.params]
+        if attach:
+            for p, g in zip(self.params, out, strict=True):
+                p.grad = g
+        return out
 
 
 class _FusedAdamStep:
@@ -287,6 +314,33 @@ class _FusedAdamStep:
             ]  # fmt: skip
         return True
 
+    def holds(self, params: list[nn.Parameter]) -> bool:
+        """True if the optimiser has one parameter group holding exactly ``params``, in that order (then
+        :meth:`step_with` can take their gradients as a list)."""
+        groups = self.optimizer.param_groups
+        return (
+            len(groups) == 1
+            and len(groups[0]["params"]) == len(params)
+            and all(a is b for a, b in zip(groups[0]["params"], params, strict=True))
+        )
+
+    def step_with(self, grads: list[th.Tensor]) -> bool:
+        """``__call__``'s two kernels with ``grads`` (the gradients of :meth:`holds`' ``params``, in order) instead
+        of the ``p.grad`` attributes, so the caller need not set them per step. False (nothing done): the
+        caller sets ``p.grad`` and calls ``__call__`` (not a fused Adam, hooks, or state not initialised yet)."""
+        opt = self.optimizer
+        if not self.ok or opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks or not self._ready():
+            return False
+        ((g, params, exp_avgs, exp_avg_sqs, steps),) = self._lists  # type: ignore[misc]
+        beta1, beta2 = g["betas"]
+        th._foreach_add_(steps, 1)
+        th._fused_adam_(
+            params, grads, exp_avgs, exp_avg_sqs, [], steps, amsgrad=False, lr=g["lr"],
+            beta1=beta1, beta2=beta2, weight_decay=g["weight_decay"], eps=g["eps"], maximize=g["maximize"],
+            grad_scale=None, found_inf=None,
+        )  # fmt: skip
+        return True
+
     def __call__(self) -> None:
         opt = self.optimizer
         if not self.ok or opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks or not self._ready():
@@ -308,7 +362,11 @@ class _FusedAdamStep:
 
 def _clip_grads(params: list[nn.Parameter], max_norm: float) -> None:
     """``clip_grad_norm_(params, max_norm, foreach=True)`` on a known non-empty parameter list."""
-    grads = [p.grad for p in params if p.grad is not None]
+    _clip_grad_list([p.grad for p in params if p.grad is not None], max_norm)
+
+
+def _clip_grad_list(grads: list[th.Tensor], max_norm: float) -> None:
+    """:func:`_clip_grads` on the gradient tensors themselves (scaled in place)."""
     if not grads:
         return
     total = th.linalg.vector_norm(th.stack(th._foreach_norm(grads, 2.0)), 2.0)
@@ -353,12 +411,17 @@ def ppo_epochs(
         if manual.policy is not policy:
             raise ValueError("the prebuilt closed-form path belongs to another policy")
         mac: _ManualActorCritic | None = manual
+        mac.refresh()
     else:
         mac = _ManualActorCritic.build(policy) if manual is not False else None
     if manual and mac is None:
         raise ValueError(f"policy {type(policy).__name__} has no closed-form PPO path; use manual=None")
     params = mac.params if mac is not None else list(policy.parameters())
     adam_step = _FusedAdamStep(optimizer)
+    # closed form + one fused-Adam group of exactly these parameters: the gradients go to the kernels as a list,
+    # and p.grad is set once at the end (the last step's, as before) instead of 10 setter calls per minibatch
+    direct = mac is not None and adam_step.ok and adam_step.holds(params)
+    unattached: list[th.Tensor] | None = None
     policy.set_training_mode(True)
     pg_l, v_l, ent_l, clip_l, kl_l = [], [], [], [], []
     last: tuple[th.Tensor, th.Tensor, th.Tensor] | None = None  # (pg, value, entropy) losses of the last minibatch
@@ -393,12 +456,19 @@ def ppo_epochs(
                 else:
                     vpred = mb.old_values + th.clamp(values - mb.old_values, -clip_range_vf, clip_range_vf)
                 vloss = th.nn.functional.mse_loss(mb.returns, vpred)
-                with th.no_grad():
+                if mac is not None:  # no graph: the tensors themselves (detach() would only copy the handle)
                     kl = th.mean((ratio - 1) - log_ratio)
                     clip_l.append(th.mean((th.abs(ratio - 1) > clip_range).float()))
-                pg_l.append(pg.detach())
-                v_l.append(vloss.detach())
-                ent_l.append(ent.detach())
+                    pg_l.append(pg)
+                    v_l.append(vloss)
+                    ent_l.append(ent)
+                else:
+                    with th.no_grad():
+                        kl = th.mean((ratio - 1) - log_ratio)
+                        clip_l.append(th.mean((th.abs(ratio - 1) > clip_range).float()))
+                    pg_l.append(pg.detach())
+                    v_l.append(vloss.detach())
+                    ent_l.append(ent.detach())
                 kl_l.append(kl)
                 last = (pg, vloss, ent)
                 if target_kl is not None and np.float32(kl.item()) > 1.5 * target_kl:
@@ -414,16 +484,27 @@ def ppo_epochs(
                     if clip_range_vf is not None:
                         d = values - mb.old_values
                         g_values = g_values * ((d >= -clip_range_vf) & (d <= clip_range_vf))
-                    mac.backward(cache, g_log_prob, g_values, -float(ent_coef))
+                    grads = mac.backward(cache, g_log_prob, g_values, -float(ent_coef), attach=not direct)
+                    _clip_grad_list(grads, max_grad_norm)
+                    if direct and adam_step.step_with(grads):
+                        unattached = grads
+                        continue
+                    if direct:  # first step of a fresh optimiser: Optimizer.step() initialises the state
+                        for p, g in zip(params, grads, strict=True):
+                            p.grad = g
+                        unattached = None
                 else:
                     loss = pg + ent_coef * ent + vf_coef * vloss
                     optimizer.zero_grad()
                     loss.backward()
-                with th.no_grad():
-                    _clip_grads(params, max_grad_norm)
+                    with th.no_grad():
+                        _clip_grads(params, max_grad_norm)
                 adam_step()
             if not continue_training:
                 break
+    if unattached is not None:  # leave the last step's gradients in p.grad, as every step did before
+        for p, g in zip(params, unattached, strict=True):
+            p.grad = g
     with th.no_grad():
         mean = lambda xs: float(th.stack(xs).double().mean()) if xs else float("nan")  # noqa: E731
         loss = float(last[0] + ent_coef * last[2] + vf_coef * last[1]) if last is not None else float("nan")
@@ -464,10 +545,11 @@ class FastPPO(PPO):
         rollout_buffer.reset()
         callback.on_rollout_start()
         low, high = self.action_space.low, self.action_space.high
+        frozen: dict = {}  # the std terms of mac.sample: the parameters do not change during the rollout
         while n_steps < n_rollout_steps:
             with th.no_grad():
                 obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
-                actions, values, log_probs = mac.sample(obs_tensor)
+                actions, values, log_probs = mac.sample(obs_tensor, frozen)
             actions = actions.cpu().numpy().reshape((-1, *self.action_space.shape))
             clipped_actions = np.clip(actions, low, high)
             new_obs, rewards, dones, infos = env.step(clipped_actions)

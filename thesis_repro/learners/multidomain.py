@@ -515,9 +515,10 @@ class SubPolicyAggregation(MultiDomainPPO):
             new = self._aggregate(view, thetas, states, theta_old, info)
             view.set_flat(new)
             params = dict(self.policy.named_parameters())
+            sub_params = [dict(s.named_parameters()) for s in subs]  # once per round, not once per name
             with th.no_grad():
                 for name in critic:
-                    params[name].copy_(th.stack([dict(s.named_parameters())[name] for s in subs]).mean(0))
+                    params[name].copy_(th.stack([sp[name] for sp in sub_params]).mean(0))
         self._n_updates += self.n_epochs
         kls = agg.eq47_kls(view, new, thetas, states)
         stats: dict[str, Any] = {
