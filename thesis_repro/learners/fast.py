@@ -73,7 +73,14 @@ class RolloutTensors:
 
     def slice(self, start: int, stop: int) -> RolloutTensors:
         """Rows ``start:stop`` (views)."""
-        return RolloutTensors(*(getattr(self, f.name)[start:stop] for f in fields(self)))
+        return RolloutTensors(
+            self.observations[start:stop],
+            self.actions[start:stop],
+            self.old_values[start:stop],
+            self.old_log_prob[start:stop],
+            self.advantages[start:stop],
+            self.returns[start:stop],
+        )
 
 
 _BUFFER_FIELDS = ("observations", "actions", "values", "log_probs", "advantages", "returns")
@@ -192,14 +199,20 @@ class _ManualActorCritic:
     def _act(self, z: th.Tensor) -> th.Tensor:
         return th.tanh(z) if self.act == "tanh" else th.relu(z)
 
+    @property
+    def _act_fn(self) -> Any:
+        return th.tanh if self.act == "tanh" else th.relu
+
     def _act_grad(self, g: th.Tensor, h: th.Tensor) -> th.Tensor:
-        # tanh' = 1 - tanh^2 (autograd's tanh_backward); relu' = 1[h > 0] (threshold_backward)
-        return g * (1 - h * h) if self.act == "tanh" else g * (h > 0)
+        # tanh' = 1 - tanh^2 (autograd's tanh_backward); relu' = 1[h > 0] (threshold_backward). th.rsub(t, 1) is
+        # what ``1 - t`` runs (Tensor.__rsub__), minus its Python wrapper; likewise t.reciprocal() * c for c / t
+        return g * th.rsub(h * h, 1) if self.act == "tanh" else g * (h > 0)
 
     def _mlp(self, x: th.Tensor, layers: list[nn.Linear]) -> list[th.Tensor]:
         hs = [x]
+        act = self._act_fn
         for lin in layers:
-            hs.append(self._act(th.addmm(lin.bias, hs[-1], lin.wt)))
+            hs.append(act(th.addmm(lin.bias, hs[-1], lin.wt)))
         return hs
 
     def _mlp_backward(self, g: th.Tensor, hs: list[th.Tensor], layers: list[nn.Linear], grads: dict) -> None:
@@ -370,7 +383,7 @@ def _clip_grad_list(grads: list[th.Tensor], max_norm: float) -> None:
     if not grads:
         return
     total = th.linalg.vector_norm(th.stack(th._foreach_norm(grads, 2.0)), 2.0)
-    th._foreach_mul_(grads, th.clamp(max_norm / (total + 1e-6), max=1.0))
+    th._foreach_mul_(grads, th.clamp((total + 1e-6).reciprocal() * max_norm, max=1.0))  # = max_norm / (total + 1e-6)
 
 
 def ppo_epochs(
@@ -785,7 +798,7 @@ class _SACNets:
         a = th.tanh(u)
         diff, var = u - mean, std**2
         log_prob = (-(diff**2) / (2 * var) - std.log() - _LOG_SQRT_2PI).sum(dim=1)
-        squash = 1 - a**2 + 1e-6
+        squash = th.rsub(a**2, 1) + 1e-6  # = 1 - a**2 + 1e-6
         log_prob = log_prob - th.sum(th.log(squash), dim=1)
         return dict(hs=hs, raw_ls=raw_ls, std=std, var=var, eps=eps, a=a, diff=diff, squash=squash, log_prob=log_prob)
 
@@ -794,10 +807,10 @@ class _SACNets:
         a, diff, var, std = f["a"], f["diff"], f["var"], f["std"]
         gl = g_lp[:, None]
         g_a = g_a + gl * (2 * a / f["squash"])  # from -sum log(1 - a^2 + eps)
-        g_u = g_a * (1 - a * a)  # through tanh
+        g_u = g_a * th.rsub(a * a, 1)  # through tanh: (1 - a * a)
         dens_u = gl * (diff / var)  # the Gaussian density: d/du = -diff/var, d/dmean = +diff/var
         g_mean = (g_u - dens_u) + dens_u
-        g_std = (g_u - dens_u) * f["eps"] + gl * (diff * diff / (var * std) - 1 / std)
+        g_std = (g_u - dens_u) * f["eps"] + gl * (diff * diff / (var * std) - std.reciprocal() * 1)  # 1 / std
         raw = f["raw_ls"]
         g_ls = g_std * std * ((raw >= -20) & (raw <= 2))
         latent = f["hs"][-1]
@@ -899,7 +912,7 @@ class FastSAC(_LeanExploration, SAC):
                 next_q, _ = _q_forward(nets.target, next_obs, nf["a"])
                 next_q, _ = th.min(next_q, dim=1, keepdim=True)
                 next_q = next_q - ent_coef * nf["log_prob"].reshape(-1, 1)
-                target_q = rewards + (1 - dones) * discounts * next_q
+                target_q = rewards + th.rsub(dones, 1) * discounts * next_q
                 # critic: 0.5 * sum_k mean((q_k - y)^2)
                 q, caches = _q_forward(nets.critic, obs, actions)
                 critic_losses.append(0.5 * ((q - target_q) ** 2).mean(0).sum())
@@ -978,7 +991,7 @@ class FastDDPG(_LeanExploration, DDPG):
                 next_actions = (actor_t.forward(next_obs)[-1] + noise).clamp(-1, 1)
                 next_q, _ = _q_forward(critic_t, next_obs, next_actions)
                 next_q, _ = th.min(next_q, dim=1, keepdim=True)
-                target_q = rewards + (1 - dones) * discounts * next_q
+                target_q = rewards + th.rsub(dones, 1) * discounts * next_q
                 q, caches = _q_forward(critic, obs, actions)
                 critic_losses.append(((q - target_q) ** 2).mean(0).sum())  # sum_k mean((q_k - y)^2)
                 g_q = (q - target_q) * (2.0 / b)
