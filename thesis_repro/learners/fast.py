@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from functools import partial
 from types import SimpleNamespace
 from typing import Any
 
@@ -373,6 +374,9 @@ class _FusedAdamStep:
             )  # fmt: skip
 
 
+_mse_mean = partial(th._C._nn.mse_loss, reduction=1)  # = F.mse_loss(a, b) for same-shape a, b (1: "mean")
+
+
 def _clip_grads(params: list[nn.Parameter], max_norm: float) -> None:
     """``clip_grad_norm_(params, max_norm, foreach=True)`` on a known non-empty parameter list."""
     _clip_grad_list([p.grad for p in params if p.grad is not None], max_norm)
@@ -468,7 +472,10 @@ def ppo_epochs(
                     vpred = values
                 else:
                     vpred = mb.old_values + th.clamp(values - mb.old_values, -clip_range_vf, clip_range_vf)
-                vloss = th.nn.functional.mse_loss(mb.returns, vpred)
+                if mac is not None and mb.returns.shape == vpred.shape:  # F.mse_loss's kernel, minus its Python
+                    vloss = _mse_mean(mb.returns, vpred)  # (broadcast_tensors of equal shapes = the same values)
+                else:
+                    vloss = th.nn.functional.mse_loss(mb.returns, vpred)
                 if mac is not None:  # no graph: the tensors themselves (detach() would only copy the handle)
                     kl = th.mean((ratio - 1) - log_ratio)
                     clip_l.append(th.mean((th.abs(ratio - 1) > clip_range).float()))
