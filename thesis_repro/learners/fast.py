@@ -40,6 +40,7 @@ import numpy as np
 import torch as th
 import torch.nn.functional as F
 from gymnasium import spaces
+from sb3_contrib import TRPO
 from stable_baselines3 import DDPG, PPO, SAC
 from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
@@ -542,14 +543,8 @@ def ppo_epochs(
 
 
 # ------------------------------------------------------------------------------------------------ FastPPO
-class FastPPO(PPO):
-    """SB3 ``PPO`` whose ``train()`` runs :func:`ppo_epochs` (same update, see module docstring).
-
-    ``fast_path`` tells whether the last ``train()`` used the closed-form gradient (True for the kit's
-    MLP and SCN policies).
-    """
-
-    fast_path: bool | None = None
+class _LeanRollouts:
+    """``collect_rollouts`` of SB3's on-policy algorithms with the policy forward in closed form."""
 
     def collect_rollouts(
         self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer, n_rollout_steps: int
@@ -599,6 +594,17 @@ class FastPPO(PPO):
         callback.on_rollout_end()
         return True
 
+
+class FastPPO(_LeanRollouts, PPO):
+    """SB3 ``PPO`` whose ``train()`` runs :func:`ppo_epochs` (same update, see module docstring) and whose
+    ``collect_rollouts`` samples in closed form (:class:`_LeanRollouts`).
+
+    ``fast_path`` tells whether the last ``train()`` used the closed-form gradient (True for the kit's
+    MLP and SCN policies).
+    """
+
+    fast_path: bool | None = None
+
     def train(self) -> None:
         """Update the policy on the current rollout buffer (drop-in for ``PPO.train``)."""
         self.policy.set_training_mode(True)
@@ -637,6 +643,12 @@ class FastPPO(PPO):
         self.logger.record("train/clip_range", clip_range)
         if self.clip_range_vf is not None:
             self.logger.record("train/clip_range_vf", clip_range_vf)
+
+
+class FastTRPO(_LeanRollouts, TRPO):
+    """sb3_contrib's ``TRPO`` (its own ``train()``) whose ``collect_rollouts`` samples in closed form
+    (:class:`_LeanRollouts`: the same draws and numbers as SB3's, without building a distribution per step).
+    A ``FastTRPO`` zip is an ordinary ``TRPO`` zip."""
 
 
 # ------------------------------------------------------------------------------- SAC / DDPG (TD3 family)

@@ -36,7 +36,6 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from sb3_contrib import TRPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
@@ -50,7 +49,7 @@ from thesis_repro.envs.vec import LeanVecEnv, LeanVecNormalize
 from thesis_repro.learners.algos import DDPGSplit
 from thesis_repro.learners.arpl import ARPLVecEnv
 from thesis_repro.learners.config import iteration_steps
-from thesis_repro.learners.fast import FastPPO, FastSAC  # leaner, equivalent train() (tests/test_fast.py)
+from thesis_repro.learners.fast import FastPPO, FastSAC, FastTRPO  # leaner, equivalent (tests/test_fast.py)
 from thesis_repro.learners.multidomain import CLASSES as MULTI_DOMAIN_CLASSES
 from thesis_repro.learners.policies import SCNPolicy
 from thesis_repro.learners.resume import ResumeMismatch, capture, global_rng_state, restore, set_global_rng_state
@@ -59,7 +58,7 @@ RETURN_WINDOW = 100  # training episodes averaged into train_return and the curv
 #: Algorithm class of each ``class`` name of ``hyperparams.yaml``.
 ALGORITHM_CLASSES: dict[str, type[BaseAlgorithm]] = {
     "PPO": FastPPO,
-    "TRPO": TRPO,
+    "TRPO": FastTRPO,  # sb3_contrib's TRPO with the closed-form rollout forward
     "SAC": FastSAC,
     "DDPG": DDPGSplit,
     **MULTI_DOMAIN_CLASSES,
