@@ -31,13 +31,16 @@ def test_every_shipped_run_is_current_and_intact():
 
 
 def test_shipped_layer_is_compact():
-    """Small compact files (issue 7: tens of MB at most; no tracked file over 2 MiB), never optimiser state."""
+    """Small compact files (no tracked file over 2 MiB; the layer under 150 MB), never optimiser state."""
     files = [p for p in LAYER.rglob("*") if p.is_file()]
     sizes = {p: p.stat().st_size for p in files}
     big = sorted(f"{p.relative_to(LAYER)} ({n / 2**20:.1f} MiB)" for p, n in sizes.items() if n > 2**21)
     assert not big, f"shipped files over 2 MiB (store arrays deflated, thin the logs): {big}"
     total = sum(sizes.values())
-    assert total < 60e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is tens of MB"
+    # ~0.35 MB per training run (99 kit-v1 runs: 35 MB). Until small switches protocol, both protocols' runs are
+    # shipped side by side, and issue 22 brings 3 seeds: ~300 thesis runs + evaluations after the switch (the kit-v1
+    # runs are deleted then). Still compact files, never optimiser state.
+    assert total < 150e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is 150 MB"
 
 
 def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
