@@ -343,10 +343,30 @@ class _FusedAdamStep:
         """``__call__``'s two kernels with ``grads`` (the gradients of :meth:`holds`' ``params``, in order) instead
         of the ``p.grad`` attributes, so the caller need not set them per step. False (nothing done): the
         caller sets ``p.grad`` and calls ``__call__`` (not a fused Adam, hooks, or state not initialised yet)."""
-        opt = self.optimizer
-        if not self.ok or opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks or not self._ready():
+        if not self._fast():
             return False
-        ((g, params, exp_avgs, exp_avg_sqs, steps),) = self._lists  # type: ignore[misc]
+        self._kernels(self._lists[0], grads)  # type: ignore[index]
+        return True
+
+    def __call__(self) -> None:
+        if not self._fast():
+            self.optimizer.step()
+            return
+        grads = [[p.grad for p in lists[1]] for lists in self._lists]  # type: ignore[union-attr]
+        if any(gr is None for gs in grads for gr in gs):
+            self.optimizer.step()  # parameters without gradient: let Adam skip them
+            return
+        for lists, gs in zip(self._lists, grads, strict=True):  # type: ignore[arg-type]
+            self._kernels(lists, gs)
+
+    def _fast(self) -> bool:
+        opt = self.optimizer
+        return self.ok and not opt._optimizer_step_pre_hooks and not opt._optimizer_step_post_hooks and self._ready()
+
+    @staticmethod
+    def _kernels(lists: tuple[dict, list, list, list, list], grads: list[th.Tensor]) -> None:
+        """One parameter group's Adam step: the step counters, then the fused update (``Adam.step``'s kernels)."""
+        g, params, exp_avgs, exp_avg_sqs, steps = lists
         beta1, beta2 = g["betas"]
         th._foreach_add_(steps, 1)
         th._fused_adam_(
@@ -354,25 +374,6 @@ class _FusedAdamStep:
             beta1=beta1, beta2=beta2, weight_decay=g["weight_decay"], eps=g["eps"], maximize=g["maximize"],
             grad_scale=None, found_inf=None,
         )  # fmt: skip
-        return True
-
-    def __call__(self) -> None:
-        opt = self.optimizer
-        if not self.ok or opt._optimizer_step_pre_hooks or opt._optimizer_step_post_hooks or not self._ready():
-            opt.step()
-            return
-        grads = [[p.grad for p in lists[1]] for lists in self._lists]  # type: ignore[union-attr]
-        if any(gr is None for gs in grads for gr in gs):
-            opt.step()  # parameters without gradient: let Adam skip them
-            return
-        for (g, params, exp_avgs, exp_avg_sqs, steps), gs in zip(self._lists, grads, strict=True):  # type: ignore[arg-type]
-            beta1, beta2 = g["betas"]
-            th._foreach_add_(steps, 1)
-            th._fused_adam_(
-                params, gs, exp_avgs, exp_avg_sqs, [], steps, amsgrad=False, lr=g["lr"],
-                beta1=beta1, beta2=beta2, weight_decay=g["weight_decay"], eps=g["eps"], maximize=g["maximize"],
-                grad_scale=None, found_inf=None,
-            )  # fmt: skip
 
 
 _mse_mean = partial(th._C._nn.mse_loss, reduction=1)  # = F.mse_loss(a, b) for same-shape a, b (1: "mean")
