@@ -62,6 +62,19 @@ def timesteps_for(timesteps: int | Mapping[str, int], env: str) -> int:
     return int(timesteps)
 
 
+def learner_timesteps(settings: Mapping[str, Any], algo: str) -> int | Mapping[str, int]:
+    """Training budget of ``algo`` in an item: its ``algo_timesteps`` entry if any, else the item's ``timesteps``
+    (an off-policy learner may reach the trained regime sooner; its budget is then measured on its own).
+
+    >>> learner_timesteps({"timesteps": 200, "algo_timesteps": {"sac": 100}}, "sac")
+    100
+    >>> learner_timesteps({"timesteps": 200}, "ppo")
+    200
+    """
+    per = settings.get("algo_timesteps") or {}
+    return per[algo] if algo in per else settings["timesteps"]
+
+
 # ---------------------------------------------------------------- Figure 3.2: overfitting during training
 def training_return_at(train: Result | Mapping[str, Any], timesteps: Sequence[int], window: int = 100) -> np.ndarray:
     """Mean return of the last ``window`` training episodes finished by each of ``timesteps`` (NaN if none)."""
@@ -168,20 +181,26 @@ def benchmark(
     seeds: Sequence[int],
     timesteps: int | Mapping[str, int],
     tests: Sequence[str],
+    algo_timesteps: Mapping[str, int | Mapping[str, int]] | None = None,
     **kwargs: Any,
 ) -> Benchmark:
-    """Like :func:`thesis_repro.evaluation.benchmark_jobs`, with a per-env training budget.
+    """Like :func:`thesis_repro.evaluation.benchmark_jobs`, with a per-env and per-learner training budget.
 
-    ``timesteps`` may be an int or ``{env: steps, "default": steps}``; jobs keep the
-    ``(seed, env, algo)`` order so :meth:`Benchmark.run` stacks them as ``(seeds, tasks, algos, ...)``.
+    ``timesteps`` may be an int or ``{env: steps, "default": steps}``; ``algo_timesteps`` replaces it for the
+    learners it names. Jobs keep the ``(seed, env, algo)`` order so :meth:`Benchmark.run` stacks them as
+    ``(seeds, tasks, algos, ...)``.
     """
-    parts = {e: benchmark_jobs(algos, [e], seeds, timesteps_for(timesteps, e), tests, **kwargs) for e in envs}
-    n_a = len(algos)
+    per = algo_timesteps or {}
+    parts = {
+        (e, a): benchmark_jobs([a], [e], seeds, timesteps_for(per.get(a, timesteps), e), tests, **kwargs)
+        for e in envs
+        for a in algos
+    }
 
     def order(get) -> list[Job]:  # noqa: ANN001
-        return [get(parts[e])[si * n_a + ai] for si in range(len(seeds)) for e in envs for ai in range(n_a)]
+        return [get(parts[e, a])[si] for si in range(len(seeds)) for e in envs for a in algos]
 
-    first = parts[envs[0]]
+    first = parts[envs[0], algos[0]]
     evals = {name: order(lambda b, n=name: b.eval_jobs[n]) for name in first.eval_jobs}
     train = order(lambda b: b.train_jobs)
     return Benchmark(list(algos), list(envs), [int(s) for s in seeds], first.tests, train, evals)
@@ -195,6 +214,7 @@ def pareto_benchmark(settings: Mapping[str, Any]) -> Benchmark:
         list(range(int(settings["train_seeds"]))),
         settings["timesteps"],
         settings["tests"],
+        algo_timesteps=settings.get("algo_timesteps"),
         sigmas=settings["sigmas"],
         n_rollouts=int(settings["test_rollouts"]),
         max_episode_steps=int(settings["max_episode_steps"]),

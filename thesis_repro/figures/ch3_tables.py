@@ -37,7 +37,7 @@ from thesis_repro.evaluation import Benchmark, tables
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import FIGURES, budget_note, register
 from thesis_repro.figures import settings as _figure_settings
-from thesis_repro.figures.ch3 import benchmark, timesteps_for
+from thesis_repro.figures.ch3 import benchmark, learner_timesteps, timesteps_for
 from thesis_repro.learners import hyperparams
 from thesis_repro.validation import check_choice
 
@@ -96,11 +96,21 @@ def noisy_learners() -> dict[str, str]:
 
 def note(settings: Mapping[str, Any]) -> str:
     """The budget sentence of :func:`thesis_repro.figures.budget_note` for the item's own tasks and learners."""
-    t = settings["timesteps"]
-    if isinstance(t, Mapping):
+
+    def on_tasks(t: int | Mapping[str, int]) -> int | dict[str, int]:
+        if not isinstance(t, Mapping):
+            return int(t)
         per = {e: timesteps_for(t, e) for e in item_envs(settings)}
-        t = next(iter(per.values())) if len(set(per.values())) == 1 else per
-    return budget_note({**settings, "timesteps": t}, n_algos=len(learners(settings)))
+        return next(iter(per.values())) if len(set(per.values())) == 1 else per
+
+    own = {a: on_tasks(learner_timesteps(settings, a)) for a in learners(settings)}
+    base = on_tasks(settings["timesteps"])
+    differ = {a: t for a, t in own.items() if t != base}
+    extra = "; ".join(
+        f"{a} {', '.join(f'{k}: {v:,}' for k, v in t.items()) if isinstance(t, dict) else f'{t:,}'} steps"
+        for a, t in differ.items()
+    )
+    return budget_note({**settings, "timesteps": base}, n_algos=len(learners(settings)), extra=extra)
 
 
 def describe(settings: Mapping[str, Any], width: int = 100) -> str:
@@ -123,7 +133,7 @@ def benchmarks(
             [a],
             envs,
             list(range(int(settings["train_seeds"]))),
-            settings["timesteps"],
+            learner_timesteps(settings, a),
             settings["tests"],
             sigmas=settings["sigmas"],
             n_rollouts=int(settings["test_rollouts"]),
