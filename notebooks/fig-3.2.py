@@ -29,12 +29,12 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch3, plot
 from thesis_repro.learners import iteration_steps
 
 settings = figures.settings("3.2", SCALE)
-print(figures.runs_summary("3.2", SCALE))
+print(pages.runs_summary("3.2", SCALE))
 curve = ch3.overfitting_curve(settings, n_jobs=settings["n_jobs"])
 curve.round(1)
 
@@ -59,4 +59,4 @@ plot.save(fig, SCALE, "fig-3.2", dpi=120)
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = claims.judge_page("fig-3.2", SCALE, {"curve": curve}, figures.claim_meta("3.2", settings))
+_ = claims.judge_page("fig-3.2", SCALE, {"curve": curve}, pages.claim_meta("3.2", settings))

@@ -28,11 +28,11 @@ SELECTION = "best"  # "best": best-training seed per variant (the thesis); "mean
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import budgets, claims, figures
+from thesis_repro import budgets, claims, figures, pages
 from thesis_repro.figures import ch3, plot
 
 settings = figures.settings("3.3", SCALE)
-print(figures.runs_summary("3.3", SCALE))
+print(pages.runs_summary("3.3", SCALE))
 res = ch3.pareto_benchmark(settings).run(n_jobs=settings["n_jobs"])
 points = ch3.points_table(res, SELECTION)
 ours = ch3.correlation_table(res, SELECTION)
@@ -85,4 +85,4 @@ wide.round(3)
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = claims.judge_page("fig-3.3", SCALE, {"points": ch3.seed_points(res)}, figures.claim_meta("3.3", settings))
+_ = claims.judge_page("fig-3.3", SCALE, {"points": ch3.seed_points(res)}, pages.claim_meta("3.3", settings))

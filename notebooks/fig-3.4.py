@@ -21,11 +21,11 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, figures
+from thesis_repro import claims, pages
 from thesis_repro.figures import ch3_curves, ch3_tables, plot
 
 settings = ch3_tables.settings("3.4", SCALE)
-print(figures.runs_summary("3.4", SCALE))
+print(pages.runs_summary("3.4", SCALE))
 print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 heat = ch3_curves.run_heat(settings, n_jobs=settings["n_jobs"])
@@ -49,5 +49,5 @@ _ = claims.judge_page(
     "fig-3.4",
     SCALE,
     {**ch3_tables.seed_frames(res), "heat": ch3_curves.heat_seeds(heat)},
-    figures.claim_meta("3.4", settings),
+    pages.claim_meta("3.4", settings),
 )

@@ -26,11 +26,11 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, figures
+from thesis_repro import claims, pages
 from thesis_repro.figures import ch3_curves, ch3_tables, plot
 
 settings = ch3_tables.settings("3.6", SCALE)
-print(figures.runs_summary("3.6", SCALE))
+print(pages.runs_summary("3.6", SCALE))
 print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 bars = ch3_curves.bars("3.6", ch3_tables.our_cells(res), settings)
@@ -42,4 +42,4 @@ bars.pivot_table(index=["panel", "method"], columns=["test", "source"], values="
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = claims.judge_page("fig-3.6", SCALE, ch3_tables.seed_frames(res), figures.claim_meta("3.6", settings))
+_ = claims.judge_page("fig-3.6", SCALE, ch3_tables.seed_frames(res), pages.claim_meta("3.6", settings))

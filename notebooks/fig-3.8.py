@@ -24,11 +24,11 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, figures
+from thesis_repro import claims, pages
 from thesis_repro.figures import ch3_curves, ch3_tables, plot
 
 settings = ch3_tables.settings("3.8", SCALE)
-print(figures.runs_summary("3.8", SCALE))
+print(pages.runs_summary("3.8", SCALE))
 print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 fig = ch3_curves.plot_curves(res, settings, "Fig 3.8")
@@ -42,4 +42,4 @@ comp.style("Testing AUC of the curves: thesis (Tables 3.4-3.7) beside reproduced
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = claims.judge_page("fig-3.8", SCALE, ch3_tables.seed_frames(res), figures.claim_meta("3.8", settings))
+_ = claims.judge_page("fig-3.8", SCALE, ch3_tables.seed_frames(res), pages.claim_meta("3.8", settings))

@@ -25,11 +25,11 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.1", SCALE)
-print(figures.runs_summary("4.1", SCALE))
+print(pages.runs_summary("4.1", SCALE))
 conds = ch4.conditions("4.1", settings["panels"])
 curves = ch4.curves_frame(ch4.train_runs(settings, n_jobs=settings["n_jobs"]))
 curves.groupby(["panel", "algo"])[["return", "length"]].last()
@@ -54,4 +54,4 @@ plot.save(fig, SCALE, "fig-4.1")
 
 # %%
 print(ch4.late_returns(curves))
-_ = claims.judge_page("fig-4.1", SCALE, {"curves": curves}, figures.claim_meta("4.1", settings))
+_ = claims.judge_page("fig-4.1", SCALE, {"curves": curves}, pages.claim_meta("4.1", settings))

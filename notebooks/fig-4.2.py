@@ -26,11 +26,11 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.2", SCALE)
-print(figures.runs_summary("4.2", SCALE))
+print(pages.runs_summary("4.2", SCALE))
 (cond,) = ch4.conditions("4.2", settings["panels"])
 runs = ch4.train_runs(settings, n_jobs=settings["n_jobs"])
 best = ch4.best_seeds(runs)
@@ -59,4 +59,4 @@ plot.save(fig, SCALE, "fig-4.2", dpi=80)
 wind0 = ch4.evaluate_runs(runs, "wind", [0.0], settings["test_rollouts"], n_jobs=settings["n_jobs"])
 returns = wind0.merge(best[["seed"]].reset_index(), on=["algo", "seed"]).set_index("algo")["return"]
 print(returns)
-_ = claims.judge_page("fig-4.2", SCALE, {}, figures.claim_meta("4.2", settings))
+_ = claims.judge_page("fig-4.2", SCALE, {}, pages.claim_meta("4.2", settings))

@@ -24,11 +24,11 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.3", SCALE)
-print(figures.runs_summary("4.3", SCALE))
+print(pages.runs_summary("4.3", SCALE))
 conds = ch4.conditions("4.3", settings["panels"])
 runs = ch4.train_runs(settings, n_jobs=settings["n_jobs"])
 wind = ch4.evaluate_runs(runs, "wind", settings["winds"], settings["test_rollouts"], n_jobs=settings["n_jobs"])
@@ -56,4 +56,4 @@ plot.save(fig, SCALE, "fig-4.3")
 
 # %%
 print(ch4.compare(wind, "return"))
-_ = claims.judge_page("fig-4.3", SCALE, {"wind": wind}, figures.claim_meta("4.3", settings))
+_ = claims.judge_page("fig-4.3", SCALE, {"wind": wind}, pages.claim_meta("4.3", settings))

@@ -26,11 +26,11 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.4", SCALE)
-print(figures.runs_summary("4.4", SCALE))
+print(pages.runs_summary("4.4", SCALE))
 (cond,) = ch4.conditions("4.4", settings["panels"])
 runs = ch4.train_runs(settings, n_jobs=settings["n_jobs"])
 wind = ch4.evaluate_runs(runs, "wind", settings["winds"], settings["test_rollouts"], n_jobs=settings["n_jobs"])
@@ -60,5 +60,5 @@ _ = claims.judge_page(
     "fig-4.4",
     SCALE,
     {"wind": wind, "heat": heat, "curves": ch4.curves_frame(runs)},
-    figures.claim_meta("4.4", settings),
+    pages.claim_meta("4.4", settings),
 )

@@ -25,11 +25,11 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.5", SCALE)
-print(figures.runs_summary("4.5", SCALE))
+print(pages.runs_summary("4.5", SCALE))
 conds = ch4.conditions("4.5", settings["panels"])
 runs = ch4.train_runs(settings, n_jobs=settings["n_jobs"])
 grid = ch4.mass_friction_grid(settings)
@@ -53,4 +53,4 @@ plot.save(fig, SCALE, "fig-4.5")
 
 # %%
 print(ch4.compare(ch4.off_centre(heat), "return"))
-_ = claims.judge_page("fig-4.5", SCALE, {"heat": heat}, figures.claim_meta("4.5", settings))
+_ = claims.judge_page("fig-4.5", SCALE, {"heat": heat}, pages.claim_meta("4.5", settings))

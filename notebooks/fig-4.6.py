@@ -26,11 +26,11 @@ SCALE = "small"
 # %%
 import pandas as pd
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.6", SCALE)
-print(figures.runs_summary("4.6", SCALE))
+print(pages.runs_summary("4.6", SCALE))
 conds = ch4.conditions("4.6", settings["panels"])
 runs = ch4.train_runs(settings, n_jobs=settings["n_jobs"])
 noise = pd.concat(
@@ -66,4 +66,4 @@ plot.save(fig, SCALE, "fig-4.6")
 # %%
 aucs = ch4.noise_aucs(noise)
 print(aucs.pivot_table(index=["noise", "panel"], columns="algo", values="auc"))
-_ = claims.judge_page("fig-4.6", SCALE, {"noise": noise}, figures.claim_meta("4.6", settings))
+_ = claims.judge_page("fig-4.6", SCALE, {"noise": noise}, pages.claim_meta("4.6", settings))

@@ -27,11 +27,11 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.7", SCALE)
-print(figures.runs_summary("4.7", SCALE))
+print(pages.runs_summary("4.7", SCALE))
 (cond,) = ch4.conditions("4.7", settings["panels"])
 curves = ch4.curves_frame(ch4.train_runs(settings, n_jobs=settings["n_jobs"]))
 
@@ -51,4 +51,4 @@ plot.save(fig, SCALE, "fig-4.7")
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = claims.judge_page("fig-4.7", SCALE, {"curves": curves}, figures.claim_meta("4.7", settings))
+_ = claims.judge_page("fig-4.7", SCALE, {"curves": curves}, pages.claim_meta("4.7", settings))

@@ -25,13 +25,13 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.arm import ArmConfig
 from thesis_repro.backends import run_jobs
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.3", SCALE)
-print(figures.runs_summary("5.3", SCALE))
+print(pages.runs_summary("5.3", SCALE))
 results = run_jobs(ch5.solve_jobs(settings), n_jobs=settings["n_jobs"], desc="fig-5.3 CMA-ES on one BIC task")
 summary = ch5.catch_summary(results, settings["seeds"])
 summary.round(2)
@@ -54,4 +54,4 @@ plot.save(fig, SCALE, "fig-5.3", dpi=120)
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = claims.judge_page("fig-5.3", SCALE, {"catch": summary}, figures.claim_meta("5.3", settings))
+_ = claims.judge_page("fig-5.3", SCALE, {"catch": summary}, pages.claim_meta("5.3", settings))

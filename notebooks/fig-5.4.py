@@ -28,11 +28,11 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.4", SCALE)
-print(figures.runs_summary("5.4", SCALE))
+print(pages.runs_summary("5.4", SCALE))
 summary, curves = ch5.run_grid(settings, ch5.TRANSFER, n_jobs=settings["n_jobs"])
 ch5.strategy_means(summary, ch5.TRANSFER).round(3)
 
@@ -79,4 +79,4 @@ plot.save(fig, SCALE, "fig-5.4b", dpi=120)
 # ## Do the claims reproduce at this scale?
 
 # %%
-_ = claims.judge_page("fig-5.4", SCALE, {"summary": summary, "curves": curves}, figures.claim_meta("5.4", settings))
+_ = claims.judge_page("fig-5.4", SCALE, {"summary": summary, "curves": curves}, pages.claim_meta("5.4", settings))

@@ -28,11 +28,11 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.5", SCALE)
-print(figures.runs_summary("5.5", SCALE))
+print(pages.runs_summary("5.5", SCALE))
 METHODS = list(ch5.FIG55_METHODS)
 summary, curves = ch5.run_grid(settings, METHODS, n_jobs=settings["n_jobs"])
 ch5.strategy_means(summary, METHODS).round(3)
@@ -58,4 +58,4 @@ plot.save(fig, SCALE, "fig-5.5", dpi=120)
 # ## Do the claims reproduce at this scale?
 
 # %%
-_ = claims.judge_page("fig-5.5", SCALE, {"summary": summary, "curves": curves}, figures.claim_meta("5.5", settings))
+_ = claims.judge_page("fig-5.5", SCALE, {"summary": summary, "curves": curves}, pages.claim_meta("5.5", settings))

@@ -28,11 +28,11 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import claims, figures
+from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.6", SCALE)
-print(figures.runs_summary("5.6", SCALE))
+print(pages.runs_summary("5.6", SCALE))
 curves, final, pretraining = ch5.run_curriculum(settings, n_jobs=settings["n_jobs"])
 pretraining.round(3)
 
@@ -55,4 +55,4 @@ plot.save(fig, SCALE, "fig-5.6", dpi=120)
 
 # %%
 print(ch5.curriculum_end(curves).round(3))
-_ = claims.judge_page("fig-5.6", SCALE, {"final": final, "curves": curves}, figures.claim_meta("5.6", settings))
+_ = claims.judge_page("fig-5.6", SCALE, {"final": final, "curves": curves}, pages.claim_meta("5.6", settings))

@@ -23,11 +23,11 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, figures
+from thesis_repro import claims, pages
 from thesis_repro.figures import ch3_tables
 
 settings = ch3_tables.settings("table-3.3", SCALE)
-print(figures.runs_summary("table-3.3", SCALE))
+print(pages.runs_summary("table-3.3", SCALE))
 print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 ours = ch3_tables.table33(res, settings)
@@ -41,4 +41,4 @@ text_b.style.set_caption(f"Table 3.3(b): testing return η_σte on {settings['en
 # ## Does the claim reproduce at this scale?
 
 # %%
-_ = claims.judge_page("table-3.3", SCALE, ch3_tables.seed_frames(res), figures.claim_meta("table-3.3", settings))
+_ = claims.judge_page("table-3.3", SCALE, ch3_tables.seed_frames(res), pages.claim_meta("table-3.3", settings))

@@ -22,11 +22,11 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, figures
+from thesis_repro import claims, pages
 from thesis_repro.figures import ch3_tables
 
 settings = ch3_tables.settings("table-3.5", SCALE)
-print(figures.runs_summary("table-3.5", SCALE))
+print(pages.runs_summary("table-3.5", SCALE))
 print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 comp = ch3_tables.compare("table-3.5", ch3_tables.our_cells(res), settings)
@@ -40,6 +40,6 @@ _ = claims.judge_page(
     "table-3.5",
     SCALE,
     ch3_tables.seed_frames(res),
-    figures.claim_meta("table-3.5", settings),
+    pages.claim_meta("table-3.5", settings),
     kit_checks=[claims.bolding_check("table-3.5", comp.agreement, SCALE)],
 )

@@ -197,7 +197,7 @@ def test_notebooks_are_thin_and_end_with_the_shared_verdict(figure_id):
     for literal in ("2048", "4096", "4e6", "4000000", "4_000_000", "Job(", "def "):
         assert literal not in code, f"{fig.notebook_id}: {literal!r} belongs in the library or the scale table"
     assert f'figures.settings("{figure_id}", SCALE)' in code
-    assert f'figures.runs_summary("{figure_id}", SCALE)' in code
+    assert f'pages.runs_summary("{figure_id}", SCALE)' in code
     last = paths.notebook(figure_id).read_text().strip().split("# %%")[-1]  # the verdict cell (claims layer)
     calls = (f'claims.judge_page(\n    "{fig.notebook_id}",', f'claims.judge_page("{fig.notebook_id}", SCALE, ')
     assert any(c in last for c in calls), last

@@ -3,6 +3,10 @@
 An AST scan of the sources (every import, also those inside functions): no figure module imports the claims
 layer or defines a verdict function; the claims layer never imports the figure layer; ``runs.py`` needs only
 the figure registry (job lists), never a chapter module or the claims layer.
+
+The direction is ``runs -> figures``, ``budgets -> figures, runs`` and ``pages -> figures, runs, budgets``: no
+figure module imports ``runs``, ``budgets`` or the claims layer, directly or through any other module of the
+package (what a page prints about its runs lives in :mod:`thesis_repro.pages`).
 """
 
 from __future__ import annotations
@@ -17,18 +21,41 @@ import thesis_repro
 ROOT = Path(thesis_repro.__file__).parent
 FIGURES = sorted((ROOT / "figures").glob("*.py"))
 CLAIMS = sorted((ROOT / "claims").glob("*.py"))
+#: What imports the figure registry, so the figure layer must not import it (issue 21: imports run one way).
+ABOVE_FIGURES = ("thesis_repro.runs", "thesis_repro.budgets", "thesis_repro.claims", "thesis_repro.pages")
 #: What builds a verdict (thesis_repro.report); a figure module may still use its status labels (NOT_RUN).
 JUDGING = {"Verdict", "status", "decide"}
 
 
-def imported(path: Path) -> set[str]:
-    """Every module ``path`` imports, as dotted names (``from a import b`` gives ``a`` and ``a.b``)."""
+def module_name(path: Path) -> str:
+    """``thesis_repro/figures/ch3.py`` -> ``thesis_repro.figures.ch3`` (a package's ``__init__`` is the package)."""
+    parts = path.relative_to(ROOT.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported(path: Path, text: str | None = None) -> set[str]:
+    """Every module ``path`` imports, as dotted names (``from a import b`` gives ``a`` and ``a.b``).
+
+    Relative imports are resolved against ``path``'s package; ``importlib.import_module("x")`` and
+    ``__import__("x")`` with a literal name count as imports of ``x``. ``text`` replaces the file's source.
+    """
+    package = module_name(path).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
     out: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(ast.parse(path.read_text() if text is None else text, str(path))):
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names}
-        elif isinstance(node, ast.ImportFrom) and node.module:
-            out |= {node.module, *(f"{node.module}.{a.name}" for a in node.names)}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join([*package[: len(package) - node.level + 1], *([base] if base else [])])
+            out |= {base, *(f"{base}.{a.name}" for a in node.names)}
+        elif isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant):
+            func = node.func
+            name = func.attr if isinstance(func, ast.Attribute) else func.id if isinstance(func, ast.Name) else ""
+            if name in {"import_module", "__import__"} and isinstance(node.args[0].value, str):
+                out.add(node.args[0].value)
     return out
 
 
@@ -40,6 +67,68 @@ def test_the_scan_sees_the_imports_it_checks():
     assert FIGURES and CLAIMS
     assert "thesis_repro.figures" in imported(ROOT / "runs.py")
     assert "thesis_repro.claims.ledger" in imported(ROOT / "claims" / "__init__.py")
+    # the forms a back-import could take in a figure module: nested, aliased, relative, dynamic
+    probe = (
+        "def f():\n"
+        "    from thesis_repro import runs\n"
+        "    import thesis_repro.budgets as b\n"
+        "    from .. import claims\n"
+        "    importlib.import_module('thesis_repro.pages')\n"
+    )
+    found = imported(ROOT / "figures" / "probe.py", text=probe)
+    assert set(ABOVE_FIGURES) <= found, found
+
+
+def sources() -> dict[str, Path]:
+    """Every module of the package by dotted name."""
+    return {module_name(p): p for p in sorted(ROOT.rglob("*.py"))}
+
+
+def closure(start: str, modules: dict[str, Path]) -> set[str]:
+    """Every package module ``start`` reaches through imports (nested ones too; ``a.b.c`` also imports ``a.b``)."""
+    seen: set[str] = set()
+    todo = [start]
+    while todo:
+        for name in imported(modules[todo.pop()]):
+            parts = name.split(".")
+            for i in range(1, len(parts) + 1):
+                mod = ".".join(parts[:i])
+                if mod in modules and mod not in seen:
+                    seen.add(mod)
+                    todo.append(mod)
+    return seen
+
+
+@pytest.mark.parametrize("path", FIGURES, ids=lambda p: p.name)
+def test_figure_modules_import_neither_runs_budgets_nor_claims(path):
+    back = sorted(m for m in imported(path) for up in ABOVE_FIGURES if m == up or m.startswith(up + "."))
+    assert not back, (
+        f"figures/{path.name} imports {back}: runs, budgets and the claims layer import the figure layer, "
+        "so imports run one way (a page's runs summary and claim meta live in thesis_repro.pages)"
+    )
+
+
+def test_the_figure_layer_reaches_nothing_that_imports_it():
+    """No detour either: no module the figure layer imports (transitively, also at call time) imports
+    ``runs``/``budgets``/the claims layer, so ``runs -> figures`` is the only edge between them."""
+    modules = sources()
+    for path in FIGURES:
+        reached = closure(module_name(path), modules)
+        back = sorted(m for m in reached for up in ABOVE_FIGURES if m == up or m.startswith(up + "."))
+        assert not back, f"figures/{path.name} reaches {back}"
+        assert not {"thesis_repro.study", "thesis_repro.verify"} & reached, f"figures/{path.name} reaches {reached}"
+
+
+def test_pages_sits_above_figures_runs_and_budgets():
+    mods = imported(ROOT / "pages.py")
+    assert {"thesis_repro.figures", "thesis_repro.runs", "thesis_repro.budgets"} <= mods
+    assert "thesis_repro.figures" in imported(ROOT / "budgets.py")
+    from thesis_repro import figures, pages
+
+    for name in ("runs_summary", "claim_meta"):
+        assert callable(getattr(pages, name)) and not hasattr(figures, name)
+        assert name not in figures.__all__
+    assert set(figures.__all__) <= set(dir(figures))
 
 
 @pytest.mark.parametrize("path", FIGURES, ids=lambda p: p.name)

@@ -7,6 +7,11 @@ every :class:`~thesis_repro.cache.Job` it runs for given settings (training jobs
 runs without executing its notebook. Settings always come from the one scale table
 (:func:`thesis_repro.scales.figure_settings`).
 
+Imports run one way (issue 21): :mod:`thesis_repro.runs` and :mod:`thesis_repro.budgets` import this
+registry, so no figure module imports them (nor the claims layer), not even at call time; what a notebook
+page prints about its runs and hands the claims layer lives in :mod:`thesis_repro.pages`
+(``tests/test_layers.py`` enforces both).
+
 >>> from thesis_repro import figures
 >>> figures.get("fig-3.3").module
 'thesis_repro.figures.ch3'
@@ -125,22 +130,6 @@ def training_jobs(figure_id: str, scale: str, **overrides: Any) -> list[Job]:
     return [j for j in jobs(figure_id, scale, **overrides) if j.kind in TRAINING_KINDS]
 
 
-def runs_summary(figure_id: str, scale: str) -> str:
-    """One line: where the runs of ``figure_id`` at ``scale`` come from (shipped / cached / to compute).
-
-    Counts its training runs, or every job when the figure trains nothing (chapter 5's arm jobs).
-
-    >>> runs_summary("4.1", "smoke")  # doctest: +ELLIPSIS
-    'fig-4.1 (smoke): 8 training runs: 0 shipped, ... cached, ... to compute'
-    """
-    from thesis_repro import runs  # at call time: thesis_repro.runs imports this registry
-
-    fig = get(figure_id)
-    every = fig.jobs(fig.settings(scale))
-    training = [j for j in every if j.kind in TRAINING_KINDS]
-    return f"{fig.notebook_id} ({scale}): " + runs.summary(training or every)
-
-
 def ids() -> list[str]:
     """Registered ids in catalogue order (chapter, then number; tables and analyses after figures)."""
 
@@ -181,29 +170,6 @@ def budget_note(settings: Mapping[str, Any], n_algos: int | None = None, extra: 
     return ", ".join(parts) + "."
 
 
-def claim_meta(figure_id: str, settings: Mapping[str, Any]) -> dict[str, Any]:
-    """What a page hands the claims layer beside its numbers: scale, seeds, the budget sentence and how many
-    of its training runs are trained / still learning (:mod:`thesis_repro.budgets`: half vs final budget)."""
-    from thesis_repro import budgets  # at call time: budgets imports this registry
-
-    fig = get(figure_id)
-    full = fig.settings("full")
-    seeds = settings.get("train_seeds", len(settings.get("seeds", [])))
-    thesis_seeds = full.get("train_seeds", len(full.get("seeds", [])))
-    note = f"scale {settings['scale']}: {seeds} training seed(s) (thesis: {thesis_seeds})"
-    if "timesteps" in settings:
-        note = budget_note(dict(settings, figure=settings.get("figure", figure_id)))
-    out: dict[str, Any] = {"figure": fig.id, "note": note}
-    if any(k in TRAINING_KINDS for k in fig.kinds):
-        table = budgets.table(settings["scale"], [fig.id])
-        if len(table) and "verdict" in table:
-            out["budgets"] = {
-                "runs": int(len(table)),
-                **{str(k): int(v) for k, v in table["verdict"].value_counts().items()},
-            }
-    return out
-
-
 # Chapter modules register their items on import (add a new module's import here).
 from thesis_repro.figures import ch3, ch3_curves, ch3_tables, ch4, ch5  # noqa: E402
 
@@ -212,7 +178,6 @@ __all__ = [
     "TRAINING_KINDS",
     "Figure",
     "budget_note",
-    "claim_meta",
     "ch3",
     "ch3_curves",
     "ch3_tables",
@@ -222,7 +187,6 @@ __all__ = [
     "ids",
     "jobs",
     "register",
-    "runs_summary",
     "settings",
     "thesis_budget",
     "training_jobs",

@@ -1,0 +1,65 @@
+"""What a notebook page prints beside its numbers: where its runs come from and what it hands the claims layer.
+
+The figure layer (:mod:`thesis_repro.figures`) computes numbers only and imports neither
+:mod:`thesis_repro.runs` nor :mod:`thesis_repro.budgets` nor the claims layer (issue 21); both of those import
+the figure registry. This module sits above all of them, so imports run one way::
+
+    figures -> (cache, scales, reference, evaluation, learners, ...)
+    runs    -> figures
+    budgets -> figures, runs
+    claims  -> (never figures)
+    pages   -> figures, runs, budgets
+
+Every notebook calls ``pages.runs_summary(...)`` after its settings and ``pages.claim_meta(...)`` in its
+verdict cell.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from thesis_repro import budgets, figures, runs
+
+
+def runs_summary(figure_id: str, scale: str) -> str:
+    """One line: where the runs of ``figure_id`` at ``scale`` come from (shipped / cached / to compute).
+
+    Counts its training runs, or every job when the figure trains nothing (chapter 5's arm jobs).
+
+    >>> runs_summary("4.1", "smoke")  # doctest: +ELLIPSIS
+    'fig-4.1 (smoke): 8 training runs: 0 shipped, ... cached, ... to compute'
+    """
+    fig = figures.get(figure_id)
+    every = fig.jobs(fig.settings(scale))
+    training = [j for j in every if j.kind in figures.TRAINING_KINDS]
+    return f"{fig.notebook_id} ({scale}): " + runs.summary(training or every)
+
+
+def claim_meta(figure_id: str, settings: Mapping[str, Any]) -> dict[str, Any]:
+    """What a page hands the claims layer beside its numbers: scale, seeds, the budget sentence and how many
+    of its training runs are trained / still learning (:mod:`thesis_repro.budgets`: half vs final budget).
+
+    >>> meta = claim_meta("5.3", figures.settings("5.3", "smoke"))
+    >>> meta["figure"], meta["note"].startswith("scale smoke: "), "budgets" in meta
+    ('5.3', True, False)
+    """
+    fig = figures.get(figure_id)
+    full = fig.settings("full")
+    seeds = settings.get("train_seeds", len(settings.get("seeds", [])))
+    thesis_seeds = full.get("train_seeds", len(full.get("seeds", [])))
+    note = f"scale {settings['scale']}: {seeds} training seed(s) (thesis: {thesis_seeds})"
+    if "timesteps" in settings:
+        note = figures.budget_note(dict(settings, figure=settings.get("figure", figure_id)))
+    out: dict[str, Any] = {"figure": fig.id, "note": note}
+    if any(k in figures.TRAINING_KINDS for k in fig.kinds):
+        table = budgets.table(settings["scale"], [fig.id])
+        if len(table) and "verdict" in table:
+            out["budgets"] = {
+                "runs": int(len(table)),
+                **{str(k): int(v) for k, v in table["verdict"].value_counts().items()},
+            }
+    return out
+
+
+__all__ = ["claim_meta", "runs_summary"]
