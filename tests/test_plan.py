@@ -129,3 +129,17 @@ def test_plan_of_what_is_missing_leaves_out_finished_runs():
     per, book = plan.plan_book("smoke", 1, None, missing=True)  # plan all --missing: the same rule
     every = plan.plan_book("smoke", 1, None)[1]
     assert book.n_train == every.n_train - 1 and book.n_other == every.n_other
+
+
+def test_plan_reports_cost_per_training_seed():
+    """Issue 22: `plan` reports per seed. Every job counts for its policy's training seed, and the per-seed
+    totals add up to the plan's."""
+    jobs = figures.jobs("3.3", "smoke", train_seeds=2)
+    p = plan.plan_jobs("fig-3.3", jobs, "smoke", cores=2, rates=RATES)
+    assert set(p.seeds) == {0, 1}
+    assert sum(n for n, _ in p.seeds.values()) == len({j.key for j in jobs})
+    assert sum(h for _, h in p.seeds.values()) == pytest.approx(p.core_hours)
+    assert p.seeds[0] == pytest.approx(p.seeds[1])  # the two seeds run the same grid
+    text = plan.report(p, RATES)
+    assert "per training seed: s0: " in text and "; s1: " in text
+    assert plan.per_seed(plan.plan_jobs("x", [], "smoke", 1, RATES)) == ""

@@ -263,6 +263,8 @@ class Plan:
     scale: str
     cores: int
     lines: list[Line]
+    #: training seed -> (jobs, core-hours) of the jobs that belong to it (``None``: no training seed)
+    seeds: dict[int | None, tuple[int, float]] = field(default_factory=dict)
 
     @property
     def training(self) -> list[Line]:
@@ -296,10 +298,27 @@ class Plan:
         return train, makespan([d for ln in self.other for d in ln.durations], n)
 
 
+def training_seed(job: Job) -> int | None:
+    """The training seed a job belongs to: a training run's ``seed``, an evaluation's policy's (its ``train``
+    config), ``None`` for jobs without one (chapter 5's arm jobs carry their own ``seed`` and count as theirs).
+
+    >>> training_seed(Job("train", {"seed": 2, "timesteps": 10}))
+    2
+    >>> training_seed(Job("evaluate", {"train": {"seed": 1}}))
+    1
+    """
+    cfg = job.config
+    for c in (cfg, cfg.get("train") if isinstance(cfg.get("train"), Mapping) else None):
+        if c is not None and isinstance(c.get("seed"), int):
+            return int(c["seed"])
+    return None
+
+
 def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rates | None = None) -> Plan:
     """:class:`Plan` of ``jobs`` (deduplicated by key), priced with ``rates`` (default :func:`load_rates`)."""
     rates = rates or load_rates()
     lines: dict[tuple[str, str], Line] = {}
+    seeds: dict[int | None, tuple[int, float]] = {}
     for job in {j.key: j for j in jobs}.values():
         fam = family(job)
         ln = lines.setdefault((job.kind, fam), Line(job.kind, fam))
@@ -307,8 +326,10 @@ def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rat
         ln.jobs += 1
         ln.work += w
         ln.durations.append(core_hours(w, rates.rate(fam)))
+        n, h = seeds.get(seed := training_seed(job), (0, 0.0))
+        seeds[seed] = (n + 1, h + ln.durations[-1])
     order = sorted(lines.values(), key=lambda ln: (ln.kind not in TRAINING_KINDS, ln.kind, ln.family))
-    return Plan(name, scale, cores, order)
+    return Plan(name, scale, cores, order, dict(sorted(seeds.items(), key=lambda kv: (kv[0] is None, kv[0] or 0))))
 
 
 def plan_figure(
@@ -388,7 +409,16 @@ def report(p: Plan, rates: Rates | None = None) -> str:
         for ln in p.lines
     ]
     cols = ("kind", "family", "jobs", "work", "per CPU-s", "rate from", "core-hours")
-    return table(rows, cols) + "\n" + summary(p)
+    return table(rows, cols) + "\n" + per_seed(p) + summary(p)
+
+
+def per_seed(p: Plan) -> str:
+    """One line: jobs and core-hours per training seed (empty when the plan has no seeded job), so a run of
+    several seeds can be ordered seed by seed (``reference-runs --seeds 0`` first)."""
+    if not any(s is not None for s in p.seeds):
+        return ""
+    parts = [f"{'other' if s is None else f's{s}'}: {n:,} jobs, {_num(h)} core-hours" for s, (n, h) in p.seeds.items()]
+    return "per training seed: " + "; ".join(parts) + "\n"
 
 
 def rates_note(rates: Rates) -> str:
