@@ -1,6 +1,6 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
-``reference-runs --scale small`` | ``budgets --scale small`` | ``plan 3.3 --scale full --cores 64`` | ``claims ...`` |
-``verify --scale small -n 20``.
+``reference-runs --scale small`` | ``budgets --scale small [--spread]`` | ``plan 3.3 --scale full --cores 64`` |
+``claims ...`` | ``verify --scale small -n 20``.
 
 Every failure a user can cause ends in one ``error: ...`` line on stderr and a non-zero exit code, never a
 traceback: a bad argument or setting (2), a notebook that failed (its own exception, 1), a folder that cannot
@@ -148,6 +148,17 @@ def _main(argv: list[str]) -> int:
     bud = sub.add_parser("budgets", help="are the training runs trained? curve statistics of cached/shipped runs")
     bud.add_argument("--scale", default="small", help="smoke | small | full")
     bud.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
+    bud.add_argument(
+        "--spread", action="store_true", help="seed spread per learner and task (markdown), beside published numbers"
+    )
+    bud.add_argument("--protocol", default=None, help="with --spread: only this protocol's runs (thesis | kit-v1)")
+    bud.add_argument(
+        "--at", type=positive_int, default=None, help="with --spread: also the training return at this many env steps"
+    )
+    bud.add_argument(
+        "--shipped-only", action="store_true", help="with --spread: the shipped runs alone (data/reference)"
+    )
+    bud.add_argument("--algos", nargs="+", default=None, help="with --spread: only these learners (default: all)")
     plan_p = sub.add_parser("plan", help="cost before running: jobs, env steps, throughput, core-hours, wall time")
     plan_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all' (+ the book)")
     plan_p.add_argument("--scale", default="full", help="smoke | small | full")
@@ -273,6 +284,15 @@ def _command(args: argparse.Namespace) -> int:
 
         scales.check_scale(args.scale)
         ids = [figures.get(f).id for f in args.figures] if args.figures else None
+        if args.spread:
+            cache = budgets.shipped_cache() if args.shipped_only else None
+            frame = budgets.spread(args.scale, args.protocol, args.at, cache, ids, args.algos)
+            print(budgets.render_spread(frame, args.at))
+            return 0
+        if args.protocol is not None or args.at is not None or args.shipped_only or args.algos is not None:
+            raise ValueError(
+                "--protocol, --at, --algos and --shipped-only go with --spread (budgets --spread --protocol thesis)"
+            )
         print(budgets.render(budgets.table(args.scale, ids)))
         cost = budgets.retrain_cost(args.scale, ids)
         print("\nRETRAIN=1 cost (measured wall time of the finished runs, 1 core each; upper bounds):")

@@ -9,19 +9,24 @@ continues for every further doubling of the steps (:func:`extrapolate`). Learnin
 this over-estimates the 4e6 return and the judgement errs towards "still learning".
 
 ``python -m thesis_repro budgets --scale small`` prints one row per training run that is cached or
-shipped (nothing is trained), read from its recorded curve.
+shipped (nothing is trained), read from its recorded curve. With ``--spread [--protocol thesis] [--at 1000000]
+[--algos ppo sac] [--shipped-only]`` it prints the seed spread instead (:func:`spread`, :func:`render_spread`):
+mean ± sd across training seeds per learner, task and setting, beside other projects' published numbers
+(``data/public``).
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from thesis_repro import figures, reference, runs
+from thesis_repro import figures, paths, reference, runs
 from thesis_repro.cache import Job, RunCache
+from thesis_repro.validation import check_choice
 
 #: Table 3.3a's rows (``noise_type``) as the kit's learner ids: the thesis's Walker2d training returns.
 TABLE_3_3A_ALGOS: dict[str, str] = {
@@ -224,3 +229,266 @@ def render(frame: pd.DataFrame) -> str:
     missing = int((frame["source"] == "missing").sum())
     summary = ", ".join(f"{n} {v}" for v, n in sorted(counts.items())) or "none judged"
     return f"{text}\n{len(frame)} training runs: {summary}, {missing} not trained yet"
+
+
+# ---------------------------------------------------------------- seed spread (issue 22)
+#: Episodes averaged for the training return at ``at`` env steps in :func:`spread`: the last 100 training
+#: episodes finished by then (:func:`thesis_repro.figures.ch3.training_return_at`), the window openrlbenchmark
+#: averages per seed for CleanRL's published table (``data/public``).
+AT_WINDOW = 100
+#: Columns that identify one row of :func:`spread` (the runs of one setting, one per training seed).
+SPREAD_GROUP: tuple[str, ...] = ("protocol", "algorithm", "env", "setting", "timesteps")
+
+
+def _flat(cfg: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in cfg.items():
+        if isinstance(v, Mapping) and k != "net_arch":
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def config_protocols(cfg: Mapping[str, Any]) -> tuple[str, ...]:
+    """The training protocols (:data:`~thesis_repro.learners.config.PROTOCOLS`) under which ``cfg`` is a run's
+    config: those whose default config of the learner holds the same protocol settings (``lr_schedule``, ...,
+    :data:`~thesis_repro.learners.config.THESIS_PROTOCOL_KEYS`). A learner no protocol setting applies to (TRPO)
+    trains alike under both, so its runs belong to both.
+
+    >>> from thesis_repro.learners import train_config
+    >>> [config_protocols(train_config(a, "Hopper", 0, 1000, protocol="thesis")) for a in ("ppo", "trpo")]
+    [('thesis',), ('thesis', 'kit-v1')]
+    """
+    from thesis_repro.learners.config import PROTOCOLS, THESIS_PROTOCOL_KEYS, train_config
+
+    def present(c: Mapping[str, Any]) -> set[str]:
+        flat = _flat(c)
+        return {k for k in THESIS_PROTOCOL_KEYS if k in flat}
+
+    mine = present(cfg)
+    found = []
+    for protocol in PROTOCOLS:
+        default = train_config(cfg["algorithm"], cfg["env"], int(cfg["seed"]), int(cfg["timesteps"]), protocol=protocol)
+        if present(default) == mine:
+            found.append(protocol)
+    return tuple(found)
+
+
+def config_setting(cfg: Mapping[str, Any], protocol: str) -> str:
+    """How ``cfg`` differs from its learner's default config under ``protocol`` (seed and budget aside):
+    ``"key=value"`` pairs, sorted, ``""`` for none.
+
+    >>> from thesis_repro.learners import train_config
+    >>> config_setting(train_config("ppo", "Hopper", 1, 1000, protocol="thesis", lr_schedule="constant"), "thesis")
+    'lr_schedule=constant'
+    """
+    from thesis_repro.learners.config import IDENTITY, train_config
+
+    default = _flat(
+        train_config(cfg["algorithm"], cfg["env"], int(cfg["seed"]), int(cfg["timesteps"]), protocol=protocol)
+    )
+    mine = _flat(cfg)
+    keys = sorted(k for k in set(default) | set(mine) if k not in IDENTITY and default.get(k) != mine.get(k))
+    return ", ".join(f"{k}={mine.get(k)}" for k in keys)
+
+
+def shipped_cache() -> RunCache:
+    """A read-only view of the shipped runs alone (``data/reference``): its local root is ``/dev/null``, so no
+    local run is read and nothing can be written (a corrupt shipped entry is skipped, never removed)."""
+    return RunCache(os.devnull, reference=paths.reference())
+
+
+def spread_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
+    """Every ``train`` job of the figures (all by default) at ``scale`` under every training protocol, and (for all
+    figures) the protocol studies' runs (:func:`thesis_repro.study.lr_schedule_jobs`), deduplicated by key."""
+    from thesis_repro.learners.config import PROTOCOLS
+    from thesis_repro.scales import PROTOCOL_ENV
+    from thesis_repro.study import lr_schedule_jobs
+
+    jobs: dict[str, Job] = {}
+    saved = os.environ.get(PROTOCOL_ENV)
+    try:
+        for protocol in PROTOCOLS:
+            os.environ[PROTOCOL_ENV] = protocol
+            jobs.update((j.key, j) for j in training_jobs(scale, figure_ids))
+    finally:
+        if saved is None:
+            os.environ.pop(PROTOCOL_ENV, None)
+        else:
+            os.environ[PROTOCOL_ENV] = saved
+    if figure_ids is None:
+        jobs.update((j.key, j) for j in lr_schedule_jobs())
+    return list(jobs.values())
+
+
+def seed_runs(
+    scale: str,
+    protocol: str | None = None,
+    at: int | None = None,
+    cache: RunCache | None = None,
+    figure_ids: Iterable[str] | None = None,
+    algos: Iterable[str] | None = None,
+) -> pd.DataFrame:
+    """One row per training run of :func:`spread_jobs` that is cached or shipped (nothing is trained): the columns
+    of :data:`SPREAD_GROUP` (``protocol``: those the run belongs to, :func:`config_protocols`, joined by ", ";
+    ``setting``: :func:`config_setting`), ``seed``, ``key``, ``final`` (the return of the episodes that ended in
+    the last 10 % of the budget, as :func:`table`'s) and with ``at`` the return ``at_return`` of the last
+    :data:`AT_WINDOW` training episodes finished by ``at`` env steps (NaN if the run did not get that far).
+    ``protocol`` keeps only the runs of that protocol, ``algos`` those of these learners (a ``ValueError`` names
+    the valid ones)."""
+    from thesis_repro.figures.ch3 import training_return_at
+    from thesis_repro.learners.config import ALGORITHMS, PROTOCOLS
+
+    if protocol is not None:
+        check_choice(protocol, PROTOCOLS, "protocol")
+    keep = None if algos is None else {check_choice(a, ALGORITHMS, "algorithm") for a in algos}
+    cache = cache or RunCache()
+    rows = []
+    for job in spread_jobs(scale, figure_ids):
+        c = job.config
+        if keep is not None and c["algorithm"] not in keep:
+            continue
+        protocols = config_protocols(c)
+        if protocol is not None and protocol not in protocols:
+            continue
+        base = protocols[0] if protocols else PROTOCOLS[0]  # a config of no protocol: shown against the first
+        result = cache.load(job)
+        if result is None:
+            continue
+        t, r = _curve(result)
+        try:
+            done = int(result["timesteps_done"])
+        except KeyError:
+            done = int(c["timesteps"])
+        reached = at is not None and done >= at and len(t) > 0
+        episodes = {"episode_timesteps": t, "episode_returns": r}
+        rows.append(
+            {
+                "protocol": ", ".join(protocols) or "none",
+                "algorithm": c["algorithm"],
+                "env": c["env"],
+                "setting": config_setting(c, base),
+                "timesteps": int(c["timesteps"]),
+                "seed": int(c["seed"]),
+                "key": job.key,
+                "final": curve_stats(t, r, total=int(c["timesteps"]))["final"],
+                "at_return": float(training_return_at(episodes, [at], AT_WINDOW)[0]) if reached else float("nan"),
+            }
+        )
+    columns = [*SPREAD_GROUP, "seed", "key", "final", "at_return"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def aggregate_seeds(runs_frame: pd.DataFrame) -> pd.DataFrame:
+    """Per row of :data:`SPREAD_GROUP`: the ``seeds`` (sorted tuple), ``n`` and mean and sample sd (ddof 1, NaN for
+    one seed) of ``final`` and ``at_return`` across the seeds (NaN if any seed lacks the value).
+
+    >>> f = pd.DataFrame({"protocol": "thesis", "algorithm": "ppo", "env": "Hopper", "setting": "", "timesteps": 10,
+    ...                   "seed": [0, 1, 2], "final": [1.0, 2.0, 6.0], "at_return": float("nan")})
+    >>> aggregate_seeds(f)[["seeds", "n", "final_mean", "final_sd"]].values.tolist()
+    [[(0, 1, 2), 3, 3.0, 2.6457513110645907]]
+    """
+    out = []
+    for group, g in runs_frame.groupby(list(SPREAD_GROUP), sort=False, dropna=False):
+        seeds = sorted(int(s) for s in g["seed"])
+        if len(set(seeds)) != len(seeds):
+            raise ValueError(f"several runs of one seed in {dict(zip(SPREAD_GROUP, group, strict=True))}: {seeds}")
+        row: dict[str, Any] = dict(zip(SPREAD_GROUP, group, strict=True))
+        row.update(seeds=tuple(seeds), n=len(seeds))
+        for col, name in (("final", "final"), ("at_return", "at")):
+            vals = g[col].astype(float)
+            row[f"{name}_mean"] = float(vals.mean(skipna=False))
+            row[f"{name}_sd"] = float(vals.std(ddof=1, skipna=False)) if len(vals) > 1 else float("nan")
+        out.append(row)
+    columns = [*SPREAD_GROUP, "seeds", "n", "final_mean", "final_sd", "at_mean", "at_sd"]
+    return pd.DataFrame(out, columns=columns)
+
+
+def spread(
+    scale: str,
+    protocol: str | None = None,
+    at: int | None = None,
+    cache: RunCache | None = None,
+    figure_ids: Iterable[str] | None = None,
+    algos: Iterable[str] | None = None,
+) -> pd.DataFrame:
+    """Seed spread of the training return of every learner and task (issue 22), from the cached or shipped runs
+    only (nothing is trained; :func:`shipped_cache` for the shipped ones alone): one row per setting
+    (:data:`SPREAD_GROUP`) with the seeds found, ``n`` and mean ± sd (ddof 1) of the final training return
+    (:func:`seed_runs`: episodes ending in the last 10 % of the budget) and, with ``at``, of the return of the
+    last :data:`AT_WINDOW` episodes finished by ``at`` env steps; rows sorted by protocol, learner
+    (``hyperparams.yaml`` order), task, budget and setting. The lr-schedule study's runs are rows of their own
+    (1M steps; ``setting="lr_schedule=constant"`` for its constant arm). ``protocol`` and ``algos`` select runs
+    (:func:`seed_runs`)."""
+    from thesis_repro.learners.config import ALGORITHMS
+
+    frame = aggregate_seeds(seed_runs(scale, protocol, at, cache, figure_ids, algos))
+    envs = list(reference.ENVS)
+    order = frame.assign(
+        _a=frame["algorithm"].map(lambda a: ALGORITHMS.index(a) if a in ALGORITHMS else len(ALGORITHMS)),
+        _e=frame["env"].map(lambda e: envs.index(e) if e in envs else len(envs)),
+    )
+    order = order.sort_values(["protocol", "_a", "_e", "timesteps", "setting"], kind="stable")
+    return order.drop(columns=["_a", "_e"]).reset_index(drop=True)
+
+
+def steps_label(steps: float) -> str:
+    """Env steps as a short label.
+
+    >>> [steps_label(s) for s in (1_000_000, 2_000_000, 200_000, 1_500_000, 4096)]
+    ['1M', '2M', '200k', '1.5M', '4,096']
+    """
+    if steps >= 1e6 and steps % 1e5 == 0:
+        return f"{steps / 1e6:g}M"
+    if steps >= 1e3 and steps % 1e3 == 0:
+        return f"{steps / 1e3:g}k"
+    return f"{int(steps):,}"
+
+
+def _mean_sd(mean: float, sd: float, n: int) -> str:
+    if not np.isfinite(mean):
+        return "-"
+    if n == 1 or not np.isfinite(sd):
+        return f"{mean:,.0f} (1 seed)" if n == 1 else f"{mean:,.0f}"
+    return f"{mean:,.0f} ± {sd:,.0f}"
+
+
+def published_cell(algorithm: str, env: str, table: pd.DataFrame) -> str:
+    """The published results (:func:`thesis_repro.reference.published`) of learner ``algorithm`` on ``env``:
+    ``mean ± std (source, env version, steps)``, ``; ``-joined, ``""`` if none.
+
+    >>> table = reference.published()
+    >>> published_cell("ppo", "Hopper", table)
+    '2,383 ± 272 (CleanRL, v4, 1M)'
+    >>> published_cell("sac", "Walker2d", table), published_cell("ppo-16", "Hopper", table)
+    ('3,863 (rl-baselines3-zoo, v3, 1M)', '')
+    """
+    rows = table[(table["algo"] == algorithm) & (table["env"] == env)]
+    cells = []
+    for _, r in rows.iterrows():
+        value = f"{r['mean']:,.0f}" + (f" ± {r['std']:,.0f}" if np.isfinite(r["std"]) else "")
+        cells.append(f"{value} ({r['source']}, {r['env_version']}, {steps_label(r['steps'])})")
+    return "; ".join(cells)
+
+
+def render_spread(frame: pd.DataFrame, at: int | None = None, published: pd.DataFrame | None = None) -> str:
+    """:func:`spread` as a markdown table: learner (with its ``[setting]``), task, protocol, seeds, steps, final
+    training return mean ± sd, with ``at`` the return at ``at`` steps, and the published results of the same
+    learner on the task (:func:`published_cell`; ``published`` defaults to
+    :func:`thesis_repro.reference.published`). ``(1 seed)`` marks a row without spread, ``-`` a missing value."""
+    published = reference.published() if published is None else published
+    head = ["learner", "task", "protocol", "seeds", "steps", "final return, mean ± sd"]
+    if at is not None:
+        head.append(f"at {steps_label(at)} (last {AT_WINDOW} episodes), mean ± sd")
+    head.append("published (source, version, steps)")
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for _, r in frame.iterrows():
+        learner = r["algorithm"] + (f" [{r['setting']}]" if r["setting"] else "")
+        cells = [learner, r["env"], r["protocol"], ", ".join(str(s) for s in r["seeds"]), steps_label(r["timesteps"])]
+        cells.append(_mean_sd(r["final_mean"], r["final_sd"], r["n"]))
+        if at is not None:
+            cells.append(_mean_sd(r["at_mean"], r["at_sd"], r["n"]))
+        cells.append(published_cell(r["algorithm"], r["env"], published))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)

@@ -19,6 +19,8 @@ PACKAGE: Path = ROOT / "thesis_repro"
 CONFIG: Path = PACKAGE / "config"
 NOTEBOOKS: Path = ROOT / "notebooks"
 THESIS_DATA: Path = ROOT / "data" / "thesis"
+#: Other projects' published numbers (CleanRL, the SB3 zoo), neither the thesis's nor ours.
+PUBLIC_DATA: Path = ROOT / "data" / "public"
 BOOK: Path = ROOT / "book"
 
 

@@ -79,3 +79,36 @@ def thesis_table(name: str, env: str | None = None, test: str | None = None, met
         check_choice(value, sorted(frame[column].unique()), column)
         frame = frame[frame[column] == value]
     return frame.reset_index(drop=True)
+
+
+#: Columns of ``data/public/baselines.csv``, in file order (see its README.md).
+PUBLISHED_COLUMNS: tuple[str, ...] = ("source", "algo", "env", "steps", "mean", "std", "env_version", "url", "note")
+#: Columns of the published table that may be empty (no spread across seeds published; no note).
+_PUBLISHED_OPTIONAL = {"std", "note"}
+
+
+def published() -> pd.DataFrame:
+    """Other projects' published results on the kit's tasks (``data/public/baselines.csv``: CleanRL's PPO, the
+    SB3 zoo's SAC), with ``kind="published"``: neither the thesis's numbers nor reproduced ones. ``std`` is NaN
+    where the source publishes no spread across seeds. A missing column or value is a ``ValueError``.
+
+    >>> p = published()
+    >>> row = p[(p.source == "CleanRL") & (p.env == "Hopper")].iloc[0]
+    >>> row["algo"], int(row["steps"]), float(row["mean"]), float(row["std"]), row["kind"]
+    ('ppo', 1000000, 2382.86, 271.74, 'published')
+    """
+    path = paths.PUBLIC_DATA / "baselines.csv"
+    frame = pd.read_csv(path, dtype={"env_version": str, "note": str}, keep_default_na=False, na_values=[""])
+    missing = [c for c in PUBLISHED_COLUMNS if c not in frame.columns]
+    if missing:
+        raise ValueError(f"{path.name} lacks columns {missing}; expected {list(PUBLISHED_COLUMNS)}")
+    checked = [c for c in PUBLISHED_COLUMNS if c not in _PUBLISHED_OPTIONAL]
+    if frame[checked].isna().any().any():
+        raise ValueError(f"{path.name} has missing values in {checked}")
+    unknown = sorted(set(frame["env"]) - set(ENVS))
+    if unknown:
+        raise ValueError(f"{path.name}: unknown envs {unknown}; valid envs are: {', '.join(ENVS)}")
+    frame["steps"] = frame["steps"].astype(int)
+    frame["note"] = frame["note"].fillna("")
+    frame["kind"] = "published"
+    return frame
