@@ -454,17 +454,22 @@ def _mean_sd(mean: float, sd: float, n: int) -> str:
     return f"{mean:,.0f} ± {sd:,.0f}"
 
 
-def published_cell(algorithm: str, env: str, table: pd.DataFrame) -> str:
+def published_cell(algorithm: str, env: str, table: pd.DataFrame, steps: Iterable[int] | None = None) -> str:
     """The published results (:func:`thesis_repro.reference.published`) of learner ``algorithm`` on ``env``:
-    ``mean ± std (source, env version, steps)``, ``; ``-joined, ``""`` if none.
+    ``mean ± std (source, env version, steps)``, ``; ``-joined, ``""`` if none. With ``steps``, only results
+    published at one of those step counts (a number is set beside ours at equal steps only).
 
     >>> table = reference.published()
     >>> published_cell("ppo", "Hopper", table)
     '2,383 ± 272 (CleanRL, v4, 1M)'
     >>> published_cell("sac", "Walker2d", table), published_cell("ppo-16", "Hopper", table)
     ('3,863 (rl-baselines3-zoo, v3, 1M)', '')
+    >>> published_cell("ppo", "InvertedPendulum", table, steps=[200_000])
+    ''
     """
     rows = table[(table["algo"] == algorithm) & (table["env"] == env)]
+    if steps is not None:
+        rows = rows[rows["steps"].isin([int(s) for s in steps])]
     cells = []
     for _, r in rows.iterrows():
         value = f"{r['mean']:,.0f}" + (f" ± {r['std']:,.0f}" if np.isfinite(r["std"]) else "")
@@ -489,6 +494,7 @@ def render_spread(frame: pd.DataFrame, at: int | None = None, published: pd.Data
         cells.append(_mean_sd(r["final_mean"], r["final_sd"], r["n"]))
         if at is not None:
             cells.append(_mean_sd(r["at_mean"], r["at_sd"], r["n"]))
-        cells.append(published_cell(r["algorithm"], r["env"], published))
+        equal = [int(r["timesteps"])] + ([int(at)] if at is not None and np.isfinite(r["at_mean"]) else [])
+        cells.append(published_cell(r["algorithm"], r["env"], published, steps=equal))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
