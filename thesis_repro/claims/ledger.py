@@ -367,6 +367,8 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
             status,
             min((x.n_seeds for x in rows), default=0),
             {"parts": {x.spec.id: x.status for x in rows}},
+            # the parts' units, so the verdict carries the CIs across seeds it rests on (JSON, units table, text)
+            {f"{x.spec.id}: {g}": info for x in rows for g, info in x.groups.items()},
             null_pass_rate=min(rates) if rates else None,
             note="derived from " + ", ".join(f"{x.spec.id}: {x.status}" for x in rows),
         )
@@ -529,14 +531,22 @@ def counts(rows: Sequence[Row], beyond: bool = False) -> Counter:
 
 
 # ---------------------------------------------------------------- output
+#: Contrasts whose effect and CI :func:`describe` prints (the page's units table shows them all).
+CI_SHOWN = 4
+
+
 def describe(row: Row) -> str:
-    """One paragraph of evidence: statistic with its interval, seeds, null pass rate, note, diagnosis."""
+    """One paragraph of evidence: statistic with its interval, each contrast's effect with its 95 % CI across
+    seeds (the first :data:`CI_SHOWN`), seeds, null pass rate, note, diagnosis."""
     st = row.statistic
     parts = []
     if "ci" in st:
         parts.append(_stat_text(st))
     elif st and "parts" not in st:
         parts.append("; ".join(f"{g}: {_stat_text(v)}" for g, v in st.items()))
+    effects = effects_text(row)
+    if effects:
+        parts.append(effects)
     if row.n_seeds:
         parts.append(f"{row.n_seeds} training seed(s)")
     if row.null_pass_rate is not None:
@@ -559,6 +569,48 @@ def _stat_text(st: Mapping[str, Any]) -> str:
     if pt is not None:
         head += f", point estimate {pt:.2f}"
     return head
+
+
+def _effect_ci(c: Mapping[str, Any]) -> str:
+    """A contrast's effect with its CI, ``+12.3 [4.1, 20.5]`` (no CI with one seed)."""
+    if c["estimate"] is None:
+        return "n/a"
+    lo, hi = c["ci"]
+    if lo is None or hi is None:
+        return f"{c['estimate']:+.3g} (no CI)"
+    return f"{c['estimate']:+.3g} [{lo:.3g}, {hi:.3g}]"
+
+
+def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
+    """The numbers behind a verdict: per unit, each contrast's effect in the claim's direction (> 0 supports
+    the claim; margins subtracted) with its 95 % CI across training seeds, ``[lo, hi]``; the first ``limit``
+    contrasts, then how many more the units table shows. Empty when the row has no units.
+
+    >>> c = {"label": "ppo-ent - ppo", "estimate": 12.3, "ci": [4.1, 20.5], "n": 3}
+    >>> row = Row(spec("3.6-entropy"), "reproduces", 3, groups={"all": {"units": [{"label": "Hopper/obs",
+    ...     "contrasts": [c]}]}})
+    >>> head, text = effects_text(row).split(": ", 1)
+    >>> head
+    "effect in the claim's direction (> 0 supports it) [95 % CI across 3 training seeds]"
+    >>> text
+    'Hopper/obs: ppo-ent - ppo +12.3 [4.1, 20.5]'
+    """
+    items, ns = [], set()
+    for info in row.groups.values():
+        for u in info["units"]:
+            for c in u["contrasts"]:
+                items.append(f"{u['label']}: {c['label']} {_effect_ci(c)}")
+                ns.add(c["n"])
+    if not items:
+        return ""
+    if max(ns) < 2:
+        head = "effect in the claim's direction (> 0 supports it), one training seed: no CI"
+    else:
+        seeds = f"{min(ns)}" if len(ns) == 1 else f"{min(ns)}-{max(ns)}"
+        head = f"effect in the claim's direction (> 0 supports it) [95 % CI across {seeds} training seeds]"
+    more = len(items) - limit
+    tail = f"; ... {more} more in the units table" if more > 0 else ""
+    return f"{head}: " + "; ".join(items[:limit]) + tail
 
 
 def units_table(row: Row) -> pd.DataFrame:
@@ -650,11 +702,11 @@ def _show_units(page: str, scale: str) -> None:
     if get_ipython() is None:
         return
     for s in page_claims(page):
-        if s.page != page:
+        if s.page != page or s.rule.get("derived"):  # a derived claim's units: its parts' tables
             continue
         t = units_table(judge(s, scale, with_null=False))
         if len(t):
-            print(f"{s.id}: units (95 % CI across training seeds)")
+            print(f"{s.id}: units (effect in the claim's direction, > 0 supports it; 95 % CI across training seeds)")
             show(t)
 
 
