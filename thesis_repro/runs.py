@@ -597,10 +597,13 @@ def plan(
 ) -> list[Planned]:
     """The jobs of ``kinds`` of every figure (or ``figure_ids``) at ``scale``, deduplicated by key, cheapest
     first; with ``by_figure``, the first figure's jobs first (each figure's cheapest first), so that the
-    figures finish in the order given; with ``algos`` / ``seeds``, only the jobs of those learners / seeds."""
+    figures finish in the order given; with ``algos`` / ``seeds``, only the jobs of those learners / seeds.
+    Several ``seeds`` are produced seed by seed in the order given (``--seeds 0 1 2``: seed 0 of every figure
+    first, then seed 1, ...), so one resumable command completes whole seeds first."""
     kinds = set(kinds)
     keep = None if algos is None else set(algos)
-    keep_seeds = None if seeds is None else {int(s) for s in seeds}
+    seed_rank = None if seeds is None else {int(s): i for i, s in reversed(list(enumerate(seeds)))}
+    keep_seeds = None if seed_rank is None else set(seed_rank)
     out: dict[str, Planned] = {}
     rank: dict[str, int] = {}
     for i, fid in enumerate(figure_ids or figures.ids()):
@@ -611,7 +614,11 @@ def plan(
             if keep_seeds is None or job_seed(job) in keep_seeds:
                 out.setdefault(job.key, Planned(job)).figures.append(notebook_id)
                 rank.setdefault(job.key, i if by_figure else 0)
-    return sorted(out.values(), key=lambda p: (rank[p.job.key], p.cost, p.job.kind, p.job.label, p.job.key))
+
+    def first(p: Planned) -> int:
+        return 0 if seed_rank is None else seed_rank.get(job_seed(p.job), len(seed_rank))  # type: ignore[arg-type]
+
+    return sorted(out.values(), key=lambda p: (first(p), rank[p.job.key], p.cost, p.job.kind, p.job.label, p.job.key))
 
 
 def _bind_to_layer(planned: list[Planned], layer: Path, cache: RunCache, log: Callable[[str], None]) -> list[Planned]:
