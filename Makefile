@@ -61,9 +61,10 @@ test: $(STAMP) $(RAY_STAMP)
 	$(BIN)/python -m pytest -q -rfEs --doctest-modules tests thesis_repro \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
-## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [PROTOCOL=thesis] [ALGOS="ppo ppo-16"] [SEEDS=0] [KINDS=train] :
+## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [PROTOCOL=thesis] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] :
 ## train every figure's training runs (cheapest first, resumable: re-run after an interruption) and ship them in
-## data/reference; COMMIT=1 commits each as it lands; PROTOCOL overrides the scale's training protocol
+## data/reference; COMMIT=1 commits each as it lands; PROTOCOL overrides the scale's training protocol; several
+## SEEDS are produced seed by seed in the order given
 reference-runs: $(STAMP)
 	nice -n 10 $(BIN)/python -m thesis_repro reference-runs --scale $(SCALE) $(if $(FIGURES),--figures $(FIGURES)) \
 	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS)) $(if $(PROTOCOL),--protocol $(PROTOCOL)) \
