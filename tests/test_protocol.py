@@ -94,6 +94,20 @@ def test_the_protocol_override_is_validated(monkeypatch):
         scales.figure_settings("3.3", "small")
 
 
+def test_protocol_overrides_apply_before_the_caller_s_overrides(monkeypatch):
+    """The thesis protocol's `small` takes 3 seeds x 10 rollouts, but a caller's explicit override is the last
+    word (the generator plans seeds past the scale's count so)."""
+    monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
+    s = scales.figure_settings("3.3", "small")
+    assert (s["train_seeds"], s["test_rollouts"]) == (3, 10)
+    assert scales.figure_settings("3.3", "small", train_seeds=5)["train_seeds"] == 5
+    assert scales.figure_settings("table-3.4", "small")["skip_algos"] == []
+    monkeypatch.delenv(scales.PROTOCOL_ENV)
+    s = scales.figure_settings("3.3", "small", protocol="thesis")
+    assert (s["protocol"], s["train_seeds"]) == ("thesis", 3)
+    assert scales.figure_settings("table-3.4", "small")["skip_algos"] == ["ddpg", "sac"]  # kit-v1 skips them
+
+
 def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
     """Issue 20's invariant while runs change: every training run of every small figure is shipped (a fresh
     clone, i.e. an empty local cache, evaluates and plots only)."""

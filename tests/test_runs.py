@@ -278,3 +278,12 @@ def test_runs_command(fake_figures, capsys):
     assert len(runs.shipped_entries(fake_figures)) == 2
     assert main(["runs", "9.2", "--scale", "smoke", "--json"]) == 0
     assert {r["state"] for r in json.loads(capsys.readouterr().out)["runs"]} == {"cached"}
+
+
+def test_plan_produces_seeds_past_the_scale_s_own_count():
+    """`--seeds 1` plans seed 1 even where the scale shows one seed (seeds land ahead of the scale table)."""
+    seed0 = runs.plan("smoke", ["3.3"], seeds=[0])
+    seed1 = runs.plan("smoke", ["3.3"], seeds=[1])
+    assert figures.settings("3.3", "smoke")["train_seeds"] == 1
+    assert len(seed1) == len(seed0) > 0 and {runs.job_seed(p.job) for p in seed1} == {1}
+    assert {p.job.config["env"] for p in seed1} == {p.job.config["env"] for p in seed0}

@@ -587,6 +587,15 @@ def job_seed(job: Job) -> int | None:
     return None if seed is None else int(seed)
 
 
+def _seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, int]:
+    """The ``train_seeds`` override that makes ``figure_id`` plan every one of ``seeds`` (seeds past the scale's
+    own count are produced ahead of the scale table, e.g. seeds 1-2 while ``small`` shows 1); ``{}`` if none."""
+    if not seeds:
+        return {}
+    have = figures.settings(figure_id, scale).get("train_seeds")
+    return {"train_seeds": max(seeds) + 1} if have is not None and max(seeds) + 1 > int(have) else {}
+
+
 def plan(
     scale: str,
     figure_ids: Iterable[str] | None = None,
@@ -608,7 +617,7 @@ def plan(
     rank: dict[str, int] = {}
     for i, fid in enumerate(figure_ids or figures.ids()):
         notebook_id = figures.get(fid).notebook_id
-        for job in figures.jobs(fid, scale):
+        for job in figures.jobs(fid, scale, **_seed_count(fid, scale, keep_seeds)):
             if job.kind not in kinds or (keep is not None and job_algorithm(job) not in keep):
                 continue
             if keep_seeds is None or job_seed(job) in keep_seeds:

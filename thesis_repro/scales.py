@@ -56,7 +56,9 @@ def figures() -> list[str]:
 
 
 def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]:
-    """Resolved settings of ``figure`` at ``scale``: scale defaults, then the figure's block, then overrides.
+    """Resolved settings of ``figure`` at ``scale``: scale defaults, then the figure's block, then its training
+    protocol's ``protocol_overrides``, then ``overrides`` (the caller's word is last; ``THESIS_REPRO_PROTOCOL``
+    still picks the protocol).
 
     Overrides may only name keys that already exist (a typo is an error, not a silent new key).
     The result also carries ``figure`` and ``scale``.
@@ -70,9 +72,10 @@ def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]
         raise ValueError(f"scales.yaml: figure {figure!r} has no block for scale(s) {missing}")
     settings: dict[str, Any] = copy.deepcopy(table["defaults"][scale])
     settings.update(copy.deepcopy(entry[scale] or {}))
-    for key, value in overrides.items():
+    for key in overrides:
         check_choice(key, list(settings), f"setting of figure {figure}")
-        settings[key] = value
+    if "protocol" in overrides:
+        settings["protocol"] = overrides["protocol"]
     if os.environ.get(PROTOCOL_ENV):
         from thesis_repro.learners.config import PROTOCOLS
 
@@ -81,6 +84,9 @@ def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]
     for key, value in (protocol_overrides.get(scale) or {}).items():
         if key in settings:
             settings[key] = copy.deepcopy(value)
+    for key, value in overrides.items():
+        if key != "protocol":
+            settings[key] = value
     settings["figure"] = figure
     settings["scale"] = scale
     return settings
