@@ -33,6 +33,7 @@ from thesis_repro.figures import ch3, plot
 
 settings = figures.settings("3.3", SCALE)
 print(pages.runs_summary("3.3", SCALE))
+print(ch3.not_run_note(settings))
 res = ch3.pareto_benchmark(settings).run(n_jobs=settings["n_jobs"])
 points = ch3.points_table(res, SELECTION)
 ours = ch3.correlation_table(res, SELECTION)

@@ -206,10 +206,33 @@ def benchmark(
     return Benchmark(list(algos), list(envs), [int(s) for s in seeds], first.tests, train, evals)
 
 
+def variants(settings: Mapping[str, Any]) -> list[str]:
+    """The variants an item runs at its scale: ``algos`` minus ``skip_algos`` (those the scale cannot afford).
+
+    >>> variants({"algos": ["ppo", "sac"], "skip_algos": ["sac"]}), variants({"algos": ["ppo"]})
+    (['ppo'], ['ppo'])
+    """
+    skip = set(settings.get("skip_algos") or ())
+    return [a for a in settings["algos"] if a not in skip]
+
+
+def not_run_note(settings: Mapping[str, Any]) -> str:
+    """The sentence a page prints about the variants its scale skips (``""`` when it runs them all).
+
+    >>> not_run_note({"algos": ["ppo", "ddpg", "sac"], "skip_algos": ["ddpg", "sac"], "scale": "small"})
+    'Not run at scale small: ddpg, sac (2 of the 3 variants; scales.yaml `skip_algos`).'
+    """
+    skipped = [a for a in settings["algos"] if a not in variants(settings)]
+    if not skipped:
+        return ""
+    n, where = len(settings["algos"]), "scales.yaml `skip_algos`"
+    return f"Not run at scale {settings['scale']}: {', '.join(skipped)} ({len(skipped)} of the {n} variants; {where})."
+
+
 def pareto_benchmark(settings: Mapping[str, Any]) -> Benchmark:
-    """Fig 3.3's grid (every variant × task × seed, tested under every test type) from its settings."""
+    """Fig 3.3's grid (every variant the scale runs × task × seed, tested under every test type)."""
     return benchmark(
-        settings["algos"],
+        variants(settings),
         settings["envs"],
         list(range(int(settings["train_seeds"]))),
         settings["timesteps"],

@@ -37,7 +37,7 @@ from thesis_repro.evaluation import Benchmark, tables
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import FIGURES, budget_note, register
 from thesis_repro.figures import settings as _figure_settings
-from thesis_repro.figures.ch3 import benchmark, learner_timesteps, timesteps_for
+from thesis_repro.figures.ch3 import benchmark, learner_timesteps, timesteps_for, variants
 from thesis_repro.learners import hyperparams
 from thesis_repro.validation import check_choice
 
@@ -63,7 +63,7 @@ def settings(item: str, scale: str, **overrides: Any) -> dict[str, Any]:
 # ---------------------------------------------------------------- settings -> learners, tasks, overrides
 def learners(settings: Mapping[str, Any]) -> list[str]:
     """The learners an item trains at its scale: ``algos`` minus ``skip_algos``."""
-    return [a for a in settings["algos"] if a not in settings["skip_algos"]]
+    return variants(settings)
 
 
 def skipped(settings: Mapping[str, Any]) -> list[str]:
