@@ -303,20 +303,13 @@ def spread_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job
     """Every ``train`` job of the figures (all by default) at ``scale`` under every training protocol, and (for all
     figures) the protocol studies' runs (:func:`thesis_repro.study.lr_schedule_jobs`), deduplicated by key."""
     from thesis_repro.learners.config import PROTOCOLS
-    from thesis_repro.scales import PROTOCOL_ENV
+    from thesis_repro.scales import under_protocol
     from thesis_repro.study import lr_schedule_jobs
 
     jobs: dict[str, Job] = {}
-    saved = os.environ.get(PROTOCOL_ENV)
-    try:
-        for protocol in PROTOCOLS:
-            os.environ[PROTOCOL_ENV] = protocol
+    for protocol in PROTOCOLS:
+        with under_protocol(protocol):
             jobs.update((j.key, j) for j in training_jobs(scale, figure_ids))
-    finally:
-        if saved is None:
-            os.environ.pop(PROTOCOL_ENV, None)
-        else:
-            os.environ[PROTOCOL_ENV] = saved
     if figure_ids is None:
         jobs.update((j.key, j) for j in lr_schedule_jobs())
     return list(jobs.values())

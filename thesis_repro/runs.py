@@ -316,20 +316,13 @@ def pending_keys(scale: str) -> set[str]:
     protocols (runs regenerated for the thesis protocol land before ``scale`` switches to it) and the protocol
     studies' runs (:mod:`thesis_repro.study`)."""
     from thesis_repro.learners.config import PROTOCOLS
-    from thesis_repro.scales import PROTOCOL_ENV
+    from thesis_repro.scales import under_protocol
     from thesis_repro.study import lr_schedule_jobs
 
     keys = {j.key for j in lr_schedule_jobs()}
-    saved = os.environ.get(PROTOCOL_ENV)
-    try:
-        for protocol in PROTOCOLS:
-            os.environ[PROTOCOL_ENV] = protocol
+    for protocol in PROTOCOLS:
+        with under_protocol(protocol):
             keys |= current_keys(scale)
-    finally:
-        if saved is None:
-            os.environ.pop(PROTOCOL_ENV, None)
-        else:
-            os.environ[PROTOCOL_ENV] = saved
     return keys
 
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import copy
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import cache
 from typing import Any
 
@@ -53,6 +55,25 @@ def check_scale(scale: str) -> str:
 def figures() -> list[str]:
     """All figure ids with an entry in the scale table (``'_example'`` excluded)."""
     return sorted(f for f in _table()["figures"] if not f.startswith("_"))
+
+
+@contextmanager
+def under_protocol(protocol: str) -> Iterator[None]:
+    """Within the block every figure trains under ``protocol`` (:data:`PROTOCOL_ENV`); the variable is restored.
+
+    >>> with under_protocol("thesis"):
+    ...     figure_settings("3.3", "small")["protocol"]
+    'thesis'
+    """
+    saved = os.environ.get(PROTOCOL_ENV)
+    os.environ[PROTOCOL_ENV] = protocol
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(PROTOCOL_ENV, None)
+        else:
+            os.environ[PROTOCOL_ENV] = saved
 
 
 def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]:
