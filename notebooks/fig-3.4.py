@@ -12,10 +12,12 @@
 # The thesis's caption and claims open the book page (quoted with line numbers from
 # `data/thesis/claims.yaml`, key `fig-3.4`); the verdicts at the end judge each claim on our numbers.
 #
-# Top: testing return vs σ (mean ± sd over training seeds × testing rollouts) for PPO, TRPO, DDPG, SAC. Bottom:
-# mean testing return over body-mass × wind shifts in σ units (mass ratio 1 + d; wind d · 9.81 m/s², the units
-# of the `env`/`dom` sampling), training domain at (0, 0). The thesis gives curves only; its AUCs (Table 3.4) are
-# shown beside ours. Logic: `thesis_repro.figures.ch3_curves` (on the runs and cells of `ch3_tables`).
+# Top: testing return vs σ (line: the mean over training seeds of each seed's mean over its testing rollouts;
+# band: the 95 % confidence interval of that mean across training seeds, t-interval, none with one seed) for
+# PPO, TRPO, DDPG, SAC. Bottom: mean testing return over body-mass × wind shifts in σ units (mass ratio 1 + d;
+# wind d · 9.81 m/s², the units of the `env`/`dom` sampling), training domain at (0, 0). The thesis gives curves
+# only; its AUCs (Table 3.4) are shown beside ours. Logic: `thesis_repro.figures.ch3_curves` (on the runs and
+# cells of `ch3_tables`).
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -38,8 +40,11 @@ plot.save(fig, SCALE, "fig-3.4-heatmaps")
 ch3_curves.heat_summary(heat).round(1)
 
 # %%
-comp = ch3_tables.compare("3.4", ch3_tables.our_cells(res), settings)
+comp = ch3_tables.compare("3.4", ch3_tables.our_cells(res), settings, ci=ch3_tables.our_ci(res))
 comp.style("Testing AUC on the task of Fig 3.4: thesis (Table 3.4) beside reproduced")
+
+# %%
+comp.ci_style("Testing AUC, reproduced: across training seeds, mean [95 % CI] (seeds)")
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?

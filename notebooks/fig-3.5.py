@@ -17,7 +17,14 @@
 # `max` divides by the row's largest AUC instead; both give the same signs on the thesis's tables). The
 # **thesis** bars are derived from its Tables 3.5-3.7 with the same function, the **reproduced** bars from our
 # cells.
-# Logic: `thesis_repro.figures.ch3_curves` (runs and cells of `ch3_tables`), `evaluation.tables.auc_change`.
+# Logic: `thesis_repro.figures.ch3_curves` (runs and cells of `ch3_tables`), `evaluation.tables.auc_change`,
+# `evaluation.tables.seed_change_ci`.
+#
+# Error bars (reproduced bars only): the 95 % confidence interval across **training seeds** of the per-seed change
+# (each seed's AUCs, mean over its testing rollouts, compared with the baseline's run of the same seed index, with
+# the pooled normaliser, averaged over the tasks; then the t-interval over seeds, n = seeds). With one seed there
+# is no error bar (the figure title says so). The bars derived from the thesis have none: its tables give no
+# per-seed numbers.
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -30,10 +37,14 @@ settings = ch3_tables.settings("3.5", SCALE)
 print(pages.runs_summary("3.5", SCALE))
 print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
-bars = ch3_curves.bars("3.5", ch3_tables.our_cells(res), settings)
+bars = ch3_curves.bars("3.5", ch3_tables.our_cells(res), settings, samples=res.aucs)
 fig = ch3_curves.plot_bars(bars, "Fig 3.5: change in normalised testing AUC, thesis (derived) beside reproduced")
 plot.save(fig, SCALE, "fig-3.5")
 bars.pivot_table(index=["panel", "method"], columns=["test", "source"], values="change", sort=False).round(3)
+
+# %%
+print(ch3_curves.bar_note(bars))
+ch3_curves.bars_ci_text(bars)
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?

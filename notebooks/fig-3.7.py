@@ -12,9 +12,10 @@
 # The thesis's caption and claims open the book page (quoted with line numbers from
 # `data/thesis/claims.yaml`, key `fig-3.7`); the verdicts at the end judge each claim on our numbers.
 #
-# Curves: testing return vs σ (mean ± sd over training seeds × testing rollouts), one row per task, one
-# column per test type; the same evaluation jobs as the tables. The thesis gives curves only, so its AUCs
-# (Tables 3.4-3.7) are shown beside ours in the table below.
+# Curves: testing return vs σ (line: the mean over training seeds of each seed's mean over its testing rollouts;
+# band: the 95 % confidence interval of that mean across training seeds, t-interval, none with one seed), one
+# row per task, one column per test type; the same evaluation jobs as the tables. The thesis gives curves only,
+# so its AUCs (Tables 3.4-3.7) are shown beside ours in the table below.
 # Logic: `thesis_repro.figures.ch3_curves` (on the runs and cells of `ch3_tables`).
 
 # %% tags=["parameters"]
@@ -32,8 +33,11 @@ fig = ch3_curves.plot_curves(res, settings, "Fig 3.7")
 plot.save(fig, SCALE, "fig-3.7")
 
 # %%
-comp = ch3_tables.compare("3.7", ch3_tables.our_cells(res), settings)
+comp = ch3_tables.compare("3.7", ch3_tables.our_cells(res), settings, ci=ch3_tables.our_ci(res))
 comp.style("Testing AUC of the curves: thesis (Tables 3.4-3.7) beside reproduced")
+
+# %%
+comp.ci_style("Testing AUC, reproduced: across training seeds, mean [95 % CI] (seeds)")
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?

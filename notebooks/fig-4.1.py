@@ -20,6 +20,9 @@
 # Learners: the thesis's kl_avg (Alg 3 with Eq 4.11), kl_exact (ours, issue 12: the exact minimiser of Eq 4.7
 # from params_avg), params_avg (Eq 4.6) and joint (PPO on the merged batch). Each claim is judged twice, for
 # kl_avg and for kl_exact (counted beyond the thesis), each against params_avg and joint only (`claims.yaml`).
+#
+# Lines: the mean over training seeds; band: the 95 % confidence interval of that mean across training seeds
+# (t-interval, n = seeds; none with one seed), as the figure title says.
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -42,9 +45,9 @@ fig, axes = plot.lines_by_panel(
     [("return", "episode return (reproduced)"), ("length", "episode length (reproduced)")],
     ch4.algo_names(settings),
     title=lambda cond, i: f"({cond['panel']}) {ch4.label(cond)}" if i == 0 else "",
-    errorbar="sd",
 )
-fig.suptitle(f"Fig 4.1 reproduced — {settings['env']}, scale={SCALE}, {settings['train_seeds']} seed(s)")
+band = plot.seed_band(curves, ["panel", "algo", "iteration"])
+fig.suptitle(f"Fig 4.1 reproduced — {settings['env']}, scale={SCALE}, {settings['train_seeds']} seed(s)\n{band}")
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-4.1")
 

@@ -19,6 +19,10 @@
 # Learners: the thesis's kl_avg (Alg 3 with Eq 4.11), kl_exact (ours, issue 12: the exact minimiser of Eq 4.7
 # from params_avg), params_avg (Eq 4.6) and joint (PPO on the merged batch). Each claim is judged twice, for
 # kl_avg and for kl_exact (counted beyond the thesis), each against params_avg and joint only (`claims.yaml`).
+#
+# Lines: the mean over training seeds of each seed's mean testing return over its rollouts; band: the 95 %
+# confidence interval of that mean across training seeds (t-interval, n = seeds; none with one seed), as the figure
+# title says.
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -46,7 +50,9 @@ fig, axes = plot.lines_by_panel(
 )
 for ax in axes.flat:
     ax.set_xlabel("testing wind ξ")
-fig.suptitle(f"Fig 4.3 reproduced — {settings['env']}, scale={SCALE}")
+fig.suptitle(
+    f"Fig 4.3 reproduced — {settings['env']}, scale={SCALE}\n{plot.seed_band(wind, ['panel', 'algo', 'value'])}"
+)
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-4.3")
 

@@ -18,6 +18,10 @@
 # Learners: the thesis's kl_avg (Alg 3 with Eq 4.11), kl_exact (ours, issue 12: the exact minimiser of Eq 4.7
 # from params_avg), params_avg (Eq 4.6) and joint (PPO on the merged batch). Each claim is judged twice, for
 # kl_avg and for kl_exact (counted beyond the thesis), each against params_avg and joint only (`claims.yaml`).
+#
+# (a) Lines: the mean over training seeds of each seed's mean testing return over its rollouts; band: the 95 %
+# confidence interval of that mean across training seeds (t-interval, n = seeds; none with one seed), as the figure
+# title says.
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -27,6 +31,7 @@ import matplotlib.pyplot as plt
 import seaborn as sns
 
 from thesis_repro import claims, figures, pages
+from thesis_repro.evaluation import tables
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.4", SCALE)
@@ -40,14 +45,16 @@ heat = ch4.evaluate_runs(runs, "shift", grid, settings["test_rollouts"], n_jobs=
 # %%
 algos = ch4.algo_names(settings)
 fig, axes = plt.subplots(1, 1 + len(algos), figsize=(4 * (1 + len(algos)), 3.6))
-sns.lineplot(data=wind, x="value", y="return", hue="algo", hue_order=algos, marker="o", ax=axes[0])
+sns.lineplot(
+    data=wind, x="value", y="return", hue="algo", hue_order=algos, marker="o", errorbar=tables.t_errorbar, ax=axes[0]
+)
 axes[0].axvspan(*cond["wind"], color="grey", alpha=0.15)
 axes[0].set(title=f"(a) {ch4.label(cond)}", xlabel="testing wind ξ", ylabel="testing return (reproduced)")
 vmin, vmax = heat["return"].min(), heat["return"].max()
 for i, algo in enumerate(algos):
     sub = heat[heat["algo"] == algo]
     plot.heatmap(axes[1 + i], sub, f"(b) {algo} (reproduced)", vmin=vmin, vmax=vmax, cbar=(i == len(algos) - 1))
-fig.suptitle(f"Fig 4.4 reproduced — {settings['env']}, scale={SCALE}")
+fig.suptitle(f"Fig 4.4 reproduced — {settings['env']}, scale={SCALE}\n(a) {plot.seed_band(wind, ['algo', 'value'])}")
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-4.4")
 

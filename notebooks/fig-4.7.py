@@ -19,6 +19,9 @@
 # Learners: the thesis's kl_avg (Alg 3 with Eq 4.11), kl_exact (ours, issue 12: the exact minimiser of Eq 4.7
 # from params_avg), params_avg (Eq 4.6) and joint (PPO on the merged batch). Each claim is judged twice, for
 # kl_avg and for kl_exact (counted beyond the thesis), each against params_avg and joint only (`claims.yaml`).
+#
+# Lines: the mean over training seeds; band: the 95 % confidence interval of that mean across training seeds
+# (t-interval, n = seeds; none with one seed), as the figure title says.
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -28,6 +31,7 @@ import matplotlib.pyplot as plt
 import seaborn as sns
 
 from thesis_repro import claims, figures, pages
+from thesis_repro.evaluation import tables
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.7", SCALE)
@@ -37,13 +41,15 @@ curves = ch4.curves_frame(ch4.train_runs(settings, n_jobs=settings["n_jobs"]))
 
 # %%
 fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+algos = ch4.algo_names(settings)
 sns.lineplot(
-    data=curves, x="iteration", y="entropy", hue="algo", hue_order=ch4.algo_names(settings), errorbar="sd", ax=axes[0]
+    data=curves, x="iteration", y="entropy", hue="algo", hue_order=algos, errorbar=tables.t_errorbar, ax=axes[0]
 )
 axes[0].set(ylabel="policy entropy [nats] (reproduced)", title=ch4.label(cond))
-sns.lineplot(data=curves.dropna(subset=["kl_to_aggregate"]), x="iteration", y="kl_to_aggregate", hue="algo", ax=axes[1])
+kl = curves.dropna(subset=["kl_to_aggregate"])
+sns.lineplot(data=kl, x="iteration", y="kl_to_aggregate", hue="algo", errorbar=tables.t_errorbar, ax=axes[1])
 axes[1].set(yscale="log", ylabel="mean KL(sub-policy ‖ aggregate) (reproduced)")
-fig.suptitle(f"Fig 4.7 reproduced — {settings['env']}, scale={SCALE}")
+fig.suptitle(f"Fig 4.7 reproduced — {settings['env']}, scale={SCALE}\n{plot.seed_band(curves, ['algo', 'iteration'])}")
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-4.7")
 

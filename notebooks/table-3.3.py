@@ -18,6 +18,10 @@
 # noise type is read from `hyperparams.yaml` (PPO-ObsNoise, -ActNoise, -EnvNoise, PPO-MDL). Significance: Welch,
 # p < 0.05; the thesis's p-values are derived from its mean ± std with n = 240. "Clear benefit" in (iii) is our
 # reading: a relative gain of at least 10 %. Logic: `thesis_repro.figures.ch3_tables`.
+#
+# Under each table, the reproduced cells across **training seeds**, the unit of replication (not the rollout or
+# episode): per seed the mean over its episodes / testing rollouts, then the mean over seeds and its 95 % confidence
+# interval (t-interval, n = seeds), shown as "mean [low, high] (seeds)"; with one seed there is no interval.
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -32,10 +36,17 @@ print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 ours = ch3_tables.table33(res, settings)
 text_a, text_b = ch3_tables.table33_text(ours)
+ci_a, ci_b = ch3_tables.table33_ci_text(ours)
 text_a.style.set_caption(f"Table 3.3(a): training return η_σtr on {settings['env']}, thesis beside reproduced")
 
 # %%
+ch3_tables.ci_text_style(ci_a, ours[0], "Table 3.3(a), reproduced: training return across training seeds")
+
+# %%
 text_b.style.set_caption(f"Table 3.3(b): testing return η_σte on {settings['env']}, thesis beside reproduced")
+
+# %%
+ch3_tables.ci_text_style(ci_b, ours[1], "Table 3.3(b), reproduced: testing return across training seeds")
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?

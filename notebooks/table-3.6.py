@@ -17,6 +17,10 @@
 # (two-sided Welch t-test, p < 0.05 as the captions say; `chapter3_settings.csv`). The thesis's bolding is not
 # in its text: it is derived by the same rule from its mean ± std with n = 12 × 20 = 240 per cell. Grey cells:
 # not run at this scale. Logic: `thesis_repro.figures.ch3_tables`, statistics: `thesis_repro.evaluation.tables`.
+#
+# Under it, the reproduced cells across **training seeds**, the unit of replication (not the rollout): per seed the
+# mean AUC over its testing rollouts, then the mean over seeds and its 95 % confidence interval (t-interval,
+# n = seeds), shown as "mean [low, high] (seeds)"; with one seed there is no interval ("1 seed").
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -29,8 +33,11 @@ settings = ch3_tables.settings("table-3.6", SCALE)
 print(pages.runs_summary("table-3.6", SCALE))
 print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
-comp = ch3_tables.compare("table-3.6", ch3_tables.our_cells(res), settings)
+comp = ch3_tables.compare("table-3.6", ch3_tables.our_cells(res), settings, ci=ch3_tables.our_ci(res))
 comp.style("Table 3.6: testing AUC, thesis beside reproduced (bold: best or not significantly different)")
+
+# %%
+comp.ci_style("Table 3.6, reproduced: testing AUC across training seeds, mean [95 % CI] (seeds)")
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?

@@ -17,8 +17,14 @@
   baseline), or ``(AUC_method − AUC_baseline) / max_m |AUC_m|`` over the methods of the row (``how="max"``),
   then average over tasks.
 
-Frames are tidy: samples ``env, test, method, value`` (one row per sample), cells ``env, test, method,
-mean, std, n`` (the thesis CSVs have the same columns but ``n``).
+* **Confidence intervals across training seeds** (issue 21: the training seed is the unit of replication,
+  never the testing rollout): per seed, the mean over its rollouts; then the two-sided t-interval of the mean
+  over the seeds (:func:`t_interval`, ``scipy.stats.t.interval`` with ``n_seeds − 1`` degrees of freedom, level
+  :data:`CI_LEVEL`) — :func:`seed_ci` for table cells, :func:`seed_change_ci` for the bars of Figs 3.5/3.6,
+  :func:`t_errorbar` for the bands of the curve figures. With one seed there is no interval (NaN bounds).
+
+Frames are tidy: samples ``env, test, method, value`` (one row per sample; ``seed`` for the intervals), cells
+``env, test, method, mean, std, n`` (the thesis CSVs have the same columns but ``n``).
 
 >>> import pandas as pd
 >>> s = pd.DataFrame({"env": "Hopper", "test": "obs", "method": ["a"] * 3 + ["b"] * 3,
@@ -46,6 +52,8 @@ from thesis_repro.validation import check_choice
 ROW: tuple[str, ...] = ("env", "test")
 #: Normalisations of the AUC change (see the module docstring).
 NORMALISATIONS: tuple[str, ...] = ("baseline", "max")
+#: Confidence level of the intervals across training seeds.
+CI_LEVEL: float = 0.95
 
 
 @cache
@@ -277,3 +285,172 @@ def mean_change(changes: pd.DataFrame) -> pd.DataFrame:
     """
     g = changes.dropna(subset=["change"]).groupby(["test", "method"], sort=False)["change"]
     return g.agg(change="mean", n_envs="count").reset_index()
+
+
+# ---------------------------------------------------------------- confidence intervals across training seeds
+def t_interval(values: Sequence[float] | np.ndarray, level: float = CI_LEVEL) -> tuple[float, float, float, int]:
+    """``(mean, lo, hi, n)``: the two-sided ``level`` t-interval of the mean of the finite ``values`` (one value
+    per training seed), ``scipy.stats.t.interval(level, n - 1, loc=mean, scale=sem)``.
+
+    ``lo``/``hi`` are NaN for fewer than two values (one seed: no interval); equal values give ``lo = hi = mean``.
+    An empty input raises ``ValueError``.
+
+    >>> m, lo, hi, n = t_interval([700.0, 800.0, 900.0])   # mean 800, sem 57.7, t(0.975, 2) = 4.303
+    >>> m, round(lo, 1), round(hi, 1), n
+    (800.0, 551.6, 1048.4, 3)
+    >>> t_interval([812.0])
+    (812.0, nan, nan, 1)
+    """
+    v = np.asarray(values, dtype=float).ravel()
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        raise ValueError("t_interval needs at least one finite value")
+    m = float(v.mean())
+    if v.size < 2:
+        return m, float("nan"), float("nan"), 1
+    sem = float(stats.sem(v))
+    if sem == 0.0:
+        return m, m, m, int(v.size)
+    lo, hi = stats.t.interval(level, v.size - 1, loc=m, scale=sem)
+    return m, float(lo), float(hi), int(v.size)
+
+
+def t_errorbar(values: Sequence[float] | np.ndarray) -> tuple[float, float]:
+    """``(lo, hi)`` of :func:`t_interval` at :data:`CI_LEVEL`: a seaborn ``errorbar=`` callable for per-seed
+    values (a band over training seeds; seaborn draws none where a point has a single value).
+
+    >>> [round(x, 1) for x in t_errorbar([700.0, 800.0, 900.0])]
+    [551.6, 1048.4]
+    """
+    _, lo, hi, _ = t_interval(values)
+    return lo, hi
+
+
+def seed_means(
+    samples: pd.DataFrame, value: str = "value", by: Sequence[str] = (*ROW, "method"), seed: str = "seed"
+) -> pd.DataFrame:
+    """Per training seed, the mean of ``value`` over its samples (testing rollouts): columns ``by + seed + value``.
+
+    >>> s = pd.DataFrame({"method": "a", "seed": [0, 0, 1, 1], "value": [1.0, 3.0, 5.0, 9.0]})
+    >>> seed_means(s, by=["method"]).values.tolist()
+    [['a', 0, 2.0], ['a', 1, 7.0]]
+    """
+    keys = [*by, seed]
+    missing = [c for c in (*keys, value) if c not in samples.columns]
+    if missing:
+        raise ValueError(f"sample frame lacks columns {missing}; it has {list(samples.columns)}")
+    return samples.groupby(keys, as_index=False, sort=False)[value].mean()[[*keys, value]]
+
+
+def _ci_frame(per_seed: pd.DataFrame, value: str, by: Sequence[str], level: float) -> pd.DataFrame:
+    rows = []
+    for key, group in per_seed.groupby(list(by), sort=False):
+        m, lo, hi, n = t_interval(group[value].to_numpy(), level)
+        rows.append({**dict(zip(by, key, strict=True)), "seed_mean": m, "ci_lo": lo, "ci_hi": hi, "n_seeds": n})
+    return pd.DataFrame(rows, columns=[*by, "seed_mean", "ci_lo", "ci_hi", "n_seeds"])
+
+
+def seed_ci(
+    samples: pd.DataFrame,
+    value: str = "value",
+    by: Sequence[str] = (*ROW, "method"),
+    seed: str = "seed",
+    level: float = CI_LEVEL,
+) -> pd.DataFrame:
+    """Per cell (``by``): the mean over training seeds of each seed's mean over its rollouts and the ``level``
+    t-interval of that mean across seeds: columns ``by + (seed_mean, ci_lo, ci_hi, n_seeds)``.
+
+    One seed: ``n_seeds = 1`` and NaN bounds (no interval). Rows keep their order of first appearance.
+
+    >>> s = pd.DataFrame({"env": "Hopper", "test": "obs", "method": "ppo", "seed": [0, 0, 1, 1, 2, 2],
+    ...                   "value": [690.0, 710.0, 780.0, 820.0, 900.0, 900.0]})   # seed means 700, 800, 900
+    >>> seed_ci(s).round(1)[["seed_mean", "ci_lo", "ci_hi", "n_seeds"]].values.tolist()
+    [[800.0, 551.6, 1048.4, 3.0]]
+    >>> seed_ci(s[s.seed == 0])[["seed_mean", "ci_lo", "n_seeds"]].values.tolist()   # one seed: no interval
+    [[700.0, nan, 1.0]]
+    """
+    return _ci_frame(seed_means(samples, value, by, seed), value, list(by), level)
+
+
+def seed_change(samples: pd.DataFrame, baseline: str, how: str = "baseline", seed: str = "seed") -> pd.DataFrame:
+    """Per training seed, the change of :func:`auc_change` computed on that seed's runs: ``env, test, method,
+    seed, change``.
+
+    Seed ``s`` of a method is compared with seed ``s`` of the baseline (seeds are paired by index, so the spread
+    across seeds carries both learners' seed variation); the normaliser is the pooled one of :func:`auc_change`
+    (``|baseline mean|`` or the row's largest ``|mean|`` over all seeds), a fixed scale per task, so the mean
+    over seeds of this change equals :func:`auc_change` on the pooled cells (equal rollouts per seed).
+
+    >>> s = pd.DataFrame({"env": "H", "test": "obs", "method": ["ppo", "ppo", "x", "x"], "seed": [0, 1, 0, 1],
+    ...                   "value": [100.0, 100.0, 140.0, 160.0]})
+    >>> seed_change(s, "ppo")[["seed", "change"]].values.tolist()
+    [[0.0, 0.4], [1.0, 0.6]]
+    """
+    check_choice(how, NORMALISATIONS, "normalisation")
+    per = seed_means(samples, "value", (*ROW, "method"), seed)
+    pooled = per.groupby([*ROW, "method"], as_index=False, sort=False)["value"].mean()
+    base_pooled = pooled[pooled["method"] == baseline][[*ROW, "value"]].rename(columns={"value": "scale"})
+    if base_pooled.empty:
+        raise ValueError(f"baseline {baseline!r} is not in the samples; methods are {sorted(set(per['method']))}")
+    if how == "baseline":
+        scale = base_pooled.assign(scale=base_pooled["scale"].abs())
+    else:
+        scale = pooled.assign(scale=pooled["value"].abs()).groupby(list(ROW), as_index=False)["scale"].max()
+    base = per[per["method"] == baseline][[*ROW, seed, "value"]].rename(columns={"value": "base"})
+    t = per[per["method"] != baseline].merge(base, on=[*ROW, seed]).merge(scale, on=list(ROW))
+    t["change"] = (t["value"] - t["base"]) / t["scale"].where(t["scale"] > 0)
+    return t[[*ROW, "method", seed, "change"]].rename(columns={seed: "seed"}).reset_index(drop=True)
+
+
+def seed_change_ci(
+    samples: pd.DataFrame, baseline: str, how: str = "baseline", level: float = CI_LEVEL
+) -> pd.DataFrame:
+    """The bars of Figs 3.5/3.6 per training seed and their interval: per seed, :func:`seed_change` averaged over
+    the tasks (as :func:`mean_change`); then the ``level`` t-interval over seeds. Columns ``test, method,
+    seed_mean, ci_lo, ci_hi, n_seeds`` (one seed: NaN bounds).
+
+    >>> s = pd.DataFrame({"env": "H", "test": "obs", "method": ["ppo"] * 3 + ["x"] * 3, "seed": [0, 1, 2] * 2,
+    ...                   "value": [100.0, 100.0, 100.0, 140.0, 150.0, 160.0]})
+    >>> seed_change_ci(s, "ppo").round(3).values.tolist()
+    [['obs', 'x', 0.5, 0.252, 0.748, 3]]
+    """
+    ch = seed_change(samples, baseline, how).dropna(subset=["change"])
+    per_seed = ch.groupby(["test", "method", "seed"], as_index=False, sort=False)["change"].mean()
+    return _ci_frame(per_seed, "change", ["test", "method"], level)
+
+
+def ci_label(n_seeds: Sequence[int] | np.ndarray | int, level: float = CI_LEVEL) -> str:
+    """What a page's intervals are, for a caption: the level and the number of training seeds behind them.
+
+    >>> ci_label([3, 3])
+    '95 % CI of the mean across 3 training seeds (t-interval over per-seed means)'
+    >>> ci_label(1)
+    '1 training seed: no confidence interval'
+    >>> ci_label([1, 3])
+    '95 % CI of the mean across 1-3 training seeds (t-interval over per-seed means; seeds per cell in parentheses)'
+    """
+    n = np.atleast_1d(np.asarray(n_seeds, dtype=float))
+    n = n[np.isfinite(n)].astype(int)
+    if n.size == 0 or n.max() < 2:
+        return "1 training seed: no confidence interval"
+    what = f"{level:.0%}".replace("%", " %") + " CI of the mean across"
+    if n.min() == n.max():
+        return f"{what} {n.max()} training seeds (t-interval over per-seed means)"
+    return f"{what} {n.min()}-{n.max()} training seeds (t-interval over per-seed means; seeds per cell in parentheses)"
+
+
+def fmt_ci(mean: float, lo: float, hi: float, n_seeds: int, digits: int | None = None) -> str:
+    """A compact interval cell: ``"mean [lo, hi] (n_seeds)"``, or ``"mean (1 seed)"`` without an interval;
+    ``""`` for a NaN mean (cell not run). ``digits`` decimals; by default 0 from ``|mean| >= 100``, else 1.
+
+    >>> fmt_ci(812.4, 640.0, 984.6, 3), fmt_ci(81.24, float("nan"), float("nan"), 1)
+    ('812 [640, 985] (3)', '81.2 (1 seed)')
+    >>> fmt_ci(0.1234, 0.05, 0.2, 3, digits=3)
+    '0.123 [0.050, 0.200] (3)'
+    """
+    if not np.isfinite(mean):
+        return ""
+    d = (0 if abs(mean) >= 100 else 1) if digits is None else int(digits)
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return f"{mean:.{d}f} ({int(n_seeds)} seed{'s' if int(n_seeds) != 1 else ''})"
+    return f"{mean:.{d}f} [{lo:.{d}f}, {hi:.{d}f}] ({int(n_seeds)})"

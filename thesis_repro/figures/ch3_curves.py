@@ -167,9 +167,21 @@ BAR_PANELS: dict[str, list[tuple[str, str, str]]] = {
 }
 
 
-def bars(item: str, ours: pd.DataFrame, settings: Mapping[str, Any]) -> pd.DataFrame:
+#: Interval columns of the reproduced bars (NaN for the thesis's bars: it gives no per-seed numbers).
+BAR_CI = ["ci_lo", "ci_hi", "n_seeds"]
+
+
+def bars(
+    item: str, ours: pd.DataFrame, settings: Mapping[str, Any], samples: pd.DataFrame | None = None
+) -> pd.DataFrame:
     """Bars of Fig 3.5/3.6: change in normalised AUC vs the panel's baseline, mean over the tasks run, for the
-    thesis (from its tables) and reproduced: ``panel, baseline, test, method, change, n_envs, source``."""
+    thesis (from its tables) and reproduced: ``panel, baseline, test, method, change, n_envs, source`` and
+    :data:`BAR_CI`.
+
+    With ``samples`` (the per-rollout ``aucs`` of :class:`~thesis_repro.figures.ch3_tables.Results`), the
+    reproduced bars carry the 95 % CI across training seeds of the per-seed change
+    (:func:`~thesis_repro.evaluation.tables.seed_change_ci`; NaN bounds with one seed); without, NaN.
+    """
     how = check_choice(settings["normalisation"], tables.NORMALISATIONS, "normalisation")
     envs = item_envs(settings)
     parts = []
@@ -181,28 +193,69 @@ def bars(item: str, ours: pd.DataFrame, settings: Mapping[str, Any]) -> pd.DataF
             if base not in set(sub["method"]):
                 continue
             b = tables.mean_change(tables.auc_change(sub, base, how))
+            if source == "reproduced" and samples is not None and len(samples):
+                s = samples[samples["method"].isin(methods) & samples["env"].isin(envs)]
+                ci = tables.seed_change_ci(s, base, how)[["test", "method", *BAR_CI]]
+                b = b.merge(ci, on=["test", "method"], how="left")
             parts.append(b.assign(panel=panel, baseline=base, source=source))
-    cols = ["panel", "baseline", "test", "method", "change", "n_envs", "source"]
-    return pd.concat(parts, ignore_index=True)[cols] if parts else pd.DataFrame(columns=cols)
+    cols = ["panel", "baseline", "test", "method", "change", "n_envs", "source", *BAR_CI]
+    if not parts:
+        return pd.DataFrame(columns=cols)
+    out = pd.concat(parts, ignore_index=True)
+    for c in BAR_CI:
+        if c not in out.columns:
+            out[c] = np.nan
+    return out[cols]
+
+
+def bars_ci_text(b: pd.DataFrame) -> pd.DataFrame:
+    """The reproduced bars with their interval, ``"change [lo, hi] (n seeds)"``: rows panel × method, columns
+    the tests (a small table for the page)."""
+    r = b[b["source"] == "reproduced"]
+    cells = [tables.fmt_ci(*x, digits=3) for x in r[["change", *BAR_CI]].itertuples(index=False)]
+    w = r.assign(cell=cells).pivot_table(
+        index=["panel", "method"], columns="test", values="cell", aggfunc="first", sort=False
+    )
+    w.columns.name = "reproduced"
+    return w.fillna("")
+
+
+def bar_note(b: pd.DataFrame) -> str:
+    """What the error bars of :func:`plot_bars` are (from the bars' ``n_seeds``)."""
+    n = b.loc[b["source"] == "reproduced", "n_seeds"].dropna()
+    if n.empty or n.max() < 2:
+        return "no error bars: 1 training seed at this scale (thesis bars: no per-seed numbers)"
+    return f"error bars (reproduced): {tables.ci_label(n)}"
 
 
 # ---------------------------------------------------------------- plots
+def curve_seeds(res: Results) -> pd.DataFrame:
+    """Per training seed the mean testing return over its rollouts: ``env, method, test, sigma, seed, return``
+    (the points behind each line of :func:`plot_curves`)."""
+    by = ["env", "method", "test", "sigma"]
+    return tables.seed_means(res.returns, "return", by)
+
+
 def plot_curves(res: Results, settings: Mapping[str, Any], title: str) -> plt.Figure:
-    """Testing return vs σ (mean ± sd over seeds × rollouts): rows tasks, columns tests, lines learners."""
+    """Testing return vs σ: rows tasks, columns tests, lines learners. A line is the mean over training seeds of
+    each seed's mean over its testing rollouts; the band the 95 % t-interval of that mean across seeds
+    (:func:`~thesis_repro.evaluation.tables.t_errorbar`; none with one seed), as the title says."""
     envs, tests = item_envs(settings), list(settings["tests"])
-    fig, axes = plt.subplots(len(envs), len(tests), figsize=(3.3 * len(tests), 2.6 * len(envs) + 0.6), squeeze=False)
+    fig, axes = plt.subplots(len(envs), len(tests), figsize=(3.3 * len(tests), 2.6 * len(envs) + 0.8), squeeze=False)
     order = learners(settings)
+    per_seed = curve_seeds(res)
+    n_seeds = per_seed.groupby(["env", "method", "test", "sigma"])["seed"].nunique()
     for i, env in enumerate(envs):
         for j, test in enumerate(tests):
             ax = axes[i, j]
-            d = res.returns[(res.returns["env"] == env) & (res.returns["test"] == test)]
+            d = per_seed[(per_seed["env"] == env) & (per_seed["test"] == test)]
             sns.lineplot(
                 d,
                 x="sigma",
                 y="return",
                 hue="method",
                 hue_order=order,
-                errorbar="sd",
+                errorbar=tables.t_errorbar,
                 marker="o",
                 ax=ax,
                 legend=(i == 0 and j == 0),
@@ -211,7 +264,10 @@ def plot_curves(res: Results, settings: Mapping[str, Any], title: str) -> plt.Fi
             ax.set(xlabel="σ (Σ for dom)" if i == len(envs) - 1 else "", ylabel="testing return" if j == 0 else "")
     miss = skipped(settings)
     tail = f" (not run at this scale: {', '.join(miss)})" if miss else ""
-    fig.suptitle(f"{title} — reproduced, scale={settings['scale']}{tail}", fontsize=10)
+    band = f"band: {tables.ci_label(n_seeds)}" if n_seeds.max() > 1 else "no band: 1 training seed"
+    fig.suptitle(
+        f"{title} — reproduced, scale={settings['scale']}{tail}\nline: mean over training seeds; {band}", fontsize=10
+    )
     fig.tight_layout()
     return fig
 
@@ -242,14 +298,26 @@ def plot_heat(heat: pd.DataFrame, settings: Mapping[str, Any]) -> plt.Figure:
 
 
 def plot_bars(b: pd.DataFrame, title: str) -> plt.Figure:
-    """Bars of Figs 3.5/3.6: one column per panel × test, thesis beside reproduced per learner."""
+    """Bars of Figs 3.5/3.6: one column per panel × test, thesis beside reproduced per learner; error bars on the
+    reproduced bars: their 95 % CI across training seeds (:data:`BAR_CI`; none with one seed), as the title says."""
     keys = list(b[["panel", "test"]].drop_duplicates().itertuples(index=False, name=None))
-    fig, axes = plt.subplots(1, len(keys), figsize=(2.9 * len(keys), 3.4), squeeze=False, sharey=True)
+    fig, axes = plt.subplots(1, len(keys), figsize=(2.9 * len(keys), 3.6), squeeze=False, sharey=True)
+    sources, width = ["thesis", "reproduced"], 0.4
+    colours = dict(zip(sources, sns.color_palette(n_colors=2), strict=True))
     for ax, (panel, test) in zip(axes[0], keys, strict=True):
         d = b[(b["panel"] == panel) & (b["test"] == test)]
-        sns.barplot(
-            d, x="method", y="change", hue="source", hue_order=["thesis", "reproduced"], ax=ax, legend=ax is axes[0, -1]
-        )
+        methods = list(dict.fromkeys(d["method"]))
+        x = np.arange(len(methods))
+        for k, source in enumerate(sources):
+            r = d[d["source"] == source].set_index("method").reindex(methods)
+            pos = x + (k - 0.5) * width
+            ax.bar(pos, r["change"], width, color=colours[source], label=source)
+            ok = np.isfinite(r["ci_lo"].astype(float)) & np.isfinite(r["ci_hi"].astype(float))
+            if ok.any():  # the interval as computed (its centre, the mean of the per-seed changes, is the bar)
+                lo, hi = r["ci_lo"][ok].to_numpy(float), r["ci_hi"][ok].to_numpy(float)
+                mid, half = (lo + hi) / 2, (hi - lo) / 2
+                ax.errorbar(pos[ok.to_numpy()], mid, yerr=half, fmt="none", ecolor="k", elinewidth=1, capsize=2)
+        ax.set_xticks(x, methods)
         if ax is axes[0, -1]:
             ax.legend(fontsize=7)
         ax.axhline(0, color="k", lw=0.8)
@@ -257,6 +325,6 @@ def plot_bars(b: pd.DataFrame, title: str) -> plt.Figure:
         ax.set_title(f"({panel}) {test} vs {base}" if panel else f"{test} vs {base}", fontsize=9)
         ax.set(xlabel="", ylabel="change in normalised AUC")
         ax.tick_params(axis="x", rotation=60, labelsize=7)
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(f"{title}\n{bar_note(b)}", fontsize=10)
     fig.tight_layout()
     return fig

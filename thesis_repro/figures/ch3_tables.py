@@ -10,7 +10,9 @@ cannot afford: its cells keep the thesis's numbers and say "not run at this scal
 
 Tidy frames: ``returns`` (``env, method, seed, test, sigma, rollout, return``), ``aucs`` (``env, method,
 seed, test, rollout, value``: Eq 3.6 per testing rollout, so a cell is mean ± std over seeds × rollouts as the
-thesis averages) and cells (``env, test, method, mean, std, n``).
+thesis averages) and cells (``env, test, method, mean, std, n``). Beside the thesis-format cells, the pages show
+for the reproduced cells the 95 % CI of the mean across training seeds (:func:`our_ci`,
+:func:`~thesis_repro.evaluation.tables.seed_ci`): the seed is the unit of replication, not the rollout.
 
 >>> s = settings("table-3.4", "small")
 >>> learners(s), skipped(s)
@@ -228,6 +230,12 @@ def our_cells(res: Results) -> pd.DataFrame:
     return tables.cells(res.aucs)
 
 
+def our_ci(res: Results) -> pd.DataFrame:
+    """AUC cells across training seeds: ``env, test, method, seed_mean, ci_lo, ci_hi, n_seeds`` (per seed the mean
+    over its testing rollouts, then the 95 % t-interval over seeds; :func:`~thesis_repro.evaluation.tables.seed_ci`)."""
+    return tables.seed_ci(res.aucs)
+
+
 def thesis_cells(name: str | None = None) -> pd.DataFrame:
     """The thesis's AUC cells (``n`` = :func:`~thesis_repro.evaluation.tables.thesis_n`): one table, or all of
     Tables 3.4-3.7 (PPO and PPO-MDL appear in several, with identical numbers)."""
@@ -259,6 +267,7 @@ class Comparison:
     thesis: pd.DataFrame  # cells + bold (the thesis's rule on all its columns: what the thesis shows)
     ours: pd.DataFrame  # cells + bold (the rule on our samples)
     agreement: dict[str, int]  # ours vs the thesis's bolding recomputed on the same methods and rows
+    ci: pd.DataFrame | None = None  # our cells across training seeds (:func:`our_ci`), if given
 
     def text(self) -> tuple[pd.DataFrame, pd.DataFrame]:
         """Display frame of "mean ± std" strings (rows env × test, columns method × source) and its bold mask."""
@@ -291,13 +300,25 @@ class Comparison:
         return (
             text.style.apply(lambda _: pd.DataFrame(css, index=text.index, columns=text.columns), axis=None)
             .set_caption(caption)
-            .set_table_styles([{"selector": "td, th", "props": "padding: 2px 6px; font-size: 0.8em"}])
+            .set_table_styles(_SMALL)
         )
 
+    def ci_text(self) -> pd.DataFrame:
+        """The reproduced cells across training seeds, ``"mean [lo, hi] (n seeds)"`` (one seed: ``"mean (1
+        seed)"``): the rows env × test we ran, in the order of :meth:`text`, one column per learner run (no thesis
+        column: the thesis gives no per-seed numbers)."""
+        if self.ci is None:
+            raise ValueError("this comparison has no intervals; pass ci=our_ci(res) to compare()")
+        return ci_text(self.ci, self.thesis)
 
-def compare(item: str, ours: pd.DataFrame, settings: Mapping[str, Any]) -> Comparison:
+    def ci_style(self, caption: str = "") -> Any:
+        """:meth:`ci_text` as a small ``Styler``; the caption ends with what the intervals are."""
+        return ci_text_style(self.ci_text(), self.ci, caption)
+
+
+def compare(item: str, ours: pd.DataFrame, settings: Mapping[str, Any], ci: pd.DataFrame | None = None) -> Comparison:
     """Thesis beside reproduced AUC cells, both bolded, and the agreement of our bolding with the thesis's
-    recomputed on the learners and rows we ran.
+    recomputed on the learners and rows we ran; ``ci`` (:func:`our_ci`) adds the intervals across seeds.
 
     Tables show every row and column of the thesis's table (its bolding over all its columns, as printed);
     figures show the thesis's cells of their learners (Tables 3.4-3.7) on their tasks.
@@ -315,7 +336,51 @@ def compare(item: str, ours: pd.DataFrame, settings: Mapping[str, Any]) -> Compa
     b_ours = tables.bold(ours) if not ours.empty else ours.assign(bold=False)
     same = tables.bold(thesis.merge(b_ours[[*ROW, "method"]], on=[*ROW, "method"]))
     agreement = tables.bold_agreement(b_ours, same)
-    return Comparison(item, b_thesis.reset_index(drop=True), b_ours, agreement)
+    return Comparison(item, b_thesis.reset_index(drop=True), b_ours, agreement, ci)
+
+
+#: Table style of the book pages: compact cells.
+_SMALL = [{"selector": "td, th", "props": "padding: 2px 6px; font-size: 0.8em"}]
+
+
+def ci_text(ci: pd.DataFrame, rows: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Display frame of :func:`our_ci` cells: the rows env × test that ``ci`` has (in the order of ``rows``' env,
+    test if given, else of ``ci``), one column per learner in ``ci``, cells
+    :func:`~thesis_repro.evaluation.tables.fmt_ci`.
+
+    >>> ci = pd.DataFrame({"env": "Hopper", "test": "obs", "method": ["ppo", "trpo"], "seed_mean": [812.4, 700.0],
+    ...                    "ci_lo": [640.0, float("nan")], "ci_hi": [984.6, float("nan")], "n_seeds": [3, 1]})
+    >>> ci_text(ci).values.tolist()
+    [['812 [640, 985] (3)', '700 (1 seed)']]
+    """
+    order = (rows if rows is not None else ci)[ROW].drop_duplicates()
+    order = order.merge(ci[ROW].drop_duplicates(), on=ROW)  # rows not run at this scale: only in the main table
+    methods = list(dict.fromkeys(ci["method"]))
+    if rows is not None:
+        methods = [m for m in dict.fromkeys(rows["method"]) if m in set(ci["method"])]
+    t = ci.assign(
+        cell=[tables.fmt_ci(*r) for r in ci[["seed_mean", "ci_lo", "ci_hi", "n_seeds"]].itertuples(index=False)]
+    )
+    w = t.pivot_table(index=ROW, columns="method", values="cell", aggfunc="first", sort=False)
+    w = w.reindex(index=pd.MultiIndex.from_frame(order), columns=methods).fillna("")
+    w.columns.name = "reproduced"
+    return w
+
+
+def ci_text_style(text: pd.DataFrame, ci: pd.DataFrame, caption: str = "") -> Any:
+    """A display frame of intervals as a small ``Styler``; the caption says what the intervals are."""
+    label = tables.ci_label(ci["n_seeds"]) if len(ci) else "no reproduced cells"
+    return (
+        text.style.set_caption(f"{caption} — {label}" if caption else label)
+        .format_index(_label, axis=0)
+        .format_index(_label, axis=1)
+        .set_table_styles(_SMALL)
+    )
+
+
+def _label(v: Any) -> str:
+    """An index label as printed: σ values as ``0.2``, not ``0.200000``."""
+    return f"{v:g}" if isinstance(v, float) else str(v)
 
 
 def _row_order(column: str) -> dict[str, int]:
@@ -330,9 +395,22 @@ def _test_sigmas() -> list[float]:
     return sorted(float(v) for v in s[s["parameter"] == "test_sigma"]["value"])
 
 
+#: Columns of an interval across training seeds (:func:`~thesis_repro.evaluation.tables.seed_ci`).
+CI_COLUMNS = ["seed_mean", "ci_lo", "ci_hi", "n_seeds"]
+
+
+def _cell(frame: pd.DataFrame, value: str) -> dict[str, float]:
+    """``mean, std, n`` over every sample of ``frame`` and the interval of the mean across its training seeds."""
+    m, s, n = tables.mean_std(frame[value])
+    sm, lo, hi, k = tables.t_interval(frame.groupby("seed")[value].mean())
+    return {"mean": m, "std": s, "n": n, "seed_mean": sm, "ci_lo": lo, "ci_hi": hi, "n_seeds": k}
+
+
 def table33(res: Results, settings: Mapping[str, Any]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Our Table 3.3: (a) training-return cells ``noise_type, train_sigma, mean, std, n`` and (b) testing-return
-    cells ``noise_type, sigma_te, train_sigma, mean, std, n`` (seeds × rollouts), labelled like the thesis."""
+    cells ``noise_type, sigma_te, train_sigma, mean, std, n`` (seeds × rollouts), labelled like the thesis; both
+    also carry :data:`CI_COLUMNS` (per seed the mean over its episodes / rollouts, then the 95 % t-interval over
+    seeds)."""
     env = short_name(settings["env"])
     sig_te = _test_sigmas()
     grid = sorted(set(res.returns["sigma"]))
@@ -344,27 +422,24 @@ def table33(res: Results, settings: Mapping[str, Any]) -> tuple[pd.DataFrame, pd
     ep = res.episodes[res.episodes["env"] == env]
     det = "ppo"
     if (ep["method"] == det).any():
-        m, s, n = tables.mean_std(ep[ep["method"] == det]["value"])
-        rows_a.append({"noise_type": "none", "train_sigma": 0.0, "mean": m, "std": s, "n": n})
+        rows_a.append({"noise_type": "none", "train_sigma": 0.0, **_cell(ep[ep["method"] == det], "value")})
     for test, algo in noisy_learners().items():
         sub = ep[ep["method"] == algo]
         if len(sub):
-            m, s, n = tables.mean_std(sub["value"])
             rows_a.append(
-                {"noise_type": a_label[test], "train_sigma": hyperparams(algo)["sigma"], "mean": m, "std": s, "n": n}
+                {"noise_type": a_label[test], "train_sigma": hyperparams(algo)["sigma"], **_cell(sub, "value")}
             )
         for method in (det, algo):
             r = res.returns[
                 (res.returns["env"] == env) & (res.returns["method"] == method) & (res.returns["test"] == test)
             ]
             for st in sig_te:
-                vals = r[np.isclose(r["sigma"], st)]["return"]
+                vals = r[np.isclose(r["sigma"], st)]
                 if len(vals):
-                    m, s, n = tables.mean_std(vals)
                     row = {"noise_type": test, "sigma_te": st, "train_sigma": hyperparams(method)["sigma"]}
-                    rows_b.append({**row, "mean": m, "std": s, "n": n})
-    cols_a = ["noise_type", "train_sigma", "mean", "std", "n"]
-    cols_b = ["noise_type", "sigma_te", "train_sigma", "mean", "std", "n"]
+                    rows_b.append({**row, **_cell(vals, "return")})
+    cols_a = ["noise_type", "train_sigma", "mean", "std", "n", *CI_COLUMNS]
+    cols_b = ["noise_type", "sigma_te", "train_sigma", "mean", "std", "n", *CI_COLUMNS]
     return pd.DataFrame(rows_a, columns=cols_a), pd.DataFrame(rows_b, columns=cols_b)
 
 
@@ -392,5 +467,19 @@ def table33_text(ours: tuple[pd.DataFrame, pd.DataFrame]) -> tuple[pd.DataFrame,
         for ts in sigmas:  # a cell the thesis has but we lack is "not run"; one the thesis lacks stays empty
             missing = w[(ts, "thesis")].notna() & w[(ts, "reproduced")].isna()
             w.loc[missing, (ts, "reproduced")] = report.NOT_RUN
+        out.append(w.fillna(""))
+    return out[0], out[1]
+
+
+def table33_ci_text(ours: tuple[pd.DataFrame, pd.DataFrame]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Display frames of our Table 3.3 (a) and (b) across training seeds: ``"mean [lo, hi] (n seeds)"`` per cell
+    (:func:`~thesis_repro.evaluation.tables.fmt_ci`), rows as in :func:`table33_text`, columns σ_tr."""
+    out = []
+    for o, index in ((ours[0], ["noise_type"]), (ours[1], ["noise_type", "sigma_te"])):
+        cells = [tables.fmt_ci(*r) for r in o[CI_COLUMNS].itertuples(index=False)]
+        w = o.assign(cell=cells).pivot_table(
+            index=index, columns="train_sigma", values="cell", aggfunc="first", sort=False
+        )
+        w.columns.name = "reproduced, σ_tr"
         out.append(w.fillna(""))
     return out[0], out[1]

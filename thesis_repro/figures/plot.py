@@ -17,6 +17,7 @@ import pandas as pd
 import seaborn as sns
 
 from thesis_repro import paths
+from thesis_repro.evaluation import tables
 
 
 def save(fig: plt.Figure, scale: str, name: str, dpi: int = 100) -> None:
@@ -39,6 +40,21 @@ def heatmap(ax: plt.Axes, heat: pd.DataFrame, title: str, **kwargs: Any) -> None
     ax.title.set_fontsize(9)
 
 
+def seed_band(data: pd.DataFrame, keys: Sequence[str], seed: str = "seed") -> str:
+    """What the band of a line plot over per-seed rows is, for its title: the 95 % t-interval across training
+    seeds (:func:`~thesis_repro.evaluation.tables.t_errorbar`), or none with one seed per point (``keys``: the
+    columns of a point, e.g. panel, algo, x).
+
+    >>> d = pd.DataFrame({"algo": "a", "x": [0, 0, 0], "seed": [0, 1, 2], "return": [1.0, 2, 3]})
+    >>> seed_band(d, ["algo", "x"])
+    'band: 95 % CI of the mean across 3 training seeds (t-interval over per-seed means)'
+    >>> seed_band(d[d.seed == 0], ["algo", "x"])
+    'no band: 1 training seed'
+    """
+    n = data.groupby(list(keys))[seed].nunique()
+    return f"band: {tables.ci_label(n)}" if len(n) and n.max() > 1 else "no band: 1 training seed"
+
+
 def lines_by_panel(
     data: pd.DataFrame,
     conds: Sequence[Mapping[str, Any]],
@@ -52,8 +68,11 @@ def lines_by_panel(
     """One column per training condition, one row per ``(column, ylabel)`` of ``rows``; lines by algorithm.
 
     ``title(cond, row_index)`` gives each axis title; ``shade_wind`` shades each condition's training wind
-    range; kwargs go to ``sns.lineplot`` (e.g. ``errorbar="sd"``, ``marker="o"``).
+    range; kwargs go to ``sns.lineplot`` (e.g. ``marker="o"``). ``data`` has one row per training seed and
+    point, so the band is by default the 95 % t-interval across seeds (``errorbar=tables.t_errorbar``; say so
+    in the title with :func:`seed_band`).
     """
+    kwargs.setdefault("errorbar", tables.t_errorbar)
     fig, axes = plt.subplots(len(rows), len(conds), figsize=(4 * len(conds), 3.2 * len(rows) + 0.3), squeeze=False)
     for j, cond in enumerate(conds):
         sub = data[data["panel"] == cond["panel"]]
