@@ -29,6 +29,7 @@ import matplotlib.pyplot as plt
 import seaborn as sns
 
 from thesis_repro import claims, figures, pages
+from thesis_repro.evaluation import tables
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.6", SCALE)
@@ -38,13 +39,16 @@ pretraining.round(3)
 
 # %%
 order = list(ch5.CONDITIONS)
-fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
-sns.lineplot(data=curves, x="trials", y="cost", hue="condition", hue_order=order, ax=axes[0])
-axes[0].set(title="(a) reproduced: average cost on BIC", ylabel="mean cost of the population (Eq 5.12)")
-sns.lineplot(data=curves, x="trials", y="success", hue="condition", hue_order=order, ax=axes[1])
-axes[1].set(title="(b) reproduced: success rate on BIC", ylabel="success rate of the population")
+band = plot.seed_band(curves, ["condition", "trials"])
+fig, axes = plt.subplots(1, 2, figsize=(11, 4.1))
+line = dict(x="trials", hue="condition", hue_order=order, errorbar=tables.t_errorbar)
+sns.lineplot(data=curves, y="cost", ax=axes[0], **line)
+axes[0].set(title=f"(a) reproduced: average cost on BIC\n{band}", ylabel="mean cost of the population (Eq 5.12)")
+sns.lineplot(data=curves, y="success", ax=axes[1], **line)
+axes[1].set(title=f"(b) reproduced: success rate on BIC\n{band}", ylabel="success rate of the population")
 for ax in axes:
     ax.set_xlabel("BIC trials after pre-training")
+    ax.title.set_fontsize(9)
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-5.6", dpi=120)
 
