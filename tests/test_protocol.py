@@ -147,3 +147,26 @@ def test_the_generator_can_take_one_seed_first(monkeypatch):
     planned = runs.plan("small", ["3.3"], seeds=[0], algos=["ppo"])
     assert {p.job.config["seed"] for p in planned} == {0} and {p.job.config["algorithm"] for p in planned} == {"ppo"}
     assert len(runs.plan("small", ["3.3"], algos=["ppo"])) == 3 * len(planned)
+
+
+#: What a fresh clone's `make book SCALE=small` may evaluate on the fly (env steps, upper bound): the kit-v1
+#: book's 457 evaluations of 3 rollouts (9.5M steps, part of its ~17 min build). A switch of `small` to the thesis
+#: protocol (10 rollouts, 3 seeds, 1,347 evaluations) must ship its evaluations (`KINDS=evaluate`) to pass.
+FRESH_CLONE_EVAL_STEPS = 10_000_000
+
+
+def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
+    """Issue 22: every small evaluation is shipped, so a fresh clone's book loads rather than evaluates for hours;
+    until the switch, no more than the kit-v1 book's on-the-fly evaluations."""
+    from thesis_repro import paths, plan
+
+    monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path))
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
+    monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
+    _, book = plan.plan_book("small", cores=2, rates=plan.Rates(dict(plan.DEFAULT_RATES), {}), missing=True)
+    assert book.n_train == 0
+    evaluation = sum(ln.work for ln in book.other if ln.family == "evaluate")
+    assert evaluation <= FRESH_CLONE_EVAL_STEPS, (
+        f"a fresh clone's small book would evaluate {evaluation:,.0f} env steps on the fly; ship the evaluations "
+        "(`make reference-runs SCALE=small KINDS=evaluate`)"
+    )
