@@ -16,8 +16,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 #: MKL's COMPATIBLE branch is the only one its documentation promises identical on Intel and compatible
 #: processors ("Settings other than AUTO or COMPATIBLE are available only for Intel processors"). ATen's own
 #: kernels (tanh, exp, ...) dispatch on AVX-512 vs AVX2: pinned to AVX2, which every x86-64-v3 CPU has.
-#: Cost (measured 2026-11-25, README): 9-27 % of training throughput by learner. Must be set before torch loads MKL: ``import thesis_repro`` first (the
-#: Makefile exports them too); :func:`numerics` reports what is in effect (kept in every entry's provenance).
+#: Cost (measured 2026-11-25, README): 9-27 % of training throughput by learner. Must be set before torch loads
+#: MKL: ``import thesis_repro`` first (the Makefile exports them too); :func:`numerics` reports what is in effect
+#: (kept in every entry's provenance).
 #: ``THESIS_REPRO_NUMERICS=native`` leaves them unset (how the kit-v1 runs were trained: ``make verify`` and the
 #: retrain test recompute an entry in the numerics its provenance records).
 PORTABLE_NUMERICS = {"MKL_CBWR": "COMPATIBLE", "ATEN_CPU_CAPABILITY": "avx2"}
