@@ -39,6 +39,13 @@ fig = ch3_curves.plot_heat(heat, settings)
 plot.save(fig, SCALE, "fig-3.4-heatmaps")
 ch3_curves.heat_summary(heat).round(1)
 
+# %% [markdown]
+# The same summary across **training seeds** (per seed its centre and drops, then the mean over seeds and its
+# 95 % t-interval; one seed: no interval).
+
+# %%
+ch3_curves.heat_summary_ci(heat)
+
 # %%
 comp = ch3_tables.compare("3.4", ch3_tables.our_cells(res), settings, ci=ch3_tables.our_ci(res))
 comp.style("Testing AUC on the task of Fig 3.4: thesis (Table 3.4) beside reproduced")

@@ -159,6 +159,26 @@ def heat_summary(heat: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def heat_summary_ci(heat: pd.DataFrame) -> pd.DataFrame:
+    """:func:`heat_summary` across training seeds: per learner each column's mean over seeds of the per-seed
+    summary, with its 95 % t-interval (``"mean [lo, hi] (n)"``, ``"mean (1 seed)"``; the seed is the unit).
+
+    >>> h = pd.DataFrame({"method": "ppo", "seed": [0, 0, 1, 1], "row_shift": [0.0, 0.4] * 2, "col_shift": 0.0,
+    ...                   "return": [1000.0, 600.0, 900.0, 300.0]})
+    >>> heat_summary_ci(h)[["method", "centre", "drop_row"]].values.tolist()
+    [['ppo', '950 [315, 1585] (2)', '500 [-771, 1771] (2)']]
+    """
+    per_seed = [heat_summary(h).assign(seed=seed) for seed, h in heat.groupby("seed", sort=True)]
+    frame = pd.concat(per_seed, ignore_index=True)
+    cols = [c for c in frame.columns if c not in ("method", "seed")]
+
+    def cell(v: pd.Series) -> str:  # "" where no seed has the value (e.g. a grid without that axis)
+        return tables.fmt_ci(*tables.t_interval(v)) if np.isfinite(v.to_numpy(float)).any() else ""
+
+    rows = [{"method": m, **{c: cell(g[c]) for c in cols}} for m, g in frame.groupby("method", sort=False)]
+    return pd.DataFrame(rows, columns=["method", *cols])
+
+
 # ---------------------------------------------------------------- Figs 3.5, 3.6: normalised AUC change
 #: Panels of the bar figures: (panel, baseline, thesis table whose columns are compared with the baseline).
 BAR_PANELS: dict[str, list[tuple[str, str, str]]] = {
