@@ -62,7 +62,7 @@ def test_two_runs_of_one_seed_in_a_row_are_an_error():
 
 def test_unknown_protocol_is_a_one_line_error_naming_the_valid_ones(capsys):
     with pytest.raises(ValueError) as err:
-        budgets.spread("small", protocol="kit-v2")
+        budgets.spread(budgets.seed_runs("small", protocol="kit-v2"))
     assert "\n" not in str(err.value) and "'thesis'" in str(err.value) and "'kit-v1'" in str(err.value)
     assert main(["budgets", "--spread", "--protocol", "kit-v2"]) == 2
     assert main(["budgets", "--at", "1000000"]) == 2  # --at without --spread
@@ -123,7 +123,7 @@ def test_final_and_at_returns_read_from_the_curves():
     assert budgets.seed_runs("small", at=600_000, cache=_FakeCache(results), algos=["trpo"]).empty
     late = budgets.seed_runs("small", protocol="thesis", at=2_000_000, cache=_FakeCache(results))
     assert late["at_return"].isna().all()  # the runs never got to 2M steps
-    row = budgets.spread("small", protocol="thesis", at=600_000, cache=_FakeCache(results)).iloc[0]
+    row = budgets.spread(budgets.seed_runs("small", protocol="thesis", at=600_000, cache=_FakeCache(results))).iloc[0]
     assert row["seeds"] == (0, 1) and row["final_sd"] == pytest.approx(np.sqrt(0.5))
 
 

@@ -286,7 +286,7 @@ def _command(args: argparse.Namespace) -> int:
         ids = [figures.get(f).id for f in args.figures] if args.figures else None
         if args.spread:
             cache = budgets.shipped_cache() if args.shipped_only else None
-            frame = budgets.spread(args.scale, args.protocol, args.at, cache, ids, args.algos)
+            frame = budgets.spread(budgets.seed_runs(args.scale, args.protocol, args.at, cache, ids, args.algos))
             print(budgets.render_spread(frame, args.at))
             return 0
         if args.protocol is not None or args.at is not None or args.shipped_only or args.algos is not None:

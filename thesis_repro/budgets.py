@@ -398,25 +398,17 @@ def aggregate_seeds(runs_frame: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out, columns=columns)
 
 
-def spread(
-    scale: str,
-    protocol: str | None = None,
-    at: int | None = None,
-    cache: RunCache | None = None,
-    figure_ids: Iterable[str] | None = None,
-    algos: Iterable[str] | None = None,
-) -> pd.DataFrame:
-    """Seed spread of the training return of every learner and task (issue 22), from the cached or shipped runs
-    only (nothing is trained; :func:`shipped_cache` for the shipped ones alone): one row per setting
+def spread(runs: pd.DataFrame) -> pd.DataFrame:
+    """Seed spread of the training return of every learner and task (issue 22) of the per-run frame ``runs`` of
+    :func:`seed_runs` (cached or shipped runs only, nothing is trained): one row per setting
     (:data:`SPREAD_GROUP`) with the seeds found, ``n`` and mean ± sd (ddof 1) of the final training return
-    (:func:`seed_runs`: episodes ending in the last 10 % of the budget) and, with ``at``, of the return of the
-    last :data:`AT_WINDOW` episodes finished by ``at`` env steps; rows sorted by protocol, learner
-    (``hyperparams.yaml`` order), task, budget and setting. The lr-schedule study's runs are rows of their own
-    (1M steps; ``setting="lr_schedule=constant"`` for its constant arm). ``protocol`` and ``algos`` select runs
-    (:func:`seed_runs`)."""
+    (episodes ending in the last 10 % of the budget) and, where ``runs`` has it, of the return at ``at`` steps
+    (:func:`aggregate_seeds`); rows sorted by protocol, learner (``hyperparams.yaml`` order), task, budget and
+    setting. The lr-schedule study's runs are rows of their own (1M steps; ``setting="lr_schedule=constant"``
+    for its constant arm)."""
     from thesis_repro.learners.config import ALGORITHMS
 
-    frame = aggregate_seeds(seed_runs(scale, protocol, at, cache, figure_ids, algos))
+    frame = aggregate_seeds(runs)
     envs = list(reference.ENVS)
     order = frame.assign(
         _a=frame["algorithm"].map(lambda a: ALGORITHMS.index(a) if a in ALGORITHMS else len(ALGORITHMS)),
