@@ -9,6 +9,8 @@ Every frame carries ``source="thesis"`` so notebooks can concatenate it with ``s
 
 from __future__ import annotations
 
+from collections.abc import Collection, Sequence
+
 import pandas as pd
 
 from thesis_repro import paths
@@ -39,6 +41,16 @@ _OPTIONAL = {"note"}
 _STRINGS = {"figure": str, "panel": str, "condition": str, "ref": str, "note": str}
 
 
+def _check_columns(frame: pd.DataFrame, label: str, required: Sequence[str], optional: Collection[str]) -> None:
+    """``ValueError`` if ``frame`` lacks a ``required`` column or has a missing value outside ``optional``."""
+    missing = [c for c in required if c not in frame.columns]
+    if missing:
+        raise ValueError(f"{label} lacks columns {missing}; expected {list(required)}")
+    checked = [c for c in required if c not in optional]
+    if frame[checked].isna().any().any():
+        raise ValueError(f"{label} has missing values in {checked}")
+
+
 def load(name: str) -> pd.DataFrame:
     """Load ``data/thesis/<name>.csv`` with a ``source="thesis"`` column.
 
@@ -49,13 +61,7 @@ def load(name: str) -> pd.DataFrame:
     """
     check_choice(name, TABLES, "thesis table")
     frame = pd.read_csv(paths.thesis_table(name), dtype=_STRINGS, keep_default_na=False, na_values=[""])
-    required = TABLES[name]
-    missing = [c for c in required if c not in frame.columns]
-    if missing:
-        raise ValueError(f"thesis table {name!r} lacks columns {missing}; expected {list(required)}")
-    checked = [c for c in required if c not in _OPTIONAL]
-    if frame[checked].isna().any().any():
-        raise ValueError(f"thesis table {name!r} has missing values in {checked}")
+    _check_columns(frame, f"thesis table {name!r}", TABLES[name], _OPTIONAL)
     if "note" in frame.columns:
         frame["note"] = frame["note"].fillna("")
     frame["source"] = "thesis"
@@ -99,12 +105,7 @@ def published() -> pd.DataFrame:
     """
     path = paths.PUBLIC_DATA / "baselines.csv"
     frame = pd.read_csv(path, dtype={"env_version": str, "note": str}, keep_default_na=False, na_values=[""])
-    missing = [c for c in PUBLISHED_COLUMNS if c not in frame.columns]
-    if missing:
-        raise ValueError(f"{path.name} lacks columns {missing}; expected {list(PUBLISHED_COLUMNS)}")
-    checked = [c for c in PUBLISHED_COLUMNS if c not in _PUBLISHED_OPTIONAL]
-    if frame[checked].isna().any().any():
-        raise ValueError(f"{path.name} has missing values in {checked}")
+    _check_columns(frame, path.name, PUBLISHED_COLUMNS, _PUBLISHED_OPTIONAL)
     unknown = sorted(set(frame["env"]) - set(ENVS))
     if unknown:
         raise ValueError(f"{path.name}: unknown envs {unknown}; valid envs are: {', '.join(ENVS)}")
