@@ -277,3 +277,28 @@ def test_corrupt_shipped_entry_is_recomputed_locally_and_left_in_place(tmp_path)
     assert (res.out / "artefact.txt").read_text() == "model"
     assert (dest / "out" / "artefact.txt").read_text() == "tampered"  # repo folder untouched
     assert cache.run(job).source == "cached"  # the local copy now wins
+
+
+def _threads(config: dict, workdir: Path) -> dict:
+    import torch
+
+    return {"threads": torch.get_num_threads(), "dot": float(torch.ones(config["n"]) @ torch.ones(config["n"]))}
+
+
+registry.register("test-threads", "tests.test_cache:_threads")
+
+
+def test_a_job_computes_single_threaded_wherever_it_runs(tmp_path):
+    """Every kit job runs with torch on one thread, also in the calling process (`reference-runs --jobs 1`,
+    smoke notebooks): a shipped evaluation made in a 2-thread process was not bit-identical to its recomputation
+    in `make verify`'s worker. The caller's thread count is restored."""
+    import torch
+
+    saved = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        result = RunCache(tmp_path, reference=False).run(Job("test-threads", {"n": 4}))
+        assert (result.values["threads"], result.values["dot"]) == (1, 4.0)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(saved)

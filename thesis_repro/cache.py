@@ -477,6 +477,34 @@ def provenance(start: float, end: float) -> dict[str, Any]:
 _ACTIVE: ContextVar[RunCache | None] = ContextVar("thesis_repro_active_cache", default=None)
 
 
+@contextmanager
+def single_threaded() -> Iterator[None]:
+    """Run the block with torch on one thread, then restore its count: every kit job computes so, in a pool
+    worker or in the calling process alike. A torch op's summation order depends on its thread count, so a job
+    computed in a 2-thread process (the generator with ``--jobs 1``) is not bit-identical to the same job in
+    a worker, and a chaotic task's rollout return moves by hundreds.
+
+    >>> import torch
+    >>> torch.set_num_threads(2)
+    >>> with single_threaded():
+    ...     torch.get_num_threads()
+    1
+    >>> torch.get_num_threads()
+    2
+    """
+    try:
+        import torch
+    except ImportError:  # pragma: no cover - the kit's jobs need torch; the cache machinery does not
+        yield
+        return
+    saved = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(saved)
+
+
 class RunCache:
     """The on-disk cache (``paths.runs()`` unless ``root`` is given) over the shipped read-only layer.
 
@@ -684,11 +712,14 @@ class RunCache:
         return final
 
     def compute(self, job: Job) -> Path:
-        """Compute the (bound) ``job`` in its workdir and commit it; the caller holds its lock. Returns the entry."""
+        """Compute the (bound) ``job`` in its workdir and commit it; the caller holds its lock. Returns the entry.
+
+        The job function runs single-threaded (:func:`single_threaded`), wherever it is called from.
+        """
         start = time.time()
         workdir = self.workdir(job)
         (workdir / "out").mkdir(parents=True, exist_ok=True)
-        with self.computing():
+        with self.computing(), single_threaded():
             values = job.resolve()(dict(job.config), workdir)
         path = self._commit(job, values, workdir, start)
         shutil.rmtree(workdir, ignore_errors=True)

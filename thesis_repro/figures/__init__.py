@@ -150,19 +150,26 @@ def thesis_budget(figure_id: str) -> int:
 
 
 def budget_note(settings: Mapping[str, Any], n_algos: int | None = None, extra: str = "") -> str:
-    """One sentence: a scale's training budget and seeds beside the thesis's (both read from the scale table).
+    """One sentence: a scale's training budget, seeds and test rollouts beside the thesis's (read from the scale
+    table), and the training protocol.
 
-    >>> budget_note(settings("4.1", "smoke"), extra="~1 iteration")
-    'scale smoke: 128 env steps per run (thesis: 4,000,000), 1 training seed(s) (thesis: 6), ~1 iteration.'
+    >>> budget_note(settings("4.1", "smoke"), extra="~1 iteration")  # doctest: +NORMALIZE_WHITESPACE
+    'scale smoke: 128 env steps per run (thesis: 4,000,000), 1 training seed(s) (thesis: 6),
+    training protocol thesis, ~1 iteration.'
     """
     figure = settings["figure"]
     ours = settings["timesteps"]
     ours_text = ", ".join(f"{k}: {v:,}" for k, v in ours.items()) if isinstance(ours, Mapping) else f"{ours:,}"
-    thesis, seeds = thesis_budget(figure), get(figure).settings("full")["train_seeds"]
+    full = get(figure).settings("full")
+    thesis, seeds = thesis_budget(figure), full["train_seeds"]
     parts = [
         f"scale {settings['scale']}: {ours_text} env steps per run (thesis: {thesis:,})",
         f"{settings['train_seeds']} training seed(s) (thesis: {seeds})",
     ]
+    if "test_rollouts" in settings and "evaluate" in get(figure).kinds:
+        parts.append(f"{settings['test_rollouts']} test rollouts (thesis: {full['test_rollouts']})")
+    if "protocol" in settings:
+        parts.append(f"training protocol {settings['protocol']}")
     if n_algos is not None:
         parts.append(f"{n_algos} variants")
     if extra:
