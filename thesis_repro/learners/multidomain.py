@@ -34,7 +34,7 @@ hold ONE domain Θ_i per env for the whole iteration (Alg 1/2; :class:`_MetaPPO`
   domain on D'_i — its first step is Alg 1's step on a minibatch (fidelity note on :class:`MAMLDG`).
 
 The sequential learners step one domain's env at a time through a one-env view of the same env (its own
-``VecMonitor``, a ``VecNormalize`` sharing the filter's statistics) with the base class's ``collect_rollouts``.
+``VecMonitor``, a ``LeanVecNormalize`` sharing the filter's statistics) with the base class's ``collect_rollouts``.
 The main policy is what is saved and evaluated, without adaptation.
 
 >>> import gymnasium as gym
@@ -58,10 +58,10 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.utils import FloatSchedule
-from stable_baselines3.common.vec_env import VecEnv, VecMonitor, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from torch import nn
 
-from thesis_repro.envs.vec import LeanVecEnv
+from thesis_repro.envs.vec import LeanVecEnv, LeanVecNormalize
 from thesis_repro.envs.wrappers import _EpisodeDomain
 from thesis_repro.learners.config import AGGREGATES, EPOPT_RANKS, META_UPDATES
 from thesis_repro.learners.fast import FastPPO, RolloutTensors, _ManualActorCritic, ppo_epochs, rollout_tensors
@@ -308,8 +308,8 @@ class MultiDomainPPO(FastPPO):
             views: list[VecEnv] = []
             for env in base.envs:  # type: ignore[attr-defined]
                 view: VecEnv = VecMonitor(LeanVecEnv([lambda e=env: e]))
-                if vn is not None:
-                    view = VecNormalize(
+                if vn is not None:  # LeanVecNormalize: VecNormalize's outputs and statistics, fewer copies
+                    view = LeanVecNormalize(
                         view,
                         training=vn.training,
                         norm_obs=vn.norm_obs,
@@ -506,16 +506,23 @@ class SubPolicyAggregation(MultiDomainPPO):
         info: dict[str, Any] = {}
         thetas: list[th.Tensor] = []
         new = theta_old
+        # built once per update (the modules' tensors are updated in place): each sub-policy's (own, main)
+        # state_dict tensor pairs, which `sub.load_state_dict(self.policy.state_dict())` copies one by one
+        current = self.policy.state_dict(keep_vars=True)
+        own = [s.state_dict(keep_vars=True) for s in subs]
+        pairs = [[(sd[k], v) for k, v in current.items()] for sd in own]
+        sub_views = [agg.PolicyView.from_sb3(s) for s in subs]
+        params = dict(self.policy.named_parameters())
+        sub_params = [dict(s.named_parameters()) for s in subs]
         for _ in range(rounds):
-            current = self.policy.state_dict()
-            for sub, column in zip(subs, data, strict=True):
-                sub.load_state_dict(current)
+            for sub, column, copies in zip(subs, data, pairs, strict=True):
+                with th.no_grad():  # = sub.load_state_dict(self.policy.state_dict()): the same copies
+                    for dst, src in copies:
+                        dst.copy_(src)
                 self._ppo(sub, sub.optimizer, column, epochs)
-            thetas = [agg.PolicyView.from_sb3(s).get_flat() for s in subs]
+            thetas = [v.get_flat() for v in sub_views]
             new = self._aggregate(view, thetas, states, theta_old, info)
             view.set_flat(new)
-            params = dict(self.policy.named_parameters())
-            sub_params = [dict(s.named_parameters()) for s in subs]  # once per round, not once per name
             with th.no_grad():
                 for name in critic:
                     params[name].copy_(th.stack([sp[name] for sp in sub_params]).mean(0))

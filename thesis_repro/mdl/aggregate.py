@@ -271,6 +271,34 @@ def gaussian_kl(mean_p: Tensor, log_std_p: Tensor, mean_q: Tensor, log_std_q: Te
     return (log_std_q - log_std_p + (var_p + (mean_p - mean_q) ** 2) / (2 * var_q) - 0.5).sum(-1)
 
 
+def _gaussian_kl(
+    mean_p: Tensor, log_std_p: Tensor, var_p: Tensor, mean_q: Tensor, log_std_q: Tensor, two_var_q: Tensor
+) -> Tensor:
+    """:func:`gaussian_kl`'s expression given σ_p² = ``exp(2 log σ_p)`` and 2σ_q² = ``2 * exp(2 log σ_q)`` (the
+    same ops; gaussian_kl itself keeps them inline, so the autograd graph of kl_exact's gradient is unchanged)."""
+    return (log_std_q - log_std_p + (var_p + (mean_p - mean_q) ** 2) / two_var_q - 0.5).sum(-1)
+
+
+class _KLToTargets:
+    """E_s KL(π_θi ‖ π_θ) of fixed targets θ_1..θ_N at any θ, without an autograd graph: :func:`gaussian_kl`'s
+    ops on the same values, with the terms of one distribution computed once instead of once per pair (each
+    target's (μ_i, log σ_i, σ_i²) once; θ's (μ, log σ, 2σ²) once per evaluation). The same numbers as
+    ``gaussian_kl(*view.dist(θ_i, s), *view.dist(θ, s)).mean()`` per target (tests/test_kl_speed.py)."""
+
+    def __init__(self, view: PolicyView, thetas: Sequence[Tensor], states: Tensor):
+        self.view, self.states = view, states
+        with torch.no_grad():
+            dists = [view.dist(t.detach(), states) for t in thetas]
+            self.targets = [(m, ls, torch.exp(2 * ls)) for m, ls in dists]
+
+    def kls(self, theta: Tensor) -> list[Tensor]:
+        """``[E_s KL(π_θi(·|s) ‖ π_θ(·|s)) for each target]`` (0-d tensors)."""
+        with torch.no_grad():
+            mean, log_std = self.view.dist(theta.detach(), self.states)
+            two_var = 2 * torch.exp(2 * log_std)
+            return [_gaussian_kl(m, ls, vp, mean, log_std, two_var).mean() for m, ls, vp in self.targets]
+
+
 def mean_kl(view: PolicyView, theta_p: Tensor, theta_q: Tensor, states: Tensor) -> Tensor:
     """E_s[KL(π_θp(·|s) ‖ π_θq(·|s))] over the rows of ``states``."""
     return gaussian_kl(*view.dist(theta_p, states), *view.dist(theta_q, states)).mean()
@@ -288,8 +316,9 @@ def eq47_kls(view: PolicyView, theta: Tensor, thetas: Sequence[Tensor], states: 
     """
     if len(thetas) == 0:
         raise ValueError("Eq 4.7 needs at least one sub-policy")
-    with torch.no_grad():
-        return torch.stack([mean_kl(view, t.detach(), theta.detach(), states) for t in thetas])
+    with torch.no_grad():  # = stack([mean_kl(view, t, theta, states) ...]), with π_θ's forward pass once
+        q = view.dist(theta.detach(), states)
+        return torch.stack([gaussian_kl(*view.dist(t.detach(), states), *q).mean() for t in thetas])
 
 
 def eq47_objective(view: PolicyView, theta: Tensor, thetas: Sequence[Tensor], states: Tensor) -> float:
@@ -601,16 +630,18 @@ def kl_exact(
     ftol = torch.finfo(thetas[0].dtype).eps if ftol is None else check_nonneg(ftol, "ftol")
     thetas = [t.detach() for t in thetas]
     n = len(thetas)
-    with torch.no_grad():
-        targets = [view.dist(t, states) for t in thetas]
+    kl_to = _KLToTargets(view, thetas, states)
+    targets = [(m, ls) for m, ls, _ in kl_to.targets]
 
-    def mean_obj(theta: Tensor) -> Tensor:  # F(θ)/N
+    def mean_obj(theta: Tensor) -> Tensor:  # F(θ)/N, differentiable in θ (the gradient's graph)
         mean, log_std = view.dist(theta, states)
         return sum(gaussian_kl(m, ls, mean, log_std).mean() for m, ls in targets) / n  # type: ignore[return-value]
 
+    def mean_obj_value(theta: Tensor) -> float:  # float(mean_obj(θ)), the same number without a graph
+        return float(sum(kl_to.kls(theta)) / n)
+
     theta = torch.stack(thetas).mean(0)
-    with torch.no_grad():
-        f = float(mean_obj(theta))
+    f = mean_obj_value(theta)
     history, steps, residuals = [n * f], [], []
     for _ in range(iters):
         t = theta.detach().requires_grad_(True)
@@ -629,7 +660,7 @@ def kl_exact(
         step, accepted = 1.0, False
         with torch.no_grad():
             for _ in range(21):
-                f_new = float(mean_obj(theta + step * d))
+                f_new = mean_obj_value(theta + step * d)
                 if f_new <= f + 1e-4 * step * slope:
                     accepted = True
                     break
