@@ -95,17 +95,21 @@ def test_the_protocol_override_is_validated(monkeypatch):
 
 
 def test_protocol_overrides_apply_before_the_caller_s_overrides(monkeypatch):
-    """The thesis protocol's `small` takes 3 seeds x 10 rollouts, but a caller's explicit override is the last
-    word (the generator plans seeds past the scale's count so)."""
+    """The thesis protocol's `small` takes its `protocol_overrides` (10 rollouts; 1 seed until seeds 1-2 are
+    shipped, then 3), but a caller's explicit override is the last word (the generator plans seeds past the
+    scale's count so); a figure still on kit-v1 keeps its own 3 rollouts and its skipped learners."""
+    thesis_small = scales._table()["protocol_overrides"]["thesis"]["small"]
+    assert thesis_small["test_rollouts"] == 10 and thesis_small["train_seeds"] in (1, 3)
     monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
-    s = scales.figure_settings("3.3", "small")
-    assert (s["train_seeds"], s["test_rollouts"]) == (3, 10)
+    s = scales.figure_settings("table-3.5", "small")
+    assert (s["train_seeds"], s["test_rollouts"]) == (thesis_small["train_seeds"], 10)
     assert scales.figure_settings("3.3", "small", train_seeds=5)["train_seeds"] == 5
     assert scales.figure_settings("table-3.4", "small")["skip_algos"] == []
     monkeypatch.delenv(scales.PROTOCOL_ENV)
-    s = scales.figure_settings("3.3", "small", protocol="thesis")
-    assert (s["protocol"], s["train_seeds"]) == ("thesis", 3)
-    assert scales.figure_settings("table-3.4", "small")["skip_algos"] == ["ddpg", "sac"]  # kit-v1 skips them
+    s = scales.figure_settings("table-3.5", "small", protocol="thesis")
+    assert (s["protocol"], s["test_rollouts"]) == ("thesis", 10)
+    kit = scales.figure_settings("table-3.4", "small", protocol="kit-v1")
+    assert (kit["test_rollouts"], kit["skip_algos"]) == (3, ["ddpg", "sac"])  # kit-v1 skips them
 
 
 def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
@@ -125,28 +129,37 @@ def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
 
 
 def test_the_thesis_protocol_brings_small_3_seeds_and_10_rollouts(monkeypatch):
-    """Issue 22's evidence at small (3 training seeds x 10 test rollouts) comes with the thesis protocol; the
-    kit-v1 small runs keep their 1 seed x 3 rollouts (their shipped keys); chapter 5 keeps its own seeds."""
+    """Issue 22's evidence at small (10 test rollouts; 3 training seeds once seeds 1-2 are shipped) comes with the
+    thesis protocol, figure by figure as each is switched; the items still on kit-v1 keep their 1 seed x 3
+    rollouts (their shipped keys); chapter 5 keeps its own seeds."""
+    thesis_small = scales._table()["protocol_overrides"]["thesis"]["small"]
     monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
-    assert (
-        scales.figure_settings("3.3", "small")["train_seeds"],
-        scales.figure_settings("3.3", "small")["test_rollouts"],
-    ) == (1, 3)
+    small = {fid: scales.figure_settings(fid, "small") for fid in scales.figures()}
+    switched = [fid for fid, s in small.items() if s["protocol"] == "thesis"]
+    assert "table-3.6" in switched  # the first item switched (its seed-0 runs and evaluations are shipped)
+    for fid in switched:
+        s = small[fid]
+        assert (s["train_seeds"], s["test_rollouts"], s.get("skip_algos", [])) == (thesis_small["train_seeds"], 10, [])
+    s = small["table-3.5"]
+    assert (s["protocol"], s["train_seeds"], s["test_rollouts"]) == ("kit-v1", 1, 3)
     monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
     for fid in ("3.3", "3.2", "4.1", "table-3.7"):
         s = scales.figure_settings(fid, "small")
-        assert (s["train_seeds"], s["test_rollouts"]) == (3, 10), fid
+        assert (s["train_seeds"], s["test_rollouts"]) == (thesis_small["train_seeds"], 10), fid
     assert scales.figure_settings("5.6", "small")["seeds"] == [0, 1, 2]
     assert scales.figure_settings("3.3", "full")["train_seeds"] == 12
 
 
 def test_the_generator_can_take_one_seed_first(monkeypatch):
+    """`--seeds 0` plans seed 0 only; `--seeds 0 1 2` plans the three seeds, seed by seed, past the scale's count."""
     from thesis_repro import runs
 
     monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
     planned = runs.plan("small", ["3.3"], seeds=[0], algos=["ppo"])
     assert {p.job.config["seed"] for p in planned} == {0} and {p.job.config["algorithm"] for p in planned} == {"ppo"}
-    assert len(runs.plan("small", ["3.3"], algos=["ppo"])) == 3 * len(planned)
+    every = runs.plan("small", ["3.3"], seeds=[0, 1, 2], algos=["ppo"])
+    assert len(every) == 3 * len(planned)
+    assert [p.job.config["seed"] for p in every] == sorted(p.job.config["seed"] for p in every)
 
 
 #: What a fresh clone's `make book SCALE=small` may evaluate on the fly (env steps, upper bound): the kit-v1
@@ -170,3 +183,18 @@ def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
         f"a fresh clone's small book would evaluate {evaluation:,.0f} env steps on the fly; ship the evaluations "
         "(`make reference-runs SCALE=small KINDS=evaluate`)"
     )
+
+
+def test_seeds_generated_ahead_of_the_scale_table_are_not_stale(monkeypatch):
+    """The generator ships seeds 1-2 under the thesis protocol while `small` counts 1 seed: their keys are pending
+    (`check_shipped` must not call them stale), a seed past `runs.PENDING_SEEDS` is not."""
+    from thesis_repro import runs
+
+    monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
+    with scales.under_protocol("thesis"):
+        ahead = runs.plan("small", ["table-3.6"], seeds=[2], algos=["ppo-16"])
+        beyond = runs.plan("small", ["table-3.6"], seeds=[5], algos=["ppo-16"])
+    assert ahead and beyond
+    pending = runs.pending_keys("small")
+    assert {p.job.key for p in ahead} <= pending
+    assert not {p.job.key for p in beyond} & pending
