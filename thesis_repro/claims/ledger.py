@@ -541,9 +541,9 @@ def describe(row: Row) -> str:
     st = row.statistic
     parts = []
     if "ci" in st:
-        parts.append(_stat_text(st))
+        parts.append(_stat_text(st, row.n_seeds))
     elif st and "parts" not in st:
-        parts.append("; ".join(f"{g}: {_stat_text(v)}" for g, v in st.items()))
+        parts.append("; ".join(f"{g}: {_stat_text(v, row.n_seeds)}" for g, v in st.items()))
     effects = effects_text(row)
     if effects:
         parts.append(effects)
@@ -558,12 +558,20 @@ def describe(row: Row) -> str:
     return "; ".join(parts)
 
 
-def _stat_text(st: Mapping[str, Any]) -> str:
+def _stat_text(st: Mapping[str, Any], n_seeds: int | None = None) -> str:
+    """A yes-share statistic in words; with one training seed a unit's "yes" is its point estimate, not a CI.
+
+    >>> _stat_text({"value": 0.5, "ci": [0.5, 0.5], "k": 1, "n": 2}, n_seeds=1)
+    '1/2 units yes (point estimates: one training seed), point estimate 0.50'
+    >>> _stat_text({"value": 0.5, "ci": [0.5, 0.5], "k": 1, "n": 2}, n_seeds=3)
+    '1/2 units yes (CI-supported), point estimate 0.50'
+    """
     if not st.get("n"):
         return "no units"
     lo, hi = st["ci"]
     pt = st.get("value")
-    head = f"{st['k']}/{st['n']} units yes (CI-supported)"
+    basis = "point estimates: one training seed" if n_seeds is not None and n_seeds < 2 else "CI-supported"
+    head = f"{st['k']}/{st['n']} units yes ({basis})"
     if st.get("undecided"):
         head += f", {st['undecided']} undecided: yes-share in [{lo:.2f}, {hi:.2f}]"
     if pt is not None:
