@@ -168,6 +168,9 @@ def _main(argv: list[str]) -> int:
     plan_p.add_argument("--envs", nargs="+", default=None, help="only these tasks (a figure's `envs` setting)")
     plan_p.add_argument("--algos", nargs="+", default=None, help="only these learners (a figure's `algos` setting)")
     plan_p.add_argument("--missing", action="store_true", help="only what is neither cached nor shipped yet")
+    plan_p.add_argument(
+        "--seeds", nargs="+", type=int, default=None, help="only these training seeds, also past the scale's count"
+    )
     ver = sub.add_parser("verify", help="recompute a random sample of shipped evaluations and compare (make verify)")
     ver.add_argument("--scale", default="small", help="smoke | small | full")
     ver.add_argument("-n", type=positive_int, default=20, help="how many shipped evaluations, >= 1 (default 20)")
@@ -366,11 +369,12 @@ def _plan_command(args: argparse.Namespace) -> int:
     print(plan.rates_note(rates))
     subset = {k: v for k, v in (("envs", args.envs), ("algos", args.algos)) if v is not None}
     if args.figure != "all":
-        print(plan.report(plan.plan_figure(args.figure, args.scale, args.cores, rates, args.missing, **subset), rates))
+        p = plan.plan_figure(args.figure, args.scale, args.cores, rates, args.missing, args.seeds, **subset)
+        print(plan.report(p, rates))
         return 0
     if subset:
         raise ValueError("--envs/--algos choose a subset of one figure; name it (plan 3.3 --algos ppo trpo)")
-    per, book = plan.plan_book(args.scale, args.cores, rates, args.missing)
+    per, book = plan.plan_book(args.scale, args.cores, rates, args.missing, args.seeds)
     for p in per:
         print(plan.summary(p))
     print("\nthe book (every figure; runs shared by figures counted once):")

@@ -332,19 +332,38 @@ def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rat
     return Plan(name, scale, cores, order, dict(sorted(seeds.items(), key=lambda kv: (kv[0] is None, kv[0] or 0))))
 
 
+def seed_jobs(figure_id: str, scale: str, seeds: Iterable[int] | None = None, **overrides: Any) -> list[Job]:
+    """The jobs of figure ``figure_id`` at ``scale``; with ``seeds``, only those of these training seeds
+    (:func:`training_seed`; jobs without one are kept), planned past the scale's own count as the generator's
+    ``--seeds`` does (:func:`thesis_repro.runs.seed_count`).
+
+    >>> len(seed_jobs("3.3", "smoke", seeds=[0, 1, 2])) == 3 * len(seed_jobs("3.3", "smoke"))
+    True
+    """
+    if seeds is None:
+        return figures.jobs(figure_id, scale, **overrides)
+    from thesis_repro.runs import seed_count  # local: runs imports the learners' stack
+
+    keep = {int(s) for s in seeds}
+    jobs = figures.jobs(figure_id, scale, **{**seed_count(figure_id, scale, keep), **overrides})
+    return [j for j in jobs if training_seed(j) is None or training_seed(j) in keep]
+
+
 def plan_figure(
     figure_id: str,
     scale: str,
     cores: int | None = None,
     rates: Rates | None = None,
     missing: bool = False,
+    seeds: Iterable[int] | None = None,
     **overrides: Any,
 ) -> Plan:
     """:class:`Plan` of every job figure ``figure_id`` runs at ``scale``; ``overrides`` are settings of the
     scale table (e.g. ``envs=["Hopper"]``, ``algos=["ppo", "trpo"]`` for a subset), validated there. With
-    ``missing``, only the jobs neither cached nor shipped (what running the figure now would compute)."""
+    ``missing``, only the jobs neither cached nor shipped (what running the figure now would compute); with
+    ``seeds``, the jobs of those training seeds (:func:`seed_jobs`)."""
     fig = figures.get(figure_id)
-    jobs = figures.jobs(figure_id, scale, **overrides)
+    jobs = seed_jobs(figure_id, scale, seeds, **overrides)
     return plan_jobs(fig.notebook_id, to_compute(jobs) if missing else jobs, scale, cores or os.cpu_count() or 1, rates)
 
 
@@ -355,12 +374,17 @@ def to_compute(jobs: Iterable[Job]) -> list[Job]:
 
 
 def plan_book(
-    scale: str, cores: int | None = None, rates: Rates | None = None, missing: bool = False
+    scale: str,
+    cores: int | None = None,
+    rates: Rates | None = None,
+    missing: bool = False,
+    seeds: Iterable[int] | None = None,
 ) -> tuple[list[Plan], Plan]:
-    """One plan per figure and the book's plan (each run counted once); ``missing`` as in :func:`plan_figure`."""
+    """One plan per figure and the book's plan (each run counted once); ``missing`` and ``seeds`` as in
+    :func:`plan_figure`."""
     cores = cores or os.cpu_count() or 1
     rates = rates or load_rates()
-    per = {fid: figures.jobs(fid, scale) for fid in figures.ids()}
+    per = {fid: seed_jobs(fid, scale, seeds) for fid in figures.ids()}
     if missing:
         per = {fid: to_compute(js) for fid, js in per.items()}
     plans = [plan_jobs(figures.get(f).notebook_id, js, scale, cores, rates) for f, js in per.items()]

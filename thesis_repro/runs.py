@@ -296,7 +296,7 @@ def current_keys(
     seeds: Iterable[int] | None = None,
 ) -> set[str]:
     """Keys of every job (of ``kinds``, default all) of every figure (or ``figure_ids``) at ``scale``; with
-    ``seeds``, of those training seeds too where the scale table counts fewer (:func:`_seed_count`).
+    ``seeds``, of those training seeds too where the scale table counts fewer (:func:`seed_count`).
 
     A job of a pinned kind (an evaluation) counts under its key bound to the shipped entries of its dependencies
     (in ``layer_root``, default ``paths.reference()``), the key its shipped copy has, as well as unbound.
@@ -306,7 +306,7 @@ def current_keys(
     shipped_view = RunCache(layer_root if layer_root is not None else paths.reference(), reference=False)
     keys = set()
     for fid in figure_ids or figures.ids():
-        for j in figures.jobs(fid, scale, **_seed_count(fid, scale, seeds)):
+        for j in figures.jobs(fid, scale, **seed_count(fid, scale, seeds)):
             if kinds is None or j.kind in kinds:
                 keys.add(j.key)
                 if registry.pinned(j.kind) and (bound := shipped_view.bind(j)) is not None:
@@ -589,7 +589,7 @@ def job_seed(job: Job) -> int | None:
     return None if seed is None else int(seed)
 
 
-def _seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, int]:
+def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, int]:
     """The ``train_seeds`` override that makes ``figure_id`` plan every one of ``seeds`` (seeds past the scale's
     own count are produced ahead of the scale table, e.g. seeds 1-2 while ``small`` shows 1); ``{}`` if none."""
     if not seeds:
@@ -619,7 +619,7 @@ def plan(
     rank: dict[str, int] = {}
     for i, fid in enumerate(figure_ids or figures.ids()):
         notebook_id = figures.get(fid).notebook_id
-        for job in figures.jobs(fid, scale, **_seed_count(fid, scale, keep_seeds)):
+        for job in figures.jobs(fid, scale, **seed_count(fid, scale, keep_seeds)):
             if job.kind not in kinds or (keep is not None and job_algorithm(job) not in keep):
                 continue
             if keep_seeds is None or job_seed(job) in keep_seeds:
