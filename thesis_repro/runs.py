@@ -53,6 +53,7 @@ from thesis_repro.cache import (
     sweep_tmp,
     write_manifest,
 )
+from thesis_repro.plan import training_seed as job_seed  # the training seed of a job (an evaluation: its policy's)
 from thesis_repro.validation import check_choice
 
 #: States of a job in :func:`rows`.
@@ -580,13 +581,6 @@ def job_algorithm(job: Job) -> str | None:
     """The learner a training job trains, or an evaluation evaluates (``None`` for other kinds)."""
     cfg = job.config.get("train", job.config)
     return cfg.get("algorithm") if isinstance(cfg, Mapping) else None
-
-
-def job_seed(job: Job) -> int | None:
-    """The training seed of a job (an evaluation: its policy's), or ``None`` if it has none."""
-    cfg = job.config.get("train", job.config)
-    seed = cfg.get("seed") if isinstance(cfg, Mapping) else None
-    return None if seed is None else int(seed)
 
 
 def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, int]:
