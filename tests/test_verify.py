@@ -229,3 +229,25 @@ def test_resume_note_says_whether_the_shipped_run_was_resumed_exactly(tmp_path):
     assert "resumed from step 20,480 before exact resume landed" in before and "NOT" in before
     after = verify.resume_note(_train_entry(tmp_path, 20480, "2026-11-25T10:00:00+00:00"))
     assert "after exact resume landed" in after and "bit-identical" in after
+
+
+def test_evaluations_follow_their_policy_in_one_command(toy_figure, tmp_path):
+    """`--kind train evaluate`: each evaluation runs as soon as the policy it loads is shipped (an item's evaluations
+    land with its last training run), keyed as the two-step generator keys them; a rerun produces nothing."""
+    layer = tmp_path / "reference"
+    lines: list[str] = []
+    out = runs.generate(
+        "smoke", ["_verify"], ["test-verify-policy", "test-verify-eval"], layer_root=layer, log=lines.append
+    )
+    assert [e.path.parent.name for e in out] == [
+        "test-verify-policy",
+        "test-verify-eval",
+    ] * 3  # each policy, then its eval
+    assert sum("[follows] test-verify-eval" in line for line in lines) == 3
+    two_step = tmp_path / "two-step"
+    _generate(two_step, "test-verify-policy")
+    assert sorted(p.name for p in _evaluations(layer)) == sorted(
+        e.path.name for e in _generate(two_step, "test-verify-eval")[0]
+    )
+    again = runs.generate("smoke", ["_verify"], ["test-verify-policy", "test-verify-eval"], layer_root=layer, log=str)
+    assert again == []

@@ -652,6 +652,30 @@ def _bind_to_layer(planned: list[Planned], layer: Path, cache: RunCache, log: Ca
     return out
 
 
+class _Followers:
+    """Pinned jobs (evaluations) waiting for the runs they load: :meth:`ready` hands each out once, bound to the
+    shipped entries of ``layer``, as soon as its every dependency is shipped (unless it is shipped itself)."""
+
+    def __init__(self, planned: list[Planned], layer: Path, cache: RunCache | None) -> None:
+        self.layer = layer
+        self.cache = RunCache(cache.root if cache is not None else None, reference=layer)  # loads shipped policies
+        self.waiting = {p.job.key: p for p in planned}
+
+    def ready(self, landed: str | None) -> list[Planned]:
+        """The waiting jobs that load the run with key ``landed`` (``None``: all) and can run now, bound."""
+        out = []
+        for key, p in list(self.waiting.items()):
+            deps = {d.key for d in registry.dependencies(p.job.kind, p.job.config).values()}
+            if landed is not None and landed not in deps:
+                continue
+            bound = _bind_to_layer([p], self.layer, self.cache, lambda _: None)
+            if bound:
+                del self.waiting[key]
+                if find_entry(self.layer, bound[0].job) is None:
+                    out.append(bound[0])
+        return out
+
+
 def _die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker processes
     """Worker initializer: on Linux, end this worker when the generator process dies (a killed background
     generator must not leave orphan workers training on); ignore Ctrl-C, which the generator handles by
@@ -752,9 +776,18 @@ def generate(
     A job of a pinned kind (an evaluation, ``--kind evaluate``) is keyed by the shipped entries of its
     dependencies (the training run it evaluates), so a fresh clone finds it: it is computed against the shipped
     policy and skipped while that policy is not shipped, or while the local cache holds another version of it.
+    With training and pinned kinds together (``--kind train evaluate``), each pinned job runs in this process
+    as soon as the last run it loads is shipped (:class:`_Followers`), so an item's evaluations land with its
+    last training run.
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     kinds = tuple(check_choice(k, sorted(registry.KINDS), "job kind") for k in kinds)
+    pinned_kinds = tuple(k for k in kinds if registry.pinned(k))
+    if pinned_kinds and len(pinned_kinds) < len(kinds):  # training and evaluation in one command: they follow
+        kinds = tuple(k for k in kinds if k not in pinned_kinds)
+        followers = _Followers(plan(scale, figure_ids, pinned_kinds, algos=algos, seeds=seeds), layer, cache)
+    else:
+        followers = None
     pinned = any(registry.pinned(k) for k in kinds)
     cache = cache or RunCache(reference=layer if pinned else False)  # evaluations load the shipped policies
     planned = plan(scale, figure_ids, kinds, by_figure=figure_ids is not None, algos=algos, seeds=seeds)
@@ -783,14 +816,26 @@ def generate(
         ex = export(result, layer)
         wall = wall_seconds(result)
         note = "" if ex.bytes <= TARGET_BYTES else f" (over the {TARGET_BYTES / 1e6:.0f} MB target)"
-        line = f"[{i}/{len(todo)}] {p.job.kind} {p.job.label}: {wall:.0f} s, shipped {ex.megabytes:.2f} MB{note}"
+        tag = f"[{i}/{len(todo)}]" if i else "[follows]"
+        line = f"{tag} {p.job.kind} {p.job.label}: {wall:.0f} s, shipped {ex.megabytes:.2f} MB{note}"
         if commit:
             msg = f"reference run: {p.job.label} ({p.job.kind}, key {p.job.key}, {wall:.0f} s)"
             line += f", committed {git_commit(ex.path, msg)}"
         log(line + f" -> {_rel(ex.path)}")
         done.append(ex)
+        if followers is not None and not registry.pinned(p.job.kind):
+            follow(followers.ready(p.job.key))
+
+    def follow(ready: list[Planned]) -> None:
+        for q in ready:  # in this process, single-threaded (RunCache.compute), beside the pool's workers
+            land(0, q, followers.cache.run(q.job))
+
+    def follow_shipped() -> None:  # the evaluations of the runs shipped before this command
+        if followers is not None:
+            follow(followers.ready(None))
 
     if n_jobs <= 1 or len(todo) <= 1:
+        follow_shipped()
         for i, p in enumerate(todo, 1):
             state, used_by = cache.state(p.job), ", ".join(p.figures)
             log(f"[{i}/{len(todo)}] {p.job.kind} {p.job.label} ({p.cost:,.0f} steps; {state}) for {used_by}")
@@ -806,6 +851,7 @@ def generate(
                 futures: dict[Future, Planned] = {ex.submit(execute, p.job, str(cache.root), ref): p for p in todo}
             order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
             log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
+            follow_shipped()  # while the workers train
             pending, t0 = set(futures), time.time()
             try:
                 while pending:
