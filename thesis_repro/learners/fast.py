@@ -315,7 +315,7 @@ class _FusedAdamStep:
             for g in groups
         )
         self.ok = self.ok and all(p.dtype == th.float32 and p.device.type == "cpu" for g in groups for p in g["params"])
-        self._lists: list[tuple[dict, list, list, list, list]] | None = None
+        self._lists: list[tuple[dict, list, list, list, list, list | int]] | None = None
 
     def _ready(self) -> bool:
         state = self.optimizer.state
@@ -324,7 +324,8 @@ class _FusedAdamStep:
                 return False
             self._lists = [
                 (g, g["params"], [state[p]["exp_avg"] for p in g["params"]],
-                 [state[p]["exp_avg_sq"] for p in g["params"]], [state[p]["step"] for p in g["params"]])
+                 [state[p]["exp_avg_sq"] for p in g["params"]], [state[p]["step"] for p in g["params"]],
+                 _ones_like_steps([state[p]["step"] for p in g["params"]]))
                 for g in self.optimizer.param_groups
             ]  # fmt: skip
         return True
@@ -338,6 +339,21 @@ class _FusedAdamStep:
             and len(groups[0]["params"]) == len(params)
             and all(a is b for a, b in zip(groups[0]["params"], params, strict=True))
         )
+
+    def step_grads(self, grads: dict[int, th.Tensor]) -> bool:
+        """:meth:`step_with` for any number of parameter groups: ``grads`` maps ``id(p)`` to the gradient of
+        every parameter ``p`` of the optimiser (see :meth:`covers`). False (nothing done): as :meth:`step_with`."""
+        if not self._fast():
+            return False
+        for lists in self._lists:  # type: ignore[union-attr]
+            self._kernels(lists, [grads[id(p)] for p in lists[1]])
+        return True
+
+    def covers(self, params: list[nn.Parameter]) -> bool:
+        """True if the optimiser's parameters are exactly ``params`` (any order, any grouping): then a
+        gradient dict over ``params`` serves :meth:`step_grads`."""
+        mine = [id(p) for g in self.optimizer.param_groups for p in g["params"]]
+        return len(mine) == len(params) and set(mine) == {id(p) for p in params}
 
     def step_with(self, grads: list[th.Tensor]) -> bool:
         """``__call__``'s two kernels with ``grads`` (the gradients of :meth:`holds`' ``params``, in order) instead
@@ -364,16 +380,27 @@ class _FusedAdamStep:
         return self.ok and not opt._optimizer_step_pre_hooks and not opt._optimizer_step_post_hooks and self._ready()
 
     @staticmethod
-    def _kernels(lists: tuple[dict, list, list, list, list], grads: list[th.Tensor]) -> None:
+    def _kernels(lists: tuple[dict, list, list, list, list, list | int], grads: list[th.Tensor]) -> None:
         """One parameter group's Adam step: the step counters, then the fused update (``Adam.step``'s kernels)."""
-        g, params, exp_avgs, exp_avg_sqs, steps = lists
+        g, params, exp_avgs, exp_avg_sqs, steps, one = lists
         beta1, beta2 = g["betas"]
-        th._foreach_add_(steps, 1)
+        th._foreach_add_(steps, one)
         th._fused_adam_(
             params, grads, exp_avgs, exp_avg_sqs, [], steps, amsgrad=False, lr=g["lr"],
             beta1=beta1, beta2=beta2, weight_decay=g["weight_decay"], eps=g["eps"], maximize=g["maximize"],
             grad_scale=None, found_inf=None,
         )  # fmt: skip
+
+
+def _ones_like_steps(steps: list[th.Tensor]) -> list[th.Tensor] | int:
+    """What ``_foreach_add_(steps, ·)`` adds to Adam's step counters: ``Adam.step`` adds the Python scalar 1, which
+    ATen wraps and converts to each counter's dtype on every call (a tensor allocation + copy per counter). A
+    list of ready 0-dim ones of that dtype runs ``add_`` with the same converted value (``a + 1 * b`` with b = 1),
+    minus the conversions; with float32 counters (fused Adam) the counts are integers below 2**24, exact either
+    way. Anything but float32 CPU 0-dim counters: the scalar 1."""
+    if not steps or not all(s.dtype == th.float32 and s.device.type == "cpu" and s.dim() == 0 for s in steps):
+        return 1
+    return [th.ones((), dtype=th.float32)] * len(steps)
 
 
 _mse_mean = partial(th._C._nn.mse_loss, reduction=1)  # = F.mse_loss(a, b) for same-shape a, b (1: "mean")
@@ -666,6 +693,12 @@ class _Net:
         # the parameter tensors themselves (updated in place by the optimiser), not the modules
         self.layers = [(lin.weight, lin.bias, act) for lin, act in layers]
         self.params = [p for w, b, _ in self.layers for p in (w, b)]
+        # per layer (bias, the transposed VIEW weight.t(), activation): ATen's linear on a 2-D input with a bias IS
+        # addmm(bias, input, weight.t()); the view (same memory, strides and offset as a fresh .t()) is taken once
+        # per build (per train() call, and for the exploration cache), not per call, and sees the optimiser's
+        # in-place updates. Of the detached weight: outside autograd (the closed forms run without a graph), so a
+        # model holding it (the exploration cache) still deep-copies (storage shared with the weight's copy)
+        self._fwd = [(b, w.detach().t(), act) for w, b, act in self.layers]
 
     @staticmethod
     def of(seq: nn.Module) -> _Net | None:
@@ -685,9 +718,16 @@ class _Net:
     def forward(self, x: th.Tensor) -> list[th.Tensor]:
         """``[x, h1, ..., out]``: the input and every layer's (activated) output (``nn.Linear``'s kernel)."""
         hs = [x]
-        for w, b, act in self.layers:
-            z = F.linear(hs[-1], w, b)
-            hs.append(z if act is None else th.tanh(z) if act == "tanh" else th.relu(z))
+        if x.dim() != 2:
+            for w, b, act in self.layers:
+                z = F.linear(hs[-1], w, b)
+                hs.append(z if act is None else th.tanh(z) if act == "tanh" else th.relu(z))
+            return hs
+        addmm = th.addmm
+        for b, wt, act in self._fwd:
+            z = addmm(b, hs[-1], wt)
+            # in place on the fresh addmm output: relu_/tanh_ run relu's/tanh's kernel (clamp_min(0), tanh) on it
+            hs.append(z if act is None else z.relu_() if act == "relu" else z.tanh_())
         return hs
 
     def backward(self, g: th.Tensor, hs: list[th.Tensor], grads: dict | None, need_input: bool = False):
@@ -739,10 +779,21 @@ def _set_grads(params: list[nn.Parameter], grads: dict[int, th.Tensor]) -> None:
         p.grad = grads[id(p)]
 
 
-def _polyak(params: list[th.Tensor], targets: list[th.Tensor], tau: float) -> None:
-    """SB3's ``polyak_update`` in two foreach kernels: target <- (1 - tau) target + tau param."""
-    th._foreach_mul_(targets, 1 - tau)
+def _polyak(params: list[th.Tensor], targets: list[th.Tensor], tau: float, keep: list | None = None) -> None:
+    """SB3's ``polyak_update`` in two foreach kernels: target <- (1 - tau) target + tau param.
+
+    ``keep`` (from :func:`_polyak_factor`): the factor ``1 - tau`` as ready 0-dim tensors of the targets' dtype.
+    ``mul_`` by the Python scalar wraps it and converts it to that dtype per target on every call; by the
+    converted 0-dim tensor it runs the same kernel on the same two values, minus the conversions."""
+    th._foreach_mul_(targets, 1 - tau if keep is None else keep)
     th._foreach_add_(targets, params, alpha=tau)
+
+
+def _polyak_factor(targets: list[th.Tensor], tau: float) -> list[th.Tensor] | None:
+    """``keep`` for :func:`_polyak`: ``[tensor(1 - tau)] * n`` (CPU, 0-dim, the targets' one dtype) or None."""
+    if not targets or any(t.device.type != "cpu" or t.dtype != targets[0].dtype for t in targets):
+        return None
+    return [th.tensor(1 - tau, dtype=targets[0].dtype)] * len(targets)
 
 
 def _replay_sample(model: Any, batch_size: int) -> tuple[th.Tensor, ...]:
@@ -756,20 +807,79 @@ def _replay_sample(model: Any, batch_size: int) -> tuple[th.Tensor, ...]:
         return d.observations, d.actions, d.next_observations, d.dones, d.rewards, disc
     inds = np.random.randint(0, buf.buffer_size if buf.full else buf.pos, size=batch_size)
     envs = np.random.randint(0, high=buf.n_envs, size=(len(inds),))
-    obs, next_obs = buf.observations[inds, envs, :], buf.next_observations[inds, envs, :]
-    rewards = buf.rewards[inds, envs].reshape(-1, 1)
+    arrays = (buf.observations, buf.next_observations, buf.actions, buf.rewards, buf.dones, buf.timeouts)
+    if all(a.flags.c_contiguous for a in arrays):
+        # a[inds, envs] of a C-contiguous (buffer_size, n_envs, ...) array = rows inds * n_envs + envs of its
+        # (buffer_size * n_envs, ...) view: the same elements, copied by one take instead of advanced indexing
+        rows = inds * buf.n_envs + envs
+        picked = [a.reshape(a.shape[0] * a.shape[1], *a.shape[2:]).take(rows, axis=0) for a in arrays]
+    else:
+        picked = [a[inds, envs] for a in arrays]
+    obs, next_obs, actions, rewards, dones, timeouts = picked
+    rewards = rewards.reshape(-1, 1)
     if env is not None:
         if env.norm_obs:
             obs = env._normalize_obs(obs, env.obs_rms).astype(np.float32)
             next_obs = env._normalize_obs(next_obs, env.obs_rms).astype(np.float32)
         rewards = env.normalize_reward(rewards).astype(np.float32)
-    dones = (buf.dones[inds, envs] * (1 - buf.timeouts[inds, envs])).reshape(-1, 1)
-    arrays = (obs, buf.actions[inds, envs, :], next_obs, dones, rewards)
+    dones = (dones * (1 - timeouts)).reshape(-1, 1)
+    arrays = (obs, actions, next_obs, dones, rewards)
     return (*(th.from_numpy(np.ascontiguousarray(a)) for a in arrays), model.gamma)
+
+
+class _AdamSteps:
+    """``optimizer.step()`` after ``p.grad = grads[id(p)]`` for each of ``params`` (all of the optimiser's), per
+    call; with a fused Adam (:class:`_FusedAdamStep`) the gradients go to its kernels directly and the ``p.grad``
+    of the last step are set once, by :meth:`finish` (what the per-step assignments would have left)."""
+
+    def __init__(self, optimizer: th.optim.Optimizer, params: list[nn.Parameter]):
+        self.params = params
+        self.fused = _FusedAdamStep(optimizer)
+        self.direct = self.fused.ok and self.fused.covers(params)
+        self.pending: dict[int, th.Tensor] | None = None
+
+    def __call__(self, grads: dict[int, th.Tensor]) -> None:
+        if self.direct and self.fused.step_grads(grads):
+            self.pending = grads
+            return
+        _set_grads(self.params, grads)  # e.g. a fresh optimiser: Optimizer.step() initialises its state
+        self.pending = None
+        self.fused()
+
+    def finish(self) -> None:
+        if self.pending is not None:
+            _set_grads(self.params, self.pending)
+            self.pending = None
 
 
 def _mean(xs: list[th.Tensor]) -> float:
     return float(th.stack([x.reshape(()) for x in xs]).double().mean())
+
+
+class _Numbers:
+    """The Python-number operands of the closed-form SAC/DDPG updates as ready 0-dim tensors of one dtype.
+
+    ``t * 0.5`` (any binary op or comparison of a tensor with a Python number) wraps 0.5 in a 0-dim tensor that
+    ATen's TensorIterator converts to ``t``'s dtype (``static_cast``, round to nearest) before it runs the op's
+    kernel on the two values. ``t * n(0.5)`` hands the kernel that converted 0-dim tensor itself: the same
+    kernel, the same two values, minus the wrapping and the conversion (~1.3 µs per op). Use it only with
+    tensors of exactly ``dtype`` (with another dtype the promotion, hence the arithmetic, would differ)."""
+
+    def __init__(self, dtype: th.dtype):
+        self.dtype = dtype
+        self._made: dict[float, th.Tensor] = {}
+
+    def __call__(self, value: float) -> th.Tensor:
+        t = self._made.get(value)
+        if t is None:
+            t = self._made[value] = th.tensor(value, dtype=self.dtype)
+        return t
+
+    def of(self, value: Any, like: th.Tensor) -> Any:
+        """``self(value)`` if ``value`` is a Python number and ``like`` has this dtype, else ``value`` as is."""
+        if like.dtype != self.dtype or type(value) not in (int, float):
+            return value
+        return self(value)
 
 
 class _SACNets:
@@ -779,6 +889,11 @@ class _SACNets:
         self.latent, self.critic, self.target = latent, critic, target
         self.mu: nn.Linear = model.actor.mu
         self.log_std: nn.Linear = model.actor.log_std
+        self.mu_wt, self.log_std_wt = self.mu.weight.detach().t(), self.log_std.weight.detach().t()  # as _Net's
+        # the actor's arithmetic runs in its parameters' dtype (observations are cast by preprocess_obs = float())
+        n = self.num = _Numbers(self.mu.weight.dtype)
+        self.two, self.one, self.tiny, self.log_sqrt_2pi = n(2), n(1), n(1e-6), n(_LOG_SQRT_2PI)
+        self.ls_min, self.ls_max = n(-20), n(2)
         self.actor_params = list(model.actor.parameters())
         self.critic_params = list(model.critic.parameters())
         self.target_params = list(model.critic_target.parameters())
@@ -802,23 +917,26 @@ class _SACNets:
     def act(self, obs: th.Tensor) -> th.Tensor:
         """``actor(obs, deterministic=False)``: the squashed sample, same torch draw and formulas."""
         latent = self.latent.forward(obs)[-1]
-        mean = th.addmm(self.mu.bias, latent, self.mu.weight.t())
-        std = th.ones_like(mean) * th.clamp(th.addmm(self.log_std.bias, latent, self.log_std.weight.t()), -20, 2).exp()
+        mean = th.addmm(self.mu.bias, latent, self.mu_wt)
+        std = th.clamp(th.addmm(self.log_std.bias, latent, self.log_std_wt), -20, 2).exp_()  # see actor_forward
         return th.tanh(mean + th.empty(mean.shape, dtype=mean.dtype, device=mean.device).normal_() * std)
 
     def actor_forward(self, obs: th.Tensor) -> dict[str, Any]:
         """SB3's ``actor.action_log_prob(obs)``: same torch RNG draw, same formulas, plus a cache."""
         hs = self.latent.forward(obs)
         latent = hs[-1]
-        mean = th.addmm(self.mu.bias, latent, self.mu.weight.t())
-        raw_ls = th.addmm(self.log_std.bias, latent, self.log_std.weight.t())
-        std = th.ones_like(mean) * th.clamp(raw_ls, -20, 2).exp()  # SB3's LOG_STD_MIN, LOG_STD_MAX
+        mean = th.addmm(self.mu.bias, latent, self.mu_wt)
+        raw_ls = th.addmm(self.log_std.bias, latent, self.log_std_wt)
+        # SB3's LOG_STD_MIN, LOG_STD_MAX; SB3 (Normal's broadcast) multiplies by ones_like(mean): 1.0 * x == x in
+        # IEEE arithmetic, so the product is omitted; exp_ = exp's kernel, in place on clamp's fresh output
+        std = th.clamp(raw_ls, -20, 2).exp_()
         eps = th.empty(mean.shape, dtype=mean.dtype, device=mean.device).normal_()  # Normal.rsample's draw
         u = mean + eps * std
         a = th.tanh(u)
         diff, var = u - mean, std**2
-        log_prob = (-(diff**2) / (2 * var) - std.log() - _LOG_SQRT_2PI).sum(dim=1)
-        squash = th.rsub(a**2, 1) + 1e-6  # = 1 - a**2 + 1e-6
+        # the numbers as _Numbers: -(diff**2) / (2 * var) - std.log() - _LOG_SQRT_2PI, 1 - a**2 + 1e-6
+        log_prob = (-(diff**2) / (self.two * var) - std.log() - self.log_sqrt_2pi).sum(dim=1)
+        squash = th.rsub(a**2, self.one) + self.tiny
         log_prob = log_prob - th.sum(th.log(squash), dim=1)
         return dict(hs=hs, raw_ls=raw_ls, std=std, var=var, eps=eps, a=a, diff=diff, squash=squash, log_prob=log_prob)
 
@@ -826,13 +944,15 @@ class _SACNets:
         """dLoss/dactor-params from dLoss/daction (B, A) and dLoss/dlog_prob (B,) (reparameterised sample)."""
         a, diff, var, std = f["a"], f["diff"], f["var"], f["std"]
         gl = g_lp[:, None]
-        g_a = g_a + gl * (2 * a / f["squash"])  # from -sum log(1 - a^2 + eps)
-        g_u = g_a * th.rsub(a * a, 1)  # through tanh: (1 - a * a)
+        g_a = g_a + gl * (self.two * a / f["squash"])  # from -sum log(1 - a^2 + eps)
+        g_u = g_a * th.rsub(a * a, self.one)  # through tanh: (1 - a * a)
         dens_u = gl * (diff / var)  # the Gaussian density: d/du = -diff/var, d/dmean = +diff/var
-        g_mean = (g_u - dens_u) + dens_u
-        g_std = (g_u - dens_u) * f["eps"] + gl * (diff * diff / (var * std) - std.reciprocal() * 1)  # 1 / std
+        g_ud = g_u - dens_u  # one tensor for both uses (the same values)
+        g_mean = g_ud + dens_u
+        # d(-log std)/d std = -1/std: autograd's reciprocal() * 1, and x * 1 == x
+        g_std = g_ud * f["eps"] + gl * (diff * diff / (var * std) - std.reciprocal())
         raw = f["raw_ls"]
-        g_ls = g_std * std * ((raw >= -20) & (raw <= 2))
+        g_ls = g_std * std * ((raw >= self.ls_min) & (raw <= self.ls_max))  # clamp's gradient mask [-20, 2]
         latent = f["hs"][-1]
         grads = {
             id(self.mu.weight): g_mean.t().mm(latent),
@@ -849,7 +969,15 @@ class _LeanExploration:
     output, the same (un)scaling round trip and action noise, and the eval-mode switch only when needed.
     Warm-up (random actions), gSDE and anything unusual go through SB3's own code."""
 
-    _actor_cache: tuple[int, Any] | None = None
+    _actor_cache: tuple[int, Any] | None = None  # (id(policy), closed-form actor): rebuilt on demand, never saved
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_actor_cache"]  # type: ignore[misc]
+
+    def __getstate__(self) -> dict[str, Any]:  # copy.deepcopy / pickle: without the cache (views of the weights)
+        state = dict(self.__dict__)
+        state.pop("_actor_cache", None)
+        return state
 
     def _closed_form_actor(self) -> Any:
         raise NotImplementedError
@@ -911,7 +1039,14 @@ class FastSAC(_LeanExploration, SAC):
         self._update_learning_rate(optimizers)
         ent_coef_losses, ent_coefs, actor_losses, critic_losses = [], [], [], []
         n_obs = int(self.observation_space.shape[0])
-        actor_step, critic_step = _FusedAdamStep(self.actor.optimizer), _FusedAdamStep(self.critic.optimizer)
+        self._actor_cache = (id(self.policy), nets.act)  # exploration: the views of this build
+        actor_params, critic_params, target_params = nets.actor_params, nets.critic_params, nets.target_params
+        critic_nets, target_nets = nets.critic, nets.target
+        actor_step = _AdamSteps(self.actor.optimizer, actor_params)
+        critic_step = _AdamSteps(self.critic.optimizer, critic_params)
+        keep = _polyak_factor(target_params, self.tau)
+        auto_ent = self.ent_coef_optimizer is not None and self.log_ent_coef is not None
+        rsub, th_min, num = th.rsub, th.min, nets.num
         with th.no_grad():
             for gradient_step in range(gradient_steps):
                 obs, actions, next_obs, dones, rewards, discounts = _replay_sample(self, batch_size)
@@ -919,7 +1054,7 @@ class FastSAC(_LeanExploration, SAC):
                 b = len(obs)
                 f = nets.actor_forward(obs)
                 log_prob = f["log_prob"].reshape(-1, 1)
-                if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                if auto_ent:
                     ent_coef = th.exp(self.log_ent_coef)
                     shifted = log_prob + self.target_entropy
                     ent_coef_losses.append(-(self.log_ent_coef * shifted).mean())
@@ -929,32 +1064,35 @@ class FastSAC(_LeanExploration, SAC):
                     ent_coef = self.ent_coef_tensor
                 ent_coefs.append(ent_coef)
                 nf = nets.actor_forward(next_obs)
-                next_q, _ = _q_forward(nets.target, next_obs, nf["a"])
-                next_q, _ = th.min(next_q, dim=1, keepdim=True)
+                next_q, _ = _q_forward(target_nets, next_obs, nf["a"])
+                next_q, _ = th_min(next_q, dim=1, keepdim=True)
                 next_q = next_q - ent_coef * nf["log_prob"].reshape(-1, 1)
-                target_q = rewards + th.rsub(dones, 1) * discounts * next_q
+                # rewards + (1 - dones) * gamma * next_q (the numbers as _Numbers where the dtypes allow)
+                not_done = rsub(dones, num.of(1, dones))
+                target_q = rewards + not_done * num.of(discounts, not_done) * next_q
                 # critic: 0.5 * sum_k mean((q_k - y)^2)
-                q, caches = _q_forward(nets.critic, obs, actions)
-                critic_losses.append(0.5 * ((q - target_q) ** 2).mean(0).sum())
-                g_q = (q - target_q) * (1.0 / b)
+                q, caches = _q_forward(critic_nets, obs, actions)
+                td = q - target_q  # one tensor for the logged loss and the gradient (the same values)
+                critic_losses.append(num.of(0.5, td) * (td**2).mean(0).sum())
+                g_q = td * num.of(1.0 / b, td)
                 grads: dict[int, th.Tensor] = {}
-                for k, net in enumerate(nets.critic):
+                for k, net in enumerate(critic_nets):
                     net.backward(g_q[:, k : k + 1], caches[k], grads)
-                _set_grads(nets.critic_params, grads)
-                critic_step()
+                critic_step(grads)
                 # actor: mean(alpha * log_prob - min_k q_k(s, a~pi)) with the updated critic
-                q_pi, caches = _q_forward(nets.critic, obs, f["a"])
-                min_q, idx = th.min(q_pi, dim=1, keepdim=True)
+                q_pi, caches = _q_forward(critic_nets, obs, f["a"])
+                min_q, idx = th_min(q_pi, dim=1, keepdim=True)
                 actor_losses.append((ent_coef * log_prob - min_q).mean())
                 g_a = th.zeros_like(f["a"])
-                for k, net in enumerate(nets.critic):
-                    g_k = (idx == k).to(q_pi.dtype) * (-1.0 / b)
+                for k, net in enumerate(critic_nets):
+                    g_k = (idx == k).to(q_pi.dtype) * num.of(-1.0 / b, q_pi)
                     g_a = g_a + net.backward(g_k, caches[k], None, need_input=True)[:, n_obs:]
-                g_lp = (ent_coef * (1.0 / b)).expand(b)
-                _set_grads(nets.actor_params, nets.actor_grads(f, g_a, g_lp))
-                actor_step()
+                g_lp = (ent_coef * num.of(1.0 / b, ent_coef)).expand(b)
+                actor_step(nets.actor_grads(f, g_a, g_lp))
                 if gradient_step % self.target_update_interval == 0:
-                    _polyak(nets.critic_params, nets.target_params, self.tau)
+                    _polyak(critic_params, target_params, self.tau, keep)
+        critic_step.finish()
+        actor_step.finish()
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/ent_coef", _mean(ent_coefs))
@@ -999,7 +1137,11 @@ class FastDDPG(_LeanExploration, DDPG):
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
         actor_losses, critic_losses = [], []
         n_obs = int(self.observation_space.shape[0])
-        actor_step, critic_step = _FusedAdamStep(self.actor.optimizer), _FusedAdamStep(self.critic.optimizer)
+        self._actor_cache = (id(self.policy), lambda obs: actor.forward(obs)[-1])  # exploration: this build's views
+        actor_step = _AdamSteps(self.actor.optimizer, actor_params)
+        critic_step = _AdamSteps(self.critic.optimizer, critic_params)
+        keep_critic, keep_actor = _polyak_factor(critic_targets, self.tau), _polyak_factor(actor_targets, self.tau)
+        num = _Numbers(critic_params[0].dtype)
         with th.no_grad():
             for _ in range(gradient_steps):
                 self._n_updates += 1
@@ -1011,15 +1153,17 @@ class FastDDPG(_LeanExploration, DDPG):
                 next_actions = (actor_t.forward(next_obs)[-1] + noise).clamp(-1, 1)
                 next_q, _ = _q_forward(critic_t, next_obs, next_actions)
                 next_q, _ = th.min(next_q, dim=1, keepdim=True)
-                target_q = rewards + th.rsub(dones, 1) * discounts * next_q
+                # rewards + (1 - dones) * gamma * next_q (the numbers as _Numbers where the dtypes allow)
+                not_done = th.rsub(dones, num.of(1, dones))
+                target_q = rewards + not_done * num.of(discounts, not_done) * next_q
                 q, caches = _q_forward(critic, obs, actions)
-                critic_losses.append(((q - target_q) ** 2).mean(0).sum())  # sum_k mean((q_k - y)^2)
-                g_q = (q - target_q) * (2.0 / b)
+                td = q - target_q  # one tensor for the logged loss and the gradient (the same values)
+                critic_losses.append((td**2).mean(0).sum())  # sum_k mean((q_k - y)^2)
+                g_q = td * num.of(2.0 / b, td)
                 grads: dict[int, th.Tensor] = {}
                 for k, net in enumerate(critic):
                     net.backward(g_q[:, k : k + 1], caches[k], grads)
-                _set_grads(critic_params, grads)
-                critic_step()
+                critic_step(grads)
                 if self._n_updates % self.policy_delay == 0:
                     hs = actor.forward(obs)
                     q1_cache = critic[0].forward(th.cat([obs, hs[-1]], dim=1))
@@ -1027,10 +1171,11 @@ class FastDDPG(_LeanExploration, DDPG):
                     g_in = critic[0].backward(th.full_like(q1_cache[-1], -1.0 / b), q1_cache, None, need_input=True)
                     grads = {}
                     actor.backward(g_in[:, n_obs:], hs, grads)
-                    _set_grads(actor_params, grads)
-                    actor_step()
-                    _polyak(critic_params, critic_targets, self.tau)
-                    _polyak(actor_params, actor_targets, self.tau)
+                    actor_step(grads)
+                    _polyak(critic_params, critic_targets, self.tau, keep_critic)
+                    _polyak(actor_params, actor_targets, self.tau, keep_actor)
+        critic_step.finish()
+        actor_step.finish()
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         if actor_losses:
             self.logger.record("train/actor_loss", _mean(actor_losses))
