@@ -850,10 +850,10 @@ def generate(
             with _sigint_ignored():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
                 futures: dict[Future, Planned] = {ex.submit(execute, p.job, str(cache.root), ref): p for p in todo}
             order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
-            log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
-            follow_shipped()  # while the workers train
             pending, t0 = set(futures), time.time()
-            try:
+            try:  # from here on, Ctrl-C ends the workers (outside it, leaving the pool would wait for every run)
+                log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
+                follow_shipped()  # while the workers train
                 while pending:
                     finished, pending = wait(pending, timeout=heartbeat, return_when=FIRST_COMPLETED)
                     started = [futures[f].job for f in pending if f.running()]  # the pool queues one extra
