@@ -16,3 +16,15 @@ def _isolated_dirs(tmp_path_factory, monkeypatch):
     monkeypatch.delenv("THESIS_REPRO_RETRAIN", raising=False)
     # SB3's default logger makes an SB3-<timestamp> folder in the system temp dir per learn(); keep them in pytest's
     monkeypatch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3-log")))
+
+
+@pytest.fixture(autouse=True)
+def _default_sigint():
+    """Each test starts and ends with Python's own Ctrl-C handling. A test that leaves SIGINT ignored in this
+    process hands SIG_IGN to every subprocess started later (ignored signals survive exec), and the Ctrl-C tests
+    of tests/test_faults.py then wait in vain: in a full run SIGINT was found ignored after the tests before them."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, signal.default_int_handler)
