@@ -372,7 +372,7 @@ def _least_robust(data: Data, spec: Mapping[str, Any]) -> Groups:
             units.append(
                 Unit(
                     f"{env}/{test}",
-                    (Contrast("AUC percentile of the top-training variant", tuple(pct), sign=-1, ref=0.5),),
+                    (Contrast("AUC percentile of the top-training variant - 0.5", tuple(pct), sign=-1, ref=0.5),),
                 )
             )
     return {"": units}

@@ -129,6 +129,15 @@ class Contrast:
     ref: float = 0.0
     proportion: bool = False
 
+    def directed_label(self) -> str:
+        """The label of the quantity :meth:`estimate` reports: ``-(label)`` when the claim says smaller, so a
+        printed effect reads as what it is (> 0 supports the claim).
+
+        >>> Contrast("r across variants", (-0.8,), sign=-1).directed_label()
+        '-(r across variants)'
+        """
+        return self.label if self.sign > 0 else f"-({self.label})"
+
     def n(self) -> int:
         """Seeds of the smaller side."""
         na = _clean(self.a).size
@@ -223,7 +232,7 @@ class Unit:
             "outcome": self.outcome(level),
             "n_seeds": self.n(),
             "contrasts": [
-                {"label": c.label, "estimate": _r(e.est), "ci": [_r(e.lo), _r(e.hi)], "n": e.n}
+                {"label": c.directed_label(), "estimate": _r(e.est), "ci": [_r(e.lo), _r(e.hi)], "n": e.n}
                 for c in self.contrasts()
                 for e in [c.estimate(level)]
             ],
