@@ -63,9 +63,8 @@ for ax, (env, test) in zip(axes[0], panels, strict=True):
     sns.scatterplot(data=p, x="train_return", y="auc", hue="algo", s=70, ax=ax, legend=False)
     front = ch3.frontier(p)
     ax.plot(front.train_return, front.auc, "k--", lw=1)
-    for row in p.itertuples():
-        ax.annotate(row.algo, (row.train_return, row.auc), fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.set(title=f"{env} - {test} (reproduced, {SCALE})", xlabel="training return", ylabel="testing AUC")
+    plot.label_points(ax, p.train_return, p.auc, p.algo)  # no two labels overlap
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-3.3ab", dpi=120)
 

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import report
+from thesis_repro import paths, report
 from thesis_repro.claims import ledger as L
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import synthetic as S
@@ -144,6 +144,23 @@ def test_ledger_reads_saved_numbers_and_counts_claims_once(tmp_path, monkeypatch
     assert "Distinct claims of the thesis" in board and "Beyond the thesis" in board and "null pass rate" in board
     saved = json.loads((tmp_path / "small" / "figures" / "table-3.6.verdicts.json").read_text())
     assert len(saved["verdicts"]) == len(L.page_claims("table-3.6"))
+
+
+def test_a_page_in_its_staging_folder_reads_finished_pages(tmp_path, monkeypatch):
+    """A notebook runs with THESIS_REPRO_BUILD at its staging folder; a claim judged on Table 3.4 and repeated
+    on Fig 3.7 must still read Table 3.4's saved numbers (it printed 'no saved numbers of table-3.4')."""
+    claim = next(s for s in L.page_claims("fig-3.7") if s.page == "table-3.4")
+    f = S.frames(3, seed=2)
+    aucs = f["aucs"][f["aucs"]["method"].isin(["ppo", "trpo", "ddpg", "sac"])]
+    monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path / "build"))
+    L.judge_page("table-3.4", "small", {"aucs": aucs}, display=False)  # a finished page
+    published = L.judge(claim, "small", with_null=False).status
+    assert published != report.NOT_COMPUTED
+    monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path / "build" / ".staging-small-fig-3.7-1"))
+    assert L.judge(claim, "small", with_null=False).status == report.NOT_COMPUTED  # what the kernel saw before
+    monkeypatch.setenv(paths.PUBLISHED_ENV, str(tmp_path / "build"))
+    assert L.judge(claim, "small", with_null=False).status == published
+    assert len(report.load("table-3.4", "small")) == len(L.page_claims("table-3.4"))
 
 
 def test_claims_json_cli_is_fast_and_machine_readable(tmp_path):

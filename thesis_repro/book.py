@@ -303,6 +303,34 @@ def stage(root: Path) -> None:
         shutil.copytree(src, dst) if src.is_dir() else shutil.copy(src, dst)
 
 
+def execution_order(ids: list[str]) -> list[str]:
+    """``ids`` (notebook ids, book order) with each page moved after the pages whose saved numbers its claims
+    read (:func:`thesis_repro.claims.ledger.reads`), so a verdict repeated on Fig 3.4 from Table 3.4 is shown
+    there; pages outside ``ids`` are not added. Otherwise book order.
+
+    >>> execution_order(["3.3", "3.4", "table-3.4"])
+    ['3.3', 'table-3.4', '3.4']
+    """
+    from thesis_repro.claims import ledger
+
+    by_page = {notebooks.page_id(n): n for n in ids}
+    out: list[str] = []
+    seen: set[str] = set()
+
+    def visit(nid: str) -> None:
+        if nid in seen:
+            return
+        seen.add(nid)
+        for other in sorted(ledger.reads(notebooks.page_id(nid)), key=lambda p: ids.index(by_page.get(p, nid))):
+            if other in by_page:
+                visit(by_page[other])
+        out.append(nid)
+
+    for nid in ids:
+        visit(nid)
+    return out
+
+
 def _git_rev() -> str:
     try:
         out = subprocess.run(
@@ -334,7 +362,7 @@ def build(
     protocol.write_page(root)
     (root / "executed").mkdir()
     ran, kept, failed, pending = [], [], {}, {}
-    for nid in ids:
+    for nid in execution_order(ids):  # pages read by other pages' claims first; the TOC keeps book order
         total, todo = untrained(nid, scale) if shipped_only else (0, [])
         if todo:
             page_id = notebooks.page_id(nid)

@@ -442,7 +442,8 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     nb.cells.append(deps)
     staged = staged_out.with_suffix(".source.ipynb")
     jupytext.write(nb, staged)
-    manager = type("StagedKernelManager", (QuietKernelManager,), {"extra_env": {"THESIS_REPRO_BUILD": str(stage)}})
+    kernel_env = {"THESIS_REPRO_BUILD": str(stage), paths.PUBLISHED_ENV: str(build_root)}  # reads finished pages
+    manager = type("StagedKernelManager", (QuietKernelManager,), {"extra_env": kernel_env})
     t0 = time.time()
     try:
         try:

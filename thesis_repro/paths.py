@@ -65,6 +65,27 @@ def build(scale: str) -> Path:
     return Path(os.environ.get("THESIS_REPRO_BUILD", ROOT / "build")) / scale
 
 
+PUBLISHED_ENV = "THESIS_REPRO_PUBLISHED_BUILD"
+
+
+def published_figures(scale: str) -> Path:
+    """Figure folder of finished pages. Inside a notebook's kernel, :func:`build` is the notebook's staging folder
+    and ``THESIS_REPRO_PUBLISHED_BUILD`` names the build folder it will move to, so a page can read what other
+    pages saved (a claim judged on Table 3.4 and repeated on Fig 3.7); elsewhere the same as :func:`figures`."""
+    root = os.environ.get(PUBLISHED_ENV)
+    return Path(root) / scale / "figures" if root else figures(scale)
+
+
+def page_output(scale: str, name: str) -> Path:
+    """``figures(scale) / name`` if this run wrote it, else the finished pages' copy (:func:`published_figures`).
+
+    >>> page_output("smoke", "no-such-page.data.json") == published_figures("smoke") / "no-such-page.data.json"
+    True
+    """
+    own = figures(scale) / name
+    return own if own.exists() else published_figures(scale) / name
+
+
 def executed(scale: str) -> Path:
     """Folder of notebooks executed at ``scale``."""
     return build(scale) / "notebooks"

@@ -133,8 +133,9 @@ def report(figure: str, scale: str, verdicts: Sequence[Verdict], display: bool =
 
 
 def load(figure: str, scale: str) -> list[Verdict]:
-    """Verdicts saved by :func:`report` (empty if the figure was not run at ``scale``)."""
-    p = verdicts_path(figure, scale)
+    """Verdicts saved by :func:`report` (empty if the figure was not run at ``scale``); inside a notebook, also
+    those of finished pages (:func:`~thesis_repro.paths.page_output`)."""
+    p = paths.page_output(scale, verdicts_path(figure, scale).name)
     if not p.exists():
         return []
     return [Verdict(**v) for v in json.loads(p.read_text())["verdicts"]]

@@ -158,6 +158,23 @@ def page_claims(page: str) -> list[Spec]:
     return [s for s in specs() if s.page == page or page in s.pages]
 
 
+def reads(page: str) -> set[str]:
+    """Other pages whose saved numbers ``page``'s verdicts read (its repeated and derived claims' data pages,
+    its page-verdict claims' pages); run them first and the page shows those verdicts, not "not computed".
+
+    >>> "table-3.4" in reads("fig-3.7")
+    True
+    """
+
+    def of(s: Spec) -> set[str]:
+        r = s.rule
+        if r.get("derived"):
+            return set().union(*(of(spec(i)) for i in r["derived"]))
+        return {s.page} if "page_verdict" in r else set(s.data_pages)
+
+    return set().union(set(), *(of(s) for s in page_claims(page))) - {page}
+
+
 # ---------------------------------------------------------------- thresholds (from the thesis's own numbers)
 #: The thesis table(s) whose learners a page's thesis-tied threshold is counted on.
 THESIS_TABLES: dict[str, tuple[str, ...]] = {
@@ -229,6 +246,12 @@ def data_path(page: str, scale: str) -> Path:
     return paths.figures(scale) / f"{page}.data.json"
 
 
+def saved_path(page: str, scale: str) -> Path:
+    """Where :func:`load_page` reads ``page``'s numbers: its own :func:`data_path`, or inside another page's
+    notebook the finished page's (:func:`~thesis_repro.paths.page_output`)."""
+    return paths.page_output(scale, data_path(page, scale).name)
+
+
 def save_page(page: str, scale: str, frames: Mapping[str, pd.DataFrame], meta: Mapping[str, Any]) -> Path:
     """Write a page's per-seed frames (records) and meta (scale, seeds, budget note) atomically."""
     out = data_path(page, scale)
@@ -254,8 +277,9 @@ def _jsonable(x: Any) -> Any:
 
 
 def load_page(page: str, scale: str) -> dict[str, Any] | None:
-    """The saved blob of ``page`` (frames as DataFrames) or None."""
-    p = data_path(page, scale)
+    """The saved blob of ``page`` (frames as DataFrames) or None; inside a notebook, also a finished page's
+    (:func:`~thesis_repro.paths.page_output`)."""
+    p = saved_path(page, scale)
     if not p.exists():
         return None
     blob = json.loads(p.read_text())
@@ -468,10 +492,11 @@ def _sensitivity_dict(m: Any) -> dict[str, Any]:
 def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]]) -> float:
     """:func:`~thesis_repro.claims.stats.null_pass_rate` of a claim, cached per saved-data version."""
     key = f"{s.id}|" + "|".join(
-        str(data_path(p, scale).stat().st_mtime_ns) for p in s.data_pages if data_path(p, scale).exists()
+        str(saved_path(p, scale).stat().st_mtime_ns) for p in s.data_pages if saved_path(p, scale).exists()
     )
     store = paths.figures(scale) / "claims-null.json"
-    known = json.loads(store.read_text()) if store.exists() else {}
+    known_at = paths.page_output(scale, store.name)  # inside a notebook: start from the finished pages' cache
+    known = json.loads(known_at.read_text()) if known_at.exists() else {}
     if key not in known:
         known = {k: v for k, v in known.items() if not k.startswith(f"{s.id}|")}
         known[key] = null_pass_rate(run, {g: rule_for(s, g)[0] for g in run}, NULL_DRAWS)

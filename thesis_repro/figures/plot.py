@@ -15,6 +15,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import seaborn as sns
+from matplotlib.transforms import Bbox
 
 from thesis_repro import paths
 from thesis_repro.evaluation import tables
@@ -26,6 +27,60 @@ def save(fig: plt.Figure, scale: str, name: str, dpi: int = 100) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi)
     print("saved", out)
+
+
+#: Label offsets tried in turn (points; right/above first), each with its horizontal and vertical alignment.
+_LABEL_SPOTS = (
+    ((3, 3), "left", "bottom"),
+    ((3, -3), "left", "top"),
+    ((-3, 3), "right", "bottom"),
+    ((-3, -3), "right", "top"),
+    ((0, 6), "center", "bottom"),
+    ((0, -6), "center", "top"),
+    ((3, 12), "left", "bottom"),
+    ((3, -12), "left", "top"),
+    ((-3, 12), "right", "bottom"),
+    ((-3, -12), "right", "top"),
+)
+
+
+def label_points(ax: plt.Axes, xs: Sequence[float], ys: Sequence[float], labels: Sequence[str], **kw: Any) -> list:
+    """Label each point next to it, at the first of a few offsets whose text box overlaps no label placed
+    before and no other point's marker (the first offset if none is free); kwargs go to ``ax.annotate``.
+    Returns the annotations.
+
+    >>> fig, ax = plt.subplots()
+    >>> notes = label_points(ax, [1.0, 1.0], [1.0, 1.0], ["ppo-ent", "trpo"])    # the same spot
+    >>> a, b = (n.get_window_extent(fig.canvas.get_renderer()) for n in notes)
+    >>> bool(a.overlaps(b))
+    False
+    >>> plt.close(fig)
+    """
+    kw.setdefault("fontsize", 7)
+    fig = ax.figure
+    renderer = fig.canvas.get_renderer()
+    placed: list[Any] = []
+    notes = []
+    xy = ax.transData.transform(np.column_stack([np.asarray(xs, float), np.asarray(ys, float)]))
+    r = 4 * fig.dpi / 72  # a default scatter marker's radius, in pixels
+    markers = [Bbox.from_extents(px - r, py - r, px + r, py + r) for px, py in xy]
+    for i, (x, y, text) in enumerate(zip(xs, ys, labels, strict=True)):
+        others = placed + markers[:i] + markers[i + 1 :]
+        note = None
+        for offset, ha, va in _LABEL_SPOTS:
+            if note is not None:
+                note.remove()
+            note = ax.annotate(text, (x, y), xytext=offset, textcoords="offset points", ha=ha, va=va, **kw)
+            box = note.get_window_extent(renderer)
+            if not any(box.overlaps(b) for b in others):
+                break
+        else:
+            note.remove()
+            note = ax.annotate(text, (x, y), xytext=(3, 3), textcoords="offset points", **kw)
+            box = note.get_window_extent(renderer)
+        placed.append(box)
+        notes.append(note)
+    return notes
 
 
 def heat_matrix(heat: pd.DataFrame, value: str = "return") -> pd.DataFrame:
