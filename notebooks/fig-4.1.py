@@ -53,8 +53,10 @@ plot.save(fig, SCALE, "fig-4.1")
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?
-# Mean training return over the last third of the iterations, per condition (reproduced).
+# Mean training return over the last third of the iterations, per condition (reproduced): per training seed the
+# mean over its late iterations, then mean ± half-width of the 95 % CI across training seeds (note under the table).
 
 # %%
-print(ch4.late_returns(curves))
+late = ch4.late_returns_ci(curves)
+print(late, late.attrs["note"], sep="\n")
 _ = claims.judge_page("fig-4.1", SCALE, {"curves": curves}, pages.claim_meta("4.1", settings))

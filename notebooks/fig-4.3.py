@@ -58,8 +58,10 @@ plot.save(fig, SCALE, "fig-4.3")
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?
-# Mean testing return over the whole wind grid, per condition (reproduced).
+# Mean testing return over the whole wind grid, per condition (reproduced): per training seed the mean over the
+# grid and its rollouts, then mean ± half-width of the 95 % CI across training seeds (note under the table).
 
 # %%
-print(ch4.compare(wind, "return"))
+table = ch4.compare_ci(wind, "return")
+print(table, table.attrs["note"], sep="\n")
 _ = claims.judge_page("fig-4.3", SCALE, {"wind": wind}, pages.claim_meta("4.3", settings))

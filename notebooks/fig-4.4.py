@@ -21,7 +21,8 @@
 #
 # (a) Lines: the mean over training seeds of each seed's mean testing return over its rollouts; band: the 95 %
 # confidence interval of that mean across training seeds (t-interval, n = seeds; none with one seed), as the figure
-# title says.
+# title says. (b) Cells: the mean over training seeds of each seed's mean testing return over its rollouts; the
+# figure title says over how many seeds (no interval in the cells: see the table below).
 
 # %% tags=["parameters"]
 SCALE = "small"
@@ -54,15 +55,22 @@ vmin, vmax = heat["return"].min(), heat["return"].max()
 for i, algo in enumerate(algos):
     sub = heat[heat["algo"] == algo]
     plot.heatmap(axes[1 + i], sub, f"(b) {algo} (reproduced)", vmin=vmin, vmax=vmax, cbar=(i == len(algos) - 1))
-fig.suptitle(f"Fig 4.4 reproduced — {settings['env']}, scale={SCALE}\n(a) {plot.seed_band(wind, ['algo', 'value'])}")
+band, cells = plot.seed_band(wind, ["algo", "value"]), plot.seed_cells(heat, ["algo", "mass", "friction"])
+fig.suptitle(f"Fig 4.4 reproduced — {settings['env']}, scale={SCALE}\n(a) {band}\n(b) {cells}")
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-4.4")
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?
 # (a) mean testing return over the wind grid; (b) mean over the off-centre cells (all but mass = friction = 1).
+# Per training seed the mean over the grid and its rollouts, then mean ± half-width of the 95 % CI across training
+# seeds (note under each table).
 
 # %%
+wind_table = ch4.compare_ci(wind, "return")
+print("(a) wind", wind_table, wind_table.attrs["note"], sep="\n", end="\n\n")
+heat_table = ch4.compare_ci(ch4.off_centre(heat), "return")
+print("(b) off-centre", heat_table, heat_table.attrs["note"], sep="\n")
 _ = claims.judge_page(
     "fig-4.4",
     SCALE,

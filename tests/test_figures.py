@@ -116,6 +116,96 @@ def test_compare_marks_the_best_algorithm_per_panel():
     assert table.loc["a", "kl_avg"] == 95.0
 
 
+def _seeded(seed_means: dict[str, list[float]], spread: float = 10.0, rollouts: int = 4) -> pd.DataFrame:
+    """Per algo and seed, ``rollouts`` rows around the seed's mean (symmetric, so the seed's mean is exact)."""
+    offsets = np.linspace(-spread, spread, rollouts)
+    return pd.DataFrame(
+        [
+            {"panel": "a", "algo": a, "seed": s, "rollout": r, "return": m + offsets[r]}
+            for a, means in seed_means.items()
+            for s, m in enumerate(means)
+            for r in range(rollouts)
+        ]
+    )
+
+
+def test_compare_ci_is_a_t_interval_over_per_seed_means():
+    from scipy import stats
+
+    means = {"kl_avg": [700.0, 820.0, 905.0], "joint": [400.0, 455.0, 610.0]}
+    frame = _seeded(means, spread=300.0)  # large rollout spread: must not enter the interval
+    num = ch4.seed_table(frame, "return").set_index("algo")
+    for algo, v in means.items():
+        m = np.mean(v)
+        half = stats.t.ppf(0.975, len(v) - 1) * np.std(v, ddof=1) / np.sqrt(len(v))
+        assert num.loc[algo, "mean"] == pytest.approx(m)
+        assert num.loc[algo, "half_width"] == pytest.approx(half)
+        assert num.loc[algo, "n_seeds"] == 3
+    table = ch4.compare_ci(frame, "return")
+    m, half = np.mean(means["kl_avg"]), stats.t.ppf(0.975, 2) * stats.sem(means["kl_avg"])
+    assert table.loc["a", "kl_avg"] == f"{m:.1f} ± {half:.1f}"
+    assert list(table.columns) == ["kl_avg", "joint", "best"] and table.loc["a", "best"] == "kl_avg"
+    assert "95 % CI of the mean across 3 training seeds" in table.attrs["note"]
+    ordered = ch4.compare_ci(frame, "return", algos=["joint", "params_avg", "kl_avg"])  # params_avg not run
+    assert list(ordered.columns) == ["joint", "kl_avg", "best"] and ordered.loc["a", "joint"] == table.loc["a", "joint"]
+
+
+def test_compare_ci_averages_rollouts_within_a_seed_first():
+    frame = _seeded({"kl_avg": [500.0, 500.0, 500.0]}, spread=200.0)  # rollouts differ, seed means equal
+    num = ch4.seed_table(frame, "return")
+    assert num["half_width"].item() == 0.0 and num["mean"].item() == 500.0
+    assert ch4.compare_ci(frame, "return").loc["a", "kl_avg"] == "500.0 ± 0.0"
+    # unequal rollouts per seed: the mean is over seed means, not over all rows
+    uneven = pd.concat([frame[frame["seed"] == 0].head(1), frame[frame["seed"] > 0]])
+    uneven.loc[uneven.index[0], "return"] = 800.0
+    assert ch4.seed_table(uneven, "return")["mean"].item() == pytest.approx((800.0 + 500.0 + 500.0) / 3)
+
+
+def test_compare_ci_with_one_seed_gives_no_interval():
+    frame = _seeded({"kl_avg": [700.0], "joint": [650.0]})
+    num = ch4.seed_table(frame, "return")
+    assert num["half_width"].isna().all() and (num["n_seeds"] == 1).all()
+    table = ch4.compare_ci(frame, "return")
+    assert table.loc["a"].tolist() == ["700.0", "650.0", "kl_avg"]
+    assert table.attrs["note"] == "1 training seed: no confidence interval"
+    # seeds differing between cells: each cell says how many
+    mixed = ch4.compare_ci(_seeded({"kl_avg": [700.0, 720.0, 710.0]}).pipe(lambda f: pd.concat([f, frame])), "return")
+    assert mixed.loc["a", "joint"] == "650.0 (1)" and mixed.loc["a", "kl_avg"].endswith("(3)")
+    assert "1-3 training seeds" in mixed.attrs["note"]
+
+
+def test_compare_ci_means_match_compare_with_equal_rollouts():
+    frame = pd.concat(
+        [_seeded({"kl_avg": [700.0, 820.0], "joint": [400.0, 900.0]}).assign(panel=p) for p in "ab"],
+        ignore_index=True,
+    )
+    frame.loc[frame["panel"] == "b", "return"] *= 2
+    num = ch4.compare(frame, "return")
+    table = ch4.compare_ci(frame, "return")
+    for p in "ab":
+        for algo in ("kl_avg", "joint"):
+            assert table.loc[p, algo].startswith(f"{num.loc[p, algo]:.1f} ± ")
+        assert table.loc[p, "best"] == num.loc[p, "best"]
+
+
+def test_per_seed_noise_aucs_average_to_the_seed_mean_auc():
+    noise = pd.DataFrame(
+        {
+            "noise": "obs",
+            "panel": "a",
+            "algo": "kl_avg",
+            "seed": [0, 0, 0, 1, 1, 1],
+            "value": [0.0, 0.5, 1.0] * 2,
+            "return": [10.0, 6.0, 2.0, 14.0, 8.0, 6.0],
+        }
+    )
+    per = ch4.noise_aucs(noise, per_seed=True)
+    assert per["auc"].tolist() == pytest.approx([0.5 * (10 + 6 + 2), 0.5 * (14 + 8 + 6)])
+    assert per["auc"].mean() == pytest.approx(ch4.noise_aucs(noise)["auc"].item())
+    table = ch4.compare_ci(per, "auc", by=("noise", "panel"))
+    assert table.loc[("obs", "a"), "kl_avg"] == "11.5 ± 31.8"  # seeds 9, 14: t(0.975, 1) * 2.5
+
+
 def test_noise_aucs_follow_eq_3_6():
     noise = pd.DataFrame(
         {"noise": "obs", "panel": "a", "algo": "kl_avg", "value": [0.0, 0.5, 1.0], "return": [10.0, 6.0, 2.0]}

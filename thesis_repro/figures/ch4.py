@@ -27,6 +27,7 @@ from thesis_repro import reference
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job
 from thesis_repro.envs import make_env
+from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import register
 from thesis_repro.learners import iteration_steps, load_policy, train_config
@@ -247,10 +248,103 @@ def compare(frame: pd.DataFrame, value: str, by: Sequence[str] = ("panel",), our
     return table
 
 
+def seed_table(
+    frame: pd.DataFrame,
+    value: str,
+    by: Sequence[str] = ("panel",),
+    seed: str = "seed",
+    level: float = tables.CI_LEVEL,
+) -> pd.DataFrame:
+    """Per (by..., algo): the mean of ``value`` across training seeds and its ``level`` t-interval half-width.
+
+    Each seed's rows (rollouts, grid cells, iterations) are averaged first, so the training seed is the unit
+    of replication (:func:`~thesis_repro.evaluation.tables.seed_ci`); rows with a NaN ``value`` are ignored.
+    Columns ``by + (algo, mean, half_width, n_seeds)``; one seed: ``half_width`` NaN (no interval).
+
+    >>> f = pd.DataFrame({"panel": "a", "algo": "kl_avg", "seed": [0, 0, 1, 1, 2, 2],
+    ...                   "return": [690.0, 710.0, 780.0, 820.0, 900.0, 900.0]})   # seed means 700, 800, 900
+    >>> seed_table(f, "return").round(1).values.tolist()     # t(0.975, 2) * 100 / sqrt(3) = 248.4
+    [['a', 'kl_avg', 800.0, 248.4, 3]]
+    """
+    keys = [*by, "algo"]
+    ci = tables.seed_ci(frame.dropna(subset=[value]), value, keys, seed, level)
+    half = (ci["ci_hi"] - ci["ci_lo"]) / 2
+    return ci.assign(mean=ci["seed_mean"], half_width=half)[[*keys, "mean", "half_width", "n_seeds"]]
+
+
+def _pm(mean: float, half: float, n_seeds: int, show_n: bool) -> str:
+    """``"mean ± half"`` (one decimal, as Chapter 3's tables), ``"mean"`` without an interval, ``""`` if NaN;
+    ``show_n`` appends ``" (n_seeds)"``."""
+    if not np.isfinite(mean):
+        return ""
+    text = f"{mean:.1f} ± {half:.1f}" if np.isfinite(half) else f"{mean:.1f}"
+    return f"{text} ({int(n_seeds)})" if show_n else text
+
+
+def compare_ci(
+    frame: pd.DataFrame,
+    value: str,
+    by: Sequence[str] = ("panel",),
+    seed: str = "seed",
+    level: float = tables.CI_LEVEL,
+    algos: Sequence[str] | None = None,
+) -> pd.DataFrame:
+    """:func:`compare` across training seeds, for display: per (by..., algo) ``"mean ± half-width"`` of the
+    ``level`` t-interval over per-seed means (:func:`seed_table`), and the ``best`` algorithm by that mean.
+
+    Rows (``by``) keep their order of first appearance, algorithm columns too unless ``algos`` orders them
+    (e.g. :func:`algo_names`; algorithms not in the frame are left out). One seed: ``"mean"`` only;
+    seeds differing between cells: each cell ends with ``" (n seeds)"``. ``attrs["note"]`` says what the
+    intervals are (:func:`~thesis_repro.evaluation.tables.ci_label`); print it under the table.
+
+    >>> f = pd.DataFrame({"panel": "a", "algo": ["kl_avg"] * 6 + ["joint"] * 6, "seed": [0, 0, 1, 1, 2, 2] * 2,
+    ...                   "return": [690.0, 710.0, 780.0, 820.0, 900.0, 900.0, *[500.0] * 6]})
+    >>> t = compare_ci(f, "return")
+    >>> t.loc["a"].tolist()
+    ['800.0 ± 248.4', '500.0 ± 0.0', 'kl_avg']
+    >>> t.attrs["note"]
+    'mean ± half-width of the 95 % CI of the mean across 3 training seeds (t-interval over per-seed means)'
+    >>> one = compare_ci(f[f.seed == 0], "return")
+    >>> one.loc["a"].tolist(), one.attrs["note"]
+    (['700.0', '500.0', 'kl_avg'], '1 training seed: no confidence interval')
+    """
+    cells = seed_table(frame, value, by, seed, level)
+    n = cells["n_seeds"]
+    mixed = len(n) > 0 and n.min() != n.max()
+    text = cells.assign(
+        cell=[_pm(m, h, k, mixed) for m, h, k in cells[["mean", "half_width", "n_seeds"]].itertuples(index=False)]
+    )
+    index = list(by) or ["all"]  # no grouping: one row "all"
+    text, cells = (f.assign(all="all") if not by else f for f in (text, cells))
+    present = list(dict.fromkeys(cells["algo"]))
+    algos = present if algos is None else [a for a in algos if a in present]
+    table = text.pivot_table(index=index, columns="algo", values="cell", aggfunc="first", sort=False)
+    table = table.reindex(columns=algos).fillna("")
+    table.columns.name = None
+    if not by:
+        table.index.name = None
+    means = cells.pivot_table(index=index, columns="algo", values="mean", sort=False)
+    table["best"] = means.reindex(index=table.index, columns=algos).idxmax(axis=1)
+    label = tables.ci_label(n) if len(n) else "no runs"
+    table.attrs["note"] = f"mean ± half-width of the {label}" if len(n) and n.max() > 1 else label
+    return table
+
+
+def late(curves: pd.DataFrame) -> pd.DataFrame:
+    """Fig 4.1: the rows of the last third of the iterations (iteration > n - max(1, n // 3))."""
+    n_it = int(curves["iteration"].max())
+    return curves[curves["iteration"] > n_it - max(1, n_it // 3)]
+
+
 def late_returns(curves: pd.DataFrame) -> pd.DataFrame:
     """Fig 4.1: mean training return over the last third of the iterations, per panel and algorithm."""
-    n_it = int(curves["iteration"].max())
-    return compare(curves[curves["iteration"] > n_it - max(1, n_it // 3)], "return")
+    return compare(late(curves), "return")
+
+
+def late_returns_ci(curves: pd.DataFrame) -> pd.DataFrame:
+    """Fig 4.1: :func:`late_returns` across training seeds (:func:`compare_ci`): per seed the mean return over
+    its last third of the iterations, then mean ± 95 % CI over seeds."""
+    return compare_ci(late(curves), "return")
 
 
 def off_centre(heat: pd.DataFrame) -> pd.DataFrame:
@@ -258,17 +352,20 @@ def off_centre(heat: pd.DataFrame) -> pd.DataFrame:
     return heat[~(np.isclose(heat["mass"], 1.0) & np.isclose(heat["friction"], 1.0))]
 
 
-def noise_aucs(noise: pd.DataFrame) -> pd.DataFrame:
-    """Fig 4.6: AUC (Eq 3.6) of the seed-mean return over σ, per noise type, panel and algorithm."""
-    curve = noise.groupby(["noise", "panel", "algo", "value"])["return"].mean().reset_index()
+def noise_aucs(noise: pd.DataFrame, per_seed: bool = False) -> pd.DataFrame:
+    """Fig 4.6: AUC (Eq 3.6) of the seed-mean return over σ, per noise type, panel and algorithm.
+
+    ``per_seed``: the AUC of each training seed's own curve instead (a ``seed`` column; the input for
+    :func:`compare_ci`, ``by=("noise", "panel")``).
+    """
+    keys = ["noise", "panel", "algo", *(["seed"] if per_seed else [])]
+    curve = noise.groupby([*keys, "value"])["return"].mean().reset_index()
     rows = []
-    for (kind, panel, algo), g in curve.groupby(["noise", "panel", "algo"]):
+    for key, g in curve.groupby(keys):
         g = g.sort_values("value")
         rows.append(
             {
-                "noise": kind,
-                "panel": panel,
-                "algo": algo,
+                **dict(zip(keys, key, strict=True)),
                 "auc": float(auc(g["return"].to_numpy(), g["value"].tolist())),
             }
         )

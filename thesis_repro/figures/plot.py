@@ -110,6 +110,24 @@ def seed_band(data: pd.DataFrame, keys: Sequence[str], seed: str = "seed") -> st
     return f"band: {tables.ci_label(n)}" if len(n) and n.max() > 1 else "no band: 1 training seed"
 
 
+def seed_cells(data: pd.DataFrame, keys: Sequence[str], seed: str = "seed") -> str:
+    """What each cell of a heat map over per-seed rows is, for its title: the mean across how many training seeds
+    (each seed's row already its mean over testing rollouts); ``keys``: the columns of a cell, e.g. panel, algo,
+    mass, friction. A range if cells differ.
+
+    >>> d = pd.DataFrame({"algo": "a", "mass": 1.0, "seed": [0, 1, 2], "return": [1.0, 2, 3]})
+    >>> seed_cells(d, ["algo", "mass"])
+    'cells: mean across 3 training seeds (no interval shown)'
+    >>> seed_cells(d[d.seed == 0], ["algo", "mass"])
+    'cells: 1 training seed'
+    """
+    n = data.groupby(list(keys))[seed].nunique()
+    if not len(n) or n.max() < 2:
+        return "cells: 1 training seed"
+    seeds = f"{n.max()}" if n.min() == n.max() else f"{n.min()}-{n.max()}"
+    return f"cells: mean across {seeds} training seeds (no interval shown)"
+
+
 def lines_by_panel(
     data: pd.DataFrame,
     conds: Sequence[Mapping[str, Any]],
