@@ -78,8 +78,9 @@ def under_protocol(protocol: str) -> Iterator[None]:
 
 def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]:
     """Resolved settings of ``figure`` at ``scale``: scale defaults, then the figure's block, then its training
-    protocol's ``protocol_overrides``, then ``overrides`` (the caller's word is last; ``THESIS_REPRO_PROTOCOL``
-    still picks the protocol).
+    protocol's ``protocol_overrides``, then the block's own ``protocol_overrides`` for that protocol (an item
+    ahead of the others, e.g. ``{thesis: {train_seeds: 3}}`` once its seeds 1-2 are shipped), then
+    ``overrides`` (the caller's word is last; ``THESIS_REPRO_PROTOCOL`` still picks the protocol).
 
     Overrides may only name keys that already exist (a typo is an error, not a silent new key).
     The result also carries ``figure`` and ``scale``.
@@ -93,6 +94,7 @@ def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]
         raise ValueError(f"scales.yaml: figure {figure!r} has no block for scale(s) {missing}")
     settings: dict[str, Any] = copy.deepcopy(table["defaults"][scale])
     settings.update(copy.deepcopy(entry[scale] or {}))
+    own_overrides = settings.pop("protocol_overrides", None) or {}
     for key in overrides:
         check_choice(key, list(settings), f"setting of figure {figure}")
     if "protocol" in overrides:
@@ -105,6 +107,9 @@ def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]
     for key, value in (protocol_overrides.get(scale) or {}).items():
         if key in settings:
             settings[key] = copy.deepcopy(value)
+    for key, value in (own_overrides.get(settings.get("protocol")) or {}).items():
+        check_choice(key, list(settings), f"protocol_overrides setting of figure {figure}")
+        settings[key] = copy.deepcopy(value)
     for key, value in overrides.items():
         if key != "protocol":
             settings[key] = value
