@@ -64,7 +64,7 @@ test: $(STAMP) $(RAY_STAMP)
 ## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [PROTOCOL=thesis] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] :
 ## train every figure's training runs (cheapest first, resumable: re-run after an interruption) and ship them in
 ## data/reference; COMMIT=1 commits each as it lands; PROTOCOL overrides the scale's training protocol; several
-## SEEDS are produced seed by seed in the order given; KINDS="train evaluate" also ships each evaluation as soon
+## SEEDS: the first one of every figure, then the others figure by figure; KINDS="train evaluate" also ships each evaluation as soon
 ## as the run it loads has landed
 reference-runs: $(STAMP)
 	nice -n 10 $(BIN)/python -m thesis_repro reference-runs --scale $(SCALE) $(if $(FIGURES),--figures $(FIGURES)) \

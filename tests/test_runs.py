@@ -114,9 +114,9 @@ def test_plan_dedupes_and_orders_by_cost(fake_figures):
         runs.generate("smoke", kinds=["trian"], log=str)
 
 
-def test_plan_of_several_seeds_completes_seed_by_seed(monkeypatch):
+def test_plan_of_several_seeds_completes_seed_0_then_item_by_item(monkeypatch):
     """`reference-runs --seeds 0 1 2`: seed 0 of every figure first (each figure in the order given, cheapest
-    first), then seed 1, ...; the seeds' order is the caller's."""
+    first), then seeds 1 and 2 figure by figure; the seeds' order is the caller's."""
     monkeypatch.setattr(figures, "FIGURES", {})
     monkeypatch.setattr(figures, "TRAINING_KINDS", ("toy-train",))
     grids = {
@@ -127,7 +127,7 @@ def test_plan_of_several_seeds_completes_seed_by_seed(monkeypatch):
         figures.register(fid, f"toy figure {fid}", kinds=["toy-train"], settings_id="_example")(grid)
     order = runs.plan("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True, seeds=[0, 1, 2])
     labels = [f"{p.job.config['algorithm']}{p.job.config['seed']}" for p in order]
-    assert labels == ["a0", "c0", "b0", "a1", "c1", "b1", "a2", "c2", "b2"]
+    assert labels == ["a0", "c0", "b0", "a1", "c1", "a2", "c2", "b1", "b2"]
     order = runs.plan("smoke", kinds=["toy-train"], seeds=[2, 0])
     assert [f"{p.job.config['algorithm']}{p.job.config['seed']}" for p in order] == ["a2", "b2", "c2", "a0", "b0", "c0"]
 

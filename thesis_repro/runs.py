@@ -603,8 +603,10 @@ def plan(
     """The jobs of ``kinds`` of every figure (or ``figure_ids``) at ``scale``, deduplicated by key, cheapest
     first; with ``by_figure``, the first figure's jobs first (each figure's cheapest first), so that the
     figures finish in the order given; with ``algos`` / ``seeds``, only the jobs of those learners / seeds.
-    Several ``seeds`` are produced seed by seed in the order given (``--seeds 0 1 2``: seed 0 of every figure
-    first, then seed 1, ...), so one resumable command completes whole seeds first."""
+    Several ``seeds``: the first seed given of every figure first, then the other seeds figure by figure, each
+    figure's in the order given (``--seeds 0 1 2``: seed 0 everywhere; then seeds 1 and 2 of the first figure,
+    of the second, ...), so one resumable command completes seed 0, then one item's full seed count after
+    another (an item can show its 3 seeds without waiting for every other item's seed 1)."""
     kinds = set(kinds)
     keep = None if algos is None else set(algos)
     seed_rank = None if seeds is None else {int(s): i for i, s in reversed(list(enumerate(seeds)))}
@@ -620,10 +622,11 @@ def plan(
                 out.setdefault(job.key, Planned(job)).figures.append(notebook_id)
                 rank.setdefault(job.key, i if by_figure else 0)
 
-    def first(p: Planned) -> int:
-        return 0 if seed_rank is None else seed_rank.get(job_seed(p.job), len(seed_rank))  # type: ignore[arg-type]
+    def order(p: Planned) -> tuple[Any, ...]:
+        r = 0 if seed_rank is None else seed_rank.get(job_seed(p.job), len(seed_rank))  # type: ignore[arg-type]
+        return (min(r, 1), rank[p.job.key], r, p.cost, p.job.kind, p.job.label, p.job.key)
 
-    return sorted(out.values(), key=lambda p: (first(p), rank[p.job.key], p.cost, p.job.kind, p.job.label, p.job.key))
+    return sorted(out.values(), key=order)
 
 
 def _bind_to_layer(planned: list[Planned], layer: Path, cache: RunCache, log: Callable[[str], None]) -> list[Planned]:
