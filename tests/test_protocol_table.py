@@ -99,3 +99,20 @@ def test_page_renders_every_row_and_joins_the_book_contents(tmp_path):
     protocol.write_page(tmp_path)
     toc = yaml.safe_load(book.write_toc([], tmp_path).read_text())
     assert toc["chapters"][-1] == {"file": "protocol"}
+
+
+def test_the_page_names_each_item_s_protocol_at_small():
+    """The protocol page lists every chapter 3-4 item once, under the protocol scales.yaml gives it."""
+    from thesis_repro import scales
+
+    listed = protocol.protocols_at("small")
+    items = [i.split(" (")[0] for figs in listed.values() for i in figs]
+    assert len(items) == len(set(items)) and {"3.3", "table-3.6", "4.1"} <= set(items)
+    with scales.under_protocol("kit-v1"):  # the generator's override does not change what the page says
+        assert protocol.protocols_at("small") == listed
+    for name, figs in listed.items():
+        for item in figs:
+            s = scales.figure_settings(item.split(" (")[0], "small")
+            assert s["protocol"] == name and item.endswith(f"({s['train_seeds']}×{s['test_rollouts']})")
+    page = protocol.switch_summary("small")
+    assert all(f"`{name}`: " in page for name in listed)

@@ -193,8 +193,41 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
     return "\n".join(lines)
 
 
+def protocols_at(scale: str = "small") -> dict[str, list[str]]:
+    """Training protocol -> the chapter 3-4 items (figure ids of scales.yaml with training seeds and test
+    rollouts) under it at ``scale``, each as ``"<id> (<seeds>×<rollouts>)"``, from the scale table alone
+    (``THESIS_REPRO_PROTOCOL`` is ignored).
+
+    >>> "3.3 (1×10)" in protocols_at("small")["thesis"] or "3.3 (3×10)" in protocols_at("small")["thesis"]
+    True
+    """
+    from thesis_repro import scales
+
+    out: dict[str, list[str]] = {}
+    with scales.under_protocol(""):  # the table's own word, not a generator's override
+        for fig in scales.figures():
+            s = scales.figure_settings(fig, scale)
+            if "train_seeds" in s and "test_rollouts" in s and not fig.startswith(("5.", "analysis-")):
+                out.setdefault(str(s["protocol"]), []).append(f"{fig} ({s['train_seeds']}×{s['test_rollouts']})")
+    return out
+
+
+def switch_summary(scale: str = "small") -> str:
+    """A section naming the chapter 3-4 items on each training protocol at ``scale`` (``small`` switches item by
+    item), each with its training seeds × test rollouts."""
+    lines = [
+        f"## Which items train under which protocol at `{scale}`",
+        "",
+        "From `scales.yaml` (each item: training seeds × test rollouts):",
+        "",
+    ]
+    for protocol, figs in sorted(protocols_at(scale).items(), reverse=True):
+        lines.append(f"- `{protocol}`: {', '.join(figs)}")
+    return "\n".join([*lines, ""])
+
+
 def write_page(root: str | Path) -> Path:
     """Write the page into a staged book folder ``root`` as ``protocol.md``; returns its path."""
     out = Path(root) / f"{PAGE}.md"
-    out.write_text(render())
+    out.write_text(render() + "\n" + switch_summary("small"))
     return out
