@@ -14,9 +14,11 @@ thesis averages) and cells (``env, test, method, mean, std, n``). Beside the the
 for the reproduced cells the 95 % CI of the mean across training seeds (:func:`our_ci`,
 :func:`~thesis_repro.evaluation.tables.seed_ci`): the seed is the unit of replication, not the rollout.
 
->>> s = settings("table-3.4", "small")
+>>> s = settings("table-3.4", "smoke")
 >>> learners(s), skipped(s)
-(['ppo', 'trpo'], ['ddpg', 'sac'])
+(['ppo', 'trpo', 'ddpg', 'sac'], [])
+>>> skipped(settings("table-3.4", "small", protocol="kit-v1"))  # kit-v1's small could not afford them
+['ddpg', 'sac']
 >>> noisy_learners()
 {'obs': 'ppo-obsnoise', 'act': 'ppo-actnoise', 'env': 'ppo-envnoise', 'dom': 'ppo-mdl'}
 """
