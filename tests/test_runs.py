@@ -173,6 +173,21 @@ def test_shipped_job_and_cheapest_shipped(fake_figures, tmp_path, monkeypatch):
     maker = RunCache(tmp_path / "maker", reference=False)
     for job in (Job("toy-train", _cfg("c", 30)), Job("toy-train", _cfg("a", 10))):
         runs.export(maker.run(job), layer)
+    walls = {"a": 5.0, "c": 1.0}  # c has more env steps but took less time (DDPG vs PPO steps): time decides
+    for entry in runs.shipped_entries(layer):
+        prov_path = entry / "provenance.json"
+        prov = json.loads(prov_path.read_text())
+        algo = json.loads((entry / "config.json").read_text())["config"]["algorithm"]
+        prov.update(platform={"machine": "x86_64"}, measured={"wall_time": walls[algo], "resumed_from": 0})
+        prov_path.write_text(json.dumps(prov))
+    assert runs.cheapest_shipped("toy-train", layer) == Job("toy-train", _cfg("c", 30))
+    c_entry = next(e for e in runs.shipped_entries(layer) if '"c"' in (e / "config.json").read_text())
+    prov = json.loads((c_entry / "provenance.json").read_text())
+    prov["measured"]["resumed_from"] = 4096  # an interrupted run is no conclusive retrain target
+    (c_entry / "provenance.json").write_text(json.dumps(prov))
+    assert runs.cheapest_shipped("toy-train", layer) == Job("toy-train", _cfg("a", 10))
+    for entry in runs.shipped_entries(layer):  # no platform or measured time anywhere: the env steps decide
+        (entry / "provenance.json").write_text("{}")
     cheapest = runs.cheapest_shipped("toy-train", layer)
     assert cheapest == Job("toy-train", _cfg("a", 10))
     fresh = RunCache(tmp_path / "fresh", reference=False).run(cheapest)  # the retrain-and-compare check

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import fnmatch
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -353,15 +354,37 @@ def shipped_job(path: str | Path) -> Job:
 def cheapest_shipped(
     kind: str = "train", layer_root: str | Path | None = None, keys: Iterable[str] | None = None
 ) -> Job | None:
-    """The shipped ``kind`` job (with one of ``keys``, if given) with the smallest :func:`cost` (for the
-    retrain-and-compare check), or ``None``."""
+    """The shipped ``kind`` job (with one of ``keys``, if given) that took the least measured wall time to make
+    among those that record their platform and trained uninterrupted (:func:`shipped_seconds`); the others after
+    them, by :func:`cost`; for the retrain-and-compare check, or ``None``. Wall time, not env steps: 200k DDPG
+    steps cost ~6x 200k PPO steps."""
     keys = None if keys is None else set(keys)
-    jobs = [
-        shipped_job(p)
+    found = [
+        (shipped_seconds(p), shipped_job(p))
         for p in shipped_entries(layer_root)
         if p.parent.name == kind and (keys is None or p.name.rsplit("__", 1)[1] in keys)
     ]
-    return min(jobs, key=lambda j: (cost(j), j.label, j.key), default=None)
+
+    def order(item: tuple[float, Job]) -> tuple[Any, ...]:
+        seconds, job = item
+        return (math.isnan(seconds), 0.0 if math.isnan(seconds) else seconds, cost(job), job.label, job.key)
+
+    return min(found, key=order, default=(math.nan, None))[1]
+
+
+def shipped_seconds(path: str | Path) -> float:
+    """Measured wall time of a shipped (or cached) entry's job when it is a conclusive retrain target: its
+    ``provenance.json`` records the platform and a ``measured.wall_time`` of a run that trained without
+    interruption (``resumed_from`` 0). NaN otherwise, e.g. for entries made before the kit recorded these
+    (their wall time may cover only the last session, and the platform rule cannot be applied)."""
+    try:
+        prov = json.loads((Path(path) / "provenance.json").read_text())
+        measured = prov.get("measured") or {}
+        if not prov.get("platform") or int(measured.get("resumed_from", -1)) != 0:
+            return math.nan
+        return float(measured["wall_time"])
+    except (OSError, KeyError, ValueError, TypeError, AttributeError):
+        return math.nan
 
 
 def check_shipped(scale: str = "small", layer_root: str | Path | None = None) -> list[StaleRun]:
