@@ -105,6 +105,17 @@ def _degenerate(m1: float, s1: float, m2: float, s2: float) -> float | None:
     return None
 
 
+def pm_text(mean: float, spread: float) -> str:
+    """A display cell: ``"mean ± spread"`` (one decimal), ``"mean"`` when ``spread`` is NaN, ``""`` when ``mean`` is.
+
+    >>> pm_text(800.0, 248.44), pm_text(700.0, float("nan")), pm_text(float("nan"), 1.0)
+    ('800.0 ± 248.4', '700.0', '')
+    """
+    if not np.isfinite(mean):
+        return ""
+    return f"{mean:.1f} ± {spread:.1f}" if np.isfinite(spread) else f"{mean:.1f}"
+
+
 def welch_p(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray) -> float:
     """Two-sided Welch p-value of two samples (``scipy.stats.ttest_ind(a, b, equal_var=False)``).
 

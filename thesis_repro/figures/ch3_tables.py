@@ -255,12 +255,6 @@ def wide(cells: pd.DataFrame, value: str = "mean", index: Sequence[str] = tuple(
     return out.reindex(pd.MultiIndex.from_frame(rows) if len(idx) > 1 else rows[idx[0]])
 
 
-def _fmt(m: float, s: float) -> str:
-    if not np.isfinite(m):
-        return ""
-    return f"{m:.1f} ± {s:.1f}" if np.isfinite(s) else f"{m:.1f}"
-
-
 @dataclass
 class Comparison:
     """One AUC table, thesis beside reproduced: bolded cells of both and the agreement of the bolding."""
@@ -284,11 +278,11 @@ class Comparison:
         for env, test in rows:
             for m in methods:
                 t = th.loc[(env, test, m)]
-                text.loc[(env, test), (m, "thesis")] = _fmt(t["mean"], t["std"])
+                text.loc[(env, test), (m, "thesis")] = tables.pm_text(t["mean"], t["std"])
                 mask.loc[(env, test), (m, "thesis")] = bool(t["bold"])
                 if (env, test, m) in ours.index:
                     o = ours.loc[(env, test, m)]
-                    text.loc[(env, test), (m, "reproduced")] = _fmt(o["mean"], o["std"])
+                    text.loc[(env, test), (m, "reproduced")] = tables.pm_text(o["mean"], o["std"])
                     mask.loc[(env, test), (m, "reproduced")] = bool(o["bold"])
                 else:
                     text.loc[(env, test), (m, "reproduced")] = report.NOT_RUN
@@ -462,7 +456,7 @@ def table33_text(ours: tuple[pd.DataFrame, pd.DataFrame]) -> tuple[pd.DataFrame,
         (ours[1], thesis33()[1], ["noise_type", "sigma_te"], ["train_sigma"]),
     ):
         both = pd.concat([t.assign(source="thesis"), o.assign(source="reproduced")])
-        both["cell"] = [_fmt(m, s) for m, s in zip(both["mean"], both["std"], strict=True)]
+        both["cell"] = [tables.pm_text(m, s) for m, s in zip(both["mean"], both["std"], strict=True)]
         w = both.pivot_table(index=index, columns=[*cols, "source"], values="cell", aggfunc="first", sort=False)
         sigmas = sorted(set(t["train_sigma"]))
         w = w.reindex(columns=pd.MultiIndex.from_product([sigmas, ["thesis", "reproduced"]], names=w.columns.names))

@@ -272,15 +272,6 @@ def seed_table(
     return ci.assign(mean=ci["seed_mean"], half_width=half)[[*keys, "mean", "half_width", "n_seeds"]]
 
 
-def _pm(mean: float, half: float, n_seeds: int, show_n: bool) -> str:
-    """``"mean ± half"`` (one decimal, as Chapter 3's tables), ``"mean"`` without an interval, ``""`` if NaN;
-    ``show_n`` appends ``" (n_seeds)"``."""
-    if not np.isfinite(mean):
-        return ""
-    text = f"{mean:.1f} ± {half:.1f}" if np.isfinite(half) else f"{mean:.1f}"
-    return f"{text} ({int(n_seeds)})" if show_n else text
-
-
 def compare_ci(
     frame: pd.DataFrame,
     value: str,
@@ -312,7 +303,10 @@ def compare_ci(
     n = cells["n_seeds"]
     mixed = len(n) > 0 and n.min() != n.max()
     text = cells.assign(
-        cell=[_pm(m, h, k, mixed) for m, h, k in cells[["mean", "half_width", "n_seeds"]].itertuples(index=False)]
+        cell=[
+            tables.pm_text(m, h) + (f" ({int(k)})" if mixed and np.isfinite(m) else "")
+            for m, h, k in cells[["mean", "half_width", "n_seeds"]].itertuples(index=False)
+        ]
     )
     index = list(by) or ["all"]  # no grouping: one row "all"
     text, cells = (f.assign(all="all") if not by else f for f in (text, cells))
