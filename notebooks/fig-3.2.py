@@ -28,6 +28,7 @@ SCALE = "small"
 
 # %%
 import matplotlib.pyplot as plt
+import seaborn as sns
 
 from thesis_repro import claims, figures, pages
 from thesis_repro.figures import ch3, plot
@@ -43,11 +44,20 @@ mean = curve.groupby("iteration")[["train_return", "test_auc"]].mean().reset_ind
 steps = iteration_steps(ch3.overfitting_configs(settings)[0])
 fig, ax = plt.subplots(figsize=(6.5, 4))
 ax2 = ax.twinx()
-ax.plot(mean.iteration, mean.test_auc, "C0-o", ms=3, alpha=0.5, label="testing AUC (obs noise), reproduced")
 w = settings.get("smooth_snapshots", 1)  # the thick line (the verdict uses quarters of the snapshots)
+smooth = curve.assign(test_auc=curve.groupby("seed").test_auc.transform(lambda x: x.rolling(w, center=True).mean()))
+seeds = dict(x="iteration", units="seed", estimator=None, lw=0.8, alpha=0.35, legend=False)  # thin: one per seed
+sns.lineplot(data=smooth, y="test_auc", color="C0", ax=ax, **seeds)
+sns.lineplot(data=curve, y="train_return", color="C3", ax=ax2, **seeds)
+ax.plot(mean.iteration, mean.test_auc, "C0o", ms=3, alpha=0.5, label="testing AUC (obs noise), reproduced")
 ax.plot(mean.iteration, mean.test_auc.rolling(w, center=True).mean(), "C0-", lw=2.5, label=f"its {w}-snapshot mean")
 ax2.plot(mean.iteration, mean.train_return, "C3-s", ms=3, label="training return, reproduced")
-ax.set(xlabel=f"PPO iteration ({steps} steps)", ylabel="testing AUC", title=f"{settings['env']} PPO ({SCALE})")
+n_seeds = curve.seed.nunique()
+title = f"{settings['env']} PPO ({SCALE}): mean over {n_seeds} training seed(s)"
+if n_seeds > 1:
+    title += f"\nthin lines: each seed ({w}-snapshot mean of its AUC; its training return)"
+ax.set(xlabel=f"PPO iteration ({steps} steps)", ylabel="testing AUC", title=title)
+ax.title.set_fontsize(9)
 ax2.set_ylabel("training return")
 ax2.grid(False)
 handles = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]

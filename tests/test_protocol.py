@@ -132,14 +132,21 @@ def test_the_thesis_protocol_brings_small_3_seeds_and_10_rollouts(monkeypatch):
     """Issue 22's evidence at small (10 test rollouts; 3 training seeds once seeds 1-2 are shipped) comes with the
     thesis protocol, figure by figure as each is switched; the items still on kit-v1 keep their 1 seed x 3
     rollouts (their shipped keys); chapter 5 keeps its own seeds."""
-    thesis_small = scales._table()["protocol_overrides"]["thesis"]["small"]
+    table = scales._table()
+    thesis_small = table["protocol_overrides"]["thesis"]["small"]
+
+    def seeds(fid: str) -> int:  # the scale-wide count, or the item's own once its seeds 1-2 are shipped
+        own = table["figures"][fid]["small"].get("protocol_overrides", {}).get("thesis", {})
+        return own.get("train_seeds", thesis_small["train_seeds"])
+
     monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
     small = {fid: scales.figure_settings(fid, "small") for fid in scales.figures()}
     switched = [fid for fid, s in small.items() if s["protocol"] == "thesis"]
     assert "table-3.6" in switched  # the first item switched (its seed-0 runs and evaluations are shipped)
+    assert seeds("3.2") == small["3.2"]["train_seeds"] == 3  # the first item with its 3 seeds shipped
     for fid in switched:
         s = small[fid]
-        assert (s["train_seeds"], s["test_rollouts"], s.get("skip_algos", [])) == (thesis_small["train_seeds"], 10, [])
+        assert (s["train_seeds"], s["test_rollouts"], s.get("skip_algos", [])) == (seeds(fid), 10, [])
     own = ("3.2", "5.", "analysis-")  # Fig 3.2's own 2 x 5; chapter 5 and the analysis page train no RL runs
     kept = [fid for fid, s in small.items() if s["protocol"] == "kit-v1" and not fid.startswith(own)]
     for fid in kept:  # kit-v1 items keep their shipped keys: 1 seed x 3 rollouts
@@ -148,7 +155,7 @@ def test_the_thesis_protocol_brings_small_3_seeds_and_10_rollouts(monkeypatch):
     monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
     for fid in ("3.3", "3.2", "4.1", "table-3.7"):
         s = scales.figure_settings(fid, "small")
-        assert (s["train_seeds"], s["test_rollouts"]) == (thesis_small["train_seeds"], 10), fid
+        assert (s["train_seeds"], s["test_rollouts"]) == (seeds(fid), 10), fid
     assert scales.figure_settings("5.6", "small")["seeds"] == [0, 1, 2]
     assert scales.figure_settings("3.3", "full")["train_seeds"] == 12
 
