@@ -18,10 +18,11 @@
 # return of the last 100 training episodes at that point. The thesis gives only the curve, so the comparison is
 # of shape. The caption's "with non-deterministic observations" is read as the *testing* condition (the AUC is
 # under observation noise); training is on the deterministic task, as for every chapter-3 benchmark policy
-# (§3.3.1 trains on the default environment and tests under noise). The thick line is a moving average over
-# `smooth_snapshots` consecutive snapshots; the verdict compares the early, middle and late quarters of each
-# seed's snapshots (`thesis_repro.claims`), so one noisy snapshot makes neither a peak nor the end. Logic:
-# `thesis_repro.figures.ch3`.
+# (§3.3.1 trains on the default environment and tests under noise). The markers are means over training seeds
+# and the thick line their moving average over `smooth_snapshots` consecutive snapshots; with several seeds a thin
+# line shows each seed (its own moving average, and its training return); the verdict compares the early, middle
+# and late quarters of each seed's snapshots (`thesis_repro.claims`), so one noisy snapshot makes neither a peak
+# nor the end. Logic: `thesis_repro.figures.ch3`.
 
 # %% tags=["parameters"]
 SCALE = "small"
