@@ -147,7 +147,7 @@ def test_the_thesis_protocol_brings_small_3_seeds_and_10_rollouts(monkeypatch):
     for fid in switched:
         s = small[fid]
         assert (s["train_seeds"], s["test_rollouts"], s.get("skip_algos", [])) == (seeds(fid), 10, [])
-    own = ("3.2", "5.", "analysis-")  # Fig 3.2's own 2 x 5; chapter 5 and the analysis page train no RL runs
+    own = ("3.2", "5.", "analysis-")  # Fig 3.2 counts its own seeds; chapter 5 and the analysis page train no RL runs
     kept = [fid for fid, s in small.items() if s["protocol"] == "kit-v1" and not fid.startswith(own)]
     for fid in kept:  # kit-v1 items keep their shipped keys: 1 seed x 3 rollouts
         s = small[fid]
