@@ -201,7 +201,9 @@ def sleepy(config, workdir):
     return {"ok": 1}
 """
 
-REF_DRIVER = """import sys
+REF_DRIVER = """import faulthandler
+import signal
+import sys
 
 from thesis_repro import figures
 from thesis_repro import jobs as registry
@@ -210,6 +212,7 @@ from thesis_repro.cache import Job
 registry.register("sleepy", "sleepy_jobs:sleepy")
 
 if __name__ == "__main__":
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # the test's dump of every thread if it hangs
     figures.FIGURES.clear()
     figures.TRAINING_KINDS = ("sleepy",)
     grid = [Job("sleepy", {"seed": i, "marker": sys.argv[1]}) for i in range(3)]
@@ -260,11 +263,14 @@ def test_ctrl_c_stops_a_parallel_reference_run_at_once(tmp_path):
         time.sleep(0.05)
     assert len(session_processes(proc.pid)) >= 3  # the generator and its two workers
     os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
-    try:
-        _, err = proc.communicate(timeout=30)
+    try:  # "at once": well inside the 300 s the sleepy runs would take (60 s leaves room for a loaded machine)
+        _, err = proc.communicate(timeout=60)
     except subprocess.TimeoutExpired:
+        os.kill(proc.pid, signal.SIGUSR1)  # every thread's stack to stderr (faulthandler), then kill
+        time.sleep(1)
         os.killpg(proc.pid, signal.SIGKILL)
-        pytest.fail("the generator did not stop after Ctrl-C")
+        _, err = proc.communicate()
+        pytest.fail(f"the generator did not stop after Ctrl-C; its log:\n{log.read_text()}\nits stderr:\n{err}")
     assert proc.returncode == 130, err
     assert error_lines(err) == [INTERRUPTED]
     deadline = time.time() + 10
