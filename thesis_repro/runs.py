@@ -30,7 +30,7 @@ import os
 import shutil
 import subprocess
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -777,6 +777,23 @@ def progress_line(jobs: Sequence[Job], cache: RunCache, elapsed: float) -> str:
     return f"  ... {elapsed / 60:.0f} min: {what}"
 
 
+def in_flight(submitted: Iterable[Future], pending: Collection[Future], n_jobs: int) -> list[Future]:
+    """The futures of ``submitted`` (in submission order) that ``n_jobs`` pool workers are running now.
+
+    A process pool marks one queued job more than it has workers as running, and the workers take jobs in
+    submission order, so the running ones are the first ``n_jobs`` pending futures that say so (a queued
+    job's stale workdir from an earlier interrupted session must not make it look running).
+
+    >>> from concurrent.futures import Future
+    >>> fs = [Future() for _ in range(4)]
+    >>> for f in fs[1:]:
+    ...     _ = f.set_running_or_notify_cancel()
+    >>> in_flight(fs, set(fs), 2) == fs[1:3]
+    True
+    """
+    return [f for f in submitted if f in pending and f.running()][:n_jobs]
+
+
 def generate(
     scale: str = "small",
     figure_ids: Iterable[str] | None = None,
@@ -882,7 +899,7 @@ def generate(
                 follow_shipped()  # while the workers train
                 while pending:
                     finished, pending = wait(pending, timeout=heartbeat, return_when=FIRST_COMPLETED)
-                    started = [futures[f].job for f in pending if f.running()]  # the pool queues one extra
+                    started = [futures[f].job for f in in_flight(futures, pending, n_jobs)]
                     running = [j for j in started if cache.workdir(j).exists()]  # workers still importing: none
                     if not finished and running:
                         log(progress_line(running, cache, time.time() - t0))
