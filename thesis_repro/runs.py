@@ -780,9 +780,10 @@ def progress_line(jobs: Sequence[Job], cache: RunCache, elapsed: float) -> str:
 def in_flight(submitted: Iterable[Future], pending: Collection[Future], n_jobs: int) -> list[Future]:
     """The futures of ``submitted`` (in submission order) that ``n_jobs`` pool workers are running now.
 
-    A process pool marks one queued job more than it has workers as running, and the workers take jobs in
-    submission order, so the running ones are the first ``n_jobs`` pending futures that say so (a queued
-    job's stale workdir from an earlier interrupted session must not make it look running).
+    A process pool also marks the jobs waiting in its call queue as running (up to ``n_jobs + 1`` beyond
+    those its workers hold), and the workers take jobs in submission order, so the running ones are the first
+    ``n_jobs`` pending futures that say so (a queued job's stale workdir, left by an earlier interrupted
+    session, must not make it look running).
 
     >>> from concurrent.futures import Future
     >>> fs = [Future() for _ in range(4)]
