@@ -64,4 +64,6 @@ plot.save(fig, SCALE, "fig-4.3")
 # %%
 table = ch4.compare_ci(wind, "return")
 print(table, table.attrs["note"], sep="\n")
-_ = claims.judge_page("fig-4.3", SCALE, {"wind": wind}, pages.claim_meta("4.3", settings))
+_ = claims.judge_page(
+    "fig-4.3", SCALE, {"wind": wind, "curves": ch4.curves_frame(runs)}, pages.claim_meta("4.3", settings)
+)

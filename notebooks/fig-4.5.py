@@ -60,4 +60,6 @@ plot.save(fig, SCALE, "fig-4.5")
 # %%
 table = ch4.compare_ci(ch4.off_centre(heat), "return")
 print(table, table.attrs["note"], sep="\n")
-_ = claims.judge_page("fig-4.5", SCALE, {"heat": heat}, pages.claim_meta("4.5", settings))
+_ = claims.judge_page(
+    "fig-4.5", SCALE, {"heat": heat, "curves": ch4.curves_frame(runs)}, pages.claim_meta("4.5", settings)
+)

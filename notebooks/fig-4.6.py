@@ -75,4 +75,6 @@ plot.save(fig, SCALE, "fig-4.6")
 aucs = ch4.noise_aucs(noise, per_seed=True)
 aucs = ch4.compare_ci(aucs, "auc", by=("noise", "panel"), algos=ch4.algo_names(settings))
 print(aucs, aucs.attrs["note"], sep="\n")
-_ = claims.judge_page("fig-4.6", SCALE, {"noise": noise}, pages.claim_meta("4.6", settings))
+_ = claims.judge_page(
+    "fig-4.6", SCALE, {"noise": noise, "curves": ch4.curves_frame(runs)}, pages.claim_meta("4.6", settings)
+)

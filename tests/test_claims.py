@@ -113,6 +113,36 @@ def test_ambiguous_data_is_inconclusive():
     assert L.rule_for(s, "better than NC")[0].judge(groups["better than NC"]).status == report.INCONCLUSIVE
 
 
+_NOMINAL = {"wind": lambda f: f["value"] == 0.0, "noise": lambda f: f["value"] == 0.0}
+
+
+@pytest.mark.parametrize(("measure", "name"), [("ch4_wind", "wind"), ("ch4_heat", "heat"), ("ch4_noise", "noise")])
+def test_a_diverged_policy_is_not_judged_on_what_it_keeps(measure, name):
+    """Issue 21 item 4: kl_avg returns 5 at its nominal point and 10 off it, so it "keeps" 200 % of its
+    return; judged on that alone every unit says yes. Its training curves say it diverged (peak 1,000, then
+    -5), so the measure answers inconclusive instead."""
+    f = S.frames_for(measure)
+    frame = f[name].copy()
+    nominal = _NOMINAL.get(name, lambda x: (x["mass"] == 1.0) & (x["friction"] == 1.0))(frame)
+    mine = frame["algo"] == "kl_avg"
+    frame.loc[mine, "return"] = np.where(nominal[mine], 5.0, 10.0)
+    f[name] = frame
+    blind = {k: v for k, v in f.items() if k != "curves"}
+    units = [u for us in M.MEASURES[measure](blind, {}).values() for u in us]
+    assert units and all(u.outcome() == "yes" for u in units)  # the old measure passed it
+    curves = f["curves"].copy()
+    mine = curves["algo"] == "kl_avg"
+    curves.loc[mine, "return"] = np.where(curves.loc[mine, "iteration"] < 3, 1000.0, -5.0)
+    f["curves"] = curves
+    with pytest.raises(M.Inconclusive, match="diverged"):
+        M.MEASURES[measure](f, {})
+    # one condition diverged: only its units are undecided, the others are judged as before
+    curves.loc[mine, "return"] = np.where(curves.loc[mine, "panel"] == "a", curves.loc[mine, "return"], 1000.0)
+    out = {u.label: u.outcome() for us in M.MEASURES[measure](f, {}).values() for u in us}
+    assert {o for k, o in out.items() if "panel a" in k} == {"undecided"}
+    assert {o for k, o in out.items() if "panel a" not in k} == {"yes"}
+
+
 def test_one_seed_is_at_most_indicative():
     for s in L.specs():
         if "measure" not in s.rule:

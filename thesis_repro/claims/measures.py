@@ -476,6 +476,36 @@ def _retained(frame: pd.DataFrame, nominal: Callable[[pd.DataFrame], pd.Series],
     return pd.DataFrame(rows)
 
 
+def learned_only(retained: pd.DataFrame, curves: pd.DataFrame | None, ours: str | None = None) -> pd.DataFrame:
+    """``retained`` with the value of every run that diverged in training (:func:`diverged`, Fig 4.7's rule)
+    set to NaN, so its unit is *undecided*: what a diverged policy keeps of its own near-zero nominal return
+    says nothing about generalisation. Without ``curves``: ``retained`` as is. With ``ours``: inconclusive
+    when no run of ``ours`` is left to judge.
+
+    >>> r = pd.DataFrame({"algo": ["a", "b"], "panel": "p", "seed": 0, "retained": [0.9, 0.5]})
+    >>> c = pd.DataFrame({"algo": ["a"] * 9 + ["b"] * 9, "panel": "p", "seed": 0, "iteration": [*range(9)] * 2,
+    ...                   "return": [100.0, 500] + [1000] * 7 + [900] * 3 + [-5] * 6, "entropy": 1.0})
+    >>> learned_only(r, c, "a")["retained"].tolist()
+    [0.9, nan]
+    """
+    if curves is None:
+        return retained
+    keys = ["algo", "panel", "seed"]
+    div = diverged(curves)
+    bad = {tuple(k) for k in div.loc[div["diverged"], keys].astype(str).itertuples(index=False)}
+    hit = [tuple(k) in bad for k in retained[keys].astype(str).itertuples(index=False)]
+    out = retained.copy()
+    out.loc[hit, "retained"] = float("nan")
+    mine = out["algo"] == ours
+    if ours is not None and mine.any() and out.loc[mine, "retained"].isna().all():
+        n = len(out.loc[mine, ["panel", "seed"]].drop_duplicates())
+        raise Inconclusive(
+            f"every {ours} run ({n}) diverged in training (late return below half its peak) or has no positive "
+            "nominal return: how much of it a policy keeps off its nominal point is not judged"
+        )
+    return out
+
+
 def wind_retained(wind: pd.DataFrame) -> pd.DataFrame:
     """Fig 4.3/4.4a: mean return over the winds other than ξ = 0, over the return at ξ = 0."""
     return _retained(wind, lambda g: np.isclose(g["value"], 0.0), [])
@@ -532,7 +562,9 @@ def _ch4_insensitive(data: Data, spec: Mapping[str, Any]) -> Groups:
 def _ch4_wind(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Fig 4.3: wind degradation relative to the policy's own ξ = 0 return; similar in panel a, better elsewhere."""
     r = wind_retained(data["wind"])
-    return _panel_groups(r, "retained", _ours(r, spec), spec.get("easy", ["a"]), 0.10)
+    ours = _ours(r, spec)
+    r = learned_only(r, data.get("curves"), ours)
+    return _panel_groups(r, "retained", ours, spec.get("easy", ["a"]), 0.10)
 
 
 @measure("ch4_hopper")
@@ -540,6 +572,7 @@ def _ch4_hopper(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Fig 4.4: retained return under unseen winds (a) and mass x friction (b) above each baseline."""
     w, h = wind_retained(data["wind"]), heat_retained(data["heat"])
     ours = _ours(w, spec)
+    w, h = learned_only(w, data.get("curves"), ours), learned_only(h, data.get("curves"), ours)
     return {
         "": [_vs_baselines(w, "retained", ours, "(a) wind"), _vs_baselines(h, "retained", ours, "(b) mass x friction")]
     }
@@ -550,6 +583,7 @@ def _ch4_heat(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Fig 4.5: per condition, the off-centre return relative to the centre above each baseline's."""
     h = heat_retained(data["heat"])
     ours = _ours(h, spec)
+    h = learned_only(h, data.get("curves"), ours)
     return {"": [_vs_baselines(h, "retained", ours, f"panel {p}", panel=p) for p in sorted(set(h["panel"]))]}
 
 
@@ -558,6 +592,7 @@ def _ch4_noise(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Fig 4.6: per noise type and condition, return at σ > 0 relative to σ = 0 above each baseline's."""
     r = noise_retained(data["noise"])
     ours = _ours(r, spec)
+    r = learned_only(r, data.get("curves"), ours)
     keys = sorted(set(zip(r["noise"], r["panel"], strict=True)))
     return {"": [_vs_baselines(r, "retained", ours, f"{k} panel {p}", noise=k, panel=p) for k, p in keys]}
 
@@ -601,12 +636,14 @@ def _contribution4(data: Data, spec: Mapping[str, Any]) -> Groups:
         ("Walker2d", "curves@fig-4.1", "wind@fig-4.3"),
         ("Hopper", "curves@fig-4.4", "wind@fig-4.4"),
     ):
-        if cur_key in data:
+        curves = data.get(cur_key)
+        if curves is not None:
             late = _late(data[cur_key]).groupby(["algo", "seed"], as_index=False)["return"].mean()
             if ours in set(late["algo"]):
                 units.append(_vs_baselines(late, "return", ours, f"{task}: training return"))
         if wind_key in data:
-            w = wind_retained(data[wind_key]).groupby(["algo", "seed"], as_index=False)["retained"].mean()
+            w = learned_only(wind_retained(data[wind_key]), curves)  # a diverged run: NaN, so is its seed's mean
+            w = w.groupby(["algo", "seed"], as_index=False)["retained"].agg(lambda v: float(np.mean(v.to_numpy())))
             if ours in set(w["algo"]):
                 units.append(_vs_baselines(w, "retained", ours, f"{task}: retained return under unseen winds"))
     if not units:
