@@ -638,7 +638,7 @@ def _contribution4(data: Data, spec: Mapping[str, Any]) -> Groups:
     ):
         curves = data.get(cur_key)
         if curves is not None:
-            late = _late(data[cur_key]).groupby(["algo", "seed"], as_index=False)["return"].mean()
+            late = _late(curves).groupby(["algo", "seed"], as_index=False)["return"].mean()
             if ours in set(late["algo"]):
                 units.append(_vs_baselines(late, "return", ours, f"{task}: training return"))
         if wind_key in data:
