@@ -156,9 +156,13 @@ def budget_note(settings: Mapping[str, Any], n_algos: int | None = None, extra: 
     >>> budget_note(settings("4.1", "smoke"), extra="~1 iteration")  # doctest: +NORMALIZE_WHITESPACE
     'scale smoke: 128 env steps per run (thesis: 4,000,000), 1 training seed(s) (thesis: 6),
     training protocol thesis, ~1 iteration.'
+    >>> budget_note(settings("table-3.3", "small")).split(" (thesis")[0]
+    'scale small: 2,000,000 env steps per run'
     """
     figure = settings["figure"]
     ours = settings["timesteps"]
+    if isinstance(ours, Mapping) and isinstance(settings.get("env"), str):  # one task: its own budget only
+        ours = ch3.timesteps_for(ours, settings["env"])
     ours_text = ", ".join(f"{k}: {v:,}" for k, v in ours.items()) if isinstance(ours, Mapping) else f"{ours:,}"
     full = get(figure).settings("full")
     thesis, seeds = thesis_budget(figure), full["train_seeds"]
