@@ -627,6 +627,13 @@ def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
     "effect in the claim's direction (> 0 supports it) [95 % CI across 3 training seeds]"
     >>> text
     'Hopper/obs: ppo-ent - ppo +12.3 [4.1, 20.5]'
+
+    A claim mixing a 1-seed task with a 3-seed task says where the CIs come from:
+
+    >>> one = {"label": "kl_avg - joint", "estimate": -794.0, "ci": [None, None], "n": 1}
+    >>> row.groups["all"]["units"].append({"label": "Walker2d", "contrasts": [one]})
+    >>> effects_text(row).split(": ", 1)[0].split("[")[1]
+    '95 % CI across 3 training seeds; no CI where a contrast has under 2 seeds]'
     """
     items, ns = [], set()
     for info in row.groups.values():
@@ -636,11 +643,13 @@ def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
                 ns.add(c["n"])
     if not items:
         return ""
-    if max(ns) < 2:
+    with_ci = {n for n in ns if n >= 2}
+    if not with_ci:
         head = "effect in the claim's direction (> 0 supports it), one training seed: no CI"
     else:
-        seeds = f"{min(ns)}" if len(ns) == 1 else f"{min(ns)}-{max(ns)}"
-        head = f"effect in the claim's direction (> 0 supports it) [95 % CI across {seeds} training seeds]"
+        seeds = f"{min(with_ci)}" if len(with_ci) == 1 else f"{min(with_ci)}-{max(with_ci)}"
+        fewer = "; no CI where a contrast has under 2 seeds" if with_ci != ns else ""
+        head = f"effect in the claim's direction (> 0 supports it) [95 % CI across {seeds} training seeds{fewer}]"
     more = len(items) - limit
     tail = f"; ... {more} more in the units table" if more > 0 else ""
     return f"{head}: " + "; ".join(items[:limit]) + tail
