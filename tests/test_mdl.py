@@ -509,3 +509,26 @@ def test_fig42_frames_use_the_models_tracking_camera(env):
     assert track >= 0 and renderer.camera_id == track  # not gymnasium's FREE camera (-1), which stays put
     assert model.cam_mode[track] == mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM
     e.close()
+
+
+def test_fig42_renders_only_its_key_frames_and_they_equal_rendering_every_step(monkeypatch):
+    """render_cycle steps the episode twice and renders 5 steps; the frames are those of rendering them all."""
+    from thesis_repro.envs import make_env
+
+    w = np.random.default_rng(0).normal(0.0, 0.3, (17, 6))
+    monkeypatch.setattr(ch4, "load_policy", lambda _: lambda obs: np.tanh(obs @ w))
+    frames, idx = ch4.render_cycle(None, "Walker2d", 0.1, steps=40)
+    e = make_env("Walker2d", ratios={"wind": 0.0}, c_a=0.1, max_episode_steps=40, env_kwargs=ch4.RENDER)
+    obs, _ = e.reset(seed=0)
+    every, angles = [e.render()], [float(obs[2])]
+    for _ in range(40):
+        obs, _, term, trunc, _ = e.step(np.tanh(obs[None] @ w)[0])
+        every.append(e.render())
+        angles.append(float(obs[2]))
+        if term or trunc:
+            break
+    e.close()
+    assert idx == ch4.cycle_frames(np.asarray(angles), 5) and len(set(idx)) == 5
+    for i, frame in zip(idx, frames, strict=True):
+        assert frame.shape == (320, 480, 3) and np.array_equal(frame, every[i])
+    assert not np.array_equal(frames[0], frames[-1])  # the walker moved between the key frames

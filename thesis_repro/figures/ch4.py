@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Set as AbstractSet
 from typing import Any
 
 import numpy as np
@@ -390,21 +391,38 @@ def render_cycle(
 
     The cycle period is the dominant period of the thigh-joint angle (FFT) over ``steps`` steps; the
     frames are ``n_frames`` evenly spaced steps of the last full cycle (fallback: of the whole episode).
-    The camera follows the walker (:data:`RENDER`).
+    The camera follows the walker (:data:`RENDER`; its ``trackcom`` pose depends on the state alone). The
+    episode is stepped twice with the same seed: once for the angles, then again rendering only the chosen
+    steps (the replay must retrace the angles exactly, or this raises).
     """
     policy = load_policy(run_result)
+    angles, _ = _gait_rollout(policy, env, c_a, steps, seed)
+    idx = cycle_frames(np.asarray(angles), n_frames)
+    again, frames = _gait_rollout(policy, env, c_a, steps, seed, render_at=set(idx))
+    if again != angles:
+        raise RuntimeError(f"render_cycle: the {env} replay with seed {seed} left the first rollout's trajectory")
+    return [frames[i] for i in idx], idx
+
+
+def _gait_rollout(
+    policy: Any, env: str, c_a: float, steps: int, seed: int, render_at: AbstractSet[int] = frozenset()
+) -> tuple[list[float], dict[int, np.ndarray]]:
+    """One mean-action episode at ξ = 0: the thigh-joint angle after every step (step 0 = the reset) and the
+    frames of the steps in ``render_at``."""
     e = make_env(env, ratios={"wind": 0.0}, c_a=c_a, max_episode_steps=steps, env_kwargs=RENDER)
     obs, _ = e.reset(seed=seed)
-    frames, angles = [e.render()], [float(obs[2])]
-    for _ in range(steps):
+    angles, frames = [float(obs[2])], {}
+    if 0 in render_at:
+        frames[0] = e.render()
+    for t in range(1, steps + 1):
         obs, _, term, trunc, _ = e.step(policy(obs[None])[0])
-        frames.append(e.render())
         angles.append(float(obs[2]))
+        if t in render_at:
+            frames[t] = e.render()
         if term or trunc:
             break
     e.close()
-    idx = cycle_frames(np.asarray(angles), n_frames)
-    return [frames[i] for i in idx], idx
+    return angles, frames
 
 
 def cycle_frames(angles: np.ndarray, n_frames: int) -> list[int]:
