@@ -19,6 +19,7 @@ True
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import warnings
@@ -252,13 +253,34 @@ def saved_path(page: str, scale: str) -> Path:
     return paths.page_output(scale, data_path(page, scale).name)
 
 
+@cache
+def kit_stamp() -> str:
+    """Short hash of what a page's saved numbers depend on besides its runs: the kit's code and configuration
+    (``thesis_repro/**/*.py``, ``*.yaml``) and the thesis's numbers and claims (``data/thesis/``). Saved with
+    the numbers, so numbers written by other kit code are reported as stale instead of judged silently.
+
+    >>> len(kit_stamp()) == 12 and kit_stamp() == kit_stamp()
+    True
+    """
+    pkg = Path(__file__).resolve().parents[1]
+    code = sorted(f for f in [*pkg.rglob("*.py"), *pkg.rglob("*.yaml")] if "__pycache__" not in f.parts)
+    thesis = sorted(f for f in paths.THESIS_DATA.rglob("*") if f.is_file())
+    h = hashlib.sha256()
+    for base, files in ((pkg, code), (paths.THESIS_DATA, thesis)):
+        for f in files:
+            h.update(f.relative_to(base).as_posix().encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def save_page(page: str, scale: str, frames: Mapping[str, pd.DataFrame], meta: Mapping[str, Any]) -> Path:
-    """Write a page's per-seed frames (records) and meta (scale, seeds, budget note) atomically."""
+    """Write a page's per-seed frames (records) and meta (scale, seeds, budget note) atomically, stamped
+    with :func:`kit_stamp`."""
     out = data_path(page, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
     blob = {
         "page": page,
         "scale": scale,
+        "kit": kit_stamp(),
         "meta": dict(meta),
         "frames": {k: json.loads(v.to_json(orient="records")) for k, v in frames.items()},
     }
@@ -278,13 +300,36 @@ def _jsonable(x: Any) -> Any:
 
 def load_page(page: str, scale: str) -> dict[str, Any] | None:
     """The saved blob of ``page`` (frames as DataFrames) or None; inside a notebook, also a finished page's
-    (:func:`~thesis_repro.paths.page_output`)."""
+    (:func:`~thesis_repro.paths.page_output`). ``blob["stale"]``: written by other kit code (:func:`kit_stamp`)."""
     p = saved_path(page, scale)
     if not p.exists():
         return None
     blob = json.loads(p.read_text())
     blob["frames"] = {k: pd.DataFrame(v) for k, v in blob["frames"].items()}
+    blob["stale"] = blob.get("kit") != kit_stamp()
     return blob
+
+
+def stale_pages(rows: Sequence[Row]) -> list[str]:
+    """Pages whose saved numbers some of ``rows`` were judged from, written by other kit code (sorted)."""
+    return sorted({p for r in rows for p in r.stale})
+
+
+def stale_hint(pages: Sequence[str], scale: str) -> str:
+    """One line telling how to refresh stale ``pages`` ('' when there are none).
+
+    >>> stale_hint(["fig-5.6", "table-3.4"], "small")  # doctest: +NORMALIZE_WHITESPACE
+    'stale: the saved numbers of fig-5.6, table-3.4 were written by other kit code (thesis_repro/ or data/thesis/
+    changed since); refresh them with `make figure-5.6 SCALE=small` per page, or `make book SCALE=small`'
+    """
+    if not pages:
+        return ""
+    first = pages[0].removeprefix("fig-")
+    return (
+        f"stale: the saved numbers of {', '.join(pages)} were written by other kit code (thesis_repro/ or "
+        f"data/thesis/ changed since); refresh them with `make figure-{first} SCALE={scale}` per page, or "
+        f"`make book SCALE={scale}`"
+    )
 
 
 # ---------------------------------------------------------------- judging
@@ -301,6 +346,7 @@ class Row:
     note: str = ""
     diagnosis: str = ""
     sensitivity: list[dict[str, Any]] = field(default_factory=list)
+    stale: list[str] = field(default_factory=list)  # pages whose saved numbers other kit code wrote
 
     def as_dict(self) -> dict[str, Any]:
         s = self.spec
@@ -322,6 +368,7 @@ class Row:
             "sensitivity_studies": list(s.sensitivity),
             "protocol_sensitivity": self.sensitivity,
             "groups": self.groups,
+            "stale_pages": self.stale,
         }
 
 
@@ -354,21 +401,23 @@ def rule_text(s: Spec) -> str:
 
 
 def page_data(s: Spec, scale: str) -> tuple[dict[str, pd.DataFrame], dict[str, Any]] | None:
-    """The frames a claim's measure reads (``name`` for its own page, ``name@page`` for others) and meta."""
+    """The frames a claim's measure reads (``name`` for its own page, ``name@page`` for others) and meta
+    (``meta["stale_pages"]``: those of its pages written by other kit code)."""
     frames: dict[str, pd.DataFrame] = {}
     meta: dict[str, Any] = {}
-    found = False
+    found, stale = False, []
     for p in s.data_pages:
         blob = load_page(p, scale)
         if blob is None:
             continue
         found = True
         meta = meta or blob["meta"]
+        stale += [p] if blob["stale"] else []
         for k, v in blob["frames"].items():
             frames[f"{k}@{p}"] = v
             if p == s.page or len(s.data_pages) == 1:
                 frames[k] = v
-    return (frames, meta) if found else None
+    return (frames, {**meta, "stale_pages": stale}) if found else None
 
 
 def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
@@ -395,12 +444,21 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
             {f"{x.spec.id}: {g}": info for x in rows for g, info in x.groups.items()},
             null_pass_rate=min(rates) if rates else None,
             note="derived from " + ", ".join(f"{x.spec.id}: {x.status}" for x in rows),
+            stale=stale_pages(rows),
         )
     got = page_data(s, scale)
     if got is None:
         pages = ", ".join(s.data_pages)
         return Row(s, report.NOT_COMPUTED, note=f"no saved numbers of {pages} at {scale}: execute the page(s) first")
     frames, meta = got
+    row = _judge_frames(s, scale, with_null, frames, meta)
+    row.stale = list(meta["stale_pages"])
+    return row
+
+
+def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.DataFrame], meta: dict[str, Any]) -> Row:
+    """:func:`judge` of a claim with a measure, from its pages' saved ``frames`` and ``meta``."""
+    r = s.rule
     try:
         with warnings.catch_warnings():  # empty slices of a scale's missing cells are skipped as NaN
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -759,6 +817,7 @@ def as_json(rows: Sequence[Row]) -> dict[str, Any]:
         "beyond_the_thesis": [r.as_dict() for r in rows if r.spec.beyond],
         "counts": dict(counts(rows)),
         "beyond_counts": dict(counts(rows, beyond=True)),
+        "stale_pages": stale_pages(rows),
     }
 
 
@@ -793,6 +852,8 @@ def scoreboard(scale: str, rows: Sequence[Row] | None = None) -> str:
         + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(extra.items()))
         + " (not in the counts above).\n\n"
     )
+    hint = stale_hint(stale_pages(rows), scale)
+    lead += f"```{{warning}}\n{hint}\n```\n\n" if hint else ""
     tail = (
         "\n\nEach thesis sentence is one claim, judged once by the rule registered for it in "
         "`data/thesis/claims.yaml` (pages that repeat it show the same verdict). Kit-made checks such as the "

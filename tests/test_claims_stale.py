@@ -1,0 +1,58 @@
+"""Saved page numbers carry the kit's stamp (code, config, ``data/thesis/``): numbers written by other kit code
+are judged as before but reported stale, per row, in ``claims --json`` and as one line on stderr."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from thesis_repro.claims import cli
+from thesis_repro.claims import ledger as L
+from thesis_repro.claims import synthetic as S
+
+SCALE = "small"
+
+
+@pytest.fixture
+def saved(tmp_path, monkeypatch):
+    """Fig 3.3's numbers saved by this kit in a private build folder; returns the data file."""
+    for var in ("THESIS_REPRO_BUILD", "THESIS_REPRO_DATA", "THESIS_REPRO_REFERENCE", "THESIS_REPRO_PUBLISHED_BUILD"):
+        monkeypatch.setenv(var, str(tmp_path / var.lower()))
+    s = L.spec("3.3-negative-correlation")
+    return L.save_page(s.page, SCALE, S.frames_for(s.rule["measure"], 3, 0), {"scale": SCALE})
+
+
+def _restamp(path, stamp):
+    blob = json.loads(path.read_text())
+    blob["kit"] = stamp
+    path.write_text(json.dumps(blob))
+
+
+def test_numbers_saved_by_this_kit_are_fresh(saved):
+    assert json.loads(saved.read_text())["kit"] == L.kit_stamp()
+    row = L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False)
+    assert row.stale == [] and row.as_dict()["stale_pages"] == []
+
+
+def test_numbers_saved_by_other_kit_code_are_judged_but_reported_stale(saved, capsys):
+    before = L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False)
+    _restamp(saved, "0" * 12)
+    row = L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False)
+    assert (row.status, row.statistic) == (before.status, before.statistic)  # the same verdict, flagged
+    assert row.stale == ["fig-3.3"]
+    # a claim derived from stale claims is stale too
+    assert L.judge(L.spec("3.3-not-valid-metric"), SCALE, with_null=False).stale == ["fig-3.3"]
+
+    assert cli.main(["--scale", SCALE, "--json", "--no-null", "--ids", "3.3-negative-correlation"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["stale_pages"] == ["fig-3.3"]
+    assert err.count("\n") == 1 and err.startswith("stale: the saved numbers of fig-3.3 ")
+    assert "`make figure-3.3 SCALE=small`" in err
+
+
+def test_numbers_saved_before_stamps_existed_are_stale(saved):
+    blob = json.loads(saved.read_text())
+    del blob["kit"]
+    saved.write_text(json.dumps(blob))
+    assert L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False).stale == ["fig-3.3"]
