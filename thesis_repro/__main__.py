@@ -379,6 +379,7 @@ def _plan_command(args: argparse.Namespace) -> int:
         print(plan.summary(p))
     print("\nthe book (every figure; runs shared by figures counted once):")
     print(plan.report(book, rates))
+    print(plan.pace_note(book, rates), end="")
     return 0
 
 
