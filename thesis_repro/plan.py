@@ -452,9 +452,9 @@ def per_seed(p: Plan) -> str:
 def shipped_pace(reference: str | Path | None = None) -> dict[str, tuple[float, int]]:
     """Median env steps per wall-second of the shipped training runs of each family, over the runs trained in
     one go (``provenance.json`` ``measured``: ``steps_per_s``, ``resumed_from`` 0), with their count: the pace
-    the reference-run generator reached (several jobs at a time, ``nice``) on the machine that made them.
-    ``make bench`` times one job alone on an idle machine, so this pace is the better guide to how long the
-    generator still needs there."""
+    the reference-run generator reached (several jobs at a time, ``nice``, beside whatever else that machine
+    ran) on the machine that made them. ``make bench`` times one job alone, so this pace is the better guide
+    to how long the generator still needs there."""
     ref = paths.reference() if reference is None else Path(reference)
     per: dict[str, list[float]] = {}
     for prov in sorted((ref / "train").glob("*/provenance.json")):
