@@ -7,6 +7,7 @@ import json
 
 import pytest
 
+from thesis_repro import paths, report
 from thesis_repro.claims import cli
 from thesis_repro.claims import ledger as L
 from thesis_repro.claims import synthetic as S
@@ -30,7 +31,7 @@ def _restamp(path, stamp):
 
 
 def test_numbers_saved_by_this_kit_are_fresh(saved):
-    assert json.loads(saved.read_text())["kit"] == L.kit_stamp()
+    assert json.loads(saved.read_text())["kit"] == paths.kit_stamp()
     row = L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False)
     assert row.stale == [] and row.as_dict()["stale_pages"] == []
 
@@ -56,3 +57,16 @@ def test_numbers_saved_before_stamps_existed_are_stale(saved):
     del blob["kit"]
     saved.write_text(json.dumps(blob))
     assert L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False).stale == ["fig-3.3"]
+
+
+def test_analysis_verdicts_saved_by_other_kit_code_are_reported_stale(tmp_path, monkeypatch):
+    """Claims judged by a page's own rule (the Eq 4.11 analysis) read its saved verdicts: stamped the same way."""
+    monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path / "build"))
+    monkeypatch.setenv("THESIS_REPRO_PUBLISHED_BUILD", str(tmp_path / "published"))
+    s = next(x for x in L.specs() if "page_verdict" in x.rule)
+    n = int(s.rule["page_verdict"]) + 1
+    path = report.report(s.page, SCALE, [report.Verdict(s.page, "c", report.REPRODUCES, "e")] * n, display=False)
+    assert L.judge(s, SCALE, with_null=False).stale == [] and not report.stale(s.page, SCALE)
+    _restamp(path, "0" * 12)
+    row = L.judge(s, SCALE, with_null=False)
+    assert row.status == report.REPRODUCES and row.stale == [s.page]

@@ -11,7 +11,9 @@ reference runs with ``THESIS_REPRO_REFERENCE`` and the build folder with ``THESI
 
 from __future__ import annotations
 
+import hashlib
 import os
+from functools import cache
 from pathlib import Path
 
 ROOT: Path = Path(__file__).resolve().parent.parent
@@ -105,3 +107,21 @@ def notebook(figure: str) -> Path:
 def thesis_table(name: str) -> Path:
     """A transcribed reference table of the thesis, e.g. ``thesis_table("fig3_3c")``."""
     return THESIS_DATA / f"{name}.csv"
+
+
+@cache
+def kit_stamp() -> str:
+    """Short hash of what a page's saved numbers depend on besides its runs: the kit's code and configuration
+    (``thesis_repro/**/*.py``, ``*.yaml``) and the thesis's numbers and claims (``data/thesis/``). Saved with
+    the numbers, so numbers written by other kit code are reported as stale instead of judged silently.
+
+    >>> len(kit_stamp()) == 12 and kit_stamp() == kit_stamp()
+    True
+    """
+    code = sorted(f for f in [*PACKAGE.rglob("*.py"), *PACKAGE.rglob("*.yaml")] if "__pycache__" not in f.parts)
+    thesis = sorted(f for f in THESIS_DATA.rglob("*") if f.is_file())
+    h = hashlib.sha256()
+    for base, files in ((PACKAGE, code), (THESIS_DATA, thesis)):
+        for f in files:
+            h.update(f.relative_to(base).as_posix().encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()[:12]

@@ -127,7 +127,8 @@ def report(figure: str, scale: str, verdicts: Sequence[Verdict], display: bool =
     out = verdicts_path(figure, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"figure": figure, "scale": scale, "verdicts": [asdict(v) for v in verdicts]}, indent=1))
+    blob = {"figure": figure, "scale": scale, "kit": paths.kit_stamp(), "verdicts": [asdict(v) for v in verdicts]}
+    tmp.write_text(json.dumps(blob, indent=1))
     tmp.replace(out)
     return out
 
@@ -139,3 +140,9 @@ def load(figure: str, scale: str) -> list[Verdict]:
     if not p.exists():
         return []
     return [Verdict(**v) for v in json.loads(p.read_text())["verdicts"]]
+
+
+def stale(figure: str, scale: str) -> bool:
+    """Whether the verdicts :func:`load` reads were saved by other kit code (:func:`~thesis_repro.paths.kit_stamp`)."""
+    p = paths.page_output(scale, verdicts_path(figure, scale).name)
+    return p.exists() and json.loads(p.read_text()).get("kit") != paths.kit_stamp()

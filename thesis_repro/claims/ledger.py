@@ -19,7 +19,6 @@ True
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import warnings
@@ -253,34 +252,15 @@ def saved_path(page: str, scale: str) -> Path:
     return paths.page_output(scale, data_path(page, scale).name)
 
 
-@cache
-def kit_stamp() -> str:
-    """Short hash of what a page's saved numbers depend on besides its runs: the kit's code and configuration
-    (``thesis_repro/**/*.py``, ``*.yaml``) and the thesis's numbers and claims (``data/thesis/``). Saved with
-    the numbers, so numbers written by other kit code are reported as stale instead of judged silently.
-
-    >>> len(kit_stamp()) == 12 and kit_stamp() == kit_stamp()
-    True
-    """
-    pkg = Path(__file__).resolve().parents[1]
-    code = sorted(f for f in [*pkg.rglob("*.py"), *pkg.rglob("*.yaml")] if "__pycache__" not in f.parts)
-    thesis = sorted(f for f in paths.THESIS_DATA.rglob("*") if f.is_file())
-    h = hashlib.sha256()
-    for base, files in ((pkg, code), (paths.THESIS_DATA, thesis)):
-        for f in files:
-            h.update(f.relative_to(base).as_posix().encode() + b"\0" + f.read_bytes())
-    return h.hexdigest()[:12]
-
-
 def save_page(page: str, scale: str, frames: Mapping[str, pd.DataFrame], meta: Mapping[str, Any]) -> Path:
     """Write a page's per-seed frames (records) and meta (scale, seeds, budget note) atomically, stamped
-    with :func:`kit_stamp`."""
+    with :func:`~thesis_repro.paths.kit_stamp`."""
     out = data_path(page, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
     blob = {
         "page": page,
         "scale": scale,
-        "kit": kit_stamp(),
+        "kit": paths.kit_stamp(),
         "meta": dict(meta),
         "frames": {k: json.loads(v.to_json(orient="records")) for k, v in frames.items()},
     }
@@ -300,13 +280,14 @@ def _jsonable(x: Any) -> Any:
 
 def load_page(page: str, scale: str) -> dict[str, Any] | None:
     """The saved blob of ``page`` (frames as DataFrames) or None; inside a notebook, also a finished page's
-    (:func:`~thesis_repro.paths.page_output`). ``blob["stale"]``: written by other kit code (:func:`kit_stamp`)."""
+    (:func:`~thesis_repro.paths.page_output`). ``blob["stale"]``: written by other kit code
+    (:func:`~thesis_repro.paths.kit_stamp`)."""
     p = saved_path(page, scale)
     if not p.exists():
         return None
     blob = json.loads(p.read_text())
     blob["frames"] = {k: pd.DataFrame(v) for k, v in blob["frames"].items()}
-    blob["stale"] = blob.get("kit") != kit_stamp()
+    blob["stale"] = blob.get("kit") != paths.kit_stamp()
     return blob
 
 
@@ -430,7 +411,7 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
         if len(saved) <= int(r["page_verdict"]):
             return Row(s, report.NOT_COMPUTED, note=f"{s.page} not executed at {scale}")
         v = saved[int(r["page_verdict"])]
-        return Row(s, v.status, note=v.evidence)
+        return Row(s, v.status, note=v.evidence, stale=[s.page] if report.stale(s.page, scale) else [])
     if r.get("derived"):
         rows = [judge(spec(i), scale, with_null) for i in r["derived"]]
         status = combine_groups([x.status for x in rows])
