@@ -171,3 +171,4 @@ def test_shipped_pace_is_the_median_of_runs_trained_in_one_go(tmp_path):
     note = plan.pace_note(p, rates, {"sac": (400.0, 3)})
     assert note.startswith("at the pace of the shipped runs (3 runs") and "2.0x the bench-based 1.0 h" in note
     assert plan.pace_note(p, rates, {}) == ""  # nothing shipped: no line
+    assert plan.pace_note(plan.plan_jobs("x", jobs, "smoke", 2, rates), rates, {"sac": (400.0, 3)}) == ""

@@ -15,7 +15,7 @@ family, their work, the throughput of each family, the core-hours and the wall t
   N cores (:func:`makespan`; never below the longest job, nor below core-hours / N).
 
 The book total counts each run once (figures share runs by key), so it is less than the sum of the figures.
-``plan all`` adds one line: the training phase's wall time at the pace the shipped runs reached
+The plan ends with one line: the training phase's wall time at the pace the shipped runs reached
 (:func:`shipped_pace`: the generator's jobs, several at a time, are slower than ``make bench``'s lone job).
 
 >>> core_hours(3_600_000, 1_000.0)
@@ -485,7 +485,9 @@ def paced_training_hours(p: Plan, rates: Rates, pace: Mapping[str, tuple[float, 
 
 def pace_note(p: Plan, rates: Rates, pace: Mapping[str, tuple[float, int]] | None = None) -> str:
     """One line: the training phase's wall time at the shipped runs' pace (:func:`shipped_pace`), beside the
-    bench-based one ('' without training jobs or shipped paces)."""
+    bench-based one ('' at ``smoke``, whose jobs are mostly start-up, and without training jobs or paces)."""
+    if p.scale == "smoke":
+        return ""
     pace = shipped_pace() if pace is None else pace
     fams = sorted({ln.family for ln in p.training} & set(pace))
     if not p.training or not fams:
