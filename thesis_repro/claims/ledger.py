@@ -854,7 +854,9 @@ def method(rows: Sequence[Row]) -> str:
         "its units (rows, cells, panels), and thresholds, tied to the thesis's own k/n where it reports one "
         f"({THESIS_SHARE:g} x its share). The unit of replication is the training seed: each unit compares "
         "per-seed values with a 95 % CI (Welch across seeds, or a one-sample / paired t interval, or "
-        "Clopper-Pearson for success shares; `scipy.stats`). The yes-share interval [CI-supported yes, yes + "
+        "Clopper-Pearson for success shares; `scipy.stats`): yes when the CI is above 0 (the claim's side), no when "
+        "it ends at or below 0 (a tie in every seed leaves no room for the claimed effect), else undecided. The "
+        "yes-share interval [CI-supported yes, yes + "
         "undecided] decides: inside one region -> that verdict, across two -> inconclusive. One seed -> at most "
         "indicative. **Null pass rate**: the share of synthetic null draws (every contrast redrawn at its null "
         f"boundary with its observed spread and >= 3 seeds; {NULL_DRAWS} draws) the rule judges *reproduces*.\n",

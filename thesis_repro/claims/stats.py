@@ -51,12 +51,19 @@ class Estimate:
 
     @property
     def outcome(self) -> str:
-        """``yes`` (CI above 0), ``no`` (CI below 0), ``undecided``; point sign when there is no CI."""
+        """``yes`` (CI above 0), ``no`` (CI at or below 0), ``undecided``; point sign when there is no CI.
+
+        A CI that ends at 0 has no room for the claimed (strictly positive) effect: a tie in every seed (0 vs 0
+        successes, two learners at a task's ceiling) is ``no``, as its point estimate 0 is without a CI.
+
+        >>> Estimate(0.0, 0.0, 0.0, 3).outcome, Estimate(0.5, -0.1, 1.1, 3).outcome, Estimate(0.0, 0.0, 0.2, 3).outcome
+        ('no', 'undecided', 'undecided')
+        """
         if not math.isfinite(self.est):
             return UNDECIDED
         if not (math.isfinite(self.lo) and math.isfinite(self.hi)):
             return YES if self.est > 0 else NO
-        return YES if self.lo > 0 else NO if self.hi < 0 else UNDECIDED
+        return YES if self.lo > 0 else NO if self.hi <= 0 else UNDECIDED
 
 
 def _clean(x: Sequence[float] | None) -> np.ndarray | None:
