@@ -143,32 +143,3 @@ def test_plan_reports_cost_per_training_seed():
     text = plan.report(p, RATES)
     assert "per training seed: s0: " in text and "; s1: " in text
     assert plan.per_seed(plan.plan_jobs("x", [], "smoke", 1, RATES)) == ""
-
-
-def _shipped(root, name, cfg, measured):
-    d = root / "train" / name
-    d.mkdir(parents=True)
-    (d / "config.json").write_text(json.dumps({"kind": "train", "config": cfg}))
-    prov = {"wall_seconds": 1.0, **({"measured": measured} if measured else {})}
-    (d / "provenance.json").write_text(json.dumps(prov))
-
-
-def test_shipped_pace_is_the_median_of_runs_trained_in_one_go(tmp_path):
-    sac, ppo = train_config("sac", "Hopper", 0, 1000), train_config("ppo-scn", "Hopper", 0, 1000)
-    _shipped(tmp_path, "a", sac, {"steps_per_s": 300.0, "resumed_from": 0})
-    _shipped(tmp_path, "b", sac, {"steps_per_s": 500.0, "resumed_from": 0})
-    _shipped(tmp_path, "c", sac, {"steps_per_s": 400.0, "resumed_from": 0})
-    _shipped(tmp_path, "d", sac, {"steps_per_s": 90_000.0, "resumed_from": 900})  # resumed: its pace is not a job's
-    _shipped(tmp_path, "e", ppo, None)  # trained before the pace was recorded
-    assert plan.shipped_pace(tmp_path) == {"sac": (400.0, 3)}
-
-    # the training phase at that pace: bench rate 800 -> twice the bench-based wall time; other families keep theirs
-    rates = plan.Rates({"sac": 800.0, "ppo": 1000.0}, {})
-    jobs = [Job("train", train_config("sac", "Hopper", s, 2_880_000)) for s in (0, 1)]
-    p = plan.plan_jobs("x", jobs, "small", 2, rates)
-    assert p.wall_hours()[0] == pytest.approx(1.0)
-    assert plan.paced_training_hours(p, rates, {"sac": (400.0, 3)}) == pytest.approx(2.0)
-    note = plan.pace_note(p, rates, {"sac": (400.0, 3)})
-    assert note.startswith("at the pace of the shipped runs (3 runs") and "2.0x the bench-based 1.0 h" in note
-    assert plan.pace_note(p, rates, {}) == ""  # nothing shipped: no line
-    assert plan.pace_note(plan.plan_jobs("x", jobs, "smoke", 2, rates), rates, {"sac": (400.0, 3)}) == ""

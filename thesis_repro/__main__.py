@@ -371,7 +371,6 @@ def _plan_command(args: argparse.Namespace) -> int:
     if args.figure != "all":
         p = plan.plan_figure(args.figure, args.scale, args.cores, rates, args.missing, args.seeds, **subset)
         print(plan.report(p, rates))
-        print(plan.pace_note(p, rates), end="")
         return 0
     if subset:
         raise ValueError("--envs/--algos choose a subset of one figure; name it (plan 3.3 --algos ppo trpo)")
@@ -380,7 +379,6 @@ def _plan_command(args: argparse.Namespace) -> int:
         print(plan.summary(p))
     print("\nthe book (every figure; runs shared by figures counted once):")
     print(plan.report(book, rates))
-    print(plan.pace_note(book, rates), end="")
     return 0
 
 

@@ -15,8 +15,6 @@ family, their work, the throughput of each family, the core-hours and the wall t
   N cores (:func:`makespan`; never below the longest job, nor below core-hours / N).
 
 The book total counts each run once (figures share runs by key), so it is less than the sum of the figures.
-The plan ends with one line: the training phase's wall time at the pace the shipped runs reached
-(:func:`shipped_pace`: the generator's jobs, several at a time, are slower than ``make bench``'s lone job).
 
 >>> core_hours(3_600_000, 1_000.0)
 1.0
@@ -30,7 +28,6 @@ import heapq
 import json
 import os
 import platform
-import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -446,61 +443,6 @@ def per_seed(p: Plan) -> str:
         return ""
     parts = [f"{'other' if s is None else f's{s}'}: {n:,} jobs, {_num(h)} core-hours" for s, (n, h) in p.seeds.items()]
     return "per training seed: " + "; ".join(parts) + "\n"
-
-
-# ---------------------------------------------------------------- the pace the shipped runs reached
-def shipped_pace(reference: str | Path | None = None) -> dict[str, tuple[float, int]]:
-    """Median env steps per wall-second of the shipped training runs of each family, over the runs trained in
-    one go (``provenance.json`` ``measured``: ``steps_per_s``, ``resumed_from`` 0), with their count: the pace
-    the reference-run generator reached (several jobs at a time, ``nice``, beside whatever else that machine
-    ran) on the machine that made them. ``make bench`` times one job alone, so this pace is the better guide
-    to how long the generator still needs there."""
-    ref = paths.reference() if reference is None else Path(reference)
-    per: dict[str, list[float]] = {}
-    for prov in sorted((ref / "train").glob("*/provenance.json")):
-        m = json.loads(prov.read_text()).get("measured") or {}
-        if not m.get("steps_per_s") or m.get("resumed_from"):
-            continue
-        doc = json.loads((prov.parent / "config.json").read_text())
-        fam = family(Job(str(doc.get("kind", "train")), doc["config"]))
-        per.setdefault(fam, []).append(float(m["steps_per_s"]))
-    return {f: (statistics.median(v), len(v)) for f, v in sorted(per.items())}
-
-
-def paced_training_hours(p: Plan, rates: Rates, pace: Mapping[str, tuple[float, int]]) -> float:
-    """Wall hours of ``p``'s training phase on its cores with each family at its shipped ``pace`` (the
-    :func:`makespan` of the jobs' durations rescaled by bench rate / pace; a family without one keeps its rate).
-
-    >>> ln = Line("train", "ppo", 2, 2e6, [0.25, 0.25])
-    >>> paced_training_hours(Plan("x", "small", 2, [ln]), Rates({"ppo": 4000.0}, {}), {"ppo": (2000.0, 5)})
-    0.5
-    """
-    durations = [
-        d * rates.rate(ln.family) / pace[ln.family][0] if ln.family in pace else d
-        for ln in p.training
-        for d in ln.durations
-    ]
-    return makespan(durations, p.cores)
-
-
-def pace_note(p: Plan, rates: Rates, pace: Mapping[str, tuple[float, int]] | None = None) -> str:
-    """One line: the training phase's wall time at the shipped runs' pace (:func:`shipped_pace`), beside the
-    bench-based one ('' at ``smoke``, whose jobs are mostly start-up, and without training jobs or paces)."""
-    if p.scale == "smoke":
-        return ""
-    pace = shipped_pace() if pace is None else pace
-    fams = sorted({ln.family for ln in p.training} & set(pace))
-    if not p.training or not fams:
-        return ""
-    paced, bench = paced_training_hours(p, rates, pace), p.wall_hours()[0]
-    runs = sum(pace[f][1] for f in fams)
-    return (
-        f"at the pace of the shipped runs ({runs} runs trained in one go; median env steps per wall-second of "
-        f"{', '.join(f'{f} {_num(pace[f][0])}' for f in fams)}): training {_hours(paced)} wall on {p.cores} "
-        f"cores, {paced / bench:.1f}x the bench-based {_hours(bench)}\n"
-        if bench > 0
-        else ""
-    )
 
 
 def rates_note(rates: Rates) -> str:
