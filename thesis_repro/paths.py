@@ -112,8 +112,9 @@ def thesis_table(name: str) -> Path:
 @cache
 def kit_stamp() -> str:
     """Short hash of what a page's saved numbers depend on besides its runs: the kit's code and configuration
-    (``thesis_repro/**/*.py``, ``*.yaml``) and the thesis's numbers and claims (``data/thesis/``). Saved with
-    the numbers, so numbers written by other kit code are reported as stale instead of judged silently.
+    (``thesis_repro/**/*.py``, ``*.yaml``), the notebooks (``notebooks/*.py``) and the thesis's numbers and
+    claims (``data/thesis/``). Saved with the numbers, so numbers written by other kit code are reported as stale
+    instead of judged silently.
 
     >>> len(kit_stamp()) == 12 and kit_stamp() == kit_stamp()
     True
@@ -121,7 +122,7 @@ def kit_stamp() -> str:
     code = sorted(f for f in [*PACKAGE.rglob("*.py"), *PACKAGE.rglob("*.yaml")] if "__pycache__" not in f.parts)
     thesis = sorted(f for f in THESIS_DATA.rglob("*") if f.is_file())
     h = hashlib.sha256()
-    for base, files in ((PACKAGE, code), (THESIS_DATA, thesis)):
+    for base, files in ((PACKAGE, code), (NOTEBOOKS, sorted(NOTEBOOKS.glob("*.py"))), (THESIS_DATA, thesis)):
         for f in files:
             h.update(f.relative_to(base).as_posix().encode() + b"\0" + f.read_bytes())
     return h.hexdigest()[:12]

@@ -300,15 +300,17 @@ def stale_hint(pages: Sequence[str], scale: str) -> str:
     """One line telling how to refresh stale ``pages`` ('' when there are none).
 
     >>> stale_hint(["fig-5.6", "table-3.4"], "small")  # doctest: +NORMALIZE_WHITESPACE
-    'stale: the saved numbers of fig-5.6, table-3.4 were written by other kit code (thesis_repro/ or data/thesis/
-    changed since); refresh them with `make figure-5.6 SCALE=small` per page, or `make book SCALE=small`'
+    'stale: the saved numbers of fig-5.6, table-3.4 were written by other kit code (thesis_repro/, notebooks/ or
+    data/thesis/ changed since); refresh them with `make figure-5.6 SCALE=small` per page, or `make book
+    SCALE=small`'
     """
     if not pages:
         return ""
     first = pages[0].removeprefix("fig-")
     return (
-        f"stale: the saved numbers of {', '.join(pages)} were written by other kit code (thesis_repro/ or "
-        f"data/thesis/ changed since); refresh them with `make figure-{first} SCALE={scale}` per page, or "
+        f"stale: the saved numbers of {', '.join(pages)} were written by other kit code (thesis_repro/, "
+        f"notebooks/ or data/thesis/ changed since); refresh them with `make figure-{first} SCALE={scale}` per "
+        "page, or "
         f"`make book SCALE={scale}`"
     )
 
