@@ -299,6 +299,8 @@ def stale_pages(rows: Sequence[Row]) -> list[str]:
 def stale_hint(pages: Sequence[str], scale: str) -> str:
     """One line telling how to refresh stale ``pages`` ('' when there are none).
 
+    >>> "`make table-3.4 SCALE=small`" in stale_hint(["table-3.4"], "small")
+    True
     >>> stale_hint(["fig-5.6", "table-3.4"], "small")  # doctest: +NORMALIZE_WHITESPACE
     'stale: the saved numbers of fig-5.6, table-3.4 were written by other kit code (thesis_repro/, notebooks/ or
     data/thesis/ changed since); refresh them with `make figure-5.6 SCALE=small` per page, or `make book
@@ -306,10 +308,10 @@ def stale_hint(pages: Sequence[str], scale: str) -> str:
     """
     if not pages:
         return ""
-    first = pages[0].removeprefix("fig-")
+    first = pages[0] if pages[0].startswith("table-") else f"figure-{pages[0].removeprefix('fig-')}"
     return (
         f"stale: the saved numbers of {', '.join(pages)} were written by other kit code (thesis_repro/, "
-        f"notebooks/ or data/thesis/ changed since); refresh them with `make figure-{first} SCALE={scale}` per "
+        f"notebooks/ or data/thesis/ changed since); refresh them with `make {first} SCALE={scale}` per "
         "page, or "
         f"`make book SCALE={scale}`"
     )
