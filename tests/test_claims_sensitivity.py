@@ -121,7 +121,7 @@ def test_the_sensitivity_is_computed_from_the_runs_with_the_summary_s_welch():
     assert m.seeds == "3 seeds" and m.within_spread
     text = study.summary(study.lr_schedule_jobs(), cache)
     assert f"= {e.difference:,.0f} (Welch 95 % CI {e.ci[0]:,.0f} to {e.ci[1]:,.0f}" in text
-    assert "\nHopper:" not in text and "| Hopper | linear | 1/3 |" in text
+    assert "\nHopper:" not in text and "| Hopper (1M) | linear | 1/3 |" in text
     assert study.lr_schedule_sensitivity(_FakeCache({})) is None
 
 
@@ -134,7 +134,7 @@ def test_the_registry_field_is_validated():
     (s,) = L.parse_specs(_registry(sensitivity=["lr-schedule"]))
     assert s.sensitivity == ("lr-schedule",)
     assert L.parse_specs(_registry())[0].sensitivity == ()
-    with pytest.raises(ValueError, match=r"unknown sensitivity study 'lr-shedule'; valid: lr-schedule$") as err:
+    with pytest.raises(ValueError, match=r"unknown sensitivity study 'lr-shedule'; valid: lr-schedule, reptile-outer-step$") as err:
         L.parse_specs(_registry(sensitivity=["lr-shedule"]))
     assert "\n" not in str(err.value) and "x-claim" in str(err.value)
     with pytest.raises(ValueError, match="must be a list"):

@@ -301,17 +301,17 @@ def shipped_cache() -> RunCache:
 
 def spread_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
     """Every ``train`` job of the figures (all by default) at ``scale`` under every training protocol, and (for all
-    figures) the protocol studies' runs (:func:`thesis_repro.study.lr_schedule_jobs`), deduplicated by key."""
+    figures) the protocol studies' runs (:func:`thesis_repro.study.study_jobs`), deduplicated by key."""
     from thesis_repro.learners.config import PROTOCOLS
     from thesis_repro.scales import under_protocol
-    from thesis_repro.study import lr_schedule_jobs
+    from thesis_repro.study import study_jobs
 
     jobs: dict[str, Job] = {}
     for protocol in PROTOCOLS:
         with under_protocol(protocol):
             jobs.update((j.key, j) for j in training_jobs(scale, figure_ids))
     if figure_ids is None:
-        jobs.update((j.key, j) for j in lr_schedule_jobs())
+        jobs.update((j.key, j) for j in study_jobs())
     return list(jobs.values())
 
 

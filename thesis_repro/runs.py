@@ -328,9 +328,9 @@ def pending_keys(scale: str, layer_root: str | Path | None = None) -> set[str]:
     the protocol studies' runs (:mod:`thesis_repro.study`)."""
     from thesis_repro.learners.config import PROTOCOLS
     from thesis_repro.scales import under_protocol
-    from thesis_repro.study import lr_schedule_jobs
+    from thesis_repro.study import study_jobs
 
-    keys = {j.key for j in lr_schedule_jobs()}
+    keys = {j.key for j in study_jobs()}
     for protocol in PROTOCOLS:
         with under_protocol(protocol):
             keys |= current_keys(scale, layer_root=layer_root, seeds=PENDING_SEEDS)

@@ -1,10 +1,17 @@
-"""Protocol studies: measured comparisons of one training setting, across training seeds (issue 20).
+"""Protocol studies: measured comparisons of one training setting, across training seeds (issues 20, 21).
 
-``lr-schedule``: PPO with baselines ppo1's linear annealing (the thesis protocol) against a constant learning
-rate and clip range, on InvertedDoublePendulum and Hopper at 1M env steps, 3 seeds each (one seed is not
-enough: the same config and seed differs by ~20 % between two machines). Every run is an ordinary ``train``
-job of the run cache (the annealed InvertedDoublePendulum runs ARE Fig 3.3's thesis-protocol PPO runs, same
-keys), so they can be shipped and rechecked like any other.
+Each study (:data:`SPECS`) trains one learner under two values of one setting, 3 seeds per task, as ordinary
+``train`` jobs of the run cache (so they can be shipped and rechecked like any other). Where one value is the
+protocol a figure uses, those runs ARE that figure's runs (same keys):
+
+* ``lr-schedule``: PPO with baselines ppo1's linear annealing (the thesis protocol) against a constant learning
+  rate and clip range, on InvertedDoublePendulum and Hopper at 1M env steps (the annealed InvertedDoublePendulum
+  runs are Fig 3.3's thesis-protocol PPO runs). One seed is not enough: the same config and seed differs by
+  ~20 % between two machines.
+* ``reptile-outer-step``: PPO-Reptile-DG with Nichol et al.'s outer step π ← π + ε(π' − π), ε = 1 annealed as
+  the lr (the Reptile paper's outer step size, annealed linearly to 0), against Alg 2 as the thesis writes it
+  (one Adam step of lr β = 1e-3 on π − π' per iteration: the kit's Table 3.7 runs, which stay near an
+  untrained policy's return), on InvertedPendulum and InvertedDoublePendulum at Table 3.7's `small` budgets.
 
     python -m thesis_repro.study lr-schedule [--jobs 2] [--ship] [--commit]   # train what is missing, then
     python -m thesis_repro.study lr-schedule --summary                        # the table, no training
@@ -16,6 +23,8 @@ neither the claims layer nor the figures (the claims layer imports it).
 
 >>> [j.config["lr_schedule"] for j in lr_schedule_jobs()][:2]
 ['linear', 'constant']
+>>> [SPECS["reptile-outer-step"].value(j) for j in study_jobs("reptile-outer-step")][:2]
+[1.0, None]
 """
 
 from __future__ import annotations
@@ -23,32 +32,113 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from thesis_repro.cache import Job, RunCache
 
-#: The lr-schedule study: tasks with their budget, training seeds and the schedules compared.
-LR_STUDY = {
-    "envs": {"InvertedDoublePendulum": 1_000_000, "Hopper": 1_000_000},
-    "seeds": (0, 1, 2),
-    "schedules": ("linear", "constant"),
+
+@dataclass(frozen=True)
+class StudySpec:
+    """One protocol study: ``learner`` (its id) trained on ``envs`` (task -> budget) for ``seeds`` under each of
+    two ``values`` of the setting at ``path`` (a top-level config key, or ``sb3.<key>``; absent reads as
+    ``default``); the contrast is ``values[0] - values[1]``. ``overrides`` are the other training settings
+    (those of the figure whose runs one value shares)."""
+
+    name: str
+    learner: str
+    learner_label: str
+    setting: str
+    path: str
+    values: tuple[Any, Any]
+    labels: tuple[str, str]
+    envs: Mapping[str, int]
+    seeds: tuple[int, ...] = (0, 1, 2)
+    default: Any = None
+    overrides: Mapping[str, Any] | None = None
+
+    def value(self, job: Job) -> Any:
+        """The studied setting of a job's config (``default`` when absent)."""
+        holder: Any = job.config
+        *parents, leaf = self.path.split(".")
+        for part in parents:
+            holder = holder.get(part, {})
+        return holder.get(leaf, self.default)
+
+    def label(self, value: Any) -> str:
+        """The display name of one of :attr:`values`."""
+        return self.labels[self.values.index(value)]
+
+    @property
+    def contrast(self) -> str:
+        return f"{self.labels[0]} - {self.labels[1]}"
+
+    def jobs(self) -> list[Job]:
+        """One training job per (task, seed, value), thesis protocol, through the one ``train_config``."""
+        from thesis_repro.learners import train_config  # at call time: importing this module stays cheap (claims)
+
+        leaf, extra = self.path.split(".")[-1], dict(self.overrides or {})
+        return [
+            Job("train", train_config(self.learner, env, seed, budget, protocol="thesis", **{**extra, leaf: v}))
+            for env, budget in self.envs.items()
+            for seed in self.seeds
+            for v in self.values
+        ]
+
+
+#: Every protocol study by name.
+SPECS: dict[str, StudySpec] = {
+    "lr-schedule": StudySpec(
+        name="lr-schedule",
+        learner="ppo",
+        learner_label="PPO",
+        setting="lr schedule",
+        path="lr_schedule",
+        values=("linear", "constant"),
+        labels=("linear", "constant"),
+        envs={"InvertedDoublePendulum": 1_000_000, "Hopper": 1_000_000},
+    ),
+    "reptile-outer-step": StudySpec(
+        name="reptile-outer-step",
+        learner="ppo-reptile-dg",
+        learner_label="PPO-Reptile-DG",
+        setting="Reptile-DG outer step",
+        path="sb3.meta_step_size",
+        values=(1.0, None),
+        labels=("eps = 1 (Nichol et al.)", "Adam 1e-3 (Alg 2)"),
+        # Table 3.7's `small` budgets and training settings (config/scales.yaml), so the Alg 2 runs are its runs
+        envs={"InvertedPendulum": 200_000, "InvertedDoublePendulum": 1_000_000},
+        overrides={"perturbation": "dom", "sigma": 0.2},
+    ),
 }
+#: The lr-schedule study's tasks with their budget, training seeds and the schedules compared.
+LR_STUDY = {
+    "envs": dict(SPECS["lr-schedule"].envs),
+    "seeds": SPECS["lr-schedule"].seeds,
+    "schedules": SPECS["lr-schedule"].values,
+}
+
+
+def study_jobs(name: str | None = None) -> list[Job]:
+    """The training jobs of study ``name`` (all studies' when ``None``), deduplicated by key."""
+    names = list(SPECS) if name is None else [_check(name)]
+    jobs = {j.key: j for n in names for j in SPECS[n].jobs()}
+    return list(jobs.values())
 
 
 def lr_schedule_jobs() -> list[Job]:
     """One PPO training job per (task, seed, schedule), thesis protocol, no other override (Fig 3.3's configs)."""
-    from thesis_repro.learners import train_config  # at call time: importing this module stays cheap (claims)
+    return SPECS["lr-schedule"].jobs()
 
-    return [
-        Job("train", train_config("ppo", env, seed, budget, protocol="thesis", lr_schedule=schedule))
-        for env, budget in LR_STUDY["envs"].items()
-        for seed in LR_STUDY["seeds"]
-        for schedule in LR_STUDY["schedules"]
-    ]
+
+def _check(name: str) -> str:
+    if name not in SPECS:
+        raise ValueError(f"unknown protocol study {name!r}; valid: {', '.join(SPECS)}")
+    return name
 
 
 #: Short task names for one-line texts (the ledger's "why").
@@ -97,24 +187,28 @@ class Sensitivity:
         return all(e.within_spread for e in self.effects)
 
 
-def final_returns(jobs: Sequence[Job], cache: RunCache | None = None) -> dict[tuple[str, str], np.ndarray]:
-    """Per (task, schedule): one row (final training return, peak of the training curve) per loaded seed.
-    Runs neither cached nor shipped are left out (nothing is trained)."""
+def final_returns(
+    jobs: Sequence[Job], cache: RunCache | None = None, spec: StudySpec | None = None
+) -> dict[tuple[str, Any], np.ndarray]:
+    """Per (task, setting value) of ``spec`` (default: the lr-schedule study): one row (final training return,
+    peak of the training curve) per loaded seed. Runs neither cached nor shipped are left out (nothing is
+    trained)."""
+    spec = spec or SPECS["lr-schedule"]
     cache = cache or RunCache()
-    rows: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    rows: dict[tuple[str, Any], list[tuple[float, float]]] = {}
     for job in jobs:
         res = cache.load(job)
         if res is None:
             continue
         curve = np.asarray(res["curve_return"], dtype=float)
-        key = (job.config["env"], job.config["lr_schedule"])
+        key = (job.config["env"], spec.value(job))
         rows.setdefault(key, []).append((float(res["train_return"]), float(np.nanmax(curve))))
     return {k: np.array(v, dtype=float).reshape(-1, 2) for k, v in rows.items()}
 
 
-def schedule_effects(returns: dict[tuple[str, str], np.ndarray]) -> dict[str, Effect]:
-    """Per task with >= 2 seeds of each schedule: first - second schedule (:data:`LR_STUDY`) in mean final
-    training return, Welch 95 % CI across seeds (``scipy.stats.ttest_ind``, unequal variances).
+def schedule_effects(returns: dict[tuple[str, Any], np.ndarray], spec: StudySpec | None = None) -> dict[str, Effect]:
+    """Per task with >= 2 seeds of each value of ``spec`` (default: the lr-schedule study): first - second value
+    in mean final training return, Welch 95 % CI across seeds (``scipy.stats.ttest_ind``, unequal variances).
 
     >>> r = {("Hopper", "linear"): np.array([[3.0, 0], [5.0, 0]])}
     >>> r[("Hopper", "constant")] = np.array([[1.0, 0], [3.0, 0]])
@@ -124,10 +218,11 @@ def schedule_effects(returns: dict[tuple[str, str], np.ndarray]) -> dict[str, Ef
     """
     from scipy.stats import ttest_ind
 
-    first, second = LR_STUDY["schedules"]
+    spec = spec or SPECS["lr-schedule"]
+    first, second = spec.values
     out = {}
-    for env in LR_STUDY["envs"]:
-        a, b = (returns.get((env, sch), np.empty((0, 2)))[:, 0] for sch in (first, second))
+    for env in spec.envs:
+        a, b = (returns.get((env, v), np.empty((0, 2)))[:, 0] for v in (first, second))
         if len(a) < 2 or len(b) < 2:
             continue
         test = ttest_ind(a, b, equal_var=False)
@@ -136,27 +231,35 @@ def schedule_effects(returns: dict[tuple[str, str], np.ndarray]) -> dict[str, Ef
     return out
 
 
-def lr_schedule_sensitivity(cache: RunCache | None = None) -> Sensitivity | None:
-    """The lr-schedule study as a protocol sensitivity, from the cached / shipped runs; ``None`` when no task
-    has >= 2 seeds of each schedule available (nothing is trained)."""
-    effects = schedule_effects(final_returns(lr_schedule_jobs(), cache))
+def study_sensitivity(name: str, cache: RunCache | None = None) -> Sensitivity | None:
+    """Study ``name`` as a protocol sensitivity, from the cached / shipped runs; ``None`` when no task has >= 2
+    seeds of each value available (nothing is trained)."""
+    spec = SPECS[_check(name)]
+    effects = schedule_effects(final_returns(spec.jobs(), cache, spec), spec)
     if not effects:
         return None
-    budgets = sorted(set(LR_STUDY["envs"].values()))
-    first, second = LR_STUDY["schedules"]
+    budgets = sorted(set(spec.envs.values()))
     return Sensitivity(
-        study="lr-schedule",
-        setting="lr schedule",
-        learner="PPO",
+        study=name,
+        setting=spec.setting,
+        learner=spec.learner_label,
         budget="/".join(f"{b / 1e6:g}M" for b in budgets) + " steps",
-        contrast=f"{first} - {second}",
+        contrast=spec.contrast,
         measure="final training return",
-        effects=tuple(effects[env] for env in LR_STUDY["envs"] if env in effects),
+        effects=tuple(effects[env] for env in spec.envs if env in effects),
     )
 
 
+def lr_schedule_sensitivity(cache: RunCache | None = None) -> Sensitivity | None:
+    """The lr-schedule study as a protocol sensitivity (:func:`study_sensitivity`)."""
+    return study_sensitivity("lr-schedule", cache)
+
+
 #: Protocol studies the claims registry may name (``sensitivity: [lr-schedule]``): name -> its result.
-STUDIES: dict[str, Callable[[], Sensitivity | None]] = {"lr-schedule": lr_schedule_sensitivity}
+STUDIES: dict[str, Callable[[], Sensitivity | None]] = {
+    "lr-schedule": lr_schedule_sensitivity,
+    "reptile-outer-step": lambda: study_sensitivity("reptile-outer-step"),
+}
 
 
 def sensitivity(name: str) -> Sensitivity | None:
@@ -166,30 +269,31 @@ def sensitivity(name: str) -> Sensitivity | None:
     return STUDIES[name]()
 
 
-def summary(jobs: Sequence[Job], cache: RunCache | None = None) -> str:
+def summary(jobs: Sequence[Job], cache: RunCache | None = None, spec: StudySpec | None = None) -> str:
     """Markdown table: final training return (mean of the last 100 episodes) and the peak of the training
-    curve, mean ± sd over the seeds per task and schedule, then each task's Welch contrast
-    (:func:`schedule_effects`, the numbers the claims ledger reads); runs neither cached nor shipped are
-    counted out."""
-    rows = final_returns(jobs, cache)
-    n_seeds = len(LR_STUDY["seeds"])
+    curve, mean ± sd over the seeds per task and setting value of ``spec`` (default: the lr-schedule study),
+    then each task's Welch contrast (:func:`schedule_effects`, the numbers the claims ledger reads); runs
+    neither cached nor shipped are counted out."""
+    spec = spec or SPECS["lr-schedule"]
+    rows = final_returns(jobs, cache, spec)
+    n_seeds = len(spec.seeds)
     lines = [
-        "| task (1M steps) | schedule | seeds | final training return | peak of the training curve |",
+        f"| task (budget) | {spec.setting} | seeds | final training return | peak of the training curve |",
         "|---|---|---|---|---|",
     ]
-    for env in LR_STUDY["envs"]:
-        for schedule in LR_STUDY["schedules"]:
-            vals = rows.get((env, schedule), np.empty((0, 2)))
+    for env, budget in spec.envs.items():
+        for v in spec.values:
+            vals = rows.get((env, v), np.empty((0, 2)))
+            task = f"{env} ({budget / 1e6:g}M)"
             if not len(vals):
-                lines.append(f"| {env} | {schedule} | 0/{n_seeds} | not run | not run |")
+                lines.append(f"| {task} | {spec.label(v)} | 0/{n_seeds} | not run | not run |")
                 continue
             cells = [_mean_sd(vals[:, i]) for i in (0, 1)]
-            lines.append(f"| {env} | {schedule} | {len(vals)}/{n_seeds} | {cells[0]} | {cells[1]} |")
-    first, second = LR_STUDY["schedules"]
-    for env, e in schedule_effects(rows).items():
+            lines.append(f"| {task} | {spec.label(v)} | {len(vals)}/{n_seeds} | {cells[0]} | {cells[1]} |")
+    for env, e in schedule_effects(rows, spec).items():
         lo, hi = e.ci
         lines.append(
-            f"\n{env}: final return {first} - {second} = {e.difference:,.0f} (Welch 95 % CI "
+            f"\n{env}: final return {spec.contrast} = {e.difference:,.0f} (Welch 95 % CI "
             f"{lo:,.0f} to {hi:,.0f}, p = {e.pvalue:.2f}, {e.n[0]} vs {e.n[1]} seeds)"
         )
     return "\n".join(lines)
@@ -207,23 +311,28 @@ def _mean_sd(x: np.ndarray) -> str:
     return f"{x.mean():,.0f} ± {x.std(ddof=1):,.0f} ({vals})"
 
 
-def produce(jobs: Sequence[Job], n_jobs: int = 1, ship: bool = False, commit: bool = False) -> None:
+def produce(
+    jobs: Sequence[Job], n_jobs: int = 1, ship: bool = False, commit: bool = False, spec: StudySpec | None = None
+) -> None:
     """Train the jobs that are neither cached nor shipped, ``n_jobs`` at a time; export (and commit) each."""
     from thesis_repro.backends import execute
     from thesis_repro.runs import _die_with_parent, export, git_commit, wall_seconds
 
+    spec = spec or SPECS["lr-schedule"]
+    leaf = spec.path.split(".")[-1]
     cache = RunCache()
     todo = [j for j in jobs if cache.state(j) not in ("cached", "shipped")]
-    print(f"lr-schedule study: {len(jobs)} runs, {len(todo)} to train, {n_jobs} at a time", flush=True)
+    print(f"{spec.name} study: {len(jobs)} runs, {len(todo)} to train, {n_jobs} at a time", flush=True)
 
     def land(job: Job, res) -> None:  # noqa: ANN001 - a cache Result
-        line = f"{job.label} lr_schedule={job.config['lr_schedule']}: train_return {res['train_return']:.1f}"
+        setting = f"{leaf}={spec.value(job)}"
+        line = f"{job.label} {setting}: train_return {res['train_return']:.1f}"
         if ship:
             ex = export(res)
             line += f", shipped {ex.megabytes:.2f} MB"
             if commit:
-                msg = f"reference run: {job.label} lr_schedule={job.config['lr_schedule']} (train, key {job.key}, "
-                msg += f"{wall_seconds(res):.0f} s; lr-schedule study)"
+                msg = f"reference run: {job.label} {setting} (train, key {job.key}, "
+                msg += f"{wall_seconds(res):.0f} s; {spec.name} study)"
                 line += f", committed {git_commit(ex.path, msg)}"
         print(line, flush=True)
 
@@ -248,7 +357,7 @@ def produce(jobs: Sequence[Job], n_jobs: int = 1, ship: bool = False, commit: bo
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m thesis_repro.study", description=__doc__.split("\n")[0])
-    parser.add_argument("study", choices=["lr-schedule"])
+    parser.add_argument("study", choices=list(SPECS))
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--ship", action="store_true", help="export each finished run into data/reference")
     parser.add_argument("--commit", action="store_true", help="git-commit each shipped run (implies --ship)")
@@ -256,10 +365,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.jobs < 1:
         parser.error(f"--jobs must be >= 1, got {args.jobs}")
-    jobs = lr_schedule_jobs()
+    spec = SPECS[args.study]
+    jobs = spec.jobs()
     if not args.summary:
-        produce(jobs, args.jobs, ship=args.ship or args.commit, commit=args.commit)
-    print(summary(jobs))
+        produce(jobs, args.jobs, ship=args.ship or args.commit, commit=args.commit, spec=spec)
+    print(summary(jobs, spec=spec))
     return 0
 
 

@@ -133,9 +133,16 @@ def train_config(
     figures pass their scale's ``protocol`` setting.
 
     ``overrides`` may name any top-level setting (``n_envs``, ``perturbation``, ``sigma``, ``c_a``, ``wind``,
-    ``net_arch``, ``snapshot_every``, ``max_episode_steps``, ...) or any key of the entry's ``sb3`` block
-    (``n_steps``, ``ent_coef``, ``epsilon``, ``damping``, ...). A name that exists nowhere is an error, so
-    typos never pass silently.
+    ``net_arch``, ``snapshot_every``, ``max_episode_steps``, ...), any key of the entry's ``sb3`` block
+    (``n_steps``, ``ent_coef``, ``epsilon``, ``damping``, ...) or of its ``optional_sb3`` block, whose keys
+    enter ``sb3`` only when set to another value than their default (so adding one keeps every existing key).
+    A name that exists nowhere is an error, so typos never pass silently.
+
+    >>> a = train_config("ppo-reptile-dg", "Hopper", 0, 1000)
+    >>> a == train_config("ppo-reptile-dg", "Hopper", 0, 1000, meta_step_size=None), "meta_step_size" in a["sb3"]
+    (True, False)
+    >>> train_config("ppo-reptile-dg", "Hopper", 0, 1000, meta_step_size=1.0)["sb3"]["meta_step_size"]
+    1.0
     """
     check_choice(algo, ALGORITHMS, "algorithm")
     short_name(env)  # a typo ("Hoppr") is a one-line error naming the valid envs, not a failure at training
@@ -148,6 +155,7 @@ def train_config(
     cfg.update(copy.deepcopy(RUN_DEFAULTS))
     cfg.update(entry)
     cfg.setdefault("sb3", {})
+    optional = cfg.pop("optional_sb3", None) or {}
     if check_choice(protocol, PROTOCOLS, "protocol") == "kit-v1":
         for path in THESIS_PROTOCOL_KEYS:
             *parents, leaf = path.split(".")
@@ -165,8 +173,11 @@ def train_config(
             cfg[key] = value
         elif key in cfg["sb3"]:
             cfg["sb3"][key] = value
+        elif key in optional:
+            if value != optional[key]:  # the default stays absent, so configs without it keep their keys
+                cfg["sb3"][key] = value
         else:
-            check_choice(key, sorted(top) + sorted(cfg["sb3"]), f"hyperparameter of {algo!r}")
+            check_choice(key, sorted(top) + sorted(cfg["sb3"]) + sorted(optional), f"hyperparameter of {algo!r}")
     if cfg["wind"] is not None:
         cfg["wind"] = [float(w) for w in cfg["wind"]] if isinstance(cfg["wind"], list | tuple) else cfg["wind"]
     _validate(cfg)
@@ -232,6 +243,10 @@ def _validate(cfg: dict[str, Any]) -> None:
         check_choice(cfg["lr_schedule"], LR_SCHEDULES, "lr_schedule")
         if cfg["class"] not in ON_POLICY or cfg["class"] == "TRPO":
             raise ValueError(f"lr_schedule is implemented for the PPO-family learners only, not {cfg['class']}")
+    if "meta_step_size" in sb3:
+        eps = sb3["meta_step_size"]
+        if isinstance(eps, bool) or not isinstance(eps, int | float) or not eps > 0:
+            raise ValueError(f"meta_step_size must be a number > 0 (or None: Alg 2's Adam step), got {eps!r}")
     if "meta_update" in sb3:
         check_choice(sb3["meta_update"], META_UPDATES, "meta_update")
     if cfg.get("arpl") is not None and "delta" in cfg["arpl"]:

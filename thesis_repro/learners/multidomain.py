@@ -172,6 +172,20 @@ def reptile_meta_step(module: nn.Module, adapted: dict[str, th.Tensor], optimize
     optimizer.step()
 
 
+def reptile_interpolate(module: nn.Module, adapted: dict[str, th.Tensor], eps: float) -> None:
+    """Nichol et al.'s Reptile outer step without an optimiser: π ← π + ε (π' − π) for every parameter.
+
+    >>> m = nn.Linear(1, 1); target = {k: v + 1 for k, v in m.state_dict().items()}
+    >>> before = {k: v.clone() for k, v in m.state_dict().items()}
+    >>> reptile_interpolate(m, target, 0.25)
+    >>> all(th.allclose(v, before[k] + 0.25) for k, v in m.state_dict().items())
+    True
+    """
+    with th.no_grad():
+        for name, p in module.named_parameters():
+            p.add_(adapted[name].detach() - p, alpha=float(eps))
+
+
 def fomaml_meta_step(module: nn.Module, grads: list[dict[str, th.Tensor]], optimizer: th.optim.Optimizer) -> None:
     """Alg 1 outer step (first order): π's gradient is the mean of the post-adaptation gradients."""
     if not grads:
@@ -583,7 +597,18 @@ class _MetaPPO(MultiDomainPPO):
 
 
 class ReptileDG(_MetaPPO):
-    """Alg 2: π' ← π; per domain (random order) collect with π' and adapt π'; Adam on π with π − π'."""
+    """Alg 2: π' ← π; per domain (random order) collect with π' and adapt π'; Adam on π with π − π'.
+
+    ``meta_step_size`` (None: Alg 2 as written, one Adam step of lr β = ``learning_rate`` on the gradient
+    π − π' per iteration) ε instead takes Nichol et al.'s (2018) outer step π ← π + ε_t (π' − π) with no
+    optimiser, ε_t = ε x (current learning rate / initial one), so it anneals as the run's lr schedule does (the
+    Reptile paper anneals ε linearly to 0). It is what the protocol study ``reptile-outer-step``
+    (:mod:`thesis_repro.study`) varies; ε = 1 keeps the whole adaptation (π ← π').
+    """
+
+    def __init__(self, *args: Any, meta_step_size: float | None = None, **kwargs: Any):
+        self.meta_step_size = None if meta_step_size is None else check_nonneg(meta_step_size, "meta_step_size")
+        super().__init__(*args, **kwargs)
 
     def collect_rollouts(self, env: VecEnv, callback: BaseCallback, buffer: RolloutBuffer, n_rollout_steps: int):
         assert self.sub_policies is not None
@@ -605,10 +630,14 @@ class ReptileDG(_MetaPPO):
         return True
 
     def train(self) -> None:
-        """The meta step π ← Adam(π, π − π') (lr ``learning_rate``)."""
+        """The meta step π ← Adam(π, π − π') (lr ``learning_rate``), or π ← π + ε_t (π' − π)."""
         self._update_learning_rate(self.policy.optimizer)
         before = agg.PolicyView.from_sb3(self.policy).get_flat()
-        reptile_meta_step(self.policy, self._adapted, self.policy.optimizer)
+        if self.meta_step_size is None:
+            reptile_meta_step(self.policy, self._adapted, self.policy.optimizer)
+        else:
+            eps = self.meta_step_size * self.lr_schedule(self._current_progress_remaining) / self.lr_schedule(1.0)
+            reptile_interpolate(self.policy, self._adapted, eps)
         self._n_updates += 1
         self._record({"meta_step_norm": float((agg.PolicyView.from_sb3(self.policy).get_flat() - before).norm())})
 
