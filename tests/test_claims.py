@@ -113,6 +113,18 @@ def test_ambiguous_data_is_inconclusive():
     assert L.rule_for(s, "better than NC")[0].judge(groups["better than NC"]).status == report.INCONCLUSIVE
 
 
+def test_a_unit_without_seeds_is_undecided_and_does_not_cap_the_others_at_indicative():
+    """6-contribution-4: every kl_avg run diverged, so its 'retained return' units have no seed at all; the
+    training-return units have 3 seeds and CIs. The empty units count as undecided, the claim keeps its CIs."""
+    low = Contrast("kl_avg - joint", a=(100.0, 120.0, 110.0), b=(900.0, 1000.0, 1100.0))
+    empty = Contrast("kl_avg - joint", a=(), b=(900.0, 1000.0, 1100.0))
+    units = [Unit("training return", (low,)), Unit("retained return", (empty,))]
+    j = CountRule(1.0, 0.5).judge(units)
+    assert (j.n_seeds, j.yes, j.undecided, j.no) == (3, 0, 1, 1)
+    assert j.status == report.INCONCLUSIVE  # yes-share in [0, 0.5]: does not .. partly
+    assert CountRule(1.0, 0.5).judge([Unit("retained return", (empty,))]).status == report.INDICATIVE  # no data
+
+
 _NOMINAL = {"wind": lambda f: f["value"] == 0.0, "noise": lambda f: f["value"] == 0.0}
 
 

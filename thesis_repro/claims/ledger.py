@@ -460,7 +460,7 @@ def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.Dat
     status = combine_groups([j.status for j in judged.values()])
     if not_run and status == report.REPRODUCES:
         status = report.PARTLY
-    n_seeds = min(j.n_seeds for j in judged.values())
+    n_seeds = min((j.n_seeds for j in judged.values() if j.n_seeds > 0), default=0)
     stat = {g or "all": j.statistic() for g, j in judged.items()}
     gsum = {g or "all": {"verdict": j.status, "leaning": j.leaning, "units": j.units} for g, j in judged.items()}
     if scale == "smoke":
@@ -862,7 +862,8 @@ def method(rows: Sequence[Row]) -> str:
         "it ends at or below 0 (a tie in every seed leaves no room for the claimed effect), else undecided. The "
         "yes-share interval [CI-supported yes, yes + "
         "undecided] decides: inside one region -> that verdict, across two -> inconclusive. One seed -> at most "
-        "indicative. **Null pass rate**: the share of synthetic null draws (every contrast redrawn at its null "
+        "indicative; a unit with no seed at all (e.g. every run of its learner diverged) is undecided and does not "
+        "count as one seed. **Null pass rate**: the share of synthetic null draws (every contrast redrawn at its null "
         f"boundary with its observed spread and >= 3 seeds; {NULL_DRAWS} draws) the rule judges *reproduces*.\n",
         sensitivity_method(),
         "| claim | page | verdict | null pass rate |",

@@ -314,7 +314,9 @@ class CountRule:
         if not units:
             return Judgement(NOT_COMPUTED)
         level = self.level(len(units))
-        n_seeds = min(u.n() for u in units)
+        # a unit without any seed (e.g. every run of its learner diverged) is undecided, not "one seed": it
+        # cannot cap the others' CIs at indicative
+        n_seeds = min((u.n() for u in units if u.n() > 0), default=0)
         if n_seeds < 2:
             point = [_point(u) for u in units]
             k = point.count(YES)
