@@ -71,6 +71,24 @@ def test_sensitivity_text_appears_for_a_declared_claim(monkeypatch):
     )
 
 
+def test_one_seed_leaning_away_from_the_claim_still_shows_the_study(monkeypatch):
+    """Indicative rows have no seed spread to report, but a lean towards 'does not' gets the measured protocol
+    sensitivity (and no 'significantly against' from a single seed); a lean towards 'reproduces' gets no why."""
+    monkeypatch.setitem(study.STUDIES, "lr-schedule", lambda: FAKE)
+    a = _ppo_behind_on_pendulums()
+    one = a[a["seed"] == 0]
+    L.save_page("table-3.4", "small", {"aucs": one}, {"scale": "small"})
+    row = L.judge(L.spec("3.4-ppo-pendulums"), "small", with_null=False)
+    assert row.status == report.INDICATIVE and "lean 'does not reproduce'" in row.note
+    assert EXPECTED in row.diagnosis and "significantly against" not in row.diagnosis
+    assert "median 95 % CI width" not in row.diagnosis
+    flip = one.copy()
+    flip.loc[flip["method"] == "ppo", "value"] += 1000.0  # PPO far ahead everywhere: the lean is 'reproduces'
+    L.save_page("table-3.4", "small", {"aucs": flip}, {"scale": "small"})
+    row = L.judge(L.spec("3.4-ppo-pendulums"), "small", with_null=False)
+    assert row.status == report.INDICATIVE and "lean 'reproduces'" in row.note and row.diagnosis == ""
+
+
 def test_nothing_is_said_when_the_study_runs_are_missing(monkeypatch):
     """conftest points the run cache and the shipped layer at empty folders: no run, no sensitivity, no training."""
 

@@ -465,7 +465,7 @@ def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.Dat
     gsum = {g or "all": {"verdict": j.status, "leaning": j.leaning, "units": j.units} for g, j in judged.items()}
     if scale == "smoke":
         status = report.NOT_JUDGED
-    note = ""
+    note, lean = "", ""
     if status == report.INDICATIVE:
         lean = combine_groups([j.leaning for j in judged.values()])
         note = f"one training seed: no CI; the point estimates lean '{lean}'"
@@ -476,6 +476,12 @@ def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.Dat
     if status in (report.DOES_NOT, report.PARTLY, report.INCONCLUSIVE):
         measured = [m for m in (study_result(n) for n in s.sensitivity) if m is not None]
         row.diagnosis = diagnose(judged, meta, measured)
+        row.sensitivity = [_sensitivity_dict(m) for m in measured]
+    elif status == report.INDICATIVE and lean != report.REPRODUCES:
+        # one seed leaning away from the claim: no seed spread to report, but the training regime and any
+        # measured protocol sensitivity still say how much the lean can be trusted
+        measured = [m for m in (study_result(n) for n in s.sensitivity) if m is not None]
+        row.diagnosis = diagnose({}, meta, measured)
         row.sensitivity = [_sensitivity_dict(m) for m in measured]
     return row
 
