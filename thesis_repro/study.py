@@ -11,7 +11,8 @@ protocol a figure uses, those runs ARE that figure's runs (same keys):
 * ``reptile-outer-step``: PPO-Reptile-DG with Nichol et al.'s outer step π ← π + ε(π' − π), ε = 1 annealed as
   the lr (the Reptile paper's outer step size, annealed linearly to 0), against Alg 2 as the thesis writes it
   (one Adam step of lr β = 1e-3 on π − π' per iteration: the kit's Table 3.7 runs, which stay near an
-  untrained policy's return), on InvertedPendulum and InvertedDoublePendulum at Table 3.7's `small` budgets.
+  untrained policy's return), on InvertedPendulum, InvertedDoublePendulum and Hopper at Table 3.7's `small`
+  budgets.
 
     python -m thesis_repro.study lr-schedule [--jobs 2] [--ship] [--commit]   # train what is missing, then
     python -m thesis_repro.study lr-schedule --summary                        # the table, no training
@@ -111,7 +112,7 @@ SPECS: dict[str, StudySpec] = {
         values=(1.0, None),
         labels=("eps = 1 (Nichol et al.)", "Adam 1e-3 (Alg 2)"),
         # Table 3.7's `small` budgets and training settings (config/scales.yaml), so the Alg 2 runs are its runs
-        envs={"InvertedPendulum": 200_000, "InvertedDoublePendulum": 1_000_000},
+        envs={"InvertedPendulum": 200_000, "InvertedDoublePendulum": 1_000_000, "Hopper": 2_000_000},
         overrides={"perturbation": "dom", "sigma": 0.2},
     ),
 }
