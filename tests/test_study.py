@@ -103,3 +103,22 @@ def test_the_registry_declares_the_reptile_study_on_table_3_7s_meta_learning_cla
     from thesis_repro.claims import ledger as L
 
     assert {s.id for s in L.specs() if "reptile-outer-step" in s.sensitivity} == {"3.7-maml-reptile"}
+
+
+#: The README block of the Reptile-DG study and the command that regenerates it.
+BEGIN, END = "<!-- reptile-study:begin -->", "<!-- reptile-study:end -->"
+COMMAND = "python -m thesis_repro.study reptile-outer-step [--summary]"
+
+
+def test_readme_reptile_block_is_the_summary_of_the_shipped_runs(monkeypatch):
+    from thesis_repro import budgets, paths
+
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the real shipped layer
+    text = (paths.ROOT / "README.md").read_text()
+    assert COMMAND in text
+    block = text.split(BEGIN)[1].split(END)[0].strip()
+    spec = study.SPECS["reptile-outer-step"]
+    expected = study.summary(spec.jobs(), budgets.shipped_cache(), spec).strip()
+    assert block == expected, (
+        "README reptile-study block is stale: paste `python -m thesis_repro.study reptile-outer-step --summary`"
+    )
