@@ -93,34 +93,31 @@ class StudySpec:
 
 #: Every protocol study by name.
 SPECS: dict[str, StudySpec] = {
-    "lr-schedule": StudySpec(
-        name="lr-schedule",
-        learner="ppo",
-        learner_label="PPO",
-        setting="lr schedule",
-        path="lr_schedule",
-        values=("linear", "constant"),
-        labels=("linear", "constant"),
-        envs={"InvertedDoublePendulum": 1_000_000, "Hopper": 1_000_000},
-    ),
-    "reptile-outer-step": StudySpec(
-        name="reptile-outer-step",
-        learner="ppo-reptile-dg",
-        learner_label="PPO-Reptile-DG",
-        setting="Reptile-DG outer step",
-        path="sb3.meta_step_size",
-        values=(1.0, None),
-        labels=("eps = 1 (Nichol et al.)", "Adam 1e-3 (Alg 2)"),
-        # Table 3.7's `small` budgets and training settings (config/scales.yaml), so the Alg 2 runs are its runs
-        envs={"InvertedPendulum": 200_000, "InvertedDoublePendulum": 1_000_000, "Hopper": 2_000_000},
-        overrides={"perturbation": "dom", "sigma": 0.2},
-    ),
-}
-#: The lr-schedule study's tasks with their budget, training seeds and the schedules compared.
-LR_STUDY = {
-    "envs": dict(SPECS["lr-schedule"].envs),
-    "seeds": SPECS["lr-schedule"].seeds,
-    "schedules": SPECS["lr-schedule"].values,
+    spec.name: spec
+    for spec in (
+        StudySpec(
+            name="lr-schedule",
+            learner="ppo",
+            learner_label="PPO",
+            setting="lr schedule",
+            path="lr_schedule",
+            values=("linear", "constant"),
+            labels=("linear", "constant"),
+            envs={"InvertedDoublePendulum": 1_000_000, "Hopper": 1_000_000},
+        ),
+        StudySpec(
+            name="reptile-outer-step",
+            learner="ppo-reptile-dg",
+            learner_label="PPO-Reptile-DG",
+            setting="Reptile-DG outer step",
+            path="sb3.meta_step_size",
+            values=(1.0, None),
+            labels=("eps = 1 (Nichol et al.)", "Adam 1e-3 (Alg 2)"),
+            # Table 3.7's `small` budgets and training settings (config/scales.yaml), so the Alg 2 runs are its runs
+            envs={"InvertedPendulum": 200_000, "InvertedDoublePendulum": 1_000_000, "Hopper": 2_000_000},
+            overrides={"perturbation": "dom", "sigma": 0.2},
+        ),
+    )
 }
 
 
