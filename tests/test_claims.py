@@ -122,7 +122,9 @@ def test_a_unit_without_seeds_is_undecided_and_does_not_cap_the_others_at_indica
     j = CountRule(1.0, 0.5).judge(units)
     assert (j.n_seeds, j.yes, j.undecided, j.no) == (3, 0, 1, 1)
     assert j.status == report.INCONCLUSIVE  # yes-share in [0, 0.5]: does not .. partly
-    assert CountRule(1.0, 0.5).judge([Unit("retained return", (empty,))]).status == report.INDICATIVE  # no data
+    # no unit with any seed: every unit is undecided, so the claim is inconclusive (not "indicative")
+    alone = CountRule(1.0, 0.5).judge([Unit("retained return", (empty,)), Unit("retained return", (empty,))])
+    assert (alone.status, alone.n_seeds, alone.undecided) == (report.INCONCLUSIVE, 0, 2)
 
 
 _NOMINAL = {"wind": lambda f: f["value"] == 0.0, "noise": lambda f: f["value"] == 0.0}

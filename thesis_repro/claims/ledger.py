@@ -869,7 +869,8 @@ def method(rows: Sequence[Row]) -> str:
         "yes-share interval [CI-supported yes, yes + "
         "undecided] decides: inside one region -> that verdict, across two -> inconclusive. One seed -> at most "
         "indicative; a unit with no seed at all (e.g. every run of its learner diverged) is undecided and does not "
-        "count as one seed. **Null pass rate**: the share of synthetic null draws (every contrast redrawn at its null "
+        "count as one seed, so a claim none of whose units has a seed is inconclusive. **Null pass rate**: the "
+        "share of synthetic null draws (every contrast redrawn at its null "
         f"boundary with its observed spread and >= 3 seeds; {NULL_DRAWS} draws) the rule judges *reproduces*.\n",
         sensitivity_method(),
         "| claim | page | verdict | null pass rate |",

@@ -315,9 +315,9 @@ class CountRule:
             return Judgement(NOT_COMPUTED)
         level = self.level(len(units))
         # a unit without any seed (e.g. every run of its learner diverged) is undecided, not "one seed": it
-        # cannot cap the others' CIs at indicative
+        # cannot cap the others' CIs at indicative; when no unit has a seed, every unit is undecided (the CI path)
         n_seeds = min((u.n() for u in units if u.n() > 0), default=0)
-        if n_seeds < 2:
+        if n_seeds == 1:
             point = [_point(u) for u in units]
             k = point.count(YES)
             rows = [{**u.summary(level), "point": p} for u, p in zip(units, point, strict=True)]
