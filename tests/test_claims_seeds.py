@@ -215,7 +215,8 @@ def test_a_comparative_verdict_carries_a_ci_across_three_seeds(judged, cid):
     c = contrasts[0]
     text = L.describe(row)
     assert f"{c['estimate']:+.3g} [{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]" in text
-    assert "95 % CI across 3 training seeds" in text
+    level = L.ci_words([info.get("level", 0.95) for info in row.groups.values()])
+    assert f"{level} across 3 training seeds" in text  # 95 %, or the Bonferroni level the rule uses
 
 
 def test_the_claims_json_cli_exposes_the_cis(tmp_path, monkeypatch, capsys):
@@ -242,13 +243,13 @@ def test_the_page_prints_the_ci_next_to_the_statistic(capsys):
     effect = f"{c['estimate']:+.3g} [{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]"
     line = next(x for x in printed.splitlines() if "Entropy-regularised PPO usually" in x)
     assert f"{stat}; effect in the claim's direction (> 0 supports it) [95 % CI across 3 training seeds]" in line
-    assert effect in line and "more in the units table" in line  # 20 rows: the first few, then the table
+    assert effect in line and "more contrast(s) in the units table" in line  # 20 rows: the first few, then the table
     (v,) = [v for v in vs if "Entropy-regularised" in v.claim]
     assert effect in v.evidence and effect in v._repr_markdown_()
     saved = report.load("table-3.6", SCALE)
     assert any(effect in x.evidence for x in saved)
     table = L.units_table(row)
-    assert table["95% CI"].iloc[0] == f"[{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]"
+    assert table["CI"].iloc[0] == f"[{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]" and table["CI level"].iloc[0] == "95 %"
 
 
 # ---------------------------------------------------------------- 3 seeds, ambiguous: inconclusive
@@ -260,7 +261,8 @@ def test_ambiguous_three_seed_data_is_inconclusive(judged, cid):
     assert row.n_seeds == 3
     contrasts = _contrasts(row.as_dict())
     assert contrasts and all(c["ci"][0] < c["ci"][1] for c in contrasts)
-    assert "95 % CI across 3 training seeds" in L.describe(row)
+    level = L.ci_words([info.get("level", 0.95) for info in row.groups.values()])
+    assert f"{level} across 3 training seeds" in L.describe(row)
 
 
 def test_each_comparative_rule_type_has_an_inconclusive_rule(judged):

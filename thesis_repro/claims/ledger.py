@@ -35,7 +35,7 @@ import yaml
 
 from thesis_repro import paths, report
 from thesis_repro.claims import measures as M
-from thesis_repro.claims.stats import CountRule, Unit, _point, combine_groups, null_pass_rate
+from thesis_repro.claims.stats import LEVEL, CountRule, Unit, _point, combine_groups, null_pass_rate
 
 #: Statuses counted on the scoreboard, in its column order.
 COUNTED: tuple[str, ...] = (
@@ -462,13 +462,20 @@ def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.Dat
         status = report.PARTLY
     n_seeds = min((j.n_seeds for j in judged.values() if j.n_seeds > 0), default=0)
     stat = {g or "all": j.statistic() for g, j in judged.items()}
-    gsum = {g or "all": {"verdict": j.status, "leaning": j.leaning, "units": j.units} for g, j in judged.items()}
+    gsum = {
+        g or "all": {"verdict": j.status, "leaning": j.leaning, "level": j.level, "units": j.units}
+        for g, j in judged.items()
+    }
     if scale == "smoke":
         status = report.NOT_JUDGED
     note, lean = "", ""
     if status == report.INDICATIVE:
         lean = combine_groups([j.leaning for j in judged.values()])
-        note = f"one training seed: no CI; the point estimates lean '{lean}'"
+        note = (
+            "one training seed: no CI; the point estimates do not decide (a unit has none)"
+            if lean == report.INCONCLUSIVE
+            else f"one training seed: no CI; the point estimates lean '{lean}'"
+        )
     if not_run:
         note += ("; " if note else "") + "not judged (not run): " + ", ".join(not_run)
     rate = _null_rate(s, scale, run) if with_null else None
@@ -571,7 +578,8 @@ def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any], sensitivities: 
                 against.append(u["label"])
     bits = []
     if widths:
-        bits.append(f"seed spread: median 95 % CI width {np.median(widths):.3g} over {len(widths)} contrasts")
+        ci = ci_words([j.level for j in judged.values()])
+        bits.append(f"seed spread: median {ci} width {np.median(widths):.3g} over {len(widths)} contrasts")
     if against:
         bits.append(
             f"{len(against)} unit(s) significantly against the claim ({', '.join(against[:4])}"
@@ -622,7 +630,9 @@ def describe(row: Row) -> str:
     if effects:
         parts.append(effects)
     if row.n_seeds:
-        parts.append(f"{row.n_seeds} training seed(s)")
+        most = max((c["n"] for _, _, c, _ in _contrast_rows(row)), default=row.n_seeds)
+        few = f"{row.n_seeds} training seed(s)"
+        parts.append(f"{row.n_seeds}-{most} training seeds per unit" if most > row.n_seeds else few)
     if row.null_pass_rate is not None:
         parts.append(f"null pass rate {row.null_pass_rate:.2f}")
     if row.note:
@@ -636,7 +646,7 @@ def _stat_text(st: Mapping[str, Any], n_seeds: int | None = None) -> str:
     """A yes-share statistic in words; with one training seed a unit's "yes" is its point estimate, not a CI.
 
     >>> _stat_text({"value": 0.5, "ci": [0.5, 0.5], "k": 1, "n": 2}, n_seeds=1)
-    '1/2 units yes (point estimates: one training seed), point estimate 0.50'
+    '1/2 units yes (point estimates: a unit has one training seed), point estimate 0.50'
     >>> _stat_text({"value": 0.5, "ci": [0.5, 0.5], "k": 1, "n": 2}, n_seeds=3)
     '1/2 units yes (CI-supported), point estimate 0.50'
     """
@@ -644,7 +654,7 @@ def _stat_text(st: Mapping[str, Any], n_seeds: int | None = None) -> str:
         return "no units"
     lo, hi = st["ci"]
     pt = st.get("value")
-    basis = "point estimates: one training seed" if n_seeds is not None and n_seeds < 2 else "CI-supported"
+    basis = "point estimates: a unit has one training seed" if n_seeds is not None and n_seeds < 2 else "CI-supported"
     head = f"{st['k']}/{st['n']} units yes ({basis})"
     if st.get("undecided"):
         head += f", {st['undecided']} undecided: yes-share in [{lo:.2f}, {hi:.2f}]"
@@ -656,17 +666,49 @@ def _stat_text(st: Mapping[str, Any], n_seeds: int | None = None) -> str:
 def _effect_ci(c: Mapping[str, Any]) -> str:
     """A contrast's effect with its CI, ``+12.3 [4.1, 20.5]`` (no CI with one seed)."""
     if c["estimate"] is None:
-        return "n/a"
+        return "n/a (no seed with a value)" if not c.get("n") else "n/a"
     lo, hi = c["ci"]
     if lo is None or hi is None:
         return f"{c['estimate']:+.3g} (no CI)"
     return f"{c['estimate']:+.3g} [{lo:.3g}, {hi:.3g}]"
 
 
+def ci_words(levels: Sequence[float]) -> str:
+    """How the CIs of a row's units were made: ``95 % CI``, or the Bonferroni-adjusted level a rule uses.
+
+    >>> ci_words([0.95]), ci_words([0.95 + 0.05 * 5 / 6])
+    ('95 % CI', '99.2 % CI (Bonferroni-adjusted over the units)')
+    >>> ci_words([0.95, 0.99])
+    '95 % CI (99 % where the rule adjusts for its number of units)'
+    """
+    adjusted = sorted({round(x, 4) for x in levels if x > LEVEL + 1e-9})
+    if not adjusted:
+        return f"{LEVEL * 100:.3g} % CI"
+    adj = ", ".join(f"{x * 100:.3g} %" for x in adjusted)
+    if all(x > LEVEL + 1e-9 for x in levels):
+        return f"{adj} CI (Bonferroni-adjusted over the units)"
+    return f"{LEVEL * 100:.3g} % CI ({adj} where the rule adjusts for its number of units)"
+
+
+def _contrast_rows(row: Row) -> list[tuple[str, dict[str, Any], Mapping[str, Any], float]]:
+    """(group, unit, contrast, CI level) of every contrast of ``row``; a contrast repeated inside one unit once."""
+    out = []
+    for g, info in row.groups.items():
+        for u in info["units"]:
+            seen = set()
+            for c in u["contrasts"]:
+                key = (c["label"], c["estimate"], tuple(c["ci"]))
+                if key not in seen:
+                    seen.add(key)
+                    out.append((g, u, c, float(info.get("level", LEVEL))))
+    return out
+
+
 def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
     """The numbers behind a verdict: per unit, each contrast's effect in the claim's direction (> 0 supports
-    the claim; margins subtracted) with its 95 % CI across training seeds, ``[lo, hi]``; the first ``limit``
-    contrasts, then how many more the units table shows. Empty when the row has no units.
+    the claim; margins subtracted) with its CI across training seeds, ``[lo, hi]``; the first ``limit``
+    contrasts, then how many more the units table shows. Empty when the row has no units. The CI is 95 %,
+    or the Bonferroni-adjusted level of a rule that corrects for its number of units (:func:`ci_words`).
 
     >>> c = {"label": "ppo-ent - ppo", "estimate": 12.3, "ci": [4.1, 20.5], "n": 3}
     >>> row = Row(spec("3.6-entropy"), "reproduces", 3, groups={"all": {"units": [{"label": "Hopper/obs",
@@ -684,12 +726,9 @@ def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
     >>> effects_text(row).split(": ", 1)[0].split("[")[1]
     '95 % CI across 3 training seeds; no CI where a contrast has under 2 seeds]'
     """
-    items, ns = [], set()
-    for info in row.groups.values():
-        for u in info["units"]:
-            for c in u["contrasts"]:
-                items.append(f"{u['label']}: {c['label']} {_effect_ci(c)}")
-                ns.add(c["n"])
+    rows = _contrast_rows(row)
+    items = [f"{u['label']}: {c['label']} {_effect_ci(c)}" for _, u, c, _ in rows]
+    ns = {c["n"] for _, _, c, _ in rows}
     if not items:
         return ""
     with_ci = {n for n in ns if n >= 2}
@@ -698,32 +737,32 @@ def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
     else:
         seeds = f"{min(with_ci)}" if len(with_ci) == 1 else f"{min(with_ci)}-{max(with_ci)}"
         fewer = "; no CI where a contrast has under 2 seeds" if with_ci != ns else ""
-        head = f"effect in the claim's direction (> 0 supports it) [95 % CI across {seeds} training seeds{fewer}]"
+        ci = ci_words([lv for *_, lv in rows])
+        head = f"effect in the claim's direction (> 0 supports it) [{ci} across {seeds} training seeds{fewer}]"
     more = len(items) - limit
-    tail = f"; ... {more} more in the units table" if more > 0 else ""
+    tail = f"; ... {more} more contrast(s) in the units table" if more > 0 else ""
     return f"{head}: " + "; ".join(items[:limit]) + tail
 
 
 def units_table(row: Row) -> pd.DataFrame:
-    """Per unit: group, label, outcome and each contrast's estimate ± its 95 % CI across seeds."""
+    """Per contrast: group, unit, the unit's outcome (its contrasts combined by the rule), the contrast, its
+    estimate, its CI across seeds with the CI's level, the contrast's own outcome and its seeds."""
     recs = []
-    for g, info in row.groups.items():
-        for u in info["units"]:
-            for c in u["contrasts"]:
-                lo, hi = c["ci"]
-                ci = "" if lo is None else f"[{lo:.3g}, {hi:.3g}]"
-                est = "" if c["estimate"] is None else f"{c['estimate']:.3g}"
-                recs.append(
-                    {
-                        "group": g,
-                        "unit": u["label"],
-                        "outcome": u["outcome"],
-                        "contrast": c["label"],
-                        "estimate": est,
-                        "95% CI": ci,
-                        "seeds": c["n"],
-                    }
-                )
+    for g, u, c, level in _contrast_rows(row):
+        lo, hi = c["ci"]
+        recs.append(
+            {
+                "group": g,
+                "unit": u["label"],
+                "unit outcome": u["outcome"],
+                "contrast": c["label"],
+                "estimate": "" if c["estimate"] is None else f"{c['estimate']:.3g}",
+                "CI": "" if lo is None else f"[{lo:.3g}, {hi:.3g}]",
+                "CI level": f"{level * 100:.3g} %",
+                "contrast outcome": c.get("outcome", ""),
+                "seeds": c["n"],
+            }
+        )
     return pd.DataFrame(recs)
 
 
@@ -757,8 +796,27 @@ def judge_page(
     if display:
         _show_units(page, scale)
     for k in kit_checks:
-        print(f"[kit check, not a thesis claim] {k}")
+        print(kit_check_text(k))
     return vs
+
+
+#: A kit check's result in its own words (it tests the kit's agreement with the thesis, not a thesis claim).
+KIT_CHECK_WORDS = {
+    report.REPRODUCES: "agrees",
+    report.PARTLY: "partly agrees",
+    report.DOES_NOT: "disagrees",
+}
+
+
+def kit_check_text(v: report.Verdict) -> str:
+    """One printed line of a kit check, worded as agreement (never as a thesis verdict).
+
+    >>> kit_check_text(report.Verdict("table-3.4", "Bold rows agree", report.PARTLY, "3/20 rows"))
+    '[kit check, not a thesis claim] [table-3.4] PARTLY AGREES - Bold rows agree: 3/20 rows'
+    """
+    word = KIT_CHECK_WORDS.get(v.status, v.status)
+    tail = f": {v.evidence}" if v.evidence else ""
+    return f"[kit check, not a thesis claim] [{v.figure}] {word.upper()} - {v.claim}{tail}"
 
 
 def bolding_check(page: str, agreement: Mapping[str, int], scale: str) -> report.Verdict:
@@ -778,7 +836,9 @@ def bolding_check(page: str, agreement: Mapping[str, int], scale: str) -> report
         f"best learner the same in {a['best_same']}/{a['rows']} rows; bold/not-bold agrees in {a['same']}/"
         f"{a['cells']} cells ({a['bold_both']} bold in both; {a['bold_ours']} bold reproduced, "
         f"{a['bold_thesis']} bold thesis, on the learners run); thesis bolding derived from its mean ± std with "
-        f"n = {tables.thesis_n()}, alpha = {tables.significance_level()}"
+        f"n = {tables.thesis_n()}, alpha = {tables.significance_level()}; ours by the same Welch test on each cell's "
+        "seed x rollout samples (the thesis's method: rollouts count as samples here, unlike the claims above, "
+        "whose unit is the training seed)"
     )
     holds = None if not a["rows"] else a["best_same"] > a["rows"] / 2
     return report.Verdict(page, claim, report.status(holds, scale, partly=a["best_same"] > 0), ev)
@@ -797,7 +857,10 @@ def _show_units(page: str, scale: str) -> None:
             continue
         t = units_table(judge(s, scale, with_null=False))
         if len(t):
-            print(f"{s.id}: units (effect in the claim's direction, > 0 supports it; 95 % CI across training seeds)")
+            print(
+                f"{s.id}: units (effect in the claim's direction, > 0 supports it; CI across training seeds at the "
+                "level shown; a unit's outcome combines its contrasts by the claim's rule)"
+            )
             show(t)
 
 
@@ -836,7 +899,8 @@ def scoreboard(scale: str, rows: Sequence[Row] | None = None) -> str:
         f"\n\n## Scoreboard at scale `{scale}`\n\n"
         f"Distinct claims of the thesis: **{sum(total.values())}**; **{total.get(report.REPRODUCES, 0)} reproduce**, "
         f"**{total.get(report.PARTLY, 0)} partly**, **{total.get(report.DOES_NOT, 0)} do not**, "
-        f"{total.get(report.INCONCLUSIVE, 0)} inconclusive (the CI across training seeds spans two outcomes), "
+        f"{total.get(report.INCONCLUSIVE, 0)} inconclusive (the CI across training seeds spans two outcomes, or the "
+        "evidence cannot decide, e.g. every run of the method the claim is about diverged), "
         f"{total.get(report.INDICATIVE, 0)} indicative (one training seed: no CI), "
         f"{total.get(report.NOT_RUN, 0)} not run, {total.get(report.NOT_COMPUTED, 0)} not computed in this build.\n\n"
         f"Beyond the thesis (the kit's own extensions: kl_exact, the Eq 4.11 analysis): "

@@ -440,16 +440,44 @@ def _vs_baselines(
     sign: int = 1,
     **where: Any,
 ) -> Unit:
-    """``ours`` above each baseline present (Welch across seeds); non-inferiority with a negative margin."""
+    """``ours`` above each baseline present (Welch across seeds); non-inferiority with a negative margin.
+
+    Each contrast's label names the quantity compared (:func:`quantity_label`)."""
     base = [b for b in BASELINES if b in set(frame["algo"])]
     a = per_seed(frame, value, algo=ours, **where)
     parts = tuple(
         Contrast(
-            f"{ours} - {b}", a, per_seed(frame, value, algo=b, **where), sign=sign, margin=margin, relative=relative
+            quantity_label(value, ours, b, relative),
+            a,
+            per_seed(frame, value, algo=b, **where),
+            sign=sign,
+            margin=margin,
+            relative=relative,
         )
         for b in base
     )
     return Unit(label, parts)
+
+
+#: How a contrast label names each per-seed quantity that :func:`_vs_baselines` compares.
+QUANTITIES = {
+    "return": "return",
+    "retained": "retained fraction of the own nominal return",
+    "spread": "spread over conditions",
+    "entropy": "entropy",
+}
+
+
+def quantity_label(value: str, ours: str, base: str, relative: bool = False) -> str:
+    """The label of ``ours`` against ``base`` on quantity ``value``, saying what the number is.
+
+    >>> quantity_label("retained", "kl_avg", "joint")
+    'retained fraction of the own nominal return: kl_avg - joint'
+    >>> quantity_label("return", "kl_exact", "params_avg", relative=True)
+    'return: (kl_exact - params_avg) / |params_avg|'
+    """
+    diff = f"({ours} - {base}) / |{base}|" if relative else f"{ours} - {base}"
+    return f"{QUANTITIES.get(value, value)}: {diff}"
 
 
 def _late(curves: pd.DataFrame) -> pd.DataFrame:

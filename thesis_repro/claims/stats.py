@@ -239,7 +239,13 @@ class Unit:
             "outcome": self.outcome(level),
             "n_seeds": self.n(),
             "contrasts": [
-                {"label": c.directed_label(), "estimate": _r(e.est), "ci": [_r(e.lo), _r(e.hi)], "n": e.n}
+                {
+                    "label": c.directed_label(),
+                    "estimate": _r(e.est),
+                    "ci": [_r(e.lo), _r(e.hi)],
+                    "n": e.n,
+                    "outcome": e.outcome,
+                }
                 for c in self.contrasts()
                 for e in [c.estimate(level)]
             ],
@@ -269,6 +275,7 @@ class Judgement:
     n_seeds: int = 0
     leaning: str = ""  # the point-estimate region when the status is indicative
     units: list[dict[str, Any]] = field(default_factory=list)
+    level: float = LEVEL  # the per-contrast confidence of the units' CIs (Bonferroni-adjusted when the rule asks)
 
     @property
     def n(self) -> int:
@@ -319,16 +326,18 @@ class CountRule:
         n_seeds = min((u.n() for u in units if u.n() > 0), default=0)
         if n_seeds == 1:
             point = [_point(u) for u in units]
-            k = point.count(YES)
+            k, und, n = point.count(YES), point.count(UNDECIDED), len(units)
             rows = [{**u.summary(level), "point": p} for u, p in zip(units, point, strict=True)]
-            return Judgement(INDICATIVE, k, 0, len(units) - k, n_seeds, self.region(k / len(units), len(units)), rows)
+            lo, hi = self.region(k / n, n), self.region((k + und) / n, n)
+            lean = lo if lo == hi else INCONCLUSIVE  # a unit without any point estimate leaves the lean open
+            return Judgement(INDICATIVE, k, und, n - k - und, n_seeds, lean, rows, level)
         outcomes = [u.outcome(level) for u in units]
         yes, und = outcomes.count(YES), outcomes.count(UNDECIDED)
         n = len(units)
         lo, hi = self.region(yes / n, n), self.region((yes + und) / n, n)
         rows = [{**u.summary(level), "point": _point(u)} for u in units]
         status = lo if lo == hi else INCONCLUSIVE
-        return Judgement(status, yes, und, n - yes - und, n_seeds, units=rows)
+        return Judgement(status, yes, und, n - yes - und, n_seeds, units=rows, level=level)
 
 
 def _point(u: Unit) -> str:
