@@ -106,7 +106,10 @@ scaling = ka.spread_scaling(
 print(scaling.to_string(float_format=lambda v: f"{v:.3g}"))
 small_d = min(settings["spreads"][-1], 10 * min(settings["spreads"]))
 slopes = ka.loglog_slopes(scaling, max_spread=small_d)
-print(f"log-log slopes in δ for δ <= {small_d:g} (reproduced):", {k: round(v, 2) for k, v in slopes.items()})
+print(
+    f"log-log slopes in δ for δ <= {small_d:g} (reproduced; 2 = O(δ²)): "
+    + ", ".join(f"{k} {round(v, 2)}" for k, v in slopes.items())
+)
 
 # %% [markdown]
 # ## 4. Near-singular Fishers and damping
@@ -124,7 +127,7 @@ print(
     f"condition number {spectrum['condition']:.3g} (reproduced)"
 )
 sweep = ka.damping_sweep(problems[0], settings["dampings"], reference_iters=settings["reference_iters"])
-print(sweep.to_string(float_format=lambda v: f"{v:.3g}"))
+print(ka.sweep_text(sweep))
 
 # %% [markdown]
 # ## 5. The three aggregates on MLP policies
@@ -199,4 +202,4 @@ print(
 
 # %%
 verdicts = ka.verdict(summary, linear, SCALE)
-report("analysis-4-kl", SCALE, verdicts)
+_ = report("analysis-4-kl", SCALE, verdicts)

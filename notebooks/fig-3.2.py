@@ -38,7 +38,7 @@ from thesis_repro.learners import iteration_steps
 settings = figures.settings("3.2", SCALE)
 print(pages.runs_summary("3.2", SCALE))
 curve = ch3.overfitting_curve(settings, n_jobs=settings["n_jobs"])
-curve.round(1)
+ch3.curve_style(curve)
 
 # %%
 mean = curve.groupby("iteration")[["train_return", "test_auc"]].mean().reset_index()

@@ -37,14 +37,21 @@ plot.save(fig, SCALE, "fig-3.4-curves")
 # %%
 fig = ch3_curves.plot_heat(heat, settings)
 plot.save(fig, SCALE, "fig-3.4-heatmaps")
-ch3_curves.heat_summary(heat).round(1)
+ch3_curves.heat_summary_style(
+    ch3_curves.heat_summary(heat),
+    settings,
+    "Heat maps, reproduced: mean testing return at the training domain (centre) and its drop (centre minus the "
+    "mean return) at the largest shift of one factor, the other at 0, and over the outer ring of the grid",
+)
 
 # %% [markdown]
 # The same summary across **training seeds** (per seed its centre and drops, then the mean over seeds and its
 # 95 % t-interval; one seed: no interval).
 
 # %%
-ch3_curves.heat_summary_ci(heat)
+ch3_curves.heat_summary_style(
+    ch3_curves.heat_summary_ci(heat), settings, "Heat maps, reproduced, across training seeds: mean [95 % CI] (seeds)"
+)
 
 # %%
 comp = ch3_tables.compare("3.4", ch3_tables.our_cells(res), settings, ci=ch3_tables.our_ci(res))

@@ -38,9 +38,11 @@ print(pages.runs_summary("3.5", SCALE))
 print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 bars = ch3_curves.bars("3.5", ch3_tables.our_cells(res), settings, samples=res.aucs)
-fig = ch3_curves.plot_bars(bars, "Fig 3.5: change in normalised testing AUC, thesis (derived) beside reproduced")
+fig = ch3_curves.plot_bars(
+    bars, "Fig 3.5: change in normalised testing AUC, thesis (derived) beside reproduced", item="3.5"
+)
 plot.save(fig, SCALE, "fig-3.5")
-bars.pivot_table(index=["panel", "method"], columns=["test", "source"], values="change", sort=False).round(3)
+ch3_curves.bars_text(bars, "3.5")
 
 # %%
 print(ch3_curves.bar_note(bars))

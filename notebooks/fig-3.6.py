@@ -41,9 +41,11 @@ print(pages.runs_summary("3.6", SCALE))
 print(ch3_tables.describe(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 bars = ch3_curves.bars("3.6", ch3_tables.our_cells(res), settings, samples=res.aucs)
-fig = ch3_curves.plot_bars(bars, "Fig 3.6: change in normalised testing AUC, thesis (derived) beside reproduced")
+fig = ch3_curves.plot_bars(
+    bars, "Fig 3.6: change in normalised testing AUC, thesis (derived) beside reproduced", item="3.6"
+)
 plot.save(fig, SCALE, "fig-3.6")
-bars.pivot_table(index=["panel", "method"], columns=["test", "source"], values="change", sort=False).round(3)
+ch3_curves.bars_text(bars, "3.6")
 
 # %%
 print(ch3_curves.bar_note(bars))

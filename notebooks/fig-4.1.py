@@ -35,7 +35,10 @@ settings = figures.settings("4.1", SCALE)
 print(pages.runs_summary("4.1", SCALE))
 conds = ch4.conditions("4.1", settings["panels"])
 curves = ch4.curves_frame(ch4.train_runs(settings, n_jobs=settings["n_jobs"]))
-curves.groupby(["panel", "algo"])[["return", "length"]].last()
+last = curves.groupby(["panel", "algo", "seed"])[["return", "length"]].last()
+last.style.format(precision=1).set_caption(
+    "Reproduced: training return and episode length at the last iteration, per panel, learner and training seed"
+)
 
 # %%
 fig, axes = plot.lines_by_panel(

@@ -67,10 +67,10 @@ plot.save(fig, SCALE, "fig-4.4")
 # seeds (note under each table).
 
 # %%
-wind_table = ch4.compare_ci(wind, "return")
-print("(a) wind", wind_table, wind_table.attrs["note"], sep="\n", end="\n\n")
-heat_table = ch4.compare_ci(ch4.off_centre(heat), "return")
-print("(b) off-centre", heat_table, heat_table.attrs["note"], sep="\n")
+wind_table = ch4.compare_ci(wind, "return", by=("condition",))
+print("(a) wind", wind_table.to_string(), wind_table.attrs["note"], sep="\n", end="\n\n")
+heat_table = ch4.compare_ci(ch4.off_centre(heat), "return", by=("condition",))
+print("(b) off-centre", heat_table.to_string(), heat_table.attrs["note"], sep="\n")
 _ = claims.judge_page(
     "fig-4.4",
     SCALE,

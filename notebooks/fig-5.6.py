@@ -35,7 +35,10 @@ from thesis_repro.figures import ch5, plot
 settings = figures.settings("5.6", SCALE)
 print(pages.runs_summary("5.6", SCALE))
 curves, final, pretraining = ch5.run_curriculum(settings, n_jobs=settings["n_jobs"])
-pretraining.round(3)
+pretraining.style.hide(axis="index").format(precision=3).set_caption(
+    "Reproduced pre-training: cost (Eq 5.12) and population success at the end of each pre-training stage, per "
+    "condition and seed (CL: Reach, then Throw; NC: its BIC pre-training)"
+)
 
 # %%
 order = list(ch5.CONDITIONS)

@@ -15,7 +15,8 @@
 # Cells: mean ± std of the testing AUC (Eq. 3.6) over training seeds × testing rollouts, **thesis** beside
 # **reproduced**. Bold: the best learner of the row plus every learner not significantly different from it
 # (two-sided Welch t-test, p < 0.05 as the captions say; `chapter3_settings.csv`). The thesis's bolding is not
-# in its text: it is derived by the same rule from its mean ± std with n = 12 × 20 = 240 per cell. Grey cells:
+# in its text: it is derived by the same rule from its mean ± std with n = 12 × 20 = 240 per cell. Grey cells
+# (only where a scale skips a learner, `skip_algos`: under the thesis protocol no scale does, so every cell is run):
 # not run at this scale. Logic: `thesis_repro.figures.ch3_tables`, statistics: `thesis_repro.evaluation.tables`.
 #
 # Under it, the reproduced cells across **training seeds**, the unit of replication (not the rollout): per seed the

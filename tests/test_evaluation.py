@@ -138,6 +138,17 @@ def test_batched_equals_sequential_loop(perturbation):
     np.testing.assert_array_equal(one, out.returns)
 
 
+def test_at_sigma_zero_every_test_is_the_nominal_env():
+    """Table 3.3(b)'s σ_te = 0 rows: Obs, Act, Env and Dom at σ = 0 run exactly the unperturbed task, so a
+    row-wise policy gets bit-identical returns from all four and from ``none``. (The kit's torch policies are
+    not row-wise: a batch of 1-2 rows rounds differently from a larger one on some CPUs, so their σ = 0 rows can
+    differ by the batch's composition, amplified by the dynamics; see ``BatchedEvaluator``.)"""
+    kw = {"seed": 3, "max_episode_steps": 60, "n_envs": 4}
+    none = ev.evaluate(linear, "Hopper", "none", [0.0], 4, **kw)
+    for perturbation in ("obs", "act", "env", "dom"):
+        np.testing.assert_array_equal(ev.evaluate(linear, "Hopper", perturbation, [0.0, 0.5], 4, **kw)[:1], none)
+
+
 def test_masking_of_early_terminations():
     out = ev.evaluate(falling, "Hopper", "none", [0.0], 3, max_episode_steps=200, n_envs=2, return_lengths=True)
     ref_r, ref_l = sequential(falling, "Hopper", "none", [0.0], 3, 0, 200)

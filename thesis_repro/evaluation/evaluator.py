@@ -124,6 +124,14 @@ class BatchedEvaluator:
     ``policy(obs[n, obs_dim]) -> actions[n, act_dim]`` must be deterministic (the mean action).
     Actions are clipped to the action space when ``clip_actions`` (like SB3's ``predict``).
 
+    **Batch composition.** The result is deterministic for a given list of conditions and seeds, but a rollout's
+    return is not a function of its (condition, seed) alone when the policy is a torch MLP: a matrix product over
+    1-2 rows can round differently from one over more rows (measured with torch 2.13 on the development CPU: up
+    to ~3e-8 in the actions), and the locomotion dynamics amplify such differences over 1,000 steps. So the same
+    policy, condition and seed can return differently inside another sweep (e.g. Table 3.3(b)'s σ = 0 rows of
+    Obs, Act, Env and Dom, which run the same nominal task, differ slightly), with another ``n_envs``, or on
+    another CPU. A row-wise policy is unaffected (``tests/test_evaluation.py``).
+
     >>> import numpy as np
     >>> ev = BatchedEvaluator(lambda o: np.zeros((len(o), 3)), lambda **c: gym_make(**c), n_envs=4,
     ...                       max_episode_steps=10)

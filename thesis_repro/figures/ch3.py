@@ -174,6 +174,26 @@ def overfitting_curve(settings: Mapping[str, Any], n_jobs: int | None = None) ->
     return pd.DataFrame(rows)
 
 
+def curve_style(curve: pd.DataFrame, rows: int = 5) -> Any:
+    """:func:`overfitting_curve` for display: its first and last ``rows`` rows as a ``Styler`` (1 decimal, no row
+    numbers) whose caption says so; a training return that :func:`training_return_at` leaves NaN (no training
+    episode finished by that snapshot, e.g. step 0) is shown as "–" and explained in the caption.
+
+    >>> c = pd.DataFrame({"seed": 0, "timesteps": [0, 40960], "iteration": [0.0, 20.0],
+    ...                   "train_return": [float("nan"), 239.24], "test_auc": [66.63, 317.9]})
+    >>> html = curve_style(c).to_html()
+    >>> all(x in html for x in (">–<", ">239.2<", "(all 2 rows)", "no training episode")), "239.240000" in html
+    (True, False)
+    """
+    whole = len(curve) <= 2 * rows
+    shown = curve if whole else pd.concat([curve.head(rows), curve.tail(rows)])
+    which = f"all {len(curve)} rows" if whole else f"first and last {rows} of {len(curve)} rows"
+    caption = f"Reproduced training return and testing AUC per training seed and snapshot ({which})"
+    if curve["train_return"].isna().any():
+        caption += "; train_return – : no training episode had finished by that snapshot (e.g. at step 0)"
+    return shown.style.hide(axis="index").format(precision=1, na_rep="–").set_caption(caption)
+
+
 # ---------------------------------------------------------------- Figure 3.3: training return vs testing AUC
 def benchmark(
     algos: Sequence[str],

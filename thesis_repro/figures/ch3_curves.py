@@ -179,6 +179,39 @@ def heat_summary_ci(heat: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["method", *cols])
 
 
+def heat_summary_labels(settings: Mapping[str, Any]) -> dict[str, str]:
+    """Display names of the :func:`heat_summary` columns: the drops name the heat maps' row and column factors
+    (``settings["heat_factors"]``) and the largest shift of the grid (σ units, as the heat maps' axes).
+
+    >>> heat_summary_labels({"heat_factors": ["body_mass", "wind"], "heat_shifts": [-0.4, 0.0, 0.4]})["drop_row"]
+    'drop at body_mass ±0.4'
+    """
+    f_row, f_col = settings["heat_factors"]
+    d = f"{max(abs(float(x)) for x in settings['heat_shifts']):g}"
+    return {
+        "method": "learner",
+        "centre": "centre (training domain)",
+        "drop_row": f"drop at {f_row} ±{d}",
+        "drop_col": f"drop at {f_col} ±{d}",
+        "drop_ring": "drop over the outer ring",
+    }
+
+
+def heat_summary_style(summary: pd.DataFrame, settings: Mapping[str, Any], caption: str = "") -> Any:
+    """:func:`heat_summary` or :func:`heat_summary_ci` for display: a ``Styler`` with the columns of
+    :func:`heat_summary_labels`, no row numbers, returns to 1 decimal and ``caption``.
+
+    >>> s = {"heat_factors": ["body_mass", "wind"], "heat_shifts": [-0.4, 0.0, 0.4]}
+    >>> t = pd.DataFrame({"method": ["ppo"], "centre": [1512.84], "drop_row": [705.6], "drop_col": [1411.4],
+    ...                   "drop_ring": [1319.7]})
+    >>> html = heat_summary_style(t, s, "Heat maps").to_html()
+    >>> all(x in html for x in (">drop at wind ±0.4<", ">1512.8<", "Heat maps")), "1512.840000" in html
+    (True, False)
+    """
+    table = summary.rename(columns=heat_summary_labels(settings))
+    return table.style.hide(axis="index").format(precision=1).set_caption(caption)
+
+
 # ---------------------------------------------------------------- Figs 3.5, 3.6: normalised AUC change
 #: Panels of the bar figures: (panel, baseline, thesis table whose columns are compared with the baseline).
 BAR_PANELS: dict[str, list[tuple[str, str, str]]] = {
@@ -189,6 +222,30 @@ BAR_PANELS: dict[str, list[tuple[str, str, str]]] = {
 
 #: Interval columns of the reproduced bars (NaN for the thesis's bars: it gives no per-seed numbers).
 BAR_CI = ["ci_lo", "ci_hi", "n_seeds"]
+
+
+def thesis_label(item: str) -> str:
+    """How the page labels the thesis's bars of Fig ``item``: the kit derives them from the thesis's tables with its
+    own normalisation (the thesis prints no bar values).
+
+    >>> thesis_label("3.5"), thesis_label("3.6")
+    ('thesis (derived from Table 3.5)', 'thesis (derived from Tables 3.6-3.7)')
+    """
+    names = [name.removeprefix("table").replace("_", ".") for _, _, name in BAR_PANELS[item]]
+    if len(names) == 1:
+        return f"thesis (derived from Table {names[0]})"
+    return f"thesis (derived from Tables {names[0]}-{names[-1]})"
+
+
+def bars_text(b: pd.DataFrame, item: str) -> pd.DataFrame:
+    """The bars of :func:`bars` as a table for the page: rows panel × method, columns test × source (the thesis's
+    bars labelled by :func:`thesis_label`), changes to 3 decimals."""
+    labels = {"thesis": thesis_label(item), "reproduced": "reproduced"}
+    return (
+        b.assign(source=b["source"].map(labels))
+        .pivot_table(index=["panel", "method"], columns=["test", "source"], values="change", sort=False)
+        .round(3)
+    )
 
 
 def bars(
@@ -317,9 +374,10 @@ def plot_heat(heat: pd.DataFrame, settings: Mapping[str, Any]) -> plt.Figure:
     return fig
 
 
-def plot_bars(b: pd.DataFrame, title: str) -> plt.Figure:
+def plot_bars(b: pd.DataFrame, title: str, item: str | None = None) -> plt.Figure:
     """Bars of Figs 3.5/3.6: one column per panel × test, thesis beside reproduced per learner; error bars on the
-    reproduced bars: their 95 % CI across training seeds (:data:`BAR_CI`; none with one seed), as the title says."""
+    reproduced bars: their 95 % CI across training seeds (:data:`BAR_CI`; none with one seed), as the title says.
+    With ``item`` the legend labels the thesis's bars by :func:`thesis_label`."""
     keys = list(b[["panel", "test"]].drop_duplicates().itertuples(index=False, name=None))
     fig, axes = plt.subplots(1, len(keys), figsize=(2.9 * len(keys), 3.6), squeeze=False, sharey=True)
     sources, width = ["thesis", "reproduced"], 0.4
@@ -331,7 +389,8 @@ def plot_bars(b: pd.DataFrame, title: str) -> plt.Figure:
         for k, source in enumerate(sources):
             r = d[d["source"] == source].set_index("method").reindex(methods)
             pos = x + (k - 0.5) * width
-            ax.bar(pos, r["change"], width, color=colours[source], label=source)
+            label = thesis_label(item) if source == "thesis" and item else source
+            ax.bar(pos, r["change"], width, color=colours[source], label=label)
             ok = np.isfinite(r["ci_lo"].astype(float)) & np.isfinite(r["ci_hi"].astype(float))
             if ok.any():  # the interval as computed (its centre, the mean of the per-seed changes, is the bar)
                 lo, hi = r["ci_lo"][ok].to_numpy(float), r["ci_hi"][ok].to_numpy(float)

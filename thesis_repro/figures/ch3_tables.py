@@ -364,19 +364,45 @@ def ci_text(ci: pd.DataFrame, rows: pd.DataFrame | None = None) -> pd.DataFrame:
 
 
 def ci_text_style(text: pd.DataFrame, ci: pd.DataFrame, caption: str = "") -> Any:
-    """A display frame of intervals as a small ``Styler``; the caption says what the intervals are."""
+    """A display frame of intervals as a small ``Styler``; the caption says what the intervals are (labels and
+    level names as in :func:`table33_style`)."""
     label = tables.ci_label(ci["n_seeds"]) if len(ci) else "no reproduced cells"
-    return (
-        text.style.set_caption(f"{caption} — {label}" if caption else label)
-        .format_index(_label, axis=0)
-        .format_index(_label, axis=1)
-        .set_table_styles(_SMALL)
-    )
+    return _labelled(text).set_caption(f"{caption} — {label}" if caption else label).set_table_styles(_SMALL)
+
+
+#: Display names of Table 3.3's row and column levels (σ_train: the noise scale in training, σ_test: in testing).
+LEVEL_NAMES: dict[str, str] = {"noise_type": "noise type", "train_sigma": "σ_train", "sigma_te": "σ_test"}
+
+
+def table33_style(text: pd.DataFrame, caption: str = "") -> Any:
+    """A Table 3.3 display frame (:func:`table33_text`) as a small ``Styler``: σ values printed as ``0.0`` and
+    ``0.2`` (not ``0.000000``), levels named by :data:`LEVEL_NAMES`.
+
+    >>> cols = pd.MultiIndex.from_tuples([(0.0, "thesis"), (0.2, "thesis")], names=["train_sigma", "source"])
+    >>> t = pd.DataFrame([["1.0 ± 0.1", ""]], index=pd.Index(["obs"], name="noise_type"), columns=cols)
+    >>> html = table33_style(t, "Table 3.3(a)").to_html()
+    >>> all(s in html for s in (">σ_train<", ">noise type<", ">0.0<", ">0.2<")), "0.000000" in html
+    (True, False)
+    """
+    return _labelled(text).set_caption(caption).set_table_styles(_SMALL)
+
+
+def _labelled(text: pd.DataFrame) -> Any:
+    """``text.style`` with its levels renamed by :data:`LEVEL_NAMES` and its labels printed by :func:`_label`."""
+    text = text.rename_axis(index=LEVEL_NAMES, columns=LEVEL_NAMES)
+    return text.style.format_index(_label, axis=0).format_index(_label, axis=1)
 
 
 def _label(v: Any) -> str:
-    """An index label as printed: σ values as ``0.2``, not ``0.200000``."""
-    return f"{v:g}" if isinstance(v, float) else str(v)
+    """An index label as printed: σ values as ``0.2`` and ``0.0``, not ``0.200000``.
+
+    >>> [_label(v) for v in (0.0, 0.2, 0.05, "obs", 3)]
+    ['0.0', '0.2', '0.05', 'obs', '3']
+    """
+    if not isinstance(v, float):
+        return str(v)
+    text = f"{v:g}"
+    return text if any(c in text for c in ".en") else f"{text}.0"  # 0 -> 0.0; keep 1e-05, inf, nan
 
 
 def _row_order(column: str) -> dict[str, int]:
@@ -469,13 +495,13 @@ def table33_text(ours: tuple[pd.DataFrame, pd.DataFrame]) -> tuple[pd.DataFrame,
 
 def table33_ci_text(ours: tuple[pd.DataFrame, pd.DataFrame]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Display frames of our Table 3.3 (a) and (b) across training seeds: ``"mean [lo, hi] (n seeds)"`` per cell
-    (:func:`~thesis_repro.evaluation.tables.fmt_ci`), rows as in :func:`table33_text`, columns σ_tr."""
+    (:func:`~thesis_repro.evaluation.tables.fmt_ci`), rows as in :func:`table33_text`, columns σ_train."""
     out = []
     for o, index in ((ours[0], ["noise_type"]), (ours[1], ["noise_type", "sigma_te"])):
         cells = [tables.fmt_ci(*r) for r in o[CI_COLUMNS].itertuples(index=False)]
         w = o.assign(cell=cells).pivot_table(
             index=index, columns="train_sigma", values="cell", aggfunc="first", sort=False
         )
-        w.columns.name = "reproduced, σ_tr"
+        w.columns.name = "reproduced, σ_train"
         out.append(w.fillna(""))
     return out[0], out[1]

@@ -647,8 +647,8 @@ class MAMLDG(_MetaPPO):
 
     **Outer update (fidelity note).** Alg 1 writes one step π ← π + β∇_π Σ_i η(π_i) per iteration. Read
     literally (``meta_update="step"``) that is ONE Adam step per 2·N·T = 8,192 env steps: 24 steps in `small`'s
-    200k-step InvertedPendulum run (training return 21; 166 with T = 128, i.e. 8x the steps — measured
-    2026-11-25) and 488 in the thesis's 4M, against PPO-MDL's ~10 epochs x 64 minibatches per 4,096 steps.
+    200k-step InvertedPendulum run (measured, 3 seeds: ``python -m thesis_repro.study maml-outer-update``)
+    and 488 in the thesis's 4M, against PPO-MDL's ~10 epochs x 64 minibatches per 4,096 steps.
     The thesis's Table 3.7 has PPO-MAML-DG level with or above PPO-MDL, which such a learner cannot reach, so
     the kit's default (``meta_update="ppo"``) optimises the same first-order outer objective as PPO optimises
     its own: ``n_epochs`` epochs; per step one minibatch of ``batch_size`` from each D'_i, the PPO loss

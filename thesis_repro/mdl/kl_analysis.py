@@ -346,6 +346,25 @@ def damping_sweep(
     return pd.DataFrame(rows)
 
 
+#: How :func:`sweep_text` shows params_avg's damping (NaN in the frame: Eq 4.6 uses no Fisher, so no damping).
+NO_DAMPING = "n/a (no damping)"
+
+
+def sweep_text(sweep: pd.DataFrame) -> str:
+    """:func:`damping_sweep` as printed text, numbers to 3 significant digits; params_avg's damping reads
+    :data:`NO_DAMPING` instead of NaN.
+
+    >>> t = pd.DataFrame({"damping": [0.1, float("nan")], "aggregate": ["kl_avg", "params_avg"],
+    ...                   "excess": [0.000879, 0.000674], "dist_to_opt": [0.1033, 0.0178]})
+    >>> print(sweep_text(t))
+                damping   aggregate   excess  dist_to_opt
+    0               0.1      kl_avg 0.000879        0.103
+    1  n/a (no damping)  params_avg 0.000674       0.0178
+    """
+    shown = sweep.assign(damping=[NO_DAMPING if pd.isna(v) else f"{v:.3g}" for v in sweep["damping"]])
+    return shown.to_string(float_format=lambda v: f"{v:.3g}")
+
+
 def fisher_spectrum(problem: Problem) -> dict[str, float]:
     """Smallest/largest eigenvalue and condition number of the mean sub-policy Fisher Ī (tiny nets only)."""
     fims = [agg.fisher_matrix(problem.view, t, problem.states) for t in problem.thetas]
