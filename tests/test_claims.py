@@ -246,3 +246,21 @@ def test_bolding_agreement_is_a_kit_check_judged_here_not_on_the_scoreboard():
     assert L.bolding_check("table-3.6", a, "smoke").status == report.NOT_JUDGED
     assert L.bolding_check("table-3.6", {**a, "rows": 0, "best_same": 0}, "small").status == report.NOT_JUDGED
     assert v.claim not in {s.text for s in L.specs()}  # not a registered thesis claim
+
+
+def test_the_average_across_seeds_cannot_be_judged_from_one_seed():
+    """§3.3 l.547 is about averaging over seeds: with one seed its number IS the per-seed claim's, so the
+    measure says inconclusive instead of repeating that claim's lean; with 3 seeds it answers."""
+    from thesis_repro.claims import measures as M
+
+    rng = np.random.default_rng(0)
+    rows = [
+        {"env": "Hopper", "test": "obs", "algo": a, "seed": s, "train_return": 100.0 * i, "auc": rng.normal() - 10 * i}
+        for i, a in enumerate(["ppo", "trpo", "sac", "ddpg"])
+        for s in range(3)
+    ]
+    points = pd.DataFrame(rows)
+    with pytest.raises(M.Inconclusive, match="one training seed"):
+        M.MEASURES["mean_selection"]({"points": points[points["seed"] == 0]}, {})
+    (unit,) = M.MEASURES["mean_selection"]({"points": points}, {})[""]
+    assert unit.parts[0].a[0] < -0.9  # r of the seed means: strongly negative, as built

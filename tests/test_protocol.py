@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from stable_baselines3.common.callbacks import BaseCallback
 
-from thesis_repro import figures, scales
+from thesis_repro import figures, paths, protocol, scales
 from thesis_repro.learners import train_config, train_job
 from thesis_repro.learners.config import THESIS_PROTOCOL_KEYS, iteration_steps
 from thesis_repro.learners.train import Ppo1Linear
@@ -208,3 +208,13 @@ def test_seeds_generated_ahead_of_the_scale_table_are_not_stale(monkeypatch):
     pending = runs.pending_keys("small")
     assert {p.job.key for p in ahead} <= pending
     assert not {p.job.key for p in beyond} & pending
+
+
+def test_readme_names_exactly_the_items_with_three_seeds():
+    """README "Where it stands" lists the items whose seeds 1-2 are shipped; the scale table decides which."""
+    text = (paths.ROOT / "README.md").read_text()
+    block = text.split("<!-- three-seeds:begin -->")[1].split("<!-- three-seeds:end -->")[0]
+    assert block == protocol.items_with_seeds(3, "small"), (
+        "README's three-seeds list is stale: paste `python -c \"from thesis_repro import protocol; "
+        'print(protocol.items_with_seeds(3))"`'
+    )

@@ -93,32 +93,46 @@ def test_study_effects_read_a_none_setting_and_unknown_names_are_one_line_errors
     assert list(effects) == ["InvertedPendulum"]
     e = effects["InvertedPendulum"]
     assert e.difference == pytest.approx(925.0) and not e.within_spread and e.n == (3, 3)
-    with pytest.raises(ValueError, match="unknown protocol study 'reptile'; valid: lr-schedule, reptile-outer-step"):
+    with pytest.raises(
+        ValueError, match="unknown protocol study 'reptile'; valid: lr-schedule, reptile-outer-step, maml-outer-update"
+    ):
         study.sensitivity("reptile")
     with pytest.raises(ValueError, match="unknown protocol study"):
         study.study_jobs("reptile")
 
 
-def test_the_registry_declares_the_reptile_study_on_table_3_7s_meta_learning_claim():
+def test_the_kit_runs_of_the_maml_study_are_table_3_7s_and_step_is_alg_1_read_literally():
+    from thesis_repro.plan import seed_jobs
+
+    spec = study.SPECS["maml-outer-update"]
+    table = {j.key for j in seed_jobs("table-3.7", "small", seeds=[0, 1, 2]) if j.kind == "train"}
+    jobs = study.study_jobs("maml-outer-update")
+    assert len(jobs) == len(spec.seeds) * 2 and {spec.value(j) for j in jobs} == {"step", "ppo"}
+    assert {j.key for j in jobs if spec.value(j) == "ppo"} <= table  # the kit's runs: never trained twice
+    assert not {j.key for j in jobs if spec.value(j) == "step"} & table
+    base = train_config("ppo-maml-dg", "InvertedPendulum", 0, 200_000, protocol="thesis")
+    assert base["sb3"]["meta_update"] == "ppo"  # the kit's default reading, which the thesis-protocol runs use
+
+
+@pytest.mark.parametrize("name", ["reptile-outer-step", "maml-outer-update"])
+def test_the_registry_declares_the_meta_learning_studies_on_table_3_7s_claim(name):
     from thesis_repro.claims import ledger as L
 
-    assert {s.id for s in L.specs() if "reptile-outer-step" in s.sensitivity} == {"3.7-maml-reptile"}
+    assert {s.id for s in L.specs() if name in s.sensitivity} == {"3.7-maml-reptile"}
 
 
-#: The README block of the Reptile-DG study and the command that regenerates it.
-BEGIN, END = "<!-- reptile-study:begin -->", "<!-- reptile-study:end -->"
-COMMAND = "python -m thesis_repro.study reptile-outer-step [--summary]"
+#: The README block of each study shown there (its marker) and the command that regenerates it.
+README_BLOCKS = {"reptile-outer-step": "reptile-study", "maml-outer-update": "maml-study"}
 
 
-def test_readme_reptile_block_is_the_summary_of_the_shipped_runs(monkeypatch):
+@pytest.mark.parametrize(("name", "marker"), README_BLOCKS.items())
+def test_readme_study_block_is_the_summary_of_the_shipped_runs(monkeypatch, name, marker):
     from thesis_repro import budgets, paths
 
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the real shipped layer
     text = (paths.ROOT / "README.md").read_text()
-    assert COMMAND in text
-    block = text.split(BEGIN)[1].split(END)[0].strip()
-    spec = study.SPECS["reptile-outer-step"]
+    assert f"python -m thesis_repro.study {name} [--summary]" in text
+    block = text.split(f"<!-- {marker}:begin -->")[1].split(f"<!-- {marker}:end -->")[0].strip()
+    spec = study.SPECS[name]
     expected = study.summary(spec.jobs(), budgets.shipped_cache(), spec).strip()
-    assert block == expected, (
-        "README reptile-study block is stale: paste `python -m thesis_repro.study reptile-outer-step --summary`"
-    )
+    assert block == expected, f"README {marker} block is stale: paste `python -m thesis_repro.study {name} --summary`"

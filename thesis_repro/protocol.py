@@ -212,6 +212,32 @@ def protocols_at(scale: str = "small") -> dict[str, list[str]]:
     return out
 
 
+def items_with_seeds(seeds: int, scale: str = "small") -> str:
+    """The chapter 3-4 items that train ``seeds`` training seeds at ``scale`` (from the scale table), in words:
+    ``"Figs 3.2 and 3.4 and Table 3.3"`` (the README's "Where it stands" quotes it; a test keeps them equal).
+
+    >>> items_with_seeds(99)
+    'no item'
+    """
+    from thesis_repro import scales
+
+    figs, tables = [], []
+    with scales.under_protocol(""):
+        for fig in scales.figures():
+            s = scales.figure_settings(fig, scale)
+            if "test_rollouts" in s and s.get("train_seeds") == seeds and not fig.startswith(("5.", "analysis-")):
+                (tables if fig.startswith("table-") else figs).append(fig.removeprefix("table-"))
+
+    def words(kind: str, ids: list[str]) -> str:
+        if not ids:
+            return ""
+        head = kind if len(ids) == 1 else kind + "s"
+        return f"{head} {ids[0]}" if len(ids) == 1 else f"{head} {', '.join(ids[:-1])} and {ids[-1]}"
+
+    parts = [w for w in (words("Fig", figs), words("Table", tables)) if w]
+    return " and ".join(parts) or "no item"
+
+
 def switch_summary(scale: str = "small") -> str:
     """A section naming the chapter 3-4 items on each training protocol at ``scale`` (``small`` switches item by
     item), each with its training seeds × test rollouts."""

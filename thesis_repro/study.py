@@ -13,6 +13,10 @@ protocol a figure uses, those runs ARE that figure's runs (same keys):
   (one Adam step of lr β = 1e-3 on π − π' per iteration: the kit's Table 3.7 runs, which stay near an
   untrained policy's return), on InvertedPendulum, InvertedDoublePendulum and Hopper at Table 3.7's `small`
   budgets.
+* ``maml-outer-update``: PPO-MAML-DG with Alg 1's outer update read literally (one Adam step of lr β on the
+  mean post-adaptation gradient per iteration, i.e. per 2·N·T = 8,192 env steps) against the kit's reading (the
+  same first-order objective optimised for PPO's epochs and minibatches: the kit's Table 3.7 runs), on
+  InvertedPendulum at Table 3.7's `small` budget.
 
     python -m thesis_repro.study lr-schedule [--jobs 2] [--ship] [--commit]   # train what is missing, then
     python -m thesis_repro.study lr-schedule --summary                        # the table, no training
@@ -115,6 +119,19 @@ SPECS: dict[str, StudySpec] = {
             labels=("eps = 1 (Nichol et al.)", "Adam 1e-3 (Alg 2)"),
             # Table 3.7's `small` budgets and training settings (config/scales.yaml), so the Alg 2 runs are its runs
             envs={"InvertedPendulum": 200_000, "InvertedDoublePendulum": 1_000_000, "Hopper": 2_000_000},
+            overrides={"perturbation": "dom", "sigma": 0.2},
+        ),
+        StudySpec(
+            name="maml-outer-update",
+            learner="ppo-maml-dg",
+            learner_label="PPO-MAML-DG",
+            setting="MAML-DG outer update",
+            path="sb3.meta_update",
+            values=("step", "ppo"),
+            labels=("one Adam step (Alg 1 read literally)", "PPO epochs (kit)"),
+            # Table 3.7's `small` budget and settings on its cheapest task, so the kit's runs are its runs
+            envs={"InvertedPendulum": 200_000},
+            default="ppo",
             overrides={"perturbation": "dom", "sigma": 0.2},
         ),
     )
@@ -257,6 +274,7 @@ def lr_schedule_sensitivity(cache: RunCache | None = None) -> Sensitivity | None
 STUDIES: dict[str, Callable[[], Sensitivity | None]] = {
     "lr-schedule": lr_schedule_sensitivity,
     "reptile-outer-step": lambda: study_sensitivity("reptile-outer-step"),
+    "maml-outer-update": lambda: study_sensitivity("maml-outer-update"),
 }
 
 

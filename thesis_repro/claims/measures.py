@@ -343,8 +343,13 @@ def _correlation(data: Data, spec: Mapping[str, Any]) -> Groups:
 @measure("mean_selection")
 def _mean_selection(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Per cell: r of the seed-MEAN training return vs seed-mean AUC across variants below 0 (one number per
-    cell from all seeds: no replication, so at most indicative)."""
+    cell from all seeds: no replication, so at most indicative). With one training seed the seed mean IS that seed,
+    the same number as the per-seed claim judges, so the claim cannot be told apart: inconclusive."""
     points = data["points"]
+    if "seed" in points.columns and points["seed"].nunique() < 2:
+        raise Inconclusive(
+            "one training seed: the average across seeds is that seed's own numbers (judged by the per-seed claim)"
+        )
     units = []
     for env, test in _cells(points):
         g = points[(points["env"] == env) & (points["test"] == test)].groupby("algo")[["train_return", "auc"]].mean()
