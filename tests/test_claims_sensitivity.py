@@ -152,7 +152,7 @@ def test_the_registry_field_is_validated():
     (s,) = L.parse_specs(_registry(sensitivity=["lr-schedule"]))
     assert s.sensitivity == ("lr-schedule",)
     assert L.parse_specs(_registry())[0].sensitivity == ()
-    valid = "valid: lr-schedule, reptile-outer-step$"
+    valid = "valid: lr-schedule, reptile-outer-step, maml-outer-update$"
     with pytest.raises(ValueError, match=rf"unknown sensitivity study 'lr-shedule'; {valid}") as err:
         L.parse_specs(_registry(sensitivity=["lr-shedule"]))
     assert "\n" not in str(err.value) and "x-claim" in str(err.value)
