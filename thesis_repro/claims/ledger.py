@@ -646,7 +646,7 @@ def _stat_text(st: Mapping[str, Any], n_seeds: int | None = None) -> str:
     """A yes-share statistic in words; with one training seed a unit's "yes" is its point estimate, not a CI.
 
     >>> _stat_text({"value": 0.5, "ci": [0.5, 0.5], "k": 1, "n": 2}, n_seeds=1)
-    '1/2 units yes (point estimates: a unit has one training seed), point estimate 0.50'
+    '1/2 units yes (point estimates: one training seed), point estimate 0.50'
     >>> _stat_text({"value": 0.5, "ci": [0.5, 0.5], "k": 1, "n": 2}, n_seeds=3)
     '1/2 units yes (CI-supported), point estimate 0.50'
     """
@@ -654,7 +654,7 @@ def _stat_text(st: Mapping[str, Any], n_seeds: int | None = None) -> str:
         return "no units"
     lo, hi = st["ci"]
     pt = st.get("value")
-    basis = "point estimates: a unit has one training seed" if n_seeds is not None and n_seeds < 2 else "CI-supported"
+    basis = "point estimates: one training seed" if n_seeds is not None and n_seeds < 2 else "CI-supported"
     head = f"{st['k']}/{st['n']} units yes ({basis})"
     if st.get("undecided"):
         head += f", {st['undecided']} undecided: yes-share in [{lo:.2f}, {hi:.2f}]"
