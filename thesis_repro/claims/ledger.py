@@ -902,6 +902,7 @@ def scoreboard(scale: str, rows: Sequence[Row] | None = None) -> str:
         f"{total.get(report.INCONCLUSIVE, 0)} inconclusive (the CI across training seeds spans two outcomes, or the "
         "evidence cannot decide, e.g. every run of the method the claim is about diverged), "
         f"{total.get(report.INDICATIVE, 0)} indicative (one training seed: no CI), "
+        f"{total.get(report.VISUAL, 0)} not judged (visual: the sentence is about what a figure looks like), "
         f"{total.get(report.NOT_RUN, 0)} not run, {total.get(report.NOT_COMPUTED, 0)} not computed in this build.\n\n"
         f"Beyond the thesis (the kit's own extensions: kl_exact, the Eq 4.11 analysis): "
         + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(extra.items()))
