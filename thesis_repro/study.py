@@ -95,6 +95,15 @@ class StudySpec:
         ]
 
 
+#: Table 3.7's `small` training settings (config/scales.yaml: its perturbation ``dom`` at σ 0.2) and budgets, which
+#: the meta-learning studies share so that their kit-reading runs ARE Table 3.7's (same keys; tests/test_study.py).
+TABLE_3_7_SETTINGS: Mapping[str, Any] = {"perturbation": "dom", "sigma": 0.2}
+TABLE_3_7_BUDGETS: Mapping[str, int] = {
+    "InvertedPendulum": 200_000,
+    "InvertedDoublePendulum": 1_000_000,
+    "Hopper": 2_000_000,
+}
+
 #: Every protocol study by name.
 SPECS: dict[str, StudySpec] = {
     spec.name: spec
@@ -117,9 +126,8 @@ SPECS: dict[str, StudySpec] = {
             path="sb3.meta_step_size",
             values=(1.0, None),
             labels=("eps = 1 (Nichol et al.)", "Adam 1e-3 (Alg 2)"),
-            # Table 3.7's `small` budgets and training settings (config/scales.yaml), so the Alg 2 runs are its runs
-            envs={"InvertedPendulum": 200_000, "InvertedDoublePendulum": 1_000_000, "Hopper": 2_000_000},
-            overrides={"perturbation": "dom", "sigma": 0.2},
+            envs=TABLE_3_7_BUDGETS,
+            overrides=TABLE_3_7_SETTINGS,
         ),
         StudySpec(
             name="maml-outer-update",
@@ -129,10 +137,9 @@ SPECS: dict[str, StudySpec] = {
             path="sb3.meta_update",
             values=("step", "ppo"),
             labels=("one Adam step (Alg 1 read literally)", "PPO epochs (kit)"),
-            # Table 3.7's `small` budget and settings on its cheapest task, so the kit's runs are its runs
-            envs={"InvertedPendulum": 200_000},
+            envs={"InvertedPendulum": TABLE_3_7_BUDGETS["InvertedPendulum"]},  # its cheapest task
             default="ppo",
-            overrides={"perturbation": "dom", "sigma": 0.2},
+            overrides=TABLE_3_7_SETTINGS,
         ),
     )
 }
