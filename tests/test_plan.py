@@ -143,3 +143,33 @@ def test_plan_reports_cost_per_training_seed():
     text = plan.report(p, RATES)
     assert "per training seed: s0: " in text and "; s1: " in text
     assert plan.per_seed(plan.plan_jobs("x", [], "smoke", 1, RATES)) == ""
+
+
+def _ship(root, name: str, cfg: dict, pace: float | None) -> None:
+    entry = root / "train" / name
+    entry.mkdir(parents=True)
+    (entry / "config.json").write_text(json.dumps({"config": cfg, "kind": "train"}))
+    measured = {} if pace is None else {"measured": {"steps_per_s": pace}}
+    (entry / "provenance.json").write_text(json.dumps(measured))
+
+
+def test_shipped_rates_are_the_median_pace_of_the_shipped_runs_per_family(tmp_path, capsys, monkeypatch):
+    sac = train_config("sac", "Hopper", 0, 1000)
+    for i, pace in enumerate([200.0, 300.0, 1000.0]):
+        _ship(tmp_path, f"sac{i}", sac, pace)
+    for i, pace in enumerate([3000.0, 4000.0]):
+        _ship(tmp_path, f"ppo{i}", train_config("ppo", "Hopper", i, 1000), pace)
+    _ship(tmp_path, "old", train_config("ddpg", "Hopper", 0, 1000), None)  # made before paces were recorded
+    base = plan.load_rates()
+    r = plan.shipped_rates(tmp_path, base)
+    assert r.rate("sac") == 300.0 and r.source("sac") == "shipped pace, median of 3"
+    assert r.rate("ppo") == 3500.0 and r.source("ppo") == "shipped pace, median of 2"
+    assert r.rate("ddpg") == base.rate("ddpg") and r.source("ddpg") == base.source("ddpg")  # no pace: unchanged
+    assert "an ETA, not a benchmark" in plan.rates_note(r)
+    # the CLI: --rates shipped reads the shipped layer; a bad choice is rejected with the valid ones
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path))
+    assert main(["plan", "table-3.3", "--scale", "small", "--rates", "shipped"]) == 0
+    assert "shipped pace" in capsys.readouterr().out
+    assert main(["plan", "3.3", "--rates", "fast"]) == 2
+    err = capsys.readouterr().err
+    assert "invalid choice: 'fast' (choose from 'bench', 'shipped')" in err and err.count("\n") == 1

@@ -28,6 +28,7 @@ import heapq
 import json
 import os
 import platform
+import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -239,6 +240,39 @@ def load_rates(path: str | Path | None = None) -> Rates:
     return Rates(rates, sources)
 
 
+#: Where :func:`shipped_rates` labels its numbers (and :func:`rates_note` recognises them).
+SHIPPED_PACE = "shipped pace"
+
+
+def shipped_rates(root: str | Path | None = None, base: Rates | None = None) -> Rates:
+    """The pace the shipped training runs actually kept, per family: the median of ``measured.steps_per_s`` (env
+    steps per WALL second of one run, as the generator ran it: two runs at a time on the 2-core machine, with
+    whatever else it ran) over the entries of ``<root>/train`` (default: the shipped layer). Families without a
+    shipped run keep ``base``'s rate (default :func:`load_rates`). For an ETA of ``make reference-runs JOBS=2`` on
+    a machine like the one that made them, not a benchmark: the pace of one family spans a factor ~3-5.
+
+    >>> r = shipped_rates(root="/nonexistent")
+    >>> r.rates == load_rates().rates
+    True
+    """
+    base = base or load_rates()
+    folder = (Path(root) if root is not None else paths.reference()) / "train"
+    paces: dict[str, list[float]] = {}
+    for entry in sorted(folder.glob("*")) if folder.is_dir() else []:
+        try:
+            cfg = json.loads((entry / "config.json").read_text())["config"]
+            pace = float(json.loads((entry / "provenance.json").read_text())["measured"]["steps_per_s"])
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if pace > 0:
+            paces.setdefault(family(Job("train", cfg)), []).append(pace)
+    rates, sources = dict(base.rates), dict(base.sources)
+    for fam, values in paces.items():
+        rates[fam] = float(statistics.median(values))
+        sources[fam] = f"{SHIPPED_PACE}, median of {len(values)}"
+    return Rates(rates, sources)
+
+
 # ---------------------------------------------------------------- plans
 @dataclass
 class Line:
@@ -446,7 +480,12 @@ def per_seed(p: Plan) -> str:
 
 
 def rates_note(rates: Rates) -> str:
-    """Where the rates come from (the measured file, or the documented defaults)."""
+    """Where the rates come from (the shipped runs' pace, the measured file, or the documented defaults)."""
+    if any(s.startswith(SHIPPED_PACE) for s in rates.sources.values()):
+        return (
+            "rates: the shipped training runs' median pace per family (env steps per wall second of one run, two "
+            "runs at a time on the machine that made them: an ETA, not a benchmark; 'core-hours' are then run-hours)"
+        )
     measured = sorted(f for f, s in rates.sources.items() if s.startswith("measured"))
     if measured:
         return f"rates: {throughput_path()} ({', '.join(measured)}); defaults (plan.DEFAULT_RATES) for the rest"
