@@ -707,8 +707,9 @@ def _contrast_rows(row: Row) -> list[tuple[str, dict[str, Any], Mapping[str, Any
 def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
     """The numbers behind a verdict: per unit, each contrast's effect in the claim's direction (> 0 supports
     the claim; margins subtracted) with its CI across training seeds, ``[lo, hi]``; the first ``limit``
-    contrasts, then how many more the units table shows. Empty when the row has no units. The CI is 95 %,
-    or the Bonferroni-adjusted level of a rule that corrects for its number of units (:func:`ci_words`).
+    contrasts (those with a CI first), then how many more the units table shows. Empty when the row has no
+    units. The CI is 95 %, or the Bonferroni-adjusted level of a rule that corrects for its number of units
+    (:func:`ci_words`).
 
     >>> c = {"label": "ppo-ent - ppo", "estimate": 12.3, "ci": [4.1, 20.5], "n": 3}
     >>> row = Row(spec("3.6-entropy"), "reproduces", 3, groups={"all": {"units": [{"label": "Hopper/obs",
@@ -726,7 +727,7 @@ def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
     >>> effects_text(row).split(": ", 1)[0].split("[")[1]
     '95 % CI across 3 training seeds; no CI where a contrast has under 2 seeds]'
     """
-    rows = _contrast_rows(row)
+    rows = sorted(_contrast_rows(row), key=lambda r: r[2]["n"] < 2)  # contrasts with a CI first (stable)
     items = [f"{u['label']}: {c['label']} {_effect_ci(c)}" for _, u, c, _ in rows]
     ns = {c["n"] for _, _, c, _ in rows}
     if not items:

@@ -466,23 +466,25 @@ def _vs_baselines(
 
 #: How a contrast label names each per-seed quantity that :func:`_vs_baselines` compares.
 QUANTITIES = {
-    "return": "return",
-    "retained": "retained fraction of the own nominal return",
+    "return": "",  # the default quantity: no prefix
+    "retained": "retained fraction",
     "spread": "spread over conditions",
     "entropy": "entropy",
 }
 
 
 def quantity_label(value: str, ours: str, base: str, relative: bool = False) -> str:
-    """The label of ``ours`` against ``base`` on quantity ``value``, saying what the number is.
+    """The label of ``ours`` against ``base`` on quantity ``value``, saying what the number is (a return
+    difference, the default, has no prefix; a relative one says so).
 
     >>> quantity_label("retained", "kl_avg", "joint")
-    'retained fraction of the own nominal return: kl_avg - joint'
+    'retained fraction: kl_avg - joint'
     >>> quantity_label("return", "kl_exact", "params_avg", relative=True)
-    'return: (kl_exact - params_avg) / |params_avg|'
+    '(kl_exact - params_avg) / |params_avg|'
     """
     diff = f"({ours} - {base}) / |{base}|" if relative else f"{ours} - {base}"
-    return f"{QUANTITIES.get(value, value)}: {diff}"
+    name = QUANTITIES.get(value, value)
+    return f"{name}: {diff}" if name else diff
 
 
 def _late(curves: pd.DataFrame) -> pd.DataFrame:
