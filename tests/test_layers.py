@@ -162,3 +162,17 @@ def test_runs_needs_only_the_figure_registry():
     assert not reaches(ROOT / "runs.py", "thesis_repro.claims")
     chapters = {f"thesis_repro.figures.{p.stem}" for p in FIGURES if p.stem != "__init__"}
     assert not mods & chapters, sorted(mods & chapters)
+
+
+def test_a_page_on_fewer_seeds_says_how_many_runs_of_the_others_are_ready(tmp_path, monkeypatch):
+    """A one-seed page (Table 3.4) counts the runs of seeds 1-2 the generator has made; a 3-seed page says nothing."""
+    from thesis_repro import figures, pages
+
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path / "reference"))
+    monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "runs"))
+    seed0 = [j for j in figures.jobs("table-3.4", "small") if j.kind in figures.TRAINING_KINDS]
+    line = pages.runs_summary("table-3.4", "small")
+    assert line.endswith(
+        f"seeds 1-2 (being generated): 0 of {2 * len(seed0)} training runs ready, this page uses them once all are"
+    )
+    assert pages.seeds_to_come("3.2", "small", figures.settings("3.2", "small")) == ""
