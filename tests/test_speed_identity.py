@@ -4,6 +4,13 @@ protocols) give exactly the weights, observation filter, episodes and per-iterat
 
 Re-record (ONLY for an intended change of results, never for a speed-up):
 ``python -m tests.test_speed_identity --record``.
+
+Alg 3's solver diagnostics (:data:`DIAGNOSTICS`: the CG residual, the Eq 4.7 objectives and the KL to the
+sub-policies) are float32 reductions whose vectorised kernels differ between CPUs: on an AMD EPYC without AVX-512
+(torch's AVX2 kernels) they differed from the Intel recording in the last bits while weights, filters and episodes
+were identical. They are compared within :data:`DIAGNOSTIC_RTOL`, from values recorded on that AVX2 machine with the
+code of 2026-11-26 (the weights, filters and episodes beside them still those recorded at 44372b3); every other
+curve stays bit-exact.
 """
 
 from __future__ import annotations
@@ -48,6 +55,9 @@ LEARNERS = [
 CASES = [(p, *case) for case in LEARNERS for p in ("thesis", "kit-v1")]
 IDS = [f"{c[1]}-{c[0]}" for c in CASES]
 _SKIP = {"train_return", "wall_time", "steps_per_s", "resumed_from", "snapshots"}
+#: Curves compared within a tolerance, not bit for bit: solver diagnostics whose last bits depend on the CPU's kernels.
+DIAGNOSTICS = frozenset({"curve_cg_residual", "curve_eq47", "curve_eq47_params_avg", "curve_kl"})
+DIAGNOSTIC_RTOL = 1e-4
 
 
 def _sha(chunks: list[bytes]) -> str:
@@ -73,12 +83,14 @@ def digest(protocol: str, algo: str, env: str, over: dict[str, Any], timesteps: 
         [np.ascontiguousarray(res[k]).tobytes() for k in ("episode_timesteps", "episode_returns", "episode_lengths")]
     )
     curve_keys = sorted(k for k in res if k.startswith("curve_"))
-    curves = _sha([k.encode() + np.ascontiguousarray(np.asarray(res[k], dtype=float)).tobytes() for k in curve_keys])
+    exact = [k for k in curve_keys if k not in DIAGNOSTICS]
+    curves = _sha([k.encode() + np.ascontiguousarray(np.asarray(res[k], dtype=float)).tobytes() for k in exact])
     return {
         "weights": weights,
         "obs_norm": obs_norm,
         "episodes": episodes,
         "curves": curves,
+        "diagnostics": {k: np.asarray(res[k], dtype=float).tolist() for k in curve_keys if k in DIAGNOSTICS},
         "curve_keys": curve_keys,
         "n_episodes": int(res["n_episodes"]),
         "timesteps_done": int(res["timesteps_done"]),
@@ -89,7 +101,23 @@ def digest(protocol: str, algo: str, env: str, over: dict[str, Any], timesteps: 
 @pytest.mark.parametrize(("protocol", "algo", "env", "over", "timesteps"), CASES, ids=IDS)
 def test_tiny_run_is_bit_identical_to_the_recorded_one(tmp_path, protocol, algo, env, over, timesteps):
     recorded = json.loads(FIXTURE.read_text())[f"{algo}-{protocol}"]
-    assert digest(protocol, algo, env, over, timesteps, tmp_path) == recorded
+    got = digest(protocol, algo, env, over, timesteps, tmp_path)
+    diagnostics, want = got.pop("diagnostics"), recorded.pop("diagnostics")
+    assert got == recorded
+    assert diagnostics.keys() == want.keys()
+    for key, values in want.items():
+        np.testing.assert_allclose(diagnostics[key], values, rtol=DIAGNOSTIC_RTOL, atol=1e-12, err_msg=key)
+
+
+def test_diagnostics_are_compared_within_a_tolerance_and_nothing_else():
+    """Only Alg 3's solver diagnostics are spared bit-exactness, and a tolerance still catches a real change."""
+    recorded = json.loads(FIXTURE.read_text())
+    tolerant = {k for case in recorded.values() for k in case["diagnostics"]}
+    assert tolerant and tolerant <= DIAGNOSTICS
+    assert {k for case in recorded.values() for k in case["curve_keys"]} >= {"curve_return", "curve_entropy"}
+    values = np.asarray(recorded["kl-avg-thesis"]["diagnostics"]["curve_eq47"])
+    with pytest.raises(AssertionError):
+        np.testing.assert_allclose(values * (1 + 10 * DIAGNOSTIC_RTOL), values, rtol=DIAGNOSTIC_RTOL, atol=1e-12)
 
 
 def _record() -> None:
