@@ -61,15 +61,17 @@ test: $(STAMP) $(RAY_STAMP)
 	$(BIN)/python -m pytest -q -rfEs --doctest-modules tests thesis_repro \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
-## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [PROTOCOL=thesis] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] :
+## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [PROTOCOL=thesis] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] [UNTIL=22:40] :
 ## train every figure's training runs (cheapest first, resumable: re-run after an interruption) and ship them in
 ## data/reference; COMMIT=1 commits each as it lands; PROTOCOL overrides the scale's training protocol; several
 ## SEEDS: the first one of every figure, then the others figure by figure; KINDS="train evaluate" also ships each evaluation as soon
-## as the run it loads has landed
+## as the run it loads has landed; UNTIL=HH:MM starts only jobs expected to end by then (a session's end: a run cut
+## off there restarts on a new machine)
 reference-runs: $(STAMP)
 	nice -n 10 $(BIN)/python -m thesis_repro reference-runs --scale $(SCALE) $(if $(FIGURES),--figures $(FIGURES)) \
 	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS)) $(if $(PROTOCOL),--protocol $(PROTOCOL)) \
-	  $(if $(ALGOS),--algos $(ALGOS)) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(KINDS),--kind $(KINDS))
+	  $(if $(ALGOS),--algos $(ALGOS)) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(KINDS),--kind $(KINDS)) \
+	  $(if $(UNTIL),--until $(UNTIL))
 
 ## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] : recompute a seeded random sample of N shipped evaluations on
 ## this machine (temporary cache) and compare: bit-identical on the platform that made them, else rollout means within

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +87,43 @@ def test_generator_end_to_end(fake_figures, tmp_path):
     assert set(done[0].dropped) == {"out/model.zip", "out/replay_buffer.pkl"}
     read_entry(entry)  # fresh manifest verifies
     assert runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append) == []
+
+
+def test_generator_until_starts_only_jobs_that_end_in_time(fake_figures, monkeypatch):
+    """`--until`: a job expected to outlast the deadline is not started; a later, shorter one is, and the log says
+    what is left for the next run (which then finishes it)."""
+    layer, lines = fake_figures, []
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
+    need = {"a": 10.0, "b": 1e6, "c": 5.0}  # seconds each job is expected to take; b cannot end in time
+    eta = lambda job: need[job.config["algorithm"]]  # noqa: E731
+    until = datetime.now() + timedelta(minutes=10)
+    done = runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append, until=until, eta=eta)
+    assert [e.path.name.split("__")[0] for e in done] == ["a", "c"]  # cheapest first, b skipped
+    assert any("1 longer job(s) wait; starting c__Toy__s0" in line for line in lines)
+    assert "1 job(s) left, none expected to end in time" in lines[-1]
+    done = runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append)  # no deadline: the rest
+    assert [e.path.name.split("__")[0] for e in done] == ["b"]
+
+
+def test_eta_counts_the_work_left_past_a_checkpoint(monkeypatch, tmp_path):
+    from thesis_repro.learners import train
+    from thesis_repro.plan import Rates
+
+    job = Job("train", {"algorithm": "ppo", "env": "Hopper", "seed": 0, "timesteps": 1_000_000})
+    rates = Rates({"ppo": 1000.0}, {})
+    cache = RunCache(tmp_path / "runs", reference=False)
+    assert runs.eta_seconds(job, cache, rates) == pytest.approx(runs.DEADLINE_MARGIN * 1000.0)
+    monkeypatch.setattr(train, "checkpoint_steps", lambda workdir: 600_000)  # a resumed run: 400k steps left
+    assert runs.eta_seconds(job, cache, rates) == pytest.approx(runs.DEADLINE_MARGIN * 400.0)
+    assert runs.eta_seconds(job, cache, Rates({}, {})) == float("inf")  # no rate: never fits a deadline
+
+
+def test_until_is_a_clock_time():
+    assert runs.parse_until("23:59", now=datetime(2026, 1, 1, 23, 0)) == datetime(2026, 1, 1, 23, 59)
+    assert runs.parse_until("00:10", now=datetime(2026, 1, 1, 23, 0)) == datetime(2026, 1, 2, 0, 10)
+    with pytest.raises(ValueError, match=r"--until takes a clock time HH:MM \(such as 22:40\), got '25:00'"):
+        runs.parse_until("25:00")
+    assert main(["reference-runs", "--scale", "smoke", "--until", "late", "--figures", "9.9"]) == 2
 
 
 def test_generator_commits_each_run(fake_figures, tmp_path, monkeypatch):

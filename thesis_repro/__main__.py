@@ -145,6 +145,12 @@ def _main(argv: list[str]) -> int:
     ref.add_argument(
         "--jobs", type=positive_int, default=None, help="runs trained at once, >= 1 (default 1; 2 on two idle cores)"
     )
+    ref.add_argument(
+        "--until",
+        default=None,
+        metavar="HH:MM",
+        help="start only jobs expected to end by this clock time (at the shipped runs' pace; the session's end)",
+    )
     bud = sub.add_parser("budgets", help="are the training runs trained? curve statistics of cached/shipped runs")
     bud.add_argument("--scale", default="small", help="smoke | small | full")
     bud.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
@@ -406,7 +412,8 @@ def _runs_command(args: argparse.Namespace) -> int:
         for algo in args.algos or ():
             check_choice(algo, ALGORITHMS, "algorithm")
         only = {"algos": args.algos, "seeds": args.seeds}
-        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1, **only)
+        until = runs.parse_until(args.until) if args.until is not None else None
+        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1, until=until, **only)
         return 0
     if args.check:
         stale, corrupt, local = runs.check_shipped(args.scale), runs.verify_shipped(), runs.verify_local()

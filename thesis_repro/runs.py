@@ -34,6 +34,7 @@ from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, S
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -795,6 +796,103 @@ def in_flight(submitted: Iterable[Future], pending: Collection[Future], n_jobs: 
     return [f for f in submitted if f in pending and f.running()][:n_jobs]
 
 
+#: ``--until``: a job starts only if it is expected to end by then at this many times its family's shipped pace
+#: (the pace of one family spans a factor ~3 on one machine, :func:`thesis_repro.plan.shipped_rates`).
+DEADLINE_MARGIN = 1.25
+
+
+def parse_until(text: str, now: datetime | None = None) -> datetime:
+    """The next local clock time ``HH:MM`` after ``now`` (today, else tomorrow): when ``--until`` stops starting jobs.
+
+    >>> parse_until("22:40", now=datetime(2026, 11, 26, 20, 0)).isoformat()
+    '2026-11-26T22:40:00'
+    >>> parse_until("01:30", now=datetime(2026, 11, 26, 20, 0)).isoformat()  # past midnight: tomorrow
+    '2026-11-27T01:30:00'
+    >>> parse_until("soon")
+    Traceback (most recent call last):
+    ValueError: --until takes a clock time HH:MM (such as 22:40), got 'soon'
+    """
+    try:
+        clock = datetime.strptime(text, "%H:%M").time()
+    except (TypeError, ValueError):
+        raise ValueError(f"--until takes a clock time HH:MM (such as 22:40), got {text!r}") from None
+    now = now or datetime.now()
+    at = datetime.combine(now.date(), clock)
+    return at if at > now else at + timedelta(days=1)
+
+
+def eta_seconds(job: Job, cache: RunCache, rates: Any) -> float:
+    """Wall seconds ``job`` is expected to still take: its work past its newest checkpoint (a resumed run) at its
+    family's rate in ``rates`` (a :class:`thesis_repro.plan.Rates`; units per second), times
+    :data:`DEADLINE_MARGIN`; ``inf`` for a family without a rate.
+
+    >>> from thesis_repro.plan import Rates
+    >>> eta_seconds(Job("train", {"algorithm": "ppo", "timesteps": 1000}), RunCache(reference=False),
+    ...             Rates({"ppo": 100.0}, {}))
+    12.5
+    """
+    from thesis_repro.plan import family, work
+
+    left = work(job)
+    if job.kind in figures.TRAINING_KINDS:
+        from thesis_repro.learners.train import checkpoint_steps  # local: the listing stays importable without torch
+
+        try:
+            left = max(0.0, left - checkpoint_steps(cache.workdir(job)))
+        except (OSError, ValueError):
+            pass
+    rate = rates.rate(family(job))
+    return DEADLINE_MARGIN * left / rate if rate > 0 else math.inf
+
+
+def _default_eta(cache: RunCache) -> Callable[[Job], float]:
+    """:func:`eta_seconds` at the pace the shipped runs kept (read once, when a deadline first asks)."""
+    rates: list[Any] = []
+
+    def eta(job: Job) -> float:
+        if not rates:
+            from thesis_repro.plan import shipped_rates
+
+            rates.append(shipped_rates())
+        return eta_seconds(job, cache, rates[0])
+
+    return eta
+
+
+class _Deadline:
+    """The generator's queue of jobs to start, in order; with a deadline (``until``), :meth:`take` hands out the
+    first job expected to end by then (``eta`` seconds from now) and ``None`` once none fits."""
+
+    def __init__(
+        self, todo: Sequence[Planned], until: datetime | None, eta: Callable[[Job], float], log: Callable[[str], None]
+    ) -> None:
+        self.queue, self.until, self.eta, self.log = list(todo), until, eta, log
+        if until is not None:
+            log(f"--until {until:%Y-%m-%d %H:%M}: starting only jobs expected to end by then")
+
+    def take(self) -> Planned | None:
+        if not self.queue:
+            return None
+        if self.until is None:
+            return self.queue.pop(0)
+        left = (self.until - datetime.now()).total_seconds()
+        for i, p in enumerate(self.queue):
+            need = self.eta(p.job)
+            if need <= left:
+                if i:
+                    self.log(f"  --until: {i} longer job(s) wait; starting {p.job.label} (~{need / 60:.0f} min)")
+                return self.queue.pop(i)
+        return None
+
+    def report(self) -> None:
+        """Log what the deadline left for the next run of the same command."""
+        if self.until is not None and self.queue:
+            self.log(
+                f"--until {self.until:%H:%M}: {len(self.queue)} job(s) left, none expected to end in time; "
+                "run the same command again to continue"
+            )
+
+
 def generate(
     scale: str = "small",
     figure_ids: Iterable[str] | None = None,
@@ -807,6 +905,8 @@ def generate(
     heartbeat: float = HEARTBEAT_SECONDS,
     algos: Iterable[str] | None = None,
     seeds: Iterable[int] | None = None,
+    until: datetime | None = None,
+    eta: Callable[[Job], float] | None = None,
 ) -> list[Exported]:
     """Produce the shipped reference runs of ``scale`` (``make reference-runs``).
 
@@ -823,6 +923,11 @@ def generate(
     With training and pinned kinds together (``--kind train evaluate``), each pinned job runs in this process
     as soon as the last run it loads is shipped (:class:`_Followers`), so an item's evaluations land with its
     last training run.
+
+    With ``until`` (``--until 22:40``), a job starts only while it is expected to finish by then (``eta``, default
+    :func:`eta_seconds`: the work left past its checkpoint at the shipped runs' pace): at the end of a session the
+    generator takes the next job that fits instead of one that would be cut off, and stops starting jobs when none
+    fits (an interrupted run resumes only on the machine that holds its checkpoints; a new one starts it again).
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     kinds = tuple(check_choice(k, sorted(registry.KINDS), "job kind") for k in kinds)
@@ -878,9 +983,12 @@ def generate(
         if followers is not None:
             follow(followers.ready(None))
 
+    queue = _Deadline(todo, until, eta or _default_eta(cache), log)
     if n_jobs <= 1 or len(todo) <= 1:
         follow_shipped()
-        for i, p in enumerate(todo, 1):
+        i = 0
+        while (p := queue.take()) is not None:
+            i += 1
             state, used_by = cache.state(p.job), ", ".join(p.figures)
             log(f"[{i}/{len(todo)}] {p.job.kind} {p.job.label} ({p.cost:,.0f} steps; {state}) for {used_by}")
             land(i, p, cache.run(p.job))
@@ -891,12 +999,21 @@ def generate(
             max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent
         ) as ex:
             ref = str(cache.reference) if cache.reference is not None else False
-            with _sigint_ignored():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
-                futures: dict[Future, Planned] = {ex.submit(execute, p.job, str(cache.root), ref): p for p in todo}
+            futures: dict[Future, Planned] = {}
+            pending: set[Future] = set()
+
+            def submit() -> None:  # keep n_jobs in flight, each the next job the deadline allows
+                while len(pending) < n_jobs and (p := queue.take()) is not None:
+                    with _sigint_ignored():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
+                        fut = ex.submit(execute, p.job, str(cache.root), ref)
+                    futures[fut] = p
+                    pending.add(fut)
+
             order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
-            pending, t0 = set(futures), time.time()
+            t0 = time.time()
             try:  # from here on, Ctrl-C ends the workers (outside it, leaving the pool would wait for every run)
                 log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
+                submit()
                 follow_shipped()  # while the workers train
                 while pending:
                     finished, pending = wait(pending, timeout=heartbeat, return_when=FIRST_COMPLETED)
@@ -906,9 +1023,11 @@ def generate(
                         log(progress_line(running, cache, time.time() - t0))
                     for fut in finished:
                         land(len(done) + 1, futures[fut], fut.result())
+                    submit()
             except KeyboardInterrupt:  # Ctrl-C: stop now (the interrupted runs resume from their checkpoints)
                 _stop_pool(ex)
                 raise
+    queue.report()
     return done
 
 
