@@ -244,12 +244,13 @@ def load_rates(path: str | Path | None = None) -> Rates:
 SHIPPED_PACE = "shipped pace"
 
 
-def shipped_rates(root: str | Path | None = None, base: Rates | None = None) -> Rates:
+def shipped_rates(root: str | Path | None = None, base: Rates | None = None, by_env: bool = False) -> Rates:
     """The pace the shipped training runs actually kept, per family: the median of ``measured.steps_per_s`` (env
     steps per WALL second of one run, as the generator ran it: two runs at a time on the 2-core machine, with
     whatever else it ran) over the entries of ``<root>/train`` (default: the shipped layer). Families without a
     shipped run keep ``base``'s rate (default :func:`load_rates`). For an ETA of ``make reference-runs JOBS=2`` on
-    a machine like the one that made them, not a benchmark: the pace of one family spans a factor ~3-5.
+    a machine like the one that made them, not a benchmark: the pace of one family spans a factor ~3-5. With
+    ``by_env``, also one rate per family and task under the key ``"<family>:<env>"`` (:func:`rate_key`).
 
     >>> r = shipped_rates(root="/nonexistent")
     >>> r.rates == load_rates().rates
@@ -265,12 +266,24 @@ def shipped_rates(root: str | Path | None = None, base: Rates | None = None) -> 
         except (OSError, ValueError, KeyError, TypeError):
             continue
         if pace > 0:
-            paces.setdefault(family(Job("train", cfg)), []).append(pace)
+            job = Job("train", cfg)
+            paces.setdefault(family(job), []).append(pace)
+            if by_env:
+                paces.setdefault(rate_key(job), []).append(pace)
     rates, sources = dict(base.rates), dict(base.sources)
     for fam, values in paces.items():
         rates[fam] = float(statistics.median(values))
         sources[fam] = f"{SHIPPED_PACE}, median of {len(values)}"
     return Rates(rates, sources)
+
+
+def rate_key(job: Job) -> str:
+    """The key of a training job's per-task rate in :func:`shipped_rates` (``by_env=True``).
+
+    >>> rate_key(Job("train", {"algorithm": "sac", "class": "SAC", "env": "Hopper"}))
+    'sac:Hopper'
+    """
+    return f"{family(job)}:{job.config.get('env')}"
 
 
 # ---------------------------------------------------------------- plans

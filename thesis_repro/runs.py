@@ -823,15 +823,18 @@ def parse_until(text: str, now: datetime | None = None) -> datetime:
 
 def eta_seconds(job: Job, cache: RunCache, rates: Any) -> float:
     """Wall seconds ``job`` is expected to still take: its work past its newest checkpoint (a resumed run) at its
-    family's rate in ``rates`` (a :class:`thesis_repro.plan.Rates`; units per second), times
-    :data:`DEADLINE_MARGIN`; ``inf`` for a family without a rate.
+    rate in ``rates`` (a :class:`thesis_repro.plan.Rates`, units per second: the learner family's on this task
+    where it has one, :func:`thesis_repro.plan.rate_key`, else the family's), times :data:`DEADLINE_MARGIN`;
+    ``inf`` for a family without a rate.
 
     >>> from thesis_repro.plan import Rates
-    >>> eta_seconds(Job("train", {"algorithm": "ppo", "timesteps": 1000}), RunCache(reference=False),
-    ...             Rates({"ppo": 100.0}, {}))
+    >>> ppo = Job("train", {"algorithm": "ppo", "env": "Hopper", "timesteps": 1000})
+    >>> eta_seconds(ppo, RunCache(reference=False), Rates({"ppo": 100.0}, {}))
     12.5
+    >>> eta_seconds(ppo, RunCache(reference=False), Rates({"ppo": 100.0, "ppo:Hopper": 50.0}, {}))
+    25.0
     """
-    from thesis_repro.plan import family, work
+    from thesis_repro.plan import family, rate_key, work
 
     left = work(job)
     if job.kind in figures.TRAINING_KINDS:
@@ -841,19 +844,21 @@ def eta_seconds(job: Job, cache: RunCache, rates: Any) -> float:
             left = max(0.0, left - checkpoint_steps(cache.workdir(job)))
         except (OSError, ValueError):
             pass
-    rate = rates.rate(family(job))
+    rate = rates.rate(rate_key(job)) if job.kind in figures.TRAINING_KINDS else 0.0
+    rate = rate or rates.rate(family(job))
     return DEADLINE_MARGIN * left / rate if rate > 0 else math.inf
 
 
 def _default_eta(cache: RunCache) -> Callable[[Job], float]:
-    """:func:`eta_seconds` at the pace the shipped runs kept (read once, when a deadline first asks)."""
+    """:func:`eta_seconds` at the pace the shipped runs kept, per learner family and task (read once, when a
+    deadline first asks)."""
     rates: list[Any] = []
 
     def eta(job: Job) -> float:
         if not rates:
             from thesis_repro.plan import shipped_rates
 
-            rates.append(shipped_rates())
+            rates.append(shipped_rates(by_env=True))
         return eta_seconds(job, cache, rates[0])
 
     return eta
