@@ -166,6 +166,15 @@ def test_shipped_rates_are_the_median_pace_of_the_shipped_runs_per_family(tmp_pa
     assert r.rate("ppo") == 3500.0 and r.source("ppo") == "shipped pace, median of 2"
     assert r.rate("ddpg") == base.rate("ddpg") and r.source("ddpg") == base.source("ddpg")  # no pace: unchanged
     assert "an ETA, not a benchmark" in plan.rates_note(r)
+    # by_env: one rate per learner and task beside the family's, which prices the tasks without shipped runs
+    _ship(tmp_path, "sac-idp", train_config("sac", "InvertedDoublePendulum", 0, 1000), 2000.0)
+    r = plan.shipped_rates(tmp_path, base, by_env=True)
+    assert r.rate("sac:Hopper") == 300.0 and r.rate("sac:InvertedDoublePendulum") == 2000.0
+    assert r.rate("sac") == 650.0  # the family's median over all four
+    walker = plan.plan_jobs("x", [Job("train", train_config("sac", "Walker2d", 0, 1300))], "small", 1, r)
+    hopper = plan.plan_jobs("x", [Job("train", train_config("sac", "Hopper", 0, 1200))], "small", 1, r)
+    assert walker.lines[0].rate == pytest.approx(650.0) and hopper.lines[0].rate == pytest.approx(300.0)
+    assert "per learner and task" in plan.rates_note(r)
     # the CLI: --rates shipped reads the shipped layer; a bad choice is rejected with the valid ones
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path))
     assert main(["plan", "table-3.3", "--scale", "small", "--rates", "shipped"]) == 0

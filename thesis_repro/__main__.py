@@ -377,7 +377,7 @@ def _plan_command(args: argparse.Namespace) -> int:
     from thesis_repro import plan, scales
 
     scales.check_scale(args.scale)
-    rates = plan.shipped_rates() if args.rates == "shipped" else plan.load_rates()
+    rates = plan.shipped_rates(by_env=True) if args.rates == "shipped" else plan.load_rates()
     print(plan.rates_note(rates))
     subset = {k: v for k, v in (("envs", args.envs), ("algos", args.algos)) if v is not None}
     if args.figure != "all":

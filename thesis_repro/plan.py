@@ -286,6 +286,17 @@ def rate_key(job: Job) -> str:
     return f"{family(job)}:{job.config.get('env')}"
 
 
+def job_rate(job: Job, rates: Rates) -> float:
+    """The rate that prices ``job``: its learner family's on its task where ``rates`` has one (:func:`rate_key`,
+    :func:`shipped_rates` with ``by_env``), else its family's.
+
+    >>> sac = Job("train", {"algorithm": "sac", "class": "SAC", "env": "Hopper"})
+    >>> job_rate(sac, Rates({"sac": 500.0}, {})), job_rate(sac, Rates({"sac": 500.0, "sac:Hopper": 200.0}, {}))
+    (500.0, 200.0)
+    """
+    return (job.kind in TRAINING_KINDS and rates.rate(rate_key(job))) or rates.rate(family(job))
+
+
 # ---------------------------------------------------------------- plans
 @dataclass
 class Line:
@@ -300,6 +311,13 @@ class Line:
     @property
     def core_hours(self) -> float:
         return sum(self.durations)
+
+    @property
+    def rate(self) -> float | None:
+        """The line's effective rate (its work over its core-seconds; per-task rates make it a blend), ``None``
+        without work or a finite price."""
+        seconds = self.core_hours * 3600.0
+        return self.work / seconds if self.work > 0 and 0 < seconds < float("inf") else None
 
 
 @dataclass
@@ -372,7 +390,7 @@ def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rat
         w = work(job)
         ln.jobs += 1
         ln.work += w
-        ln.durations.append(core_hours(w, rates.rate(fam)))
+        ln.durations.append(core_hours(w, job_rate(job, rates)))
         n, h = seeds.get(seed := training_seed(job), (0, 0.0))
         seeds[seed] = (n + 1, h + ln.durations[-1])
     order = sorted(lines.values(), key=lambda ln: (ln.kind not in TRAINING_KINDS, ln.kind, ln.family))
@@ -473,7 +491,7 @@ def report(p: Plan, rates: Rates | None = None) -> str:
             "family": ln.family,
             "jobs": f"{ln.jobs:,}",
             "work": f"{ln.work:,.0f} {unit(ln.family)}",
-            "per CPU-s": _num(rates.rate(ln.family)),
+            "per CPU-s": _num(ln.rate if ln.rate is not None else rates.rate(ln.family)),
             "rate from": rates.source(ln.family),
             "core-hours": _num(ln.core_hours),
         }
@@ -498,6 +516,7 @@ def rates_note(rates: Rates) -> str:
         return (
             "rates: the shipped training runs' median pace per family (env steps per wall second of one run, two "
             "runs at a time on the machine that made them: an ETA, not a benchmark; 'core-hours' are then run-hours)"
+            + ("; per learner and task where shipped runs give one" if any(":" in k for k in rates.rates) else "")
         )
     measured = sorted(f for f, s in rates.sources.items() if s.startswith("measured"))
     if measured:

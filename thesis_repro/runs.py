@@ -834,7 +834,7 @@ def eta_seconds(job: Job, cache: RunCache, rates: Any) -> float:
     >>> eta_seconds(ppo, RunCache(reference=False), Rates({"ppo": 100.0, "ppo:Hopper": 50.0}, {}))
     25.0
     """
-    from thesis_repro.plan import family, rate_key, work
+    from thesis_repro.plan import job_rate, work
 
     left = work(job)
     if job.kind in figures.TRAINING_KINDS:
@@ -844,8 +844,7 @@ def eta_seconds(job: Job, cache: RunCache, rates: Any) -> float:
             left = max(0.0, left - checkpoint_steps(cache.workdir(job)))
         except (OSError, ValueError):
             pass
-    rate = rates.rate(rate_key(job)) if job.kind in figures.TRAINING_KINDS else 0.0
-    rate = rate or rates.rate(family(job))
+    rate = job_rate(job, rates)
     return DEADLINE_MARGIN * left / rate if rate > 0 else math.inf
 
 
