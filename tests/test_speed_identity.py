@@ -6,9 +6,9 @@ Re-record (ONLY for an intended change of results, never for a speed-up):
 ``python -m tests.test_speed_identity --record``.
 
 Alg 3's solver diagnostics (:data:`DIAGNOSTICS`: the CG residual, the Eq 4.7 objectives and the KL to the
-sub-policies) are float32 reductions whose vectorised kernels differ between CPUs: on an AMD EPYC without AVX-512
-(torch's AVX2 kernels) they differed from the Intel recording in the last bits while weights, filters and episodes
-were identical. They are compared within :data:`DIAGNOSTIC_RTOL`, from values recorded on that AVX2 machine with the
+sub-policies) are float32 reductions over every state of the batch whose last bits differ between CPUs despite the
+pinned numerics: on an AMD EPYC (AVX2, no AVX-512) they differed from the Intel recording in the last bits while
+weights, filters and episodes were identical. They are compared within :data:`DIAGNOSTIC_RTOL`, from values recorded on that AVX2 machine with the
 code of 2026-11-26 (the weights, filters and episodes beside them still those recorded at 44372b3); every other
 curve stays bit-exact.
 """
