@@ -55,6 +55,7 @@ from thesis_repro.cache import (
     sweep_tmp,
     write_manifest,
 )
+from thesis_repro.plan import Rates, job_rate, shipped_rates, work
 from thesis_repro.plan import training_seed as job_seed  # the training seed of a job (an evaluation: its policy's)
 from thesis_repro.validation import check_choice
 
@@ -796,8 +797,8 @@ def in_flight(submitted: Iterable[Future], pending: Collection[Future], n_jobs: 
     return [f for f in submitted if f in pending and f.running()][:n_jobs]
 
 
-#: ``--until``: a job starts only if it is expected to end by then at this many times its family's shipped pace
-#: (the pace of one family spans a factor ~3 on one machine, :func:`thesis_repro.plan.shipped_rates`).
+#: ``--until``: a job starts only if it is expected to end by then at its shipped pace (its learner's on its task,
+#: :func:`thesis_repro.plan.job_rate`) times this margin: the pace of one family spans a factor ~3 on one machine.
 DEADLINE_MARGIN = 1.25
 
 
@@ -821,21 +822,17 @@ def parse_until(text: str, now: datetime | None = None) -> datetime:
     return at if at > now else at + timedelta(days=1)
 
 
-def eta_seconds(job: Job, cache: RunCache, rates: Any) -> float:
+def eta_seconds(job: Job, cache: RunCache, rates: Rates) -> float:
     """Wall seconds ``job`` is expected to still take: its work past its newest checkpoint (a resumed run) at its
-    rate in ``rates`` (a :class:`thesis_repro.plan.Rates`, units per second: the learner family's on this task
-    where it has one, :func:`thesis_repro.plan.rate_key`, else the family's), times :data:`DEADLINE_MARGIN`;
-    ``inf`` for a family without a rate.
+    rate in ``rates`` (units per second, :func:`thesis_repro.plan.job_rate`: its learner's on its task where
+    ``rates`` has one, else its family's), times :data:`DEADLINE_MARGIN`; ``inf`` for a family without a rate.
 
-    >>> from thesis_repro.plan import Rates
     >>> ppo = Job("train", {"algorithm": "ppo", "env": "Hopper", "timesteps": 1000})
     >>> eta_seconds(ppo, RunCache(reference=False), Rates({"ppo": 100.0}, {}))
     12.5
     >>> eta_seconds(ppo, RunCache(reference=False), Rates({"ppo": 100.0, "ppo:Hopper": 50.0}, {}))
     25.0
     """
-    from thesis_repro.plan import job_rate, work
-
     left = work(job)
     if job.kind in figures.TRAINING_KINDS:
         from thesis_repro.learners.train import checkpoint_steps  # local: the listing stays importable without torch
@@ -851,12 +848,10 @@ def eta_seconds(job: Job, cache: RunCache, rates: Any) -> float:
 def _default_eta(cache: RunCache) -> Callable[[Job], float]:
     """:func:`eta_seconds` at the pace the shipped runs kept, per learner family and task (read once, when a
     deadline first asks)."""
-    rates: list[Any] = []
+    rates: list[Rates] = []
 
     def eta(job: Job) -> float:
         if not rates:
-            from thesis_repro.plan import shipped_rates
-
             rates.append(shipped_rates(by_env=True))
         return eta_seconds(job, cache, rates[0])
 
