@@ -94,9 +94,10 @@ def test_generator_until_starts_only_jobs_that_end_in_time(fake_figures, monkeyp
     what is left for the next run (which then finishes it)."""
     layer, lines = fake_figures, []
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
-    need = {"a": 10.0, "b": 1e6, "c": 5.0}  # seconds each job is expected to take; b cannot end in time
+    need = {"a": 10.0, "b": 500.0, "c": 5.0}  # seconds each job is expected to take: b with the margin does not fit
+    assert runs.DEADLINE_MARGIN * 500.0 > 600.0
     eta = lambda job: need[job.config["algorithm"]]  # noqa: E731
-    until = datetime.now() + timedelta(minutes=10)
+    until = datetime.now() + timedelta(seconds=600)
     done = runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append, until=until, eta=eta)
     assert [e.path.name.split("__")[0] for e in done] == ["a", "c"]  # cheapest first, b skipped
     assert any("1 longer job(s) wait; starting c__Toy__s0" in line for line in lines)
@@ -112,9 +113,9 @@ def test_eta_counts_the_work_left_past_a_checkpoint(monkeypatch, tmp_path):
     job = Job("train", {"algorithm": "ppo", "env": "Hopper", "seed": 0, "timesteps": 1_000_000})
     rates = Rates({"ppo": 1000.0}, {})
     cache = RunCache(tmp_path / "runs", reference=False)
-    assert runs.eta_seconds(job, cache, rates) == pytest.approx(runs.DEADLINE_MARGIN * 1000.0)
+    assert runs.eta_seconds(job, cache, rates) == pytest.approx(1000.0)
     monkeypatch.setattr(train, "checkpoint_steps", lambda workdir: 600_000)  # a resumed run: 400k steps left
-    assert runs.eta_seconds(job, cache, rates) == pytest.approx(runs.DEADLINE_MARGIN * 400.0)
+    assert runs.eta_seconds(job, cache, rates) == pytest.approx(400.0)
     assert runs.eta_seconds(job, cache, Rates({}, {})) == float("inf")  # no rate: never fits a deadline
 
 
@@ -316,6 +317,8 @@ def test_generator_progress_line_reads_the_newest_checkpoint(tmp_path):
     line = runs.progress_line([job, fresh], cache, 125.0)
     assert line.startswith("  ... 2 min: training ")
     assert f"{job.label} 200,704/300,000 steps; {fresh.label} 0/10 steps" in line
+    line = runs.progress_line([job], cache, 125.0, eta=lambda j: 1500.0)  # the generator's estimate of what is left
+    assert f"{job.label} 200,704/300,000 steps, ~25 min left (newest checkpoints)" in line
 
 
 def test_runs_command(fake_figures, capsys):

@@ -8,9 +8,9 @@ Re-record (ONLY for an intended change of results, never for a speed-up):
 Alg 3's solver diagnostics (:data:`DIAGNOSTICS`: the CG residual, the Eq 4.7 objectives and the KL to the
 sub-policies) are float32 reductions over every state of the batch whose last bits differ between CPUs despite the
 pinned numerics: on an AMD EPYC (AVX2, no AVX-512) they differed from the Intel recording in the last bits while
-weights, filters and episodes were identical. They are compared within :data:`DIAGNOSTIC_RTOL`, from values recorded on that AVX2 machine with the
-code of 2026-11-26 (the weights, filters and episodes beside them still those recorded at 44372b3); every other
-curve stays bit-exact.
+weights, filters and episodes were identical. They are compared within :data:`DIAGNOSTIC_RTOL`, from values
+recorded on that AVX2 machine with the code of 2026-11-26 (the weights, filters and episodes beside them still those
+recorded at 44372b3); every other curve stays bit-exact.
 """
 
 from __future__ import annotations

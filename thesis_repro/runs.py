@@ -760,8 +760,11 @@ def git_commit(path: Path, message: str, attempts: int = 20) -> str:
 HEARTBEAT_SECONDS = 300.0
 
 
-def progress_line(jobs: Sequence[Job], cache: RunCache, elapsed: float) -> str:
-    """One line: how far each of ``jobs`` got (env steps of its newest checkpoint / its budget).
+def progress_line(
+    jobs: Sequence[Job], cache: RunCache, elapsed: float, eta: Callable[[Job], float] | None = None
+) -> str:
+    """One line: how far each of ``jobs`` got (env steps of its newest checkpoint / its budget) and, with ``eta``
+    (seconds still needed, :func:`eta_seconds`), about how long it has left.
 
     >>> progress_line([], RunCache(reference=False), 600.0)
     '  ... 10 min: nothing training'
@@ -774,7 +777,10 @@ def progress_line(jobs: Sequence[Job], cache: RunCache, elapsed: float) -> str:
             steps = f"{checkpoint_steps(cache.workdir(job)):,}"
         except (OSError, ValueError):  # a kind that checkpoints otherwise
             steps = "?"
-        parts.append(f"{job.label} {steps}/{cost(job):,.0f} steps")
+        left = eta(job) if eta is not None else math.nan
+        parts.append(
+            f"{job.label} {steps}/{cost(job):,.0f} steps" + (f", ~{left / 60:.0f} min left" if left < math.inf else "")
+        )
     what = "training " + "; ".join(parts) + " (newest checkpoints)" if parts else "nothing training"
     return f"  ... {elapsed / 60:.0f} min: {what}"
 
@@ -797,8 +803,8 @@ def in_flight(submitted: Iterable[Future], pending: Collection[Future], n_jobs: 
     return [f for f in submitted if f in pending and f.running()][:n_jobs]
 
 
-#: ``--until``: a job starts only if it is expected to end by then at its shipped pace (its learner's on its task,
-#: :func:`thesis_repro.plan.job_rate`) times this margin: the pace of one family spans a factor ~3 on one machine.
+#: ``--until``: a job starts only if this many times its expected duration (:func:`eta_seconds`) ends by then: the
+#: pace of one family spans a factor ~3 on one machine.
 DEADLINE_MARGIN = 1.25
 
 
@@ -825,13 +831,13 @@ def parse_until(text: str, now: datetime | None = None) -> datetime:
 def eta_seconds(job: Job, cache: RunCache, rates: Rates) -> float:
     """Wall seconds ``job`` is expected to still take: its work past its newest checkpoint (a resumed run) at its
     rate in ``rates`` (units per second, :func:`thesis_repro.plan.job_rate`: its learner's on its task where
-    ``rates`` has one, else its family's), times :data:`DEADLINE_MARGIN`; ``inf`` for a family without a rate.
+    ``rates`` has one, else its family's); ``inf`` for a family without a rate.
 
     >>> ppo = Job("train", {"algorithm": "ppo", "env": "Hopper", "timesteps": 1000})
     >>> eta_seconds(ppo, RunCache(reference=False), Rates({"ppo": 100.0}, {}))
-    12.5
+    10.0
     >>> eta_seconds(ppo, RunCache(reference=False), Rates({"ppo": 100.0, "ppo:Hopper": 50.0}, {}))
-    25.0
+    20.0
     """
     left = work(job)
     if job.kind in figures.TRAINING_KINDS:
@@ -842,7 +848,7 @@ def eta_seconds(job: Job, cache: RunCache, rates: Rates) -> float:
         except (OSError, ValueError):
             pass
     rate = job_rate(job, rates)
-    return DEADLINE_MARGIN * left / rate if rate > 0 else math.inf
+    return left / rate if rate > 0 else math.inf
 
 
 def _default_eta(cache: RunCache) -> Callable[[Job], float]:
@@ -860,7 +866,8 @@ def _default_eta(cache: RunCache) -> Callable[[Job], float]:
 
 class _Deadline:
     """The generator's queue of jobs to start, in order; with a deadline (``until``), :meth:`take` hands out the
-    first job expected to end by then (``eta`` seconds from now) and ``None`` once none fits."""
+    first job expected to end by then (:data:`DEADLINE_MARGIN` x ``eta`` seconds from now) and ``None`` once none
+    fits."""
 
     def __init__(
         self, todo: Sequence[Planned], until: datetime | None, eta: Callable[[Job], float], log: Callable[[str], None]
@@ -877,7 +884,7 @@ class _Deadline:
         left = (self.until - datetime.now()).total_seconds()
         for i, p in enumerate(self.queue):
             need = self.eta(p.job)
-            if need <= left:
+            if DEADLINE_MARGIN * need <= left:
                 if i:
                     self.log(f"  --until: {i} longer job(s) wait; starting {p.job.label} (~{need / 60:.0f} min)")
                 return self.queue.pop(i)
@@ -1019,7 +1026,7 @@ def generate(
                     started = [futures[f].job for f in in_flight(futures, pending, n_jobs)]
                     running = [j for j in started if cache.workdir(j).exists()]  # workers still importing: none
                     if not finished and running:
-                        log(progress_line(running, cache, time.time() - t0))
+                        log(progress_line(running, cache, time.time() - t0, queue.eta))
                     for fut in finished:
                         land(len(done) + 1, futures[fut], fut.result())
                     submit()
