@@ -20,7 +20,7 @@ RAY_STAMP := $(VENV)/.installed-ray
 NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
-.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs runs-% plan-% verify
+.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs seeds runs-% plan-% verify
 
 venv: $(STAMP)
 
@@ -72,6 +72,14 @@ reference-runs: $(STAMP)
 	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS)) $(if $(PROTOCOL),--protocol $(PROTOCOL)) \
 	  $(if $(ALGOS),--algos $(ALGOS)) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(KINDS),--kind $(KINDS)) \
 	  $(if $(UNTIL),--until $(UNTIL))
+
+## make seeds UNTIL=HH:MM : issue 22's regeneration, the one command a session starts in the background (nohup ... &):
+## seeds 0-2 of every chapter 3-4 item under the thesis protocol, trained and evaluated, committed as they land, two
+## at a time, item by item in SEED_ORDER (cheap, many-claim items first); UNTIL = the session's end
+SEED_ORDER := table-3.3 4.4 4.7 4.2 3.4 table-3.6 table-3.4 3.3 3.7 table-3.5 3.5 table-3.7 3.6 3.8 4.1 4.3 4.5 4.6 3.2
+seeds:
+	$(MAKE) reference-runs SCALE=small PROTOCOL=thesis SEEDS="0 1 2" KINDS="train evaluate" COMMIT=1 JOBS=2 \
+	  FIGURES="$(SEED_ORDER)" $(if $(UNTIL),UNTIL=$(UNTIL))
 
 ## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] : recompute a seeded random sample of N shipped evaluations on
 ## this machine (temporary cache) and compare: bit-identical on the platform that made them, else rollout means within
