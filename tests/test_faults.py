@@ -236,6 +236,19 @@ def session_processes(sid: int) -> list[int]:
     return found
 
 
+def test_a_ctrl_c_while_workers_spawn_is_deferred_not_lost():
+    """The generator holds SIGINT while it spawns workers (so they start deaf to it). A Ctrl-C in that window
+    used to vanish (it was ignored) and leave the generator waiting on its runs (CI after stop 34); now it is raised
+    by the window's end at the latest."""
+    with pytest.raises(KeyboardInterrupt):
+        with runs._sigint_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+        time.sleep(5)  # not reached
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+
+
 def test_ctrl_c_stops_a_parallel_reference_run_at_once(tmp_path):
     """`make reference-runs JOBS=2`, Ctrl-C while its workers start: the terminal interrupts the whole process
     group; the workers print nothing and are ended, no queued run starts, and the generator exits 130 at once

@@ -712,6 +712,7 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker 
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the spawning parent (_sigint_held)
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
@@ -1010,7 +1011,7 @@ def generate(
 
             def submit() -> None:  # keep n_jobs in flight, each the next job the deadline allows
                 while len(pending) < n_jobs and (p := queue.take()) is not None:
-                    with _sigint_ignored():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
+                    with _sigint_held():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
                         fut = ex.submit(execute, p.job, str(cache.root), ref)
                     futures[fut] = p
                     pending.add(fut)
@@ -1038,19 +1039,19 @@ def generate(
 
 
 @contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Ignore SIGINT in this block (processes started in it inherit that), where the main thread allows it."""
+def _sigint_held() -> Iterator[None]:
+    """Block SIGINT in this thread for the block: processes spawned in it start with it blocked (their
+    :func:`_die_with_parent` ignores and then unblocks it, dropping a pending one), and a Ctrl-C that arrives meanwhile
+    is held, not lost: it is raised as KeyboardInterrupt when the block ends, or inside it if another thread of this
+    process takes the signal. (Ignoring SIGINT here instead, as before, lost a Ctrl-C sent while workers spawned.)
+    """
     import signal
 
-    try:
-        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except ValueError:  # not the main thread
-        yield
-        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # a Ctrl-C held pending above lands now
 
 
 def _stop_pool(ex: ProcessPoolExecutor) -> None:
