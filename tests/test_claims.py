@@ -277,3 +277,22 @@ def test_the_average_across_seeds_cannot_be_judged_from_one_seed():
         M.MEASURES["mean_selection"]({"points": points[points["seed"] == 0]}, {})
     (unit,) = M.MEASURES["mean_selection"]({"points": points}, {})[""]
     assert unit.parts[0].a[0] < -0.9  # r of the seed means: strongly negative, as built
+
+
+def test_a_pooled_statistic_says_it_pools_the_seeds_not_that_there_is_one():
+    """The average across seeds (§3.3 l.547) is one r per cell from the 3 seeds' means: at most indicative, and
+    its text and JSON say the seeds were pooled, not "one training seed"."""
+    rng = np.random.default_rng(0)
+    rows = [
+        {"env": e, "test": "obs", "algo": a, "seed": s, "train_return": 100.0 * i, "auc": rng.normal() - 10 * i}
+        for e in ("Hopper", "Walker2d")
+        for i, a in enumerate(["ppo", "trpo", "sac", "ddpg"])
+        for s in range(3)
+    ]
+    row = L._judge_frames(L.spec("3.3-mean-selection"), "small", False, {"points": pd.DataFrame(rows)}, {})
+    assert row.status == "indicative" and row.n_seeds == 1 and row.pooled_seeds == 3
+    assert row.as_dict()["pooled_seeds"] == 3
+    text = L.describe(row)
+    assert "one training seed" not in text
+    assert "3 training seeds pooled (no replication)" in text and "(point estimates: seed means)" in text
+    assert "one value per unit from the means of 3 training seeds: no CI; the point estimates lean" in text

@@ -332,6 +332,7 @@ class Row:
     diagnosis: str = ""
     sensitivity: list[dict[str, Any]] = field(default_factory=list)
     stale: list[str] = field(default_factory=list)  # pages whose saved numbers other kit code wrote
+    pooled_seeds: int = 0  # > 0: each unit's one value is a statistic of this many seeds' means (no replication)
 
     def as_dict(self) -> dict[str, Any]:
         s = self.spec
@@ -345,6 +346,7 @@ class Row:
             "rule": rule_text(s),
             "unit": UNIT_OF_REPLICATION,
             "n_seeds": self.n_seeds,
+            "pooled_seeds": self.pooled_seeds,
             "statistic": self.statistic,
             "verdict": self.status,
             "null_pass_rate": self.null_pass_rate,
@@ -469,17 +471,20 @@ def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.Dat
     if scale == "smoke":
         status = report.NOT_JUDGED
     note, lean = "", ""
+    pooled = M.pooled_seeds(r["measure"], frames)
     if status == report.INDICATIVE:
         lean = combine_groups([j.leaning for j in judged.values()])
+        why = _no_ci_words(pooled)
         note = (
-            "one training seed: no CI; the point estimates do not decide (a unit has none)"
+            f"{why}; the point estimates do not decide (a unit has none)"
             if lean == report.INCONCLUSIVE
-            else f"one training seed: no CI; the point estimates lean '{lean}'"
+            else f"{why}; the point estimates lean '{lean}'"
         )
     if not_run:
         note += ("; " if note else "") + "not judged (not run): " + ", ".join(not_run)
     rate = _null_rate(s, scale, run) if with_null else None
     row = Row(s, status, n_seeds, stat if len(stat) > 1 else next(iter(stat.values())), gsum, rate, note)
+    row.pooled_seeds = pooled
     if status in (report.DOES_NOT, report.PARTLY, report.INCONCLUSIVE):
         measured = [m for m in (study_result(n) for n in s.sensitivity) if m is not None]
         row.diagnosis = diagnose(judged, meta, measured)
@@ -623,13 +628,15 @@ def describe(row: Row) -> str:
     st = row.statistic
     parts = []
     if "ci" in st:
-        parts.append(_stat_text(st, row.n_seeds))
+        parts.append(_stat_text(st, row.n_seeds, row.pooled_seeds))
     elif st and "parts" not in st:
-        parts.append("; ".join(f"{g}: {_stat_text(v, row.n_seeds)}" for g, v in st.items()))
+        parts.append("; ".join(f"{g}: {_stat_text(v, row.n_seeds, row.pooled_seeds)}" for g, v in st.items()))
     effects = effects_text(row)
     if effects:
         parts.append(effects)
-    if row.n_seeds:
+    if row.pooled_seeds:
+        parts.append(f"{row.pooled_seeds} training seeds pooled (no replication)")
+    elif row.n_seeds:
         most = max((c["n"] for _, _, c, _ in _contrast_rows(row)), default=row.n_seeds)
         few = f"{row.n_seeds} training seed(s)"
         parts.append(f"{row.n_seeds}-{most} training seeds per unit" if most > row.n_seeds else few)
@@ -642,11 +649,25 @@ def describe(row: Row) -> str:
     return "; ".join(parts)
 
 
-def _stat_text(st: Mapping[str, Any], n_seeds: int | None = None) -> str:
-    """A yes-share statistic in words; with one training seed a unit's "yes" is its point estimate, not a CI.
+def _no_ci_words(pooled: int = 0) -> str:
+    """Why a verdict has no CI: one training seed, or one value pooled from ``pooled`` seeds' means.
+
+    >>> _no_ci_words(), _no_ci_words(3)
+    ('one training seed: no CI', 'one value per unit from the means of 3 training seeds: no CI')
+    """
+    if pooled:
+        return f"one value per unit from the means of {pooled} training seeds: no CI"
+    return "one training seed: no CI"
+
+
+def _stat_text(st: Mapping[str, Any], n_seeds: int | None = None, pooled: int = 0) -> str:
+    """A yes-share statistic in words; with one training seed a unit's "yes" is its point estimate, not a CI
+    (likewise when each unit's one value pools ``pooled`` seeds' means).
 
     >>> _stat_text({"value": 0.5, "ci": [0.5, 0.5], "k": 1, "n": 2}, n_seeds=1)
     '1/2 units yes (point estimates: one training seed), point estimate 0.50'
+    >>> _stat_text({"value": 0.5, "ci": [0.5, 0.5], "k": 1, "n": 2}, n_seeds=1, pooled=3)
+    '1/2 units yes (point estimates: seed means), point estimate 0.50'
     >>> _stat_text({"value": 0.5, "ci": [0.5, 0.5], "k": 1, "n": 2}, n_seeds=3)
     '1/2 units yes (CI-supported), point estimate 0.50'
     """
@@ -654,7 +675,11 @@ def _stat_text(st: Mapping[str, Any], n_seeds: int | None = None) -> str:
         return "no units"
     lo, hi = st["ci"]
     pt = st.get("value")
-    basis = "point estimates: one training seed" if n_seeds is not None and n_seeds < 2 else "CI-supported"
+    basis = (
+        "point estimates: " + ("seed means" if pooled else "one training seed")
+        if n_seeds is not None and n_seeds < 2
+        else "CI-supported"
+    )
     head = f"{st['k']}/{st['n']} units yes ({basis})"
     if st.get("undecided"):
         head += f", {st['undecided']} undecided: yes-share in [{lo:.2f}, {hi:.2f}]"
@@ -734,7 +759,8 @@ def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
         return ""
     with_ci = {n for n in ns if n >= 2}
     if not with_ci:
-        head = "effect in the claim's direction (> 0 supports it), one training seed: no CI"
+        no_ci = "seed means: no CI" if row.pooled_seeds else _no_ci_words()
+        head = f"effect in the claim's direction (> 0 supports it), {no_ci}"
     else:
         seeds = f"{min(with_ci)}" if len(with_ci) == 1 else f"{min(with_ci)}-{max(with_ci)}"
         fewer = "; no CI where a contrast has under 2 seeds" if with_ci != ns else ""

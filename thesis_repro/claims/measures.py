@@ -35,6 +35,23 @@ NOISY = {"obs": "ppo-obsnoise", "act": "ppo-actnoise", "env": "ppo-envnoise", "d
 PENDULUMS = ("InvertedPendulum", "InvertedDoublePendulum")
 
 
+#: Measures whose one value per unit pools every training seed (a statistic of the seed means), with the frame
+#: whose ``seed`` column counts them: no replication, so at most indicative however many seeds there are.
+POOLED: dict[str, str] = {"mean_selection": "points"}
+
+
+def pooled_seeds(name: str, frames: Mapping[str, pd.DataFrame]) -> int:
+    """How many training seeds measure ``name`` pools into each unit's one value; 0 if it does not pool.
+
+    >>> pooled_seeds("mean_selection", {"points": pd.DataFrame({"seed": [0, 0, 1, 2]})})
+    3
+    >>> pooled_seeds("correlation", {"points": pd.DataFrame({"seed": [0, 1]})})
+    0
+    """
+    frame = frames.get(POOLED.get(name, ""))
+    return 0 if frame is None or "seed" not in frame.columns else int(frame["seed"].nunique())
+
+
 class NotRun(Exception):
     """The claim needs a learner / run this scale does not train."""
 
