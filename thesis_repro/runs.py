@@ -1047,11 +1047,11 @@ def _sigint_held() -> Iterator[None]:
     """
     import signal
 
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # a Ctrl-C held pending above lands now
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a Ctrl-C held pending above lands now (unless blocked before)
 
 
 def _stop_pool(ex: ProcessPoolExecutor) -> None:
