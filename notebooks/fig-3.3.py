@@ -56,7 +56,11 @@ print(budgets.render(trained))
 
 # %% [markdown]
 # ## (a, b) Testing AUC vs training return, with the Pareto frontier
-# Each point is one variant (labelled); the dashed line joins the Pareto-optimal ones.
+# Each point is one variant (labelled); the dashed line joins the Pareto-optimal ones. With several training
+# seeds a point is the variant's seed with the best training return, as the thesis picks it (`SELECTION`;
+# `"mean"` averages the seeds instead), and panel (c) correlates those points. The verdicts at the end use
+# every seed: one correlation per seed and (task, test) cell, with a 95 % CI across seeds. Read the scatter
+# as an illustration and the verdicts as the evidence.
 
 # %%
 sns.set_theme(style="whitegrid")

@@ -31,7 +31,9 @@ def _restamp(path, stamp):
 
 
 def test_numbers_saved_by_this_kit_are_fresh(saved):
-    assert json.loads(saved.read_text())["kit"] == paths.kit_stamp()
+    blob = json.loads(saved.read_text())
+    assert blob["kit"] == paths.code_stamp("fig-3.3", blob["kit_modules"])
+    assert "thesis_repro/claims/ledger.py" in blob["kit_modules"]
     row = L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False)
     assert row.stale == [] and row.as_dict()["stale_pages"] == []
 
@@ -70,3 +72,41 @@ def test_analysis_verdicts_saved_by_other_kit_code_are_reported_stale(tmp_path, 
     _restamp(path, "0" * 12)
     row = L.judge(s, SCALE, with_null=False)
     assert row.status == report.REPRODUCES and row.stale == [s.page]
+
+
+def test_the_stamp_covers_what_the_page_imported_its_config_and_notebook_and_nothing_else(tmp_path, monkeypatch):
+    """The same dependencies as the book's up-to-date check: a page the book keeps is never called stale."""
+    pkg, nbs, thesis = tmp_path / "thesis_repro", tmp_path / "notebooks", tmp_path / "data" / "thesis"
+    for d in (pkg, nbs, thesis):
+        d.mkdir(parents=True)
+    files = {
+        "used": pkg / "used.py",
+        "unused": pkg / "unused.py",
+        "config": pkg / "scales.yaml",
+        "thesis": thesis / "claims.yaml",
+        "own notebook": nbs / "table-3.4.py",
+        "other notebook": nbs / "table-3.3.py",
+    }
+    for f in files.values():
+        f.write_text("x = 1\n")
+    for name, value in (("ROOT", tmp_path), ("PACKAGE", pkg), ("NOTEBOOKS", nbs), ("THESIS_DATA", thesis)):
+        monkeypatch.setattr(paths, name, value)
+
+    blob = {"kit": paths.code_stamp("table-3.4", ["thesis_repro/used.py"]), "kit_modules": ["thesis_repro/used.py"]}
+    changed = {}
+    for name, f in files.items():
+        f.write_text("x = 2\n")
+        changed[name] = report.is_stale("table-3.4", blob)
+        f.write_text("x = 1\n")
+    assert changed == {
+        "used": True,
+        "unused": False,
+        "config": True,
+        "thesis": True,
+        "own notebook": True,
+        "other notebook": False,
+    }
+    # saved without its module list (older numbers): every module counts
+    old = {"kit": paths.code_stamp("table-3.4", None)}
+    files["unused"].write_text("x = 2\n")
+    assert report.is_stale("table-3.4", old) is True

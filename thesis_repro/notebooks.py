@@ -121,8 +121,6 @@ def failed_path(nid: str, scale: str) -> Path:
     return paths.executed(scale) / f"{page_id(nid)}.failed.ipynb"
 
 
-#: Files every notebook depends on besides the modules it imports: configuration and thesis data.
-_DATA_SUFFIXES = {".yaml", ".yml", ".csv", ".json", ".xml"}
 #: Tag of the cell appended to the staged notebook to list the kit modules the kernel imported.
 DEPS_TAG = "thesis-repro-deps"
 _DEPS_CODE = (
@@ -130,25 +128,6 @@ _DEPS_CODE = (
     "print(_json.dumps(sorted({{_m.__file__ for _m in list(_sys.modules.values())\n"
     "    if (getattr(_m, '__file__', None) or '').startswith({root!r})}})))"
 )
-
-
-def _data_files() -> list[Path]:
-    """Configuration, model and thesis-data files (every notebook depends on all of them)."""
-    found = [p for root in (paths.PACKAGE, paths.THESIS_DATA) for p in root.rglob("*") if p.suffix in _DATA_SUFFIXES]
-    return sorted(p for p in found if p.is_file())
-
-
-def _all_modules() -> list[Path]:
-    """Every module of the kit (the dependency list when a notebook's own is unknown)."""
-    return sorted(paths.PACKAGE.rglob("*.py"))
-
-
-def _files_hash(files: list[Path]) -> str:
-    h = hashlib.sha256()
-    for p in sorted(set(files)):
-        h.update(str(p.relative_to(paths.ROOT) if p.is_relative_to(paths.ROOT) else p).encode())
-        h.update(p.read_bytes() if p.exists() else b"<missing>")
-    return h.hexdigest()
 
 
 def execution_key(
@@ -161,13 +140,13 @@ def execution_key(
     always count.
     """
     nid = check_notebook(nid)
-    mods = _all_modules() if modules is None else [paths.ROOT / m for m in modules]  # relative to the repo
+    mods = paths.all_modules() if modules is None else [paths.ROOT / m for m in modules]  # relative to the repo
     payload = {
         "notebook": hashlib.sha256(paths.notebook(page_id(nid)).read_bytes()).hexdigest(),
         "scale": scale,
         "parameters": parameters or {},
         "retrain": os.environ.get("THESIS_REPRO_RETRAIN", ""),
-        "files": _files_hash([*mods, *_data_files()]),
+        "files": paths.files_hash([*mods, *paths.data_files()]),
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
 

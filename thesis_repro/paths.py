@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from functools import cache
+import sys
 from pathlib import Path
 
 ROOT: Path = Path(__file__).resolve().parent.parent
@@ -109,20 +109,51 @@ def thesis_table(name: str) -> Path:
     return THESIS_DATA / f"{name}.csv"
 
 
-@cache
-def kit_stamp() -> str:
-    """Short hash of what a page's saved numbers depend on besides its runs: the kit's code and configuration
-    (``thesis_repro/**/*.py``, ``*.yaml``), the notebooks (``notebooks/*.py``) and the thesis's numbers and
-    claims (``data/thesis/``). Saved with the numbers, so numbers written by other kit code are reported as stale
-    instead of judged silently.
+#: Suffixes of the configuration, model and thesis-data files every page depends on besides its code.
+DATA_SUFFIXES = frozenset({".yaml", ".yml", ".csv", ".json", ".xml"})
 
-    >>> len(kit_stamp()) == 12 and kit_stamp() == kit_stamp()
+
+def data_files() -> list[Path]:
+    """Configuration, model and thesis-data files (``thesis_repro/``, ``data/thesis/``): every page depends on all."""
+    found = [p for root in (PACKAGE, THESIS_DATA) for p in root.rglob("*") if p.suffix in DATA_SUFFIXES]
+    return sorted(p for p in found if p.is_file())
+
+
+def all_modules() -> list[Path]:
+    """Every module of the kit (the dependencies of numbers whose own are unknown)."""
+    return sorted(p for p in PACKAGE.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def imported_modules() -> list[str]:
+    """The kit modules this process has imported, as sorted paths relative to the repository.
+
+    >>> "thesis_repro/paths.py" in imported_modules()
     True
     """
-    code = sorted(f for f in [*PACKAGE.rglob("*.py"), *PACKAGE.rglob("*.yaml")] if "__pycache__" not in f.parts)
-    thesis = sorted(f for f in THESIS_DATA.rglob("*") if f.is_file())
+    root = str(PACKAGE) + os.sep
+    files = {getattr(m, "__file__", None) or "" for m in list(sys.modules.values())}
+    return sorted(Path(f).relative_to(ROOT).as_posix() for f in files if f.startswith(root))
+
+
+def files_hash(files: list[Path]) -> str:
+    """SHA-256 over each file's repository-relative path and bytes (``<missing>`` for a missing file)."""
     h = hashlib.sha256()
-    for base, files in ((PACKAGE, code), (NOTEBOOKS, sorted(NOTEBOOKS.glob("*.py"))), (THESIS_DATA, thesis)):
-        for f in files:
-            h.update(f.relative_to(base).as_posix().encode() + b"\0" + f.read_bytes())
-    return h.hexdigest()[:12]
+    for p in sorted(set(files)):
+        h.update(str(p.relative_to(ROOT) if p.is_relative_to(ROOT) else p).encode())
+        h.update(p.read_bytes() if p.exists() else b"<missing>")
+    return h.hexdigest()
+
+
+def code_stamp(page: str, modules: list[str] | None) -> str:
+    """Short hash of what a page's saved numbers depend on besides its runs: the kit ``modules`` that wrote them
+    (repository-relative, as :func:`imported_modules` lists them; ``None``: every module), the configuration and
+    thesis data (:func:`data_files`) and the page's notebook. Saved with the numbers, so numbers written by other
+    kit code are reported as stale instead of judged silently; the same dependencies as the book's up-to-date
+    check (:func:`thesis_repro.notebooks.execution_key`), so a page the book keeps is never called stale.
+
+    >>> s = code_stamp("table-3.4", imported_modules())
+    >>> len(s) == 12 and s == code_stamp("table-3.4", imported_modules()) != code_stamp("table-3.3", imported_modules())
+    True
+    """
+    mods = all_modules() if modules is None else [ROOT / m for m in modules]
+    return files_hash([*mods, *data_files(), notebook(page)])[:12]

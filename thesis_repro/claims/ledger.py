@@ -254,13 +254,13 @@ def saved_path(page: str, scale: str) -> Path:
 
 def save_page(page: str, scale: str, frames: Mapping[str, pd.DataFrame], meta: Mapping[str, Any]) -> Path:
     """Write a page's per-seed frames (records) and meta (scale, seeds, budget note) atomically, stamped
-    with :func:`~thesis_repro.paths.kit_stamp`."""
+    with :func:`~thesis_repro.paths.code_stamp` over the kit modules this process imported."""
     out = data_path(page, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
     blob = {
         "page": page,
         "scale": scale,
-        "kit": paths.kit_stamp(),
+        **report.stamp(page),
         "meta": dict(meta),
         "frames": {k: json.loads(v.to_json(orient="records")) for k, v in frames.items()},
     }
@@ -281,13 +281,13 @@ def _jsonable(x: Any) -> Any:
 def load_page(page: str, scale: str) -> dict[str, Any] | None:
     """The saved blob of ``page`` (frames as DataFrames) or None; inside a notebook, also a finished page's
     (:func:`~thesis_repro.paths.page_output`). ``blob["stale"]``: written by other kit code
-    (:func:`~thesis_repro.paths.kit_stamp`)."""
+    (:func:`~thesis_repro.paths.code_stamp`)."""
     p = saved_path(page, scale)
     if not p.exists():
         return None
     blob = json.loads(p.read_text())
     blob["frames"] = {k: pd.DataFrame(v) for k, v in blob["frames"].items()}
-    blob["stale"] = blob.get("kit") != paths.kit_stamp()
+    blob["stale"] = report.is_stale(page, blob)
     return blob
 
 
