@@ -123,11 +123,7 @@ def failed_path(nid: str, scale: str) -> Path:
 
 #: Tag of the cell appended to the staged notebook to list the kit modules the kernel imported.
 DEPS_TAG = "thesis-repro-deps"
-_DEPS_CODE = (
-    "import json as _json, sys as _sys\n"
-    "print(_json.dumps(sorted({{_m.__file__ for _m in list(_sys.modules.values())\n"
-    "    if (getattr(_m, '__file__', None) or '').startswith({root!r})}})))"
-)
+_DEPS_CODE = "from thesis_repro import paths as _paths\nprint(__import__('json').dumps(_paths.imported_modules()))"
 
 
 def execution_key(
@@ -358,7 +354,7 @@ def _stamp(
     if cells and DEPS_TAG in cells[-1].get("metadata", {}).get("tags", []):
         text = "".join("".join(o.get("text", "")) for o in cells[-1].get("outputs", []) if o.get("name") == "stdout")
         try:
-            modules = [str(Path(m).relative_to(paths.ROOT)) for m in json.loads(text)]
+            modules = [str(m) for m in json.loads(text)]  # repository-relative (paths.imported_modules)
         except ValueError:
             modules = None
         nb["cells"] = cells[:-1]
@@ -416,7 +412,7 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     (stage / paths.figures(scale).absolute().relative_to(build_root)).mkdir(parents=True)
     nb = jupytext.read(src)
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    deps = nbformat.v4.new_code_cell(_DEPS_CODE.format(root=str(paths.PACKAGE) + os.sep))
+    deps = nbformat.v4.new_code_cell(_DEPS_CODE)
     deps.metadata["tags"] = [DEPS_TAG, "remove-cell"]
     nb.cells.append(deps)
     staged = staged_out.with_suffix(".source.ipynb")
