@@ -95,21 +95,30 @@ def test_the_protocol_override_is_validated(monkeypatch):
 
 
 def test_protocol_overrides_apply_before_the_caller_s_overrides(monkeypatch):
-    """The thesis protocol's `small` takes its `protocol_overrides` (10 rollouts; 1 seed until seeds 1-2 are
-    shipped, then 3), but a caller's explicit override is the last word (the generator plans seeds past the
-    scale's count so); a figure still on kit-v1 keeps its own 3 rollouts and its skipped learners."""
-    thesis_small = scales._table()["protocol_overrides"]["thesis"]["small"]
+    """The thesis protocol's `small` takes its `protocol_overrides` (10 rollouts; 3 seeds once every chapter 3-4
+    run's seeds 1-2 are shipped), then an item's own `protocol_overrides`, but a caller's explicit override is the
+    last word (the generator plans seeds past the scale's count so); a figure on kit-v1 keeps its own 3 rollouts
+    and its skipped learners."""
+    table = scales._table()
+    thesis_small = table["protocol_overrides"]["thesis"]["small"]
     assert thesis_small["test_rollouts"] == 10 and thesis_small["train_seeds"] in (1, 3)
     monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
-    s = scales.figure_settings("4.1", "small")  # an item whose seeds 1-2 are not all shipped yet
+    s = scales.figure_settings("4.1", "small")  # an item without its own overrides
     assert (s["train_seeds"], s["test_rollouts"]) == (thesis_small["train_seeds"], 10)
     assert scales.figure_settings("3.3", "small", train_seeds=5)["train_seeds"] == 5
     assert scales.figure_settings("table-3.4", "small")["skip_algos"] == []
+    own = {"thesis": {"train_seeds": 2, "test_rollouts": 4}}  # an item's own block, applied after the scale's
+    block = {**table["figures"]["4.1"]["small"], "protocol_overrides": own}
+    monkeypatch.setitem(table["figures"]["4.1"], "small", block)
+    s = scales.figure_settings("4.1", "small")
+    assert (s["train_seeds"], s["test_rollouts"]) == (2, 4)
+    assert scales.figure_settings("4.1", "small", train_seeds=5)["train_seeds"] == 5
     monkeypatch.delenv(scales.PROTOCOL_ENV)
     s = scales.figure_settings("table-3.5", "small", protocol="thesis")
     assert (s["protocol"], s["test_rollouts"]) == ("thesis", 10)
     kit = scales.figure_settings("table-3.4", "small", protocol="kit-v1")
     assert (kit["test_rollouts"], kit["skip_algos"]) == (3, ["ddpg", "sac"])  # kit-v1 skips them
+    assert scales.figure_settings("4.1", "small", protocol="kit-v1")["train_seeds"] == 1  # own thesis overrides only
 
 
 def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
