@@ -29,6 +29,7 @@ import matplotlib.pyplot as plt
 import seaborn as sns
 
 from thesis_repro import claims, figures, pages
+from thesis_repro.evaluation import tables
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.4", SCALE)
@@ -42,19 +43,27 @@ ch5.strategy_means(summary, ch5.TRANSFER).round(3)
 # %%
 families = settings["families"]
 target = "bic" if "bic" in families else families[-1]
+band = plot.seed_band(curves, ["source", "target", "strategy", "trials"])
 fig, axes = plt.subplots(2, len(families), figsize=(4 * len(families), 6.4), sharey="row", squeeze=False)
 for row, (column, what) in enumerate([("cost", "all targets"), ("cost_successful", "successful targets only")]):
     for ax, src in zip(axes[row], families, strict=True):
         d = curves[(curves.source == src) & (curves.target == target)].dropna(subset=[column])
         if len(d):
             sns.lineplot(
-                data=d, x="trials", y=column, hue="strategy", hue_order=list(ch5.TRANSFER), ax=ax, errorbar=None
+                data=d,
+                x="trials",
+                y=column,
+                hue="strategy",
+                hue_order=list(ch5.TRANSFER),
+                ax=ax,
+                errorbar=tables.t_errorbar,
             )
         ax.set(title=f"reproduced: {src} → {target} ({what})", xlabel="trials per target task")
         ax.title.set_fontsize(9)
         if ax.get_legend() is not None and (row, src) != (0, families[0]):
             ax.get_legend().remove()
     axes[row, 0].set_ylabel(f"mean population cost\n({what})")
+fig.suptitle(band, fontsize=9)
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-5.4a", dpi=120)
 
@@ -62,6 +71,7 @@ plot.save(fig, SCALE, "fig-5.4a", dpi=120)
 # ## (b) total cost of learning and success rate at convergence, all pairs (reproduced)
 
 # %%
+bars = plot.seed_band(summary, ["pair", "strategy"]).replace("band", "bars")
 fig, axes = plt.subplots(1, 2, figsize=(12, 0.35 * summary.pair.nunique() + 2.5), sharey=True)
 for ax, column, xlabel in zip(
     axes,
@@ -69,9 +79,18 @@ for ax, column, xlabel in zip(
     ["total cost of learning (sum over trials), reproduced", "success rate at convergence, reproduced"],
     strict=True,
 ):
-    sns.barplot(data=summary, y="pair", x=column, hue="strategy", hue_order=list(ch5.TRANSFER), ax=ax, errorbar=None)
+    sns.barplot(
+        data=summary,
+        y="pair",
+        x=column,
+        hue="strategy",
+        hue_order=list(ch5.TRANSFER),
+        ax=ax,
+        errorbar=tables.t_errorbar,
+    )
     ax.set_xlabel(xlabel)
 axes[1].get_legend().remove()
+fig.suptitle(bars, fontsize=9)
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-5.4b", dpi=120)
 

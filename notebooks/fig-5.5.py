@@ -29,6 +29,7 @@ import matplotlib.pyplot as plt
 import seaborn as sns
 
 from thesis_repro import claims, figures, pages
+from thesis_repro.evaluation import tables
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.5", SCALE)
@@ -42,15 +43,33 @@ ch5.strategy_means(summary, METHODS).round(3)
 
 # %%
 src, tgt, d = ch5.cast_to_bic(curves, settings["families"])
-avg = ch5.strategy_means(summary, METHODS).total_cost
+per_seed = ch5.seed_means(summary, METHODS)
 wins = ch5.pair_wins(summary, METHODS)
-fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
-sns.lineplot(data=d, x="trials", y="cost", hue="strategy", hue_order=METHODS, ax=axes[0], errorbar=None)
+band = plot.seed_band(d, ["strategy", "trials"]).replace("band:", "(a) band, (b) bars:")
+fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+sns.lineplot(data=d, x="trials", y="cost", hue="strategy", hue_order=METHODS, ax=axes[0], errorbar=tables.t_errorbar)
 axes[0].set(title=f"(a) reproduced: {src} → {tgt}", xlabel="trials per target task", ylabel="mean population cost")
-sns.barplot(x=avg.index, y=avg.values, hue=avg.index, ax=axes[1], legend=False)
+sns.barplot(
+    data=per_seed,
+    x="strategy",
+    y="total_cost",
+    hue="strategy",
+    order=METHODS,
+    hue_order=METHODS,
+    ax=axes[1],
+    legend=False,
+    errorbar=tables.t_errorbar,
+)
 axes[1].set(title="(b) reproduced: average total cost (lower is better)", ylabel="average total cost of learning")
 sns.barplot(x=wins.index, y=wins.values, hue=wins.index, ax=axes[2], legend=False)
-axes[2].set(title="(b) reproduced: % of pairs won", ylabel="% of pairs won (smallest total cost)")
+axes[2].set(
+    title="(b) reproduced: % of pairs won\n(smallest total cost, mean over seeds)",
+    xlabel="strategy",
+    ylabel="% of pairs won (smallest total cost)",
+)
+for ax in axes:
+    ax.title.set_fontsize(9)
+fig.suptitle(band, fontsize=9)
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-5.5", dpi=120)
 

@@ -255,6 +255,22 @@ def test_strategy_means_and_pair_wins():
     assert wins.to_dict() == {"tensor": 50.0, "matrix": 50.0, "ella": 0.0}
 
 
+def test_seed_means_are_the_unit_of_the_ch5_error_bars():
+    """Per seed, the mean over pairs; their mean over seeds is strategy_means (equal pairs per seed)."""
+    summary = pd.concat([_transfer_summary().assign(seed=0), _transfer_summary().assign(seed=1)], ignore_index=True)
+    summary.loc[summary.seed == 1, "total_cost"] += 2.0
+    per_seed = ch5.seed_means(summary, ["tensor", "scratch"])
+    assert per_seed[["strategy", "seed"]].values.tolist() == [
+        ["tensor", 0],
+        ["tensor", 1],
+        ["scratch", 0],
+        ["scratch", 1],
+    ]
+    assert per_seed.total_cost.tolist() == [1.0, 3.0, 9.0, 11.0]
+    overall = ch5.strategy_means(summary, ["tensor", "scratch"])
+    assert per_seed.groupby("strategy").total_cost.mean().to_dict() == overall.total_cost.to_dict()
+
+
 def test_curriculum_end_averages_the_last_tenth_of_the_trials():
     curves = pd.DataFrame(
         {

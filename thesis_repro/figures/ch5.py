@@ -178,6 +178,23 @@ def strategy_means(summary: pd.DataFrame, strategies: Sequence[str]) -> pd.DataF
     return summary.groupby("strategy")[["total_cost", "success_rate"]].mean().reindex(list(strategies))
 
 
+def seed_means(summary: pd.DataFrame, strategies: Sequence[str]) -> pd.DataFrame:
+    """Per training seed, each strategy's mean total cost and success rate over all pairs: columns
+    ``strategy, seed, total_cost, success_rate`` (the unit of replication for the figures' 95 % CI bars).
+
+    >>> s = pd.DataFrame({"strategy": ["a", "a", "a", "a"], "seed": [0, 0, 1, 1], "pair": ["p", "q", "p", "q"],
+    ...                   "total_cost": [1.0, 3.0, 5.0, 7.0], "success_rate": [0.0, 1.0, 1.0, 1.0]})
+    >>> seed_means(s, ["a"]).values.tolist()
+    [['a', 0, 2.0, 0.5], ['a', 1, 6.0, 1.0]]
+    """
+    means = summary.groupby(["strategy", "seed"])[["total_cost", "success_rate"]].mean().reset_index()
+    means = means[means.strategy.isin(list(strategies))]
+    order = {name: i for i, name in enumerate(strategies)}
+    return means.sort_values(
+        ["strategy", "seed"], key=lambda c: c.map(order) if c.name == "strategy" else c
+    ).reset_index(drop=True)
+
+
 def pair_wins(summary: pd.DataFrame, methods: Sequence[str]) -> pd.Series:
     """% of (source, target) pairs each method wins (smallest mean total cost)."""
     per_pair = summary.groupby(["pair", "strategy"]).total_cost.mean().unstack()
