@@ -44,20 +44,13 @@ ch5.strategy_means(summary, ch5.TRANSFER).round(3)
 families = settings["families"]
 target = "bic" if "bic" in families else families[-1]
 band = plot.seed_band(curves, ["source", "target", "strategy", "trials"])
+by_strategy = dict(hue="strategy", hue_order=list(ch5.TRANSFER), errorbar=tables.t_errorbar)  # per-seed rows
 fig, axes = plt.subplots(2, len(families), figsize=(4 * len(families), 6.4), sharey="row", squeeze=False)
 for row, (column, what) in enumerate([("cost", "all targets"), ("cost_successful", "successful targets only")]):
     for ax, src in zip(axes[row], families, strict=True):
         d = curves[(curves.source == src) & (curves.target == target)].dropna(subset=[column])
         if len(d):
-            sns.lineplot(
-                data=d,
-                x="trials",
-                y=column,
-                hue="strategy",
-                hue_order=list(ch5.TRANSFER),
-                ax=ax,
-                errorbar=tables.t_errorbar,
-            )
+            sns.lineplot(data=d, x="trials", y=column, ax=ax, **by_strategy)
         ax.set(title=f"reproduced: {src} → {target} ({what})", xlabel="trials per target task")
         ax.title.set_fontsize(9)
         if ax.get_legend() is not None and (row, src) != (0, families[0]):
@@ -79,15 +72,7 @@ for ax, column, xlabel in zip(
     ["total cost of learning (sum over trials), reproduced", "success rate at convergence, reproduced"],
     strict=True,
 ):
-    sns.barplot(
-        data=summary,
-        y="pair",
-        x=column,
-        hue="strategy",
-        hue_order=list(ch5.TRANSFER),
-        ax=ax,
-        errorbar=tables.t_errorbar,
-    )
+    sns.barplot(data=summary, y="pair", x=column, ax=ax, **by_strategy)
     ax.set_xlabel(xlabel)
 axes[1].get_legend().remove()
 fig.suptitle(bars, fontsize=9)

@@ -46,20 +46,11 @@ src, tgt, d = ch5.cast_to_bic(curves, settings["families"])
 per_seed = ch5.seed_means(summary, METHODS)
 wins = ch5.pair_wins(summary, METHODS)
 band = plot.seed_band(d, ["strategy", "trials"]).replace("band:", "(a) band, (b) bars:")
+by_strategy = dict(hue="strategy", hue_order=METHODS, errorbar=tables.t_errorbar)  # per-seed rows
 fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-sns.lineplot(data=d, x="trials", y="cost", hue="strategy", hue_order=METHODS, ax=axes[0], errorbar=tables.t_errorbar)
+sns.lineplot(data=d, x="trials", y="cost", ax=axes[0], **by_strategy)
 axes[0].set(title=f"(a) reproduced: {src} → {tgt}", xlabel="trials per target task", ylabel="mean population cost")
-sns.barplot(
-    data=per_seed,
-    x="strategy",
-    y="total_cost",
-    hue="strategy",
-    order=METHODS,
-    hue_order=METHODS,
-    ax=axes[1],
-    legend=False,
-    errorbar=tables.t_errorbar,
-)
+sns.barplot(data=per_seed, x="strategy", y="total_cost", order=METHODS, ax=axes[1], legend=False, **by_strategy)
 axes[1].set(title="(b) reproduced: average total cost (lower is better)", ylabel="average total cost of learning")
 sns.barplot(x=wins.index, y=wins.values, hue=wins.index, ax=axes[2], legend=False)
 axes[2].set(
