@@ -187,12 +187,8 @@ def seed_means(summary: pd.DataFrame, strategies: Sequence[str]) -> pd.DataFrame
     >>> seed_means(s, ["a"]).values.tolist()
     [['a', 0, 2.0, 0.5], ['a', 1, 6.0, 1.0]]
     """
-    means = summary.groupby(["strategy", "seed"])[["total_cost", "success_rate"]].mean().reset_index()
-    means = means[means.strategy.isin(list(strategies))]
-    order = {name: i for i, name in enumerate(strategies)}
-    return means.sort_values(
-        ["strategy", "seed"], key=lambda c: c.map(order) if c.name == "strategy" else c
-    ).reset_index(drop=True)
+    means = summary.groupby(["strategy", "seed"])[["total_cost", "success_rate"]].mean()
+    return means.reindex(list(strategies), level="strategy").reset_index()
 
 
 def pair_wins(summary: pd.DataFrame, methods: Sequence[str]) -> pd.Series:
