@@ -81,12 +81,13 @@ seeds:
 	$(MAKE) reference-runs SCALE=small PROTOCOL=thesis SEEDS="0 1 2" KINDS="train evaluate" COMMIT=1 JOBS=2 \
 	  FIGURES="$(SEED_ORDER)" $(if $(UNTIL),UNTIL=$(UNTIL))
 
-## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] : recompute a seeded random sample of N shipped evaluations on
-## this machine (temporary cache) and compare: bit-identical on the platform that made them, else rollout means within
-## 5 %; prints a table, fails on a mismatch; TRAIN=1 also retrains the cheapest shipped training run
+## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] : recompute a seeded random
+## sample of N shipped evaluations on this machine (temporary cache) and compare: bit-identical on the platform that
+## made them, else rollout means within 5 %; prints a table, fails on a mismatch; TRAIN=1 also retrains the cheapest
+## shipped training run; KINDS samples other shipped kinds too (chapter 5's arm-target, arm-source, ...)
 verify: $(STAMP)
 	$(BIN)/python -m thesis_repro verify --scale $(SCALE) $(if $(N),-n $(N)) $(if $(SEED),--seed $(SEED)) \
-	  $(if $(TRAIN),--train)
+	  $(if $(TRAIN),--train) $(if $(KINDS),--kind $(KINDS))
 
 ## make runs-3.3 SCALE=small : where Figure 3.3's runs are (kind, label, key, cached / shipped / missing, path)
 runs-%: $(STAMP)

@@ -185,12 +185,25 @@ def test_verify_with_no_shipped_evaluations_says_so(toy_figure, tmp_path, monkey
         (["verify", "-n", "0"], "error: argument -n: invalid value '0'; valid values are integers >= 1"),
         (["verify", "-n", "-3"], "error: argument -n: invalid value '-3'; valid values are integers >= 1"),
         (["verify", "--scale", "medium"], "error: unknown scale 'medium'; valid scales are: 'smoke', 'small', 'full'"),
+        (["verify", "--kind", "train"], "error: --kind: invalid value 'train'; valid kinds are: 'evaluate', 'arm-"),
     ],
 )
 def test_verify_bad_input_is_one_error_line(argv, says, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(says)
+
+
+def test_verify_kind_samples_other_shipped_kinds(layer, monkeypatch, capsys):
+    monkeypatch.setattr(verify, "VERIFIABLE", ("test-verify-eval", "test-verify-policy"))
+    assert main(["verify", "--scale", "smoke", "-n", "6", "--seed", "1", "--kind", "test-verify-policy"]) == 0
+    out = capsys.readouterr().out
+    assert "3 of 3 shipped test-verify-policy entries" in out and "3/3 match" in out
+    assert all(verify._name(p) not in out for p in _evaluations(layer))
+    assert main(["verify", "--scale", "smoke", "-n", "6", "--kind", "test-verify-policy", "test-verify-eval"]) == 0
+    out = capsys.readouterr().out
+    assert "6 of 6 shipped test-verify-policy/test-verify-eval entries" in out and "6/6 match" in out
+    assert out.count(" identical") == 6
 
 
 def test_verify_run_checks_n():
@@ -214,6 +227,20 @@ def test_compare_rules():
     check = verify.compare(a, near, same=False, entry="e")
     assert check.row()["shipped"] == "150.00" and check.row()["|diff|"] == "11"
     assert verify.VERIFY_RTOL == runs.OUTCOME_RTOL
+
+
+def test_arm_kinds_compare_their_summaries_across_platforms():
+    """A CMA-ES search redone on another CPU: weights and curves are other samples, the outcome must agree."""
+    arm = {"mean_total_cost": 2224.8, "final_cost": np.array([1.62, 0.16]), "W": np.array([[0.3, -0.2]])}
+    other_path = {**arm, "mean_total_cost": 2223.8, "final_cost": np.array([1.62, 0.22]), "W": np.array([[0.5, 0.1]])}
+    assert not verify.compare(arm, other_path, same=False).ok  # the evaluations' rule: final_cost off by 6 %
+    ok = verify.compare(arm, other_path, same=False, summaries_only=True)
+    assert ok.ok and ok.verdict == "within 5% (another platform: summaries differ by 0.0%)"
+    assert not verify.compare(arm, other_path, same=True, summaries_only=True).ok  # same platform: bit-identity
+    worse = {**other_path, "mean_total_cost": 2224.8 * 1.2}
+    assert "MISMATCH: summaries differ by 16.7% > 5%" in verify.compare(arm, worse, False, summaries_only=True).verdict
+    assert set(verify.VERIFIABLE) == {*verify.KINDS, *verify.ARM_KINDS}
+    assert all(registry.KINDS.get(k) for k in verify.ARM_KINDS)  # each names a registered kind
 
 
 def _train_entry(tmp_path: Path, resumed_from: int, start: str) -> Result:

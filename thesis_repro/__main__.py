@@ -188,6 +188,12 @@ def _main(argv: list[str]) -> int:
     ver.add_argument("-n", type=positive_int, default=20, help="how many shipped evaluations, >= 1 (default 20)")
     ver.add_argument("--seed", type=int, default=None, help="seed of the sample (default: random, printed)")
     ver.add_argument("--train", action="store_true", help="also retrain the cheapest shipped training run")
+    ver.add_argument(
+        "--kind",
+        nargs="+",
+        default=None,
+        help="shipped kinds to sample from (default: evaluate; chapter 5's arm kinds too, e.g. arm-target)",
+    )
     sub.add_parser("claims", help="the thesis's claims ledger (`claims --help` for its commands)", add_help=False)
     if argv[:1] == ["claims"]:  # everything after `claims` is the ledger's own command line
         return _guarded(lambda: _claims(argv[1:]))
