@@ -145,12 +145,33 @@ def test_plan_reports_cost_per_training_seed():
     assert plan.per_seed(plan.plan_jobs("x", [], "smoke", 1, RATES)) == ""
 
 
-def _ship(root, name: str, cfg: dict, pace: float | None) -> None:
+def _ship(root, name: str, cfg: dict, pace: float | None, machine: dict | None = None) -> None:
     entry = root / "train" / name
     entry.mkdir(parents=True)
     (entry / "config.json").write_text(json.dumps({"config": cfg, "kind": "train"}))
     measured = {} if pace is None else {"measured": {"steps_per_s": pace}}
-    (entry / "provenance.json").write_text(json.dumps(measured))
+    (entry / "provenance.json").write_text(json.dumps({**measured, "platform": machine}))
+
+
+def test_shipped_rates_prefer_the_runs_made_on_this_cpu(tmp_path):
+    """Chapter 4's Walker2d runs kept half the pace on an AMD EPYC that they kept on an Intel Xeon: a deadline on
+    the AMD machine must price them at its own pace once it made enough of them."""
+    intel, amd = {"cpu": "Intel Xeon", "isa": ["avx2"]}, {"cpu": "AMD EPYC", "isa": ["avx2"]}
+    ppo = train_config("ppo", "Hopper", 0, 1000)
+    for i, pace in enumerate([2000.0, 2100.0, 2200.0, 1900.0]):
+        _ship(tmp_path, f"intel{i}", ppo, pace, intel)
+    _ship(tmp_path, "amd0", ppo, 1000.0, amd)
+    base = plan.load_rates()
+    one = plan.shipped_rates(tmp_path, base, by_env=True, machine=amd)
+    assert one.rate("ppo") == 2000.0 and one.source("ppo") == "shipped pace, median of 5"  # 1 AMD run: too few
+    _ship(tmp_path, "amd1", ppo, 1100.0, amd)
+    two = plan.shipped_rates(tmp_path, base, by_env=True, machine=amd)
+    assert two.rate("ppo") == two.rate("ppo:Hopper") == 1050.0
+    assert two.source("ppo") == f"shipped pace on this CPU, median of {plan.MIN_LOCAL_RUNS}"
+    assert "this CPU's runs alone" in plan.rates_note(two)
+    assert plan.shipped_rates(tmp_path, base, machine=intel).rate("ppo") == 2050.0  # the Xeon: its 4 runs
+    assert plan.shipped_rates(tmp_path, base).rate("ppo") == 1950.0  # no machine: every run's median
+    assert "this CPU" not in plan.rates_note(plan.shipped_rates(tmp_path, base))
 
 
 def test_shipped_rates_are_the_median_pace_of_the_shipped_runs_per_family(tmp_path, capsys, monkeypatch):

@@ -181,7 +181,8 @@ def _main(argv: list[str]) -> int:
         "--rates",
         choices=["bench", "shipped"],
         default="bench",
-        help="bench: make bench's measured rates (else documented defaults); shipped: the pace the shipped runs kept",
+        help="bench: make bench's measured rates (else documented defaults); shipped: the pace the shipped runs kept "
+        "(on this CPU where it made enough of them)",
     )
     ver = sub.add_parser("verify", help="recompute a random sample of shipped evaluations and compare (make verify)")
     ver.add_argument("--scale", default="small", help="smoke | small | full")
@@ -383,7 +384,12 @@ def _plan_command(args: argparse.Namespace) -> int:
     from thesis_repro import plan, scales
 
     scales.check_scale(args.scale)
-    rates = plan.shipped_rates(by_env=True) if args.rates == "shipped" else plan.load_rates()
+    if args.rates == "shipped":
+        from thesis_repro.cache import platform_info
+
+        rates = plan.shipped_rates(by_env=True, machine=platform_info())
+    else:
+        rates = plan.load_rates()
     print(plan.rates_note(rates))
     subset = {k: v for k, v in (("envs", args.envs), ("algos", args.algos)) if v is not None}
     if args.figure != "all":

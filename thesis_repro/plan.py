@@ -244,7 +244,16 @@ def load_rates(path: str | Path | None = None) -> Rates:
 SHIPPED_PACE = "shipped pace"
 
 
-def shipped_rates(root: str | Path | None = None, base: Rates | None = None, by_env: bool = False) -> Rates:
+#: :func:`shipped_rates` with a ``machine``: the fewest runs made on it whose pace replaces every machine's.
+MIN_LOCAL_RUNS = 2
+
+
+def shipped_rates(
+    root: str | Path | None = None,
+    base: Rates | None = None,
+    by_env: bool = False,
+    machine: Mapping[str, Any] | None = None,
+) -> Rates:
     """The pace the shipped training runs actually kept, per family: the median of ``measured.steps_per_s`` (env
     steps per WALL second of one run, as the generator ran it: two runs at a time on the 2-core machine, with
     whatever else it ran) over the entries of ``<root>/train`` (default: the shipped layer). Families without a
@@ -252,28 +261,40 @@ def shipped_rates(root: str | Path | None = None, base: Rates | None = None, by_
     a machine like the one that made them, not a benchmark: the pace of one family spans a factor ~3-5. With
     ``by_env``, also one rate per family and task under the key ``"<family>:<env>"`` (:func:`rate_key`).
 
+    With ``machine`` (this machine's :func:`~thesis_repro.cache.platform_info`), a rate that at least
+    :data:`MIN_LOCAL_RUNS` runs made on that platform give is their median alone: one CPU kept half another's pace
+    on the same runs (chapter 4's Walker2d runs: Intel Xeon vs AMD EPYC), and a deadline (``--until``) must not
+    start a run it cannot finish.
+
     >>> r = shipped_rates(root="/nonexistent")
     >>> r.rates == load_rates().rates
     True
     """
     base = base or load_rates()
     folder = (Path(root) if root is not None else paths.reference()) / "train"
+    here = json.loads(json.dumps(machine)) if machine is not None else None
     paces: dict[str, list[float]] = {}
+    local: dict[str, list[float]] = {}
     for entry in sorted(folder.glob("*")) if folder.is_dir() else []:
         try:
             cfg = json.loads((entry / "config.json").read_text())["config"]
-            pace = float(json.loads((entry / "provenance.json").read_text())["measured"]["steps_per_s"])
+            prov = json.loads((entry / "provenance.json").read_text())
+            pace = float(prov["measured"]["steps_per_s"])
         except (OSError, ValueError, KeyError, TypeError):
             continue
         if pace > 0:
             job = Job("train", cfg)
-            paces.setdefault(family(job), []).append(pace)
-            if by_env:
-                paces.setdefault(rate_key(job), []).append(pace)
+            for key in (family(job), rate_key(job)) if by_env else (family(job),):
+                paces.setdefault(key, []).append(pace)
+                if here is not None and prov.get("platform") == here:
+                    local.setdefault(key, []).append(pace)
     rates, sources = dict(base.rates), dict(base.sources)
-    for fam, values in paces.items():
-        rates[fam] = float(statistics.median(values))
-        sources[fam] = f"{SHIPPED_PACE}, median of {len(values)}"
+    for key, values in paces.items():
+        mine = local.get(key, [])
+        where = " on this CPU" if len(mine) >= MIN_LOCAL_RUNS else ""
+        values = mine if where else values
+        rates[key] = float(statistics.median(values))
+        sources[key] = f"{SHIPPED_PACE}{where}, median of {len(values)}"
     return Rates(rates, sources)
 
 
@@ -513,10 +534,13 @@ def per_seed(p: Plan) -> str:
 def rates_note(rates: Rates) -> str:
     """Where the rates come from (the shipped runs' pace, the measured file, or the documented defaults)."""
     if any(s.startswith(SHIPPED_PACE) for s in rates.sources.values()):
+        by_env = any(":" in k for k in rates.rates)
+        local = any(s.startswith(f"{SHIPPED_PACE} on this CPU") for s in rates.sources.values())
         return (
             "rates: the shipped training runs' median pace per family (env steps per wall second of one run, two "
             "runs at a time on the machine that made them: an ETA, not a benchmark; 'core-hours' are then run-hours)"
-            + ("; per learner and task where shipped runs give one" if any(":" in k for k in rates.rates) else "")
+            + ("; per learner and task where shipped runs give one" if by_env else "")
+            + ("; this CPU's runs alone where it made enough" if local else "")
         )
     measured = sorted(f for f, s in rates.sources.items() if s.startswith("measured"))
     if measured:

@@ -853,13 +853,13 @@ def eta_seconds(job: Job, cache: RunCache, rates: Rates) -> float:
 
 
 def _default_eta(cache: RunCache) -> Callable[[Job], float]:
-    """:func:`eta_seconds` at the pace the shipped runs kept, per learner family and task (read once, when a
-    deadline first asks)."""
+    """:func:`eta_seconds` at the pace the shipped runs kept, per learner family and task, on this CPU where it made
+    enough of them (read once, when a deadline first asks)."""
     rates: list[Rates] = []
 
     def eta(job: Job) -> float:
         if not rates:
-            rates.append(shipped_rates(by_env=True))
+            rates.append(shipped_rates(by_env=True, machine=platform_info()))
         return eta_seconds(job, cache, rates[0])
 
     return eta
