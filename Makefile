@@ -53,12 +53,13 @@ smoke: $(NEEDS)
 book: $(NEEDS)
 	$(BIN)/python -m thesis_repro book --scale $(SCALE) $(if $(FORCE),--force) $(if $(SHIPPED_ONLY),--shipped-only)
 
-## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale
+## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale; lists the
+## 15 slowest tests (CI has 90 min on 2 cores; keep the whole well under 30)
 test: $(STAMP) $(RAY_STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
 	tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
 	export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build SB3_LOGDIR=$$tmp/sb3-log; \
-	$(BIN)/python -m pytest -q -rfEs --doctest-modules tests thesis_repro \
+	$(BIN)/python -m pytest -q -rfEs --durations=15 --doctest-modules tests thesis_repro \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
 ## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [PROTOCOL=thesis] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] [UNTIL=22:40] :
