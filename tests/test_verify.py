@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import figures, runs, verify
+from thesis_repro import backends, figures, runs, verify
 from thesis_repro import jobs as registry
 from thesis_repro.__main__ import main
 from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry, save_arrays, write_manifest
@@ -35,6 +35,11 @@ def _evaluation(config: dict, workdir: Path) -> dict:
 
 def _deps(config: dict) -> dict:
     return {"policy": Job("test-verify-policy", config["train"])}
+
+
+def _pool_execute(job: Job, root: str | None, reference: str | bool) -> Result:
+    """A pool worker's entry point from this module: unpickling it imports us, which registers the toy kinds."""
+    return backends.execute(job, root, reference)
 
 
 registry.register("test-verify-policy", "tests.test_verify:_policy", label=lambda c: f"w{c['w']}")
@@ -258,7 +263,7 @@ def test_resume_note_says_whether_the_shipped_run_was_resumed_exactly(tmp_path):
     assert "after exact resume landed" in after and "bit-identical" in after
 
 
-def test_evaluations_follow_their_policy_in_one_command(toy_figure, tmp_path):
+def test_evaluations_follow_their_policy_in_one_command(toy_figure, tmp_path, monkeypatch):
     """`--kind train evaluate`: each evaluation runs as soon as the policy it loads is shipped (an item's evaluations
     land with its last training run), keyed as the two-step generator keys them; a rerun produces nothing."""
     layer = tmp_path / "reference"
@@ -278,3 +283,14 @@ def test_evaluations_follow_their_policy_in_one_command(toy_figure, tmp_path):
     )
     again = runs.generate("smoke", ["_verify"], ["test-verify-policy", "test-verify-eval"], layer_root=layer, log=str)
     assert again == []
+    # two at a time: the [i/n] tags count the training jobs alone, the evaluations that follow them are untagged
+    pooled: list[str] = []
+    kinds = ["test-verify-policy", "test-verify-eval"]
+    monkeypatch.setattr(runs, "execute", _pool_execute)
+    runs.generate("smoke", ["_verify"], kinds, layer_root=tmp_path / "pooled", n_jobs=2, log=pooled.append)
+    assert sorted(line.split()[0] for line in pooled if line.startswith("[") and "follows" not in line) == [
+        "[1/3]",
+        "[2/3]",
+        "[3/3]",
+    ]
+    assert sum(line.startswith("[follows] test-verify-eval") for line in pooled) == 3

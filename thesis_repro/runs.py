@@ -1017,7 +1017,7 @@ def generate(
                     pending.add(fut)
 
             order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
-            t0 = time.time()
+            t0, landed = time.time(), 0  # the pool's jobs landed so far (``done`` also holds the evaluations)
             try:  # from here on, Ctrl-C ends the workers (outside it, leaving the pool would wait for every run)
                 log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
                 submit()
@@ -1029,7 +1029,8 @@ def generate(
                     if not finished and running:
                         log(progress_line(running, cache, time.time() - t0, queue.eta))
                     for fut in finished:
-                        land(len(done) + 1, futures[fut], fut.result())
+                        landed += 1
+                        land(landed, futures[fut], fut.result())
                     submit()
             except KeyboardInterrupt:  # Ctrl-C: stop now (the interrupted runs resume from their checkpoints)
                 _stop_pool(ex)
