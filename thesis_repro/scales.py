@@ -28,7 +28,8 @@ from thesis_repro.validation import check_choice
 
 SCALES: tuple[str, ...] = ("smoke", "small", "full")
 #: Training seeds a scale is being given item by item where its table still says fewer (issue 22: ``small`` ships
-#: 3 seeds of every chapter 3-4 run; an item switches with ``protocol_overrides`` once all of its runs are shipped).
+#: 3 seeds of every chapter 3-4 run; while they were generated an item switched with ``protocol_overrides`` once
+#: all of its runs were shipped, and since 2026-11-27 the table says 3 everywhere, so nothing is behind).
 TARGET_TRAIN_SEEDS: dict[str, int] = {"small": 3}
 #: Environment variable that overrides every figure's ``protocol`` setting (the reference-run generator's
 #: ``PROTOCOL=thesis``).
@@ -82,7 +83,7 @@ def under_protocol(protocol: str) -> Iterator[None]:
 def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]:
     """Resolved settings of ``figure`` at ``scale``: scale defaults, then the figure's block, then its training
     protocol's ``protocol_overrides``, then the block's own ``protocol_overrides`` for that protocol (an item
-    ahead of the others, e.g. ``{thesis: {train_seeds: 3}}`` once its seeds 1-2 are shipped), then
+    ahead of the others, e.g. ``{thesis: {train_seeds: 3}}`` while the scale's count was 1), then
     ``overrides`` (the caller's word is last; ``THESIS_REPRO_PROTOCOL`` still picks the protocol).
 
     Overrides may only name keys that already exist (a typo is an error, not a silent new key).
