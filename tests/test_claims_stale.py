@@ -110,3 +110,21 @@ def test_the_stamp_covers_what_the_page_imported_its_config_and_notebook_and_not
     old = {"kit": paths.code_stamp("table-3.4", None)}
     files["unused"].write_text("x = 2\n")
     assert report.is_stale("table-3.4", old) is True
+
+
+def test_a_ledger_without_saved_pages_says_how_to_compute_them(tmp_path, monkeypatch, capsys):
+    """A fresh clone has no saved page numbers at small: the JSON marks the claims *not computed* and stderr
+    names the command that executes the pages from the shipped runs (one line, no training)."""
+    for var in ("THESIS_REPRO_BUILD", "THESIS_REPRO_DATA", "THESIS_REPRO_REFERENCE", "THESIS_REPRO_PUBLISHED_BUILD"):
+        monkeypatch.setenv(var, str(tmp_path / var.lower()))
+    ids = ["3.3-negative-correlation", "4.1-harder-settings"]
+    assert cli.main(["--scale", SCALE, "--json", "--no-null", "--ids", *ids]) == 0
+    out, err = capsys.readouterr()
+    assert {c["verdict"] for c in json.loads(out)["claims"]} == {"not computed"}
+    assert err.count("\n") == 1 and err.startswith("not computed: 2 claim(s) whose pages have not run at small")
+    assert "(fig-3.3, fig-4.1)" in err and "`make book SCALE=small`" in err
+
+
+def test_a_ledger_with_every_page_saved_prints_no_hint(saved, capsys):
+    assert cli.main(["--scale", SCALE, "--no-null", "--ids", "3.3-negative-correlation"]) == 0
+    assert capsys.readouterr().err == ""

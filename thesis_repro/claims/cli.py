@@ -33,9 +33,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     specs = [s for s in ledger.specs() if not args.ids or s.id in args.ids]
     rows = sorted((ledger.judge(s, args.scale, not args.no_null) for s in specs), key=lambda r: r.spec.beyond)
-    hint = ledger.stale_hint(ledger.stale_pages(rows), args.scale)
-    if hint:
-        print(hint, file=sys.stderr)
+    for hint in (ledger.not_computed_hint(rows, args.scale), ledger.stale_hint(ledger.stale_pages(rows), args.scale)):
+        if hint:
+            print(hint, file=sys.stderr)
     if args.json:
         json.dump(ledger.as_json(rows), sys.stdout, indent=1, ensure_ascii=False)
         print()

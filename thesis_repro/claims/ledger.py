@@ -296,6 +296,29 @@ def stale_pages(rows: Sequence[Row]) -> list[str]:
     return sorted({p for r in rows for p in r.stale})
 
 
+def not_computed_hint(rows: Sequence[Row], scale: str) -> str:
+    """One line telling how to compute the claims whose pages have not run at ``scale`` ('' when none): the
+    ledger judges saved page numbers, so a fresh clone has none until its book (or the pages) ran.
+
+    >>> spec = Spec("x", "fig-3.3", "c", (547,), {})
+    >>> not_computed_hint([Row(spec, report.NOT_COMPUTED)], "small")  # doctest: +NORMALIZE_WHITESPACE
+    'not computed: 1 claim(s) whose pages have not run at small (fig-3.3); `make book SCALE=small` executes every
+    page from the shipped runs without training (about 10 min on 2 cores), or `make figure-3.3 SCALE=small` per
+    page'
+    """
+    pages = sorted({r.spec.page for r in rows if r.status == report.NOT_COMPUTED})
+    if not pages:
+        return ""
+    n = sum(r.status == report.NOT_COMPUTED for r in rows)
+    first = pages[0] if pages[0].startswith("table-") else f"figure-{pages[0].removeprefix('fig-')}"
+    shown = ", ".join(pages[:6]) + (f" and {len(pages) - 6} more" if len(pages) > 6 else "")
+    return (
+        f"not computed: {n} claim(s) whose pages have not run at {scale} ({shown}); `make book SCALE={scale}` "
+        "executes every page from the shipped runs without training (about 10 min on 2 cores), or "
+        f"`make {first} SCALE={scale}` per page"
+    )
+
+
 def stale_hint(pages: Sequence[str], scale: str) -> str:
     """One line telling how to refresh stale ``pages`` ('' when there are none).
 
