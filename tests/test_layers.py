@@ -176,8 +176,8 @@ def test_a_page_on_fewer_seeds_says_how_many_runs_of_the_others_are_ready(tmp_pa
     assert figures.settings("4.7", "small")["train_seeds"] == target
     assert pages.seeds_to_come("4.7", "small", figures.settings("4.7", "small")) == ""
     monkeypatch.setitem(scales.TARGET_TRAIN_SEEDS, "small", target + 1)
-    per_seed = [j for j in figures.jobs("4.7", "small") if j.kind in figures.TRAINING_KINDS]
-    per_seed = [j for j in per_seed if j.config["seed"] == 0]
+    jobs = figures.jobs("4.7", "small")
+    per_seed = [j for j in jobs if j.kind in figures.TRAINING_KINDS and j.config["seed"] == 0]
     line = pages.runs_summary("4.7", "small")
     assert line.endswith(
         f"seeds {target} (being generated): 0 of {len(per_seed)} training runs ready, this page uses them once all are"

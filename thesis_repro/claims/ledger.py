@@ -296,6 +296,11 @@ def stale_pages(rows: Sequence[Row]) -> list[str]:
     return sorted({p for r in rows for p in r.stale})
 
 
+def _make_target(page: str) -> str:
+    """The Makefile target of a page: ``table-3.4`` -> ``table-3.4``, ``fig-3.3`` -> ``figure-3.3``."""
+    return page if page.startswith("table-") else f"figure-{page.removeprefix('fig-')}"
+
+
 def not_computed_hint(rows: Sequence[Row], scale: str) -> str:
     """One line telling how to compute the claims whose pages have not run at ``scale`` ('' when none): the
     ledger judges saved page numbers, so a fresh clone has none until its book (or the pages) ran.
@@ -310,12 +315,11 @@ def not_computed_hint(rows: Sequence[Row], scale: str) -> str:
     if not pages:
         return ""
     n = sum(r.status == report.NOT_COMPUTED for r in rows)
-    first = pages[0] if pages[0].startswith("table-") else f"figure-{pages[0].removeprefix('fig-')}"
     shown = ", ".join(pages[:6]) + (f" and {len(pages) - 6} more" if len(pages) > 6 else "")
     return (
         f"not computed: {n} claim(s) whose pages have not run at {scale} ({shown}); `make book SCALE={scale}` "
         "executes every page from the shipped runs without training (about 10 min on 2 cores), or "
-        f"`make {first} SCALE={scale}` per page"
+        f"`make {_make_target(pages[0])} SCALE={scale}` per page"
     )
 
 
@@ -331,12 +335,10 @@ def stale_hint(pages: Sequence[str], scale: str) -> str:
     """
     if not pages:
         return ""
-    first = pages[0] if pages[0].startswith("table-") else f"figure-{pages[0].removeprefix('fig-')}"
     return (
         f"stale: the saved numbers of {', '.join(pages)} were written by other kit code (thesis_repro/, "
-        f"notebooks/ or data/thesis/ changed since); refresh them with `make {first} SCALE={scale}` per "
-        "page, or "
-        f"`make book SCALE={scale}`"
+        f"notebooks/ or data/thesis/ changed since); refresh them with `make {_make_target(pages[0])} "
+        f"SCALE={scale}` per page, or `make book SCALE={scale}`"
     )
 
 
