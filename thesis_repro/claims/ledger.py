@@ -308,8 +308,7 @@ def not_computed_hint(rows: Sequence[Row], scale: str) -> str:
     >>> spec = Spec("x", "fig-3.3", "c", (547,), {})
     >>> not_computed_hint([Row(spec, report.NOT_COMPUTED)], "small")  # doctest: +NORMALIZE_WHITESPACE
     'not computed: 1 claim(s) whose pages have not run at small (fig-3.3); `make book SCALE=small` executes every
-    page from the shipped runs without training (about 10 min on 2 cores), or `make figure-3.3 SCALE=small` per
-    page'
+    page from the shipped runs without training, or `make figure-3.3 SCALE=small` per page'
     """
     pages = sorted({r.spec.page for r in rows if r.status == report.NOT_COMPUTED})
     if not pages:
@@ -318,7 +317,7 @@ def not_computed_hint(rows: Sequence[Row], scale: str) -> str:
     shown = ", ".join(pages[:6]) + (f" and {len(pages) - 6} more" if len(pages) > 6 else "")
     return (
         f"not computed: {n} claim(s) whose pages have not run at {scale} ({shown}); `make book SCALE={scale}` "
-        "executes every page from the shipped runs without training (about 10 min on 2 cores), or "
+        "executes every page from the shipped runs without training, or "
         f"`make {_make_target(pages[0])} SCALE={scale}` per page"
     )
 
