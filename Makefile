@@ -20,7 +20,8 @@ RAY_STAMP := $(VENV)/.installed-ray
 NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
-.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs seeds runs-% plan-% verify
+.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs seeds runs-% plan-% verify \
+	ship-claims check-claims
 
 venv: $(STAMP)
 
@@ -89,6 +90,15 @@ seeds:
 verify: $(STAMP)
 	$(BIN)/python -m thesis_repro verify --scale $(SCALE) $(if $(N),-n $(N)) $(if $(SEED),--seed $(SEED)) \
 	  $(if $(TRAIN),--train) $(if $(KINDS),--kind $(KINDS))
+
+## make ship-claims SCALE=small : after `make book SCALE=small`, copy the numbers every ledger page saved into the
+## claims snapshot data/reference/claims/$(SCALE) (what a fresh clone's `claims` judges before its book; refuses
+## pages not run or stale); make check-claims SCALE=small : after `make book`, compare this build's numbers with it
+ship-claims: $(STAMP)
+	$(BIN)/python -m thesis_repro claims --scale $(SCALE) --ship
+
+check-claims: $(STAMP)
+	$(BIN)/python -m thesis_repro claims --scale $(SCALE) --check-snapshot
 
 ## make runs-3.3 SCALE=small : where Figure 3.3's runs are (kind, label, key, cached / shipped / missing, path)
 runs-%: $(STAMP)

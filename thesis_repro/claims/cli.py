@@ -1,8 +1,10 @@
 """``python -m thesis_repro claims --scale small [--json]``: the claims ledger from saved results, no training.
 
 Each claim is judged from the per-seed numbers its page saved when its notebook ran
-(``build/<scale>/figures/<page>.data.json``); a claim whose page has not run at that scale is reported as
-*not computed* (nothing is trained or evaluated here).
+(``build/<scale>/figures/<page>.data.json``), or, where this build has none (a fresh clone before its book),
+from the shipped claims snapshot (:mod:`thesis_repro.claims.snapshot`, said on stderr); a claim whose page has
+neither at that scale is reported as *not computed* (nothing is trained or evaluated here). ``--ship`` (``make
+ship-claims``) refreshes the snapshot from this build's pages.
 
 >>> main(["--scale", "smoke", "--ids", "3.3-negative-correlation"])  # doctest: +ELLIPSIS
 3.3-negative-correlation ...
@@ -21,7 +23,7 @@ from thesis_repro.scales import SCALES
 
 def main(argv: list[str] | None = None) -> int:
     """Print the ledger (one line per claim, or ``--json``); returns the exit code."""
-    from thesis_repro.claims import ledger
+    from thesis_repro.claims import ledger, snapshot
 
     warnings.simplefilter("ignore", RuntimeWarning)  # NaN means of cells a scale does not run
 
@@ -30,14 +32,47 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="the whole ledger as JSON")
     ap.add_argument("--ids", nargs="*", help="only these claim ids")
     ap.add_argument("--no-null", action="store_true", help="skip the null pass rates (faster)")
+    ap.add_argument(
+        "--ship",
+        action="store_true",
+        help="copy this build's saved page numbers into the shipped claims snapshot (after `make book`)",
+    )
+    ap.add_argument(
+        "--check-snapshot",
+        action="store_true",
+        help="compare this build's saved page numbers with the shipped snapshot (after `make book`); 1 if any differ",
+    )
     args = ap.parse_args(argv)
+    if args.check_snapshot:
+        got = snapshot.check(args.scale)
+        for name, verdict in got.items():
+            print(f"{name}: {verdict}")
+        same = sum(v == "identical" for v in got.values())
+        print(f"{same}/{len(got)} saved files identical to the shipped snapshot ({snapshot.provenance(args.scale)})")
+        return 0 if same == len(got) else 1
+    if args.ship:
+        try:
+            changed = snapshot.ship(args.scale)
+        except ValueError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+        print(
+            f"shipped {len(snapshot.files())} saved file(s) to {snapshot.provenance(args.scale)}; "
+            f"{len(changed)} data file(s) changed" + (f": {', '.join(changed)}" if changed else "")
+        )
+        return 0
     specs = [s for s in ledger.specs() if not args.ids or s.id in args.ids]
     rows = sorted((ledger.judge(s, args.scale, not args.no_null) for s in specs), key=lambda r: r.spec.beyond)
-    for hint in (ledger.not_computed_hint(rows, args.scale), ledger.stale_hint(ledger.stale_pages(rows), args.scale)):
+    hints = (
+        ledger.shipped_hint(rows, args.scale),
+        ledger.not_computed_hint(rows, args.scale),
+        ledger.stale_hint(ledger.stale_pages(rows), args.scale),
+    )
+    for hint in hints:
         if hint:
             print(hint, file=sys.stderr)
     if args.json:
-        json.dump(ledger.as_json(rows), sys.stdout, indent=1, ensure_ascii=False)
+        json.dump(ledger.as_json(rows, args.scale), sys.stdout, indent=1, ensure_ascii=False)
         print()
         return 0
     for r in rows:

@@ -8,7 +8,9 @@ that does not (fully) reproduce then shows each study's measured difference in i
 cached / shipped runs; nothing when they are not available, never trained here). A notebook ends with
 :func:`judge_page`, which saves its per-seed numbers to ``build/<scale>/figures/<page>.data.json`` and
 prints the verdicts of its claims; :func:`ledger` re-judges every claim from those saved numbers (no
-training, no evaluation), so the book's scoreboard and ``python -m thesis_repro claims`` read one ledger.
+training, no evaluation), so the book's scoreboard and ``python -m thesis_repro claims`` read one ledger. Where
+a build has no fresh copy of a page's numbers (a fresh clone before its book), the shipped claims snapshot's
+(:mod:`thesis_repro.claims.snapshot`) are judged instead, and each row says so (``shipped``).
 
 >>> ids = [s.id for s in specs()]
 >>> len(ids) == len(set(ids)) and "3.3-negative-correlation" in ids
@@ -35,6 +37,7 @@ import yaml
 
 from thesis_repro import paths, report
 from thesis_repro.claims import measures as M
+from thesis_repro.claims import snapshot
 from thesis_repro.claims.stats import LEVEL, CountRule, Unit, _point, combine_groups, null_pass_rate
 
 #: Statuses counted on the scoreboard, in its column order.
@@ -246,12 +249,6 @@ def data_path(page: str, scale: str) -> Path:
     return paths.figures(scale) / f"{page}.data.json"
 
 
-def saved_path(page: str, scale: str) -> Path:
-    """Where :func:`load_page` reads ``page``'s numbers: its own :func:`data_path`, or inside another page's
-    notebook the finished page's (:func:`~thesis_repro.paths.page_output`)."""
-    return paths.page_output(scale, data_path(page, scale).name)
-
-
 def save_page(page: str, scale: str, frames: Mapping[str, pd.DataFrame], meta: Mapping[str, Any]) -> Path:
     """Write a page's per-seed frames (records) and meta (scale, seeds, budget note) atomically, stamped
     with :func:`~thesis_repro.paths.code_stamp` over the kit modules this process imported."""
@@ -278,16 +275,35 @@ def _jsonable(x: Any) -> Any:
     return str(x)
 
 
+def saved_blob(page: str, name: str, scale: str) -> dict[str, Any] | None:
+    """The file ``name`` (``<page>.data.json`` or ``<page>.verdicts.json``) as ``page`` saved it at ``scale``, or
+    None: the build's copy (inside a notebook, also a finished page's: :func:`~thesis_repro.paths.page_output`)
+    unless it is missing or stale and the shipped snapshot (:mod:`~thesis_repro.claims.snapshot`) has one that is
+    not. ``blob["stale"]``: written by other kit code (:func:`~thesis_repro.paths.code_stamp`);
+    ``blob["shipped"]``: read from the snapshot; ``blob["version"]``: changes whenever the numbers may have.
+    A corrupt shipped file with no build copy raises :class:`~thesis_repro.claims.snapshot.CorruptSnapshot`."""
+    p = paths.page_output(scale, name)
+    built = json.loads(p.read_text()) if p.exists() else None
+    if built is not None:
+        built["version"] = f"{p}@{p.stat().st_mtime_ns}"
+    if built is not None and not report.is_stale(page, built):
+        return {**built, "stale": False, "shipped": False}
+    try:
+        shipped = snapshot.read(name, scale)
+    except snapshot.CorruptSnapshot:
+        if built is None:
+            raise
+        shipped = None
+    if shipped is not None and (built is None or not report.is_stale(page, shipped)):
+        return {**shipped, "stale": report.is_stale(page, shipped), "shipped": True}
+    return None if built is None else {**built, "stale": True, "shipped": False}
+
+
 def load_page(page: str, scale: str) -> dict[str, Any] | None:
-    """The saved blob of ``page`` (frames as DataFrames) or None; inside a notebook, also a finished page's
-    (:func:`~thesis_repro.paths.page_output`). ``blob["stale"]``: written by other kit code
-    (:func:`~thesis_repro.paths.code_stamp`)."""
-    p = saved_path(page, scale)
-    if not p.exists():
-        return None
-    blob = json.loads(p.read_text())
-    blob["frames"] = {k: pd.DataFrame(v) for k, v in blob["frames"].items()}
-    blob["stale"] = report.is_stale(page, blob)
+    """The saved blob of ``page`` (:func:`saved_blob`, frames as DataFrames) or None."""
+    blob = saved_blob(page, data_path(page, scale).name, scale)
+    if blob is not None:
+        blob["frames"] = {k: pd.DataFrame(v) for k, v in blob["frames"].items()}
     return blob
 
 
@@ -319,6 +335,32 @@ def not_computed_hint(rows: Sequence[Row], scale: str) -> str:
         f"not computed: {n} claim(s) whose pages have not run at {scale} ({shown}); `make book SCALE={scale}` "
         "executes every page from the shipped runs without training, or "
         f"`make {_make_target(pages[0])} SCALE={scale}` per page"
+    )
+
+
+def shipped_pages(rows: Sequence[Row]) -> list[str]:
+    """Pages whose numbers some of ``rows`` were judged from came from the shipped snapshot (sorted)."""
+    return sorted({p for r in rows for p in r.shipped})
+
+
+def shipped_hint(rows: Sequence[Row], scale: str) -> str:
+    """One line saying which pages' numbers came from the shipped snapshot ('' when none did).
+
+    >>> row = Row(Spec("x", "fig-3.3", "c", (547,), {}), report.INCONCLUSIVE, shipped=["fig-3.3"])
+    >>> shipped_hint([row], "no-such-scale")  # doctest: +NORMALIZE_WHITESPACE
+    'shipped: the numbers of 1 page(s) (fig-3.3) come from the shipped claims snapshot (the numbers those pages
+    saved when the book ran where they were shipped); `make book SCALE=no-such-scale` recomputes them here from
+    the shipped runs'
+    """
+    pages = shipped_pages(rows)
+    if not pages:
+        return ""
+    shown = ", ".join(pages[:6]) + (f" and {len(pages) - 6} more" if len(pages) > 6 else "")
+    where = snapshot.provenance(scale)
+    return (
+        f"shipped: the numbers of {len(pages)} page(s) ({shown}) come from the shipped claims snapshot "
+        f"({where + ': ' if where else ''}the numbers those pages saved when the book ran where they were shipped); "
+        f"`make book SCALE={scale}` recomputes them here from the shipped runs"
     )
 
 
@@ -356,6 +398,7 @@ class Row:
     diagnosis: str = ""
     sensitivity: list[dict[str, Any]] = field(default_factory=list)
     stale: list[str] = field(default_factory=list)  # pages whose saved numbers other kit code wrote
+    shipped: list[str] = field(default_factory=list)  # pages whose numbers came from the shipped snapshot
     pooled_seeds: int = 0  # > 0: each unit's one value is a statistic of this many seeds' means (no replication)
 
     def as_dict(self) -> dict[str, Any]:
@@ -380,6 +423,7 @@ class Row:
             "protocol_sensitivity": self.sensitivity,
             "groups": self.groups,
             "stale_pages": self.stale,
+            "shipped_pages": self.shipped,
         }
 
 
@@ -416,19 +460,22 @@ def page_data(s: Spec, scale: str) -> tuple[dict[str, pd.DataFrame], dict[str, A
     (``meta["stale_pages"]``: those of its pages written by other kit code)."""
     frames: dict[str, pd.DataFrame] = {}
     meta: dict[str, Any] = {}
-    found, stale = False, []
+    found, stale, shipped, versions = False, [], [], []
     for p in s.data_pages:
         blob = load_page(p, scale)
         if blob is None:
             continue
         found = True
+        versions.append(blob["version"])
         meta = meta or blob["meta"]
         stale += [p] if blob["stale"] else []
+        shipped += [p] if blob["shipped"] else []
         for k, v in blob["frames"].items():
             frames[f"{k}@{p}"] = v
             if p == s.page or len(s.data_pages) == 1:
                 frames[k] = v
-    return (frames, {**meta, "stale_pages": stale}) if found else None
+    extra = {"stale_pages": stale, "shipped_pages": shipped, "versions": versions}
+    return (frames, {**meta, **extra}) if found else None
 
 
 def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
@@ -437,11 +484,21 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
     if r.get("visual"):
         return Row(s, report.VISUAL, note="the claim is about the gait's look; the page shows the key frames")
     if "page_verdict" in r:
-        saved = report.load(s.page, scale)
+        try:
+            blob = saved_blob(s.page, report.verdicts_path(s.page, scale).name, scale) or {"verdicts": []}
+        except snapshot.CorruptSnapshot as err:
+            return Row(s, report.NOT_COMPUTED, note=f"{err}: `make {_make_target(s.page)} SCALE={scale}` recomputes it")
+        saved = [report.Verdict(**v) for v in blob["verdicts"]]
         if len(saved) <= int(r["page_verdict"]):
             return Row(s, report.NOT_COMPUTED, note=f"{s.page} not executed at {scale}")
         v = saved[int(r["page_verdict"])]
-        return Row(s, v.status, note=v.evidence, stale=[s.page] if report.stale(s.page, scale) else [])
+        return Row(
+            s,
+            v.status,
+            note=v.evidence,
+            stale=[s.page] if blob.get("stale") else [],
+            shipped=[s.page] if blob.get("shipped") else [],
+        )
     if r.get("derived"):
         rows = [judge(spec(i), scale, with_null) for i in r["derived"]]
         status = combine_groups([x.status for x in rows])
@@ -456,14 +513,19 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
             null_pass_rate=min(rates) if rates else None,
             note="derived from " + ", ".join(f"{x.spec.id}: {x.status}" for x in rows),
             stale=stale_pages(rows),
+            shipped=sorted({p for x in rows for p in x.shipped}),
         )
-    got = page_data(s, scale)
+    try:
+        got = page_data(s, scale)
+    except snapshot.CorruptSnapshot as err:
+        return Row(s, report.NOT_COMPUTED, note=f"{err}: `make {_make_target(s.page)} SCALE={scale}` recomputes it")
     if got is None:
         pages = ", ".join(s.data_pages)
         return Row(s, report.NOT_COMPUTED, note=f"no saved numbers of {pages} at {scale}: execute the page(s) first")
     frames, meta = got
     row = _judge_frames(s, scale, with_null, frames, meta)
     row.stale = list(meta["stale_pages"])
+    row.shipped = list(meta["shipped_pages"])
     return row
 
 
@@ -506,7 +568,7 @@ def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.Dat
         )
     if not_run:
         note += ("; " if note else "") + "not judged (not run): " + ", ".join(not_run)
-    rate = _null_rate(s, scale, run) if with_null else None
+    rate = _null_rate(s, scale, run, meta.get("versions", [])) if with_null else None
     row = Row(s, status, n_seeds, stat if len(stat) > 1 else next(iter(stat.values())), gsum, rate, note)
     row.pooled_seeds = pooled
     if status in (report.DOES_NOT, report.PARTLY, report.INCONCLUSIVE):
@@ -574,11 +636,10 @@ def _sensitivity_dict(m: Any) -> dict[str, Any]:
     }
 
 
-def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]]) -> float:
-    """:func:`~thesis_repro.claims.stats.null_pass_rate` of a claim, cached per saved-data version."""
-    key = f"{s.id}|" + "|".join(
-        str(saved_path(p, scale).stat().st_mtime_ns) for p in s.data_pages if saved_path(p, scale).exists()
-    )
+def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]], versions: Sequence[str]) -> float:
+    """:func:`~thesis_repro.claims.stats.null_pass_rate` of a claim, cached per version of the saved numbers it
+    was judged from (:func:`saved_blob`'s ``version``)."""
+    key = f"{s.id}|" + "|".join(versions)
     store = paths.figures(scale) / "claims-null.json"
     known_at = paths.page_output(scale, store.name)  # inside a notebook: start from the finished pages' cache
     known = json.loads(known_at.read_text()) if known_at.exists() else {}
@@ -915,14 +976,17 @@ def _show_units(page: str, scale: str) -> None:
             show(t)
 
 
-def as_json(rows: Sequence[Row]) -> dict[str, Any]:
-    """The ledger as one JSON-ready object: thesis claims, beyond-the-thesis claims and both counts."""
+def as_json(rows: Sequence[Row], scale: str = "") -> dict[str, Any]:
+    """The ledger as one JSON-ready object: thesis claims, beyond-the-thesis claims, both counts, and where the
+    numbers of pages read from the shipped snapshot come from (``snapshot``, at ``scale``)."""
     return {
         "claims": [r.as_dict() for r in rows if not r.spec.beyond],
         "beyond_the_thesis": [r.as_dict() for r in rows if r.spec.beyond],
         "counts": dict(counts(rows)),
         "beyond_counts": dict(counts(rows, beyond=True)),
         "stale_pages": stale_pages(rows),
+        "shipped_pages": shipped_pages(rows),
+        "snapshot": snapshot.provenance(scale) if scale and shipped_pages(rows) else None,
     }
 
 
