@@ -148,3 +148,18 @@ def test_check_compares_this_builds_numbers_with_the_shipped_ones(built, capsys)
     assert got["fig-3.3.data.json"].startswith("differs (frames ") and got["fig-4.1.data.json"] == "not run here"
     assert sum(v == "identical" for v in got.values()) == n - 2
     assert cli.main(["--scale", SCALE, "--check-snapshot"]) == 1
+
+
+def test_a_book_says_when_the_snapshot_is_out_of_date(built):
+    assert snapshot.refresh_hint(SCALE) == ""  # nothing shipped: nothing to refresh
+    snapshot.ship(SCALE)
+    assert snapshot.refresh_hint(SCALE) == ""
+    L.save_page("fig-3.3", SCALE, S.frames_for("correlation", 3, 1), {"scale": SCALE})  # other numbers
+    idx = snapshot.folder(SCALE) / snapshot.INDEX
+    blob = json.loads(idx.read_text())
+    blob["files"]["fig-4.1.data.json"]["kit"] = "0" * 12  # shipped by other kit code
+    idx.write_text(json.dumps(blob))
+    assert snapshot.refresh_hint(SCALE).startswith(
+        "claims snapshot: 1 shipped file(s) differ from this build's numbers, 1 were shipped by other kit code; "
+        "`make ship-claims SCALE=small`"
+    )

@@ -414,6 +414,10 @@ def build(
         + (f", {len(pending)} not run: runs to train" if pending else "")
         + f"): {index}"
     )
+    from thesis_repro.claims import snapshot  # the book reads the claims layer's snapshot only to say it is out of date
+
+    if hint := snapshot.refresh_hint(scale):
+        print(f"[thesis_repro] {hint}")
     if failed:
         names = ", ".join(notebooks.page_id(n) for n in failed)
         raise RuntimeError(f"{len(failed)} notebook(s) failed at scale {scale} ({names}); their pages say so: {index}")

@@ -184,6 +184,23 @@ def check(scale: str) -> dict[str, str]:
     return out
 
 
+def refresh_hint(scale: str) -> str:
+    """One line after a book at ``scale`` when the shipped snapshot is out of date ('' when it is current or none
+    is shipped): files whose numbers differ from this build's (or are missing or corrupt) and files shipped by
+    other kit code (a fresh clone would call them stale)."""
+    idx = index(scale)
+    if not idx:
+        return ""
+    differ = [n for n, v in check(scale).items() if v not in ("identical", "not run here", "stale here")]
+    stale = [n for n, e in idx.get("files", {}).items() if report.is_stale(page_of(n), e)]
+    if not differ and not stale:
+        return ""
+    return (
+        f"claims snapshot: {len(differ)} shipped file(s) differ from this build's numbers, {len(stale)} were shipped "
+        f"by other kit code; `make ship-claims SCALE={scale}` refreshes {folder(scale).name} from this build"
+    )
+
+
 def _write(path: Path, data: bytes) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_bytes(data)
