@@ -487,7 +487,7 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
         try:
             blob = saved_blob(s.page, report.verdicts_path(s.page, scale).name, scale) or {"verdicts": []}
         except snapshot.CorruptSnapshot as err:
-            return Row(s, report.NOT_COMPUTED, note=f"{err}: `make {_make_target(s.page)} SCALE={scale}` recomputes it")
+            return _corrupt(s, scale, err)
         saved = [report.Verdict(**v) for v in blob["verdicts"]]
         if len(saved) <= int(r["page_verdict"]):
             return Row(s, report.NOT_COMPUTED, note=f"{s.page} not executed at {scale}")
@@ -513,12 +513,12 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
             null_pass_rate=min(rates) if rates else None,
             note="derived from " + ", ".join(f"{x.spec.id}: {x.status}" for x in rows),
             stale=stale_pages(rows),
-            shipped=sorted({p for x in rows for p in x.shipped}),
+            shipped=shipped_pages(rows),
         )
     try:
         got = page_data(s, scale)
     except snapshot.CorruptSnapshot as err:
-        return Row(s, report.NOT_COMPUTED, note=f"{err}: `make {_make_target(s.page)} SCALE={scale}` recomputes it")
+        return _corrupt(s, scale, err)
     if got is None:
         pages = ", ".join(s.data_pages)
         return Row(s, report.NOT_COMPUTED, note=f"no saved numbers of {pages} at {scale}: execute the page(s) first")
@@ -527,6 +527,11 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
     row.stale = list(meta["stale_pages"])
     row.shipped = list(meta["shipped_pages"])
     return row
+
+
+def _corrupt(s: Spec, scale: str, err: snapshot.CorruptSnapshot) -> Row:
+    """The row of a claim whose shipped numbers are corrupt: not computed, with the command that recomputes them."""
+    return Row(s, report.NOT_COMPUTED, note=f"{err}: `make {_make_target(s.page)} SCALE={scale}` recomputes it")
 
 
 def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.DataFrame], meta: dict[str, Any]) -> Row:

@@ -113,8 +113,13 @@ def provenance(scale: str) -> str:
     if not prov:
         return ""
     commit = (prov.get("git_commit") or "unknown commit")[:10] + (" + changes" if prov.get("git_dirty") else "")
-    where = folder(scale).relative_to(paths.ROOT) if folder(scale).is_relative_to(paths.ROOT) else folder(scale)
-    return f"{where}, shipped at {commit} on {str(prov.get('end', ''))[:10]}"
+    return f"{_where(scale)}, shipped at {commit} on {str(prov.get('end', ''))[:10]}"
+
+
+def _where(scale: str) -> Path:
+    """:func:`folder` relative to the repository when it is inside it."""
+    f = folder(scale)
+    return f.relative_to(paths.ROOT) if f.is_relative_to(paths.ROOT) else f
 
 
 def ship(scale: str) -> list[str]:
@@ -195,9 +200,11 @@ def refresh_hint(scale: str) -> str:
     stale = [n for n, e in idx.get("files", {}).items() if report.is_stale(page_of(n), e)]
     if not differ and not stale:
         return ""
+    parts = [f"{len(differ)} differ from this build's numbers"] if differ else []
+    parts += [f"{len(stale)} were shipped by other kit code"] if stale else []
     return (
-        f"claims snapshot: {len(differ)} shipped file(s) differ from this build's numbers, {len(stale)} were shipped "
-        f"by other kit code; `make ship-claims SCALE={scale}` refreshes {folder(scale).name} from this build"
+        f"claims snapshot ({_where(scale)}) out of date: of its {len(idx.get('files', {}))} files, "
+        f"{' and '.join(parts)}; `make ship-claims SCALE={scale}` refreshes it from this build"
     )
 
 
