@@ -62,6 +62,10 @@ def test_the_snapshot_judges_every_claim_exactly_as_the_build_it_was_shipped_fro
     assert {i: _verdict(r) for i, r in after.items()} == {i: _verdict(r) for i, r in before.items()}
     assert after["3.3-negative-correlation"].shipped == ["fig-3.3"]
     assert after["3.3-not-valid-metric"].shipped == ["fig-3.3"]  # derived claims carry their parts' pages
+    assert L.describe(after["3.3-negative-correlation"]).endswith(
+        "numbers of fig-3.3 from the shipped claims snapshot (not computed here)"
+    )
+    assert "shipped claims snapshot" not in L.describe(before["3.3-negative-correlation"])
     assert all(r.status != report.NOT_COMPUTED and not r.stale for r in after.values())
 
     assert cli.main(["--scale", SCALE, "--json", "--no-null", "--ids", *IDS]) == 0

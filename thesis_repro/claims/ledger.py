@@ -736,6 +736,8 @@ def describe(row: Row) -> str:
         parts.append(row.note)
     if row.diagnosis:
         parts.append("why: " + row.diagnosis)
+    if row.shipped:
+        parts.append(f"numbers of {', '.join(row.shipped)} from the shipped claims snapshot (not computed here)")
     return "; ".join(parts)
 
 
