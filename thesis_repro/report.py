@@ -38,9 +38,14 @@ INCONCLUSIVE = "inconclusive"  # the CI across training seeds spans two outcomes
 INDICATIVE = "indicative"  # one training seed: no CI, the point estimate only leans one way
 NOT_COMPUTED = "not computed"  # the claim's numbers are not in this build (its page was not executed)
 VISUAL = "not judged (visual)"  # the thesis's claim is about what a figure looks like
+#: design v2's labels that carry their bounds: the evidence rules out "does not" / "reproduces"
+AT_LEAST_PARTLY = "at least partly"
+AT_MOST_PARTLY = "at most partly"
 STATUSES: tuple[str, ...] = (
     REPRODUCES,
+    AT_LEAST_PARTLY,
     PARTLY,
+    AT_MOST_PARTLY,
     DOES_NOT,
     INCONCLUSIVE,
     INDICATIVE,
@@ -54,6 +59,8 @@ STATUSES: tuple[str, ...] = (
 _STYLE = {
     REPRODUCES: "tip",
     PARTLY: "note",
+    AT_LEAST_PARTLY: "note",
+    AT_MOST_PARTLY: "note",
     DOES_NOT: "warning",
     INCONCLUSIVE: "note",
     INDICATIVE: "note",

@@ -7,7 +7,7 @@ neither at that scale is reported as *not computed* (nothing is trained or evalu
 ship-claims``) refreshes the snapshot from this build's pages.
 
 >>> main(["--scale", "smoke", "--ids", "3.3-negative-correlation"])  # doctest: +ELLIPSIS
-3.3-negative-correlation ...
+not judged at this scale · 3.3-negative-correlation · l. 555 ...
 0
 """
 
@@ -42,7 +42,28 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="compare this build's saved page numbers with the shipped snapshot (after `make book`); 1 if any differ",
     )
+    ap.add_argument("--verbose", action="store_true", help="each verdict's evidence under its one line")
+    ap.add_argument(
+        "--freeze",
+        action="store_true",
+        help="freeze the claims design (data/thesis/claims-design.json); refused when it would change a frozen "
+        "version's rules",
+    )
     args = ap.parse_args(argv)
+    if args.freeze:
+        from thesis_repro.claims import design
+
+        broken = design.check_frozen() if design.frozen().get("version") == design.VERSION else []
+        if broken:
+            print(
+                f"error: design {design.VERSION} is frozen and this would change it ({'; '.join(broken[:3])}); "
+                "bump thesis_repro.claims.design.VERSION for a new design version",
+                file=sys.stderr,
+            )
+            return 2
+        d = design.freeze()
+        print(f"froze design {d['version']} ({d['hash'][:12]}): {len(d['rules'])} rules")
+        return 0
     if args.check_snapshot:
         got = snapshot.check(args.scale)
         for name, verdict in got.items():
@@ -75,12 +96,14 @@ def main(argv: list[str] | None = None) -> int:
         json.dump(ledger.as_json(rows, args.scale), sys.stdout, indent=1, ensure_ascii=False)
         print()
         return 0
+    beyond = False
     for r in rows:
-        tag = " [beyond the thesis]" if r.spec.beyond else ""
-        print(
-            f"{r.spec.id} ({r.spec.page}, l. {','.join(map(str, r.spec.lines)) or '-'}){tag}: {r.status.upper()}"
-            f" - {ledger.describe(r)}"
-        )
+        if r.spec.beyond and not beyond:
+            beyond = True
+            print("beyond the thesis (the kit's own extensions, counted apart):")
+        print(ledger.headline(r, width=160))
+        if args.verbose:
+            print(f"    v1: {r.v1_status or r.status}; {ledger.describe(r)}")
     c = ledger.counts(rows)
     print("distinct thesis claims: " + ", ".join(f"{v} {ledger.SHORT.get(k, k)}" for k, v in c.items()))
     b = ledger.counts(rows, beyond=True)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import warnings
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -33,17 +34,39 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import yaml
 
 from thesis_repro import paths, report
+from thesis_repro.claims import calibration, design, snapshot
+from thesis_repro.claims import judge as J
 from thesis_repro.claims import measures as M
-from thesis_repro.claims import snapshot
-from thesis_repro.claims.stats import LEVEL, CountRule, Unit, _point, combine_groups, null_pass_rate
+from thesis_repro.claims.registry import (  # noqa: F401 - parse_specs, reads, registry: re-exported for callers
+    Spec,
+    data_name,
+    page_claims,
+    parse_specs,
+    reads,
+    registry,
+    spec,
+    specs,
+)
+from thesis_repro.claims.stats import (
+    LEVEL,
+    CountRule,
+    Unit,
+    _point,
+    combine_bounded,
+    combine_groups,
+    null_pass_rate,
+    pooled,
+    unit_seed_effects,
+)
 
 #: Statuses counted on the scoreboard, in its column order.
 COUNTED: tuple[str, ...] = (
     report.REPRODUCES,
+    report.AT_LEAST_PARTLY,
     report.PARTLY,
+    report.AT_MOST_PARTLY,
     report.DOES_NOT,
     report.INCONCLUSIVE,
     report.INDICATIVE,
@@ -54,6 +77,8 @@ COUNTED: tuple[str, ...] = (
 )
 SHORT = {
     report.REPRODUCES: "reproduces",
+    report.AT_LEAST_PARTLY: "at least partly",
+    report.AT_MOST_PARTLY: "at most partly",
     report.PARTLY: "partly",
     report.DOES_NOT: "does not",
     report.INCONCLUSIVE: "inconclusive",
@@ -67,115 +92,8 @@ UNIT_OF_REPLICATION = "training seeds (values averaged over rollouts / episodes 
 #: Fraction of the thesis's own k/n a "thesis"-tied threshold asks for.
 THESIS_SHARE = 0.75
 NULL_DRAWS = 60
-
-
-# ---------------------------------------------------------------- registry
-@dataclass(frozen=True)
-class Spec:
-    """One registered claim: its sentence (or the kit's wording, ``beyond``), page, rule and pages repeating it."""
-
-    id: str
-    page: str
-    text: str
-    lines: tuple[int, ...]
-    rule: Mapping[str, Any]
-    beyond: bool = False
-    pages: tuple[str, ...] = ()
-    evidence: str = ""
-    sensitivity: tuple[str, ...] = ()
-
-    @property
-    def data_pages(self) -> list[str]:
-        """Pages whose saved numbers the measure reads (default: its own page)."""
-        return list(self.rule.get("data", [self.page]))
-
-
-@cache
-def registry() -> dict[str, Any]:
-    """``data/thesis/claims.yaml`` as loaded."""
-    return yaml.safe_load((paths.THESIS_DATA / "claims.yaml").read_text())
-
-
-@cache
-def specs() -> tuple[Spec, ...]:
-    """Every claim with a rule (thesis claims, then beyond-the-thesis ones), each once."""
-    return parse_specs(registry())
-
-
-def _sensitivity_names(cid: str, c: Mapping[str, Any]) -> tuple[str, ...]:
-    """A claim's ``sensitivity`` field: protocol-study names, each one of :data:`thesis_repro.study.STUDIES`."""
-    from thesis_repro.study import STUDIES  # cheap: the study module imports no learner until it runs
-
-    names = c.get("sensitivity", [])
-    if isinstance(names, str) or not isinstance(names, list):
-        raise ValueError(f"claims.yaml: claim {cid!r}: 'sensitivity' must be a list of study names, got {names!r}")
-    for name in names:
-        if name not in STUDIES:
-            raise ValueError(
-                f"claims.yaml: claim {cid!r}: unknown sensitivity study {name!r}; valid: {', '.join(STUDIES)}"
-            )
-    if names and "rule" not in c:
-        raise ValueError(f"claims.yaml: claim {cid!r}: 'sensitivity' goes with the entry that carries the rule")
-    return tuple(names)
-
-
-def parse_specs(reg: Mapping[str, Any]) -> tuple[Spec, ...]:
-    """The claims of a loaded registry (:func:`registry`), validated: ids, one rule per id, sensitivity names."""
-    out: dict[str, Spec] = {}
-    repeats: dict[str, list[str]] = {}
-    for page, entry in reg.items():
-        for beyond, items in ((False, entry.get("claims", [])), (True, entry.get("beyond", []))):
-            for c in items:
-                cid = c.get("id")
-                if cid is None:
-                    raise ValueError(f"claims.yaml: a claim of {page} has no id: {c.get('text', '')[:60]!r}")
-                if c.get("context"):
-                    continue
-                sens = _sensitivity_names(cid, c)
-                if "rule" not in c:
-                    repeats.setdefault(cid, []).append(page)
-                    continue
-                if cid in out:
-                    raise ValueError(f"claims.yaml: claim {cid!r} has a rule on {out[cid].page} and on {page}")
-                lines = tuple(int(n) for n in c.get("lines", []))
-                out[cid] = Spec(cid, page, c["text"], lines, c["rule"], beyond, (), c.get("evidence", page), sens)
-    missing = sorted(set(repeats) - set(out))
-    if missing:
-        raise ValueError(f"claims.yaml: claims repeated but never given a rule: {missing}")
-    return tuple(
-        Spec(s.id, s.page, s.text, s.lines, s.rule, s.beyond, tuple(repeats.get(s.id, [])), s.evidence, s.sensitivity)
-        for s in out.values()
-    )
-
-
-def spec(claim_id: str) -> Spec:
-    """The registered claim ``claim_id``."""
-    for s in specs():
-        if s.id == claim_id:
-            return s
-    raise ValueError(f"unknown claim {claim_id!r}; known: {', '.join(s.id for s in specs())}")
-
-
-def page_claims(page: str) -> list[Spec]:
-    """Claims a page shows: those judged on it, those it repeats, and its beyond-the-thesis ones."""
-    return [s for s in specs() if s.page == page or page in s.pages]
-
-
-def reads(page: str) -> set[str]:
-    """Other pages whose saved numbers ``page``'s verdicts read (its repeated and derived claims' data pages,
-    its page-verdict claims' pages); run them first and the page shows those verdicts, not "not computed".
-
-    >>> "table-3.4" in reads("fig-3.7")
-    True
-    """
-
-    def of(s: Spec) -> set[str]:
-        r = s.rule
-        if r.get("derived"):
-            return set().union(*(of(spec(i)) for i in r["derived"]))
-        return {s.page} if "page_verdict" in r else set(s.data_pages)
-
-    return set().union(set(), *(of(s) for s in page_claims(page))) - {page}
+#: The build's (and the shipped snapshot's) cache of v2 calibration and power, keyed by content.
+CALIBRATION = "claims-calibration.json"
 
 
 # ---------------------------------------------------------------- thresholds (from the thesis's own numbers)
@@ -226,9 +144,10 @@ def thesis_fractions(claim_id: str) -> dict[str, tuple[int, int]]:
     return {g: (sum(_point(u) == "yes" for u in us), len(us)) for g, us in groups.items()}
 
 
-def rule_for(s: Spec, group: str = "") -> tuple[CountRule, str]:
-    """The count rule of a claim's group and the sentence saying where its threshold comes from."""
-    r = dict(s.rule)
+def rule_for(s: Spec, group: str = "", rule: Mapping[str, Any] | None = None) -> tuple[CountRule, str]:
+    """The count rule of a claim's group (under ``rule``, default its v1 rule) and the sentence saying where its
+    threshold comes from."""
+    r = dict(s.rule if rule is None else rule)
     r.update((r.get("groups") or {}).get(group, {}))
     partly = r.get("partly", 0.25)
     absolute = bool(r.get("absolute", False))
@@ -246,7 +165,7 @@ def rule_for(s: Spec, group: str = "") -> tuple[CountRule, str]:
 # ---------------------------------------------------------------- saved page numbers
 def data_path(page: str, scale: str) -> Path:
     """``build/<scale>/figures/<page>.data.json``: the per-seed numbers a notebook saved for its claims."""
-    return paths.figures(scale) / f"{page}.data.json"
+    return paths.figures(scale) / data_name(page)
 
 
 def save_page(page: str, scale: str, frames: Mapping[str, pd.DataFrame], meta: Mapping[str, Any]) -> Path:
@@ -400,6 +319,12 @@ class Row:
     stale: list[str] = field(default_factory=list)  # pages whose saved numbers other kit code wrote
     shipped: list[str] = field(default_factory=list)  # pages whose numbers came from the shipped snapshot
     pooled_seeds: int = 0  # > 0: each unit's one value is a statistic of this many seeds' means (no replication)
+    v1_status: str = ""  # the verdict of design v1 (the registry's `rule:` as first registered)
+    v1_statistic: dict[str, Any] = field(default_factory=dict)
+    level: str = ""  # v2: pooled / each / count
+    margin: float | None = None  # v2: the smallest effect of interest (margin units)
+    primary: dict[str, Any] = field(default_factory=dict)  # v2's primary statistic (pooled effect or yes-share)
+    calibration: dict[str, Any] = field(default_factory=dict)  # v2: false R / false D over null draws, power
 
     def as_dict(self) -> dict[str, Any]:
         s = self.spec
@@ -416,6 +341,20 @@ class Row:
             "pooled_seeds": self.pooled_seeds,
             "statistic": self.statistic,
             "verdict": self.status,
+            "label": self.status,
+            "design": design.stamp(),
+            "v1_verdict": self.v1_status or self.status,
+            "v1_statistic": self.v1_statistic,
+            "level": self.level,
+            "margin": self.margin,
+            "margin_basis": s.v2.get("margin_basis", ""),
+            "primary": self.primary,
+            "calibration": self.calibration,
+            "short": s.v2.get("short", ""),
+            "claim12": s.v2.get("claim12", ""),
+            "thesis_value": s.v2.get("thesis_value", ""),
+            "ours": ours_text(self),
+            "headline": headline(self),
             "null_pass_rate": self.null_pass_rate,
             "note": self.note,
             "diagnosis": self.diagnosis,
@@ -501,7 +440,8 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
         )
     if r.get("derived"):
         rows = [judge(spec(i), scale, with_null) for i in r["derived"]]
-        status = combine_groups([x.status for x in rows])
+        status = combine_bounded([x.status for x in rows]) if scale != "smoke" else report.NOT_JUDGED
+        v1 = combine_groups([x.v1_status or x.status for x in rows])
         rates = [x.null_pass_rate for x in rows if x.null_pass_rate is not None]
         return Row(
             s,
@@ -514,6 +454,8 @@ def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
             note="derived from " + ", ".join(f"{x.spec.id}: {x.status}" for x in rows),
             stale=stale_pages(rows),
             shipped=shipped_pages(rows),
+            v1_status=v1,
+            level="each",
         )
     try:
         got = page_data(s, scale)
@@ -535,7 +477,149 @@ def _corrupt(s: Spec, scale: str, err: snapshot.CorruptSnapshot) -> Row:
 
 
 def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.DataFrame], meta: dict[str, Any]) -> Row:
-    """:func:`judge` of a claim with a measure, from its pages' saved ``frames`` and ``meta``."""
+    """:func:`judge` of a claim with a measure, from its pages' saved ``frames`` and ``meta``: design v2's verdict
+    (:mod:`thesis_repro.claims.judge`), with design v1's beside it."""
+    v1 = _judge_v1_frames(s, scale, False, frames, meta)
+    rule2, lv, mg = design.rule(s.rule, s.v2), design.level(s.v2), design.margin(s.v2)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            groups = M.MEASURES[rule2["measure"]](frames, rule2)
+    except (M.NotRun, M.Inconclusive):
+        v1.v1_status, v1.v1_statistic, v1.level, v1.margin = v1.status, v1.statistic, lv, mg
+        return v1
+    run = {g: us for g, us in groups.items() if us}
+    not_run = [g for g, us in groups.items() if not us]
+    if not run:
+        return v1
+    rules = {g: J.count_rule(rule_for(s, g, rule2)[0], lv, rule2) for g in run}
+    res = J.judge_v2(run, lv, mg, rules, family_p(s, scale) if lv == "pooled" else ())
+    status = res.status
+    if not_run:  # a part the scale did not run may hold or not
+        status = combine_bounded([status, report.INCONCLUSIVE])
+    if scale == "smoke":
+        status = report.NOT_JUDGED
+    primary = {g: {k: v for k, v in info.items() if k != "units"} for g, info in res.groups.items()}
+    gsum = {g: {"verdict": info["verdict"], "level": LEVEL, "units": info["units"]} for g, info in res.groups.items()}
+    row = Row(
+        s,
+        status,
+        res.n_seeds or v1.n_seeds,
+        v1.statistic,
+        gsum,
+        note=v1.note,
+        v1_status=v1.status,
+        v1_statistic=v1.statistic,
+        level=lv,
+        margin=mg,
+        primary=primary if len(primary) > 1 else next(iter(primary.values())),
+    )
+    row.pooled_seeds = v1.pooled_seeds
+    if with_null and scale != "smoke":
+        row.calibration = calibration_of(s, scale, run, lv, mg, rules, rule2)
+        row.null_pass_rate = row.calibration.get("false_reproduces")
+    if status not in (report.REPRODUCES, report.NOT_JUDGED):
+        measured = [m for m in (study_result(n) for n in s.sensitivity) if m is not None]
+        shim = {g: _Judged(info["units"], LEVEL) for g, info in res.groups.items()}
+        row.diagnosis = diagnose(shim, meta, measured)
+        row.sensitivity = [_sensitivity_dict(m) for m in measured]
+    return row
+
+
+@dataclass
+class _Judged:
+    """What :func:`diagnose` reads of a group's judgement: its units and their CI level."""
+
+    units: list[dict[str, Any]]
+    level: float
+
+
+def family_p(s: Spec, scale: str) -> list[float]:
+    """The decisive p-values of the other pooled claims that read ``s``'s page data (Holm's family)."""
+    out: list[float] = []
+    for f in specs():
+        if f.id == s.id or f.rule.get("derived") or "measure" not in f.rule or design.level(f.v2) != "pooled":
+            continue
+        if not set(f.data_pages) & set(s.data_pages):
+            continue
+        got = page_data(f, scale)
+        if got is None:
+            continue
+        rule2 = design.rule(f.rule, f.v2)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                groups = M.MEASURES[rule2["measure"]](got[0], rule2)
+        except (M.NotRun, M.Inconclusive):
+            continue
+        out += [J.decisive_p(pooled(us, design.margin(f.v2))) for us in groups.values() if us]
+    return out
+
+
+def thesis_effects(s: Spec, rule2: Mapping[str, Any]) -> dict[str, float]:
+    """Per unit label, the thesis's own effect in margin units (for power): Fig 3.3c's r per cell for the
+    correlation measures, else the claim's measure on the thesis's tables (:func:`thesis_data`); ``{}`` when
+    the thesis reports no number the measure can read."""
+    from thesis_repro import reference
+
+    m = rule2.get("measure")
+    if m in ("correlation", "mean_selection"):
+        t = reference.load("fig3_3c")
+        return {f"{e}/{x}": -float(v) for e, x, v in zip(t["env"], t["test"], t["value"], strict=True)}
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            groups = M.MEASURES[m](thesis_data(s.page), rule2)
+    except Exception:  # noqa: BLE001 - the thesis's tables cannot feed every measure: no thesis effect
+        return {}
+    out = {}
+    for us in groups.values():
+        for u in us:
+            e = unit_seed_effects(u)
+            e = e[np.isfinite(e)]
+            if e.size:
+                out[u.label] = float(e.mean())
+    return out
+
+
+def calibration_of(
+    s: Spec,
+    scale: str,
+    run: Mapping[str, Sequence[Unit]],
+    lv: str,
+    mg: float,
+    rules: Mapping[str, CountRule],
+    rule2: Mapping[str, Any],
+) -> dict[str, Any]:
+    """A claim's calibration and power (:func:`thesis_repro.claims.calibration.calibration_result`), cached by the
+    content of its units and rule: the build's cache first, then the shipped snapshot's."""
+    key = J.units_key(run, design.rule_hashes().get(s.id, ""))
+    store = paths.figures(scale) / CALIBRATION
+    for p in (paths.page_output(scale, CALIBRATION), snapshot.folder(scale) / CALIBRATION):
+        known = _read_json(p)
+        if key in known:
+            return known[key]
+    got = calibration.calibration_result(run, lv, mg, rules, thesis_effects(s, rule2))
+    known = _read_json(store)
+    known[key] = got
+    store.parent.mkdir(parents=True, exist_ok=True)
+    tmp = store.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(known, sort_keys=True, indent=0))
+    tmp.replace(store)
+    return got
+
+
+def _read_json(p: Path) -> dict[str, Any]:
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def _judge_v1_frames(
+    s: Spec, scale: str, with_null: bool, frames: dict[str, pd.DataFrame], meta: dict[str, Any]
+) -> Row:
+    """Design v1's :func:`judge` of a claim with a measure (kept to show each claim's v1 verdict beside v2's)."""
     r = s.rule
     try:
         with warnings.catch_warnings():  # empty slices of a scale's missing cells are skipped as NaN
@@ -708,6 +792,64 @@ def counts(rows: Sequence[Row], beyond: bool = False) -> Counter:
 
 
 # ---------------------------------------------------------------- output
+def _num(x: float | None) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{x:+.2f}" if abs(x) < 100 else f"{x:+,.0f}"
+
+
+def ours_text(row: Row) -> str:
+    """The key number of a v2 verdict with its CI, in the claim's own sign: a pooled effect (r for correlations,
+    else a fraction of the reference's value) and the units' count; or the count of yes units with the
+    yes-share interval. ``''`` when the row has no v2 statistic.
+
+    >>> row = Row(Spec("x", "fig-3.3", "c", (555,), {}), "does not reproduce", primary={"pooled": {"estimate": -0.8,
+    ...     "ci": [-0.9, -0.7], "kind": "r", "sign": -1, "n_seeds": 3}, "k": 0, "n": 20})
+    >>> ours_text(row)
+    'pooled r +0.80 [+0.70, +0.90], 0/20 units yes'
+    """
+    prim = row.primary
+    if not prim:
+        return ""
+    parts = [prim] if "n" in prim else [dict(v, group=g) for g, v in prim.items()]
+    out = []
+    for p in parts:
+        head = f"{p['group']}: " if "group" in p else ""
+        if "pooled" in p:
+            q = p["pooled"]
+            sign = q.get("sign", 1)
+            est, lo, hi = (None if x is None else sign * x for x in (q["estimate"], *q["ci"]))
+            if sign < 0:
+                lo, hi = hi, lo
+            if q["kind"] == "r":
+                est, lo, hi = (None if x is None else math.tanh(x) for x in (est, lo, hi))
+            what = "r" if q["kind"] == "r" else "effect"
+            out.append(f"{head}pooled {what} {_num(est)} [{_num(lo)}, {_num(hi)}], {p['k']}/{p['n']} units yes")
+        else:
+            lo, hi = p.get("share_ci", [None, None])
+            band = f" (share {lo:.2f}-{hi:.2f})" if lo is not None and hi is not None and lo != hi else ""
+            out.append(f"{head}{p['k']}/{p['n']} units yes{band}")
+    return "; ".join(out)
+
+
+def headline(row: Row, width: int = 160) -> str:
+    """One line per claim: label · id · l. lines short claim · thesis: value · ours: key number with its CI.
+
+    >>> s = Spec("3.3-x", "fig-3.3", "c", (555,), {}, v2={"short": "negative correlation", "thesis_value": "18/20"})
+    >>> headline(Row(s, "does not reproduce", primary={"k": 0, "n": 20}))
+    'does not reproduce · 3.3-x · l. 555 negative correlation · thesis: 18/20 · ours: 0/20 units yes'
+    """
+    s = row.spec
+    where = f"l. {','.join(map(str, s.lines))} " if s.lines else ""
+    short = s.v2.get("short") or " ".join(s.text.split()[:6])
+    bits = [row.status, s.id, f"{where}{short}"]
+    if s.v2.get("thesis_value"):
+        bits.append(f"thesis: {s.v2['thesis_value']}")
+    ours = ours_text(row)
+    if ours:
+        bits.append(f"ours: {ours}")
+    line = " · ".join(bits)
+    return line if len(line) <= width else line[: width - 1] + "…"
+
+
 #: Contrasts whose effect and CI :func:`describe` prints (the page's units table shows them all).
 CI_SHOWN = 4
 

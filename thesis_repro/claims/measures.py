@@ -126,8 +126,15 @@ def best_rows(aucs: pd.DataFrame, members: Sequence[str], rows: Sequence[tuple[s
     return out
 
 
-def degrade_units(returns: pd.DataFrame, keys: Sequence[tuple[str, str, str]]) -> list[Unit]:
-    """Per (env, method, test): the seed's return at the largest σ below its return at σ = 0 (paired)."""
+def degrade_units(returns: pd.DataFrame, keys: Sequence[tuple[str, str, str]], min_drop: float = 0.0) -> list[Unit]:
+    """Per (env, method, test): the seed's return at the largest σ below its return at σ = 0 (paired); with
+    ``min_drop`` > 0, by more than that fraction of the σ = 0 return (a relative drop, e.g. 0.25 = a quarter).
+
+    >>> r = pd.DataFrame({"env": "H", "method": "ppo", "test": "obs", "seed": [0, 1, 2] * 2,
+    ...                   "sigma": [0.0] * 3 + [0.8] * 3, "return": [100.0, 102, 98, 90, 91, 89]})
+    >>> degrade_units(r, [("H", "ppo", "obs")])[0].outcome(), degrade_units(r, [("H", "ppo", "obs")], 0.25)[0].outcome()
+    ('yes', 'no')
+    """
     out = []
     for env, method, test in keys:
         sub = returns[(returns["env"] == env) & (returns["method"] == method) & (returns["test"] == test)]
@@ -135,7 +142,11 @@ def degrade_units(returns: pd.DataFrame, keys: Sequence[tuple[str, str, str]]) -
             continue
         lo, hi = sub["sigma"].min(), sub["sigma"].max()
         a, b = per_seed(sub, "return", sigma=hi), per_seed(sub, "return", sigma=lo)
-        c = Contrast(f"return(σ={hi:g}) - return(σ={lo:g})", a, b, sign=-1, paired=True)
+        if min_drop > 0:
+            label = f"return(σ={hi:g}) / return(σ={lo:g}) - 1 (drop beyond {min_drop:g})"
+            c = Contrast(label, a, b, sign=-1, paired=True, relative=True, margin=min_drop)
+        else:
+            c = Contrast(f"return(σ={hi:g}) - return(σ={lo:g})", a, b, sign=-1, paired=True)
         out.append(Unit(f"{env}/{method}/{test}", (c,)))
     return out
 
@@ -232,6 +243,35 @@ def _reversals(data: Data, spec: Mapping[str, Any]) -> Groups:
     return {"": units}
 
 
+@measure("no_winner")
+def _no_winner(data: Data, spec: Mapping[str, Any]) -> Groups:
+    """No consistent winner across all environments: per learner, some task where another learner's task AUC
+    (the seed's mean over tests) is above it (Welch across seeds); a learner is a consistent winner when no
+    other learner beats it anywhere.
+
+    >>> aucs = pd.DataFrame({"env": ["A"] * 6 + ["B"] * 6, "test": "obs", "method": (["a"] * 3 + ["b"] * 3) * 2,
+    ...                      "seed": [0, 1, 2] * 4, "value": [5, 5.1, 4.9, 1, 1.1, 0.9, 1, 1.1, 0.9, 5, 5.1, 4.9]})
+    >>> [u.outcome() for u in _no_winner({"aucs": aucs}, {})[""]]
+    ['yes', 'yes']
+    """
+    aucs = data["aucs"]
+    per = aucs.groupby(["env", "method", "seed"], as_index=False)["value"].mean()
+    envs = list(dict.fromkeys(per["env"]))
+    methods = [m for m in _methods(per) if m in spec.get("methods", _methods(per))]
+    if len(envs) < 2 or len(methods) < 2:
+        raise Inconclusive("needs two tasks and two learners")
+    units = []
+    for m in methods:
+        parts = tuple(
+            Contrast(f"{t}: {o} - {m}", per_seed(per, env=t, method=o), per_seed(per, env=t, method=m))
+            for t in envs
+            for o in methods
+            if o != m
+        )
+        units.append(Unit(f"{m} beaten on some task", parts, combine="any"))
+    return {"": units}
+
+
 # ---------------------------------------------------------------- chapter 3: curves and heat maps
 @measure("degrade")
 def _degrade(data: Data, spec: Mapping[str, Any]) -> Groups:
@@ -241,13 +281,14 @@ def _degrade(data: Data, spec: Mapping[str, Any]) -> Groups:
     if spec.get("by_method"):
         run = _methods(ret)
         missing = [m for m in spec["by_method"] if m not in run]
-        out = {m: degrade_units(ret, [k for k in keys if k[1] == m]) for m in spec["by_method"] if m in run}
+        drop = float(spec.get("min_drop", 0.0))
+        out = {m: degrade_units(ret, [k for k in keys if k[1] == m], drop) for m in spec["by_method"] if m in run}
         if missing and out:
             out["(not run: " + ", ".join(missing) + ")"] = []
         if not out:
             raise NotRun(f"{', '.join(missing)} not run at this scale")
         return out
-    return {"": degrade_units(ret, keys)}
+    return {"": degrade_units(ret, keys, float(spec.get("min_drop", 0.0)))}
 
 
 @measure("obs_most_sensitive")
@@ -353,7 +394,7 @@ def _correlation(data: Data, spec: Mapping[str, Any]) -> Groups:
     for env, test in cells:
         r = _corr_per_seed(points, env, test)
         if r:
-            units.append(Unit(f"{env}/{test}", (Contrast("r across variants", r, sign=-1),)))
+            units.append(Unit(f"{env}/{test}", (Contrast("r across variants", r, sign=-1, kind="r"),)))
     return {"": units}
 
 
@@ -373,7 +414,7 @@ def _mean_selection(data: Data, spec: Mapping[str, Any]) -> Groups:
         g = g.dropna()
         if len(g) >= 3 and g["train_return"].std() > 0 and g["auc"].std() > 0:
             r = float(np.corrcoef(g["train_return"], g["auc"])[0, 1])
-            units.append(Unit(f"{env}/{test}", (Contrast("r of seed means", (r,), sign=-1),)))
+            units.append(Unit(f"{env}/{test}", (Contrast("r of seed means", (r,), sign=-1, kind="r"),)))
     return {"": units}
 
 
@@ -394,7 +435,15 @@ def _least_robust(data: Data, spec: Mapping[str, Any]) -> Groups:
             units.append(
                 Unit(
                     f"{env}/{test}",
-                    (Contrast("AUC percentile of the top-training variant - 0.5", tuple(pct), sign=-1, ref=0.5),),
+                    (
+                        Contrast(
+                            "AUC percentile of the top-training variant - 0.5",
+                            tuple(pct),
+                            sign=-1,
+                            ref=0.5,
+                            kind="share",
+                        ),
+                    ),
                 )
             )
     return {"": units}
@@ -713,7 +762,7 @@ def _catch(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Fig 5.3: share of CMA-ES seeds whose movement catches the ball after taut and slack phases (> 0)."""
     c = data["catch"]
     ok = tuple(float(s and t) for s, t in zip(c["success"], c["taut_and_slack"], strict=True))
-    return {"": [Unit("seeds catching", (Contrast("share of seeds", ok, proportion=True),))]}
+    return {"": [Unit("seeds catching", (Contrast("share of seeds", ok, proportion=True, kind="share"),))]}
 
 
 @measure("scratch")
@@ -726,11 +775,13 @@ def _scratch(data: Data, spec: Mapping[str, Any]) -> Groups:
     out: Groups = {"feasible (Reach, Throw)": [], "mostly fails (BIC, Cast)": []}
     for fam in ("reach", "throw"):
         if fam in set(sc["target"]):
-            out["feasible (Reach, Throw)"].append(Unit(fam, (Contrast("success rate", _succ(sc, target=fam)),)))
+            out["feasible (Reach, Throw)"].append(
+                Unit(fam, (Contrast("success rate", _succ(sc, target=fam), kind="share"),))
+            )
     for fam in ("bic", "cast"):
         if fam in set(sc["target"]):
             out["mostly fails (BIC, Cast)"].append(
-                Unit(fam, (Contrast("success rate - 0.5", _succ(sc, target=fam), sign=-1, ref=0.5),))
+                Unit(fam, (Contrast("success rate - 0.5", _succ(sc, target=fam), sign=-1, ref=0.5, kind="share"),))
             )
     return {k: v for k, v in out.items() if v}
 
@@ -742,6 +793,9 @@ def _reach_bic(data: Data, spec: Mapping[str, Any]) -> Groups:
     sub = s[(s["strategy"] == "tensor") & (s["source"] == "reach") & (s["target"] == "bic")]
     if sub.empty:
         raise NotRun("the Reach -> BIC tensor pair is not run at this scale")
+    if spec.get("proportion"):  # v2: the share of seeds with any success, Clopper-Pearson (as Fig 5.3's)
+        ok = tuple(float(x > 0) for x in _succ(sub))
+        return {"": [Unit("reach→bic", (Contrast("share of seeds succeeding", ok, proportion=True, kind="share"),))]}
     return {"": [Unit("reach→bic", (Contrast("success rate", _succ(sub)),))]}
 
 
@@ -770,7 +824,10 @@ def _tensor_solves(data: Data, spec: Mapping[str, Any]) -> Groups:
     _needs(s, "strategy", ["tensor"])
     t = s[s["strategy"] == "tensor"]
     return {
-        "": [Unit(p, (Contrast("success rate - 0.5", _succ(t, pair=p), ref=0.5),)) for p in dict.fromkeys(t["pair"])]
+        "": [
+            Unit(p, (Contrast("success rate - 0.5", _succ(t, pair=p), ref=0.5, kind="share"),))
+            for p in dict.fromkeys(t["pair"])
+        ]
     }
 
 
@@ -834,8 +891,8 @@ def _curriculum(data: Data, spec: Mapping[str, Any]) -> Groups:
     f = data["final"]
     cl, nc = per_seed(f, "final_success", condition="CL"), per_seed(f, "final_success", condition="NC")
     return {
-        "solved": [Unit("CL success > 0.5", (Contrast("CL success - 0.5", cl, ref=0.5),))],
-        "better than NC": [Unit("CL > NC", (Contrast("CL - NC success", cl, nc),))],
+        "solved": [Unit("CL success > 0.5", (Contrast("CL success - 0.5", cl, ref=0.5, kind="share"),))],
+        "better than NC": [Unit("CL > NC", (Contrast("CL - NC success", cl, nc, kind="share"),))],
     }
 
 
@@ -849,6 +906,6 @@ def _transfer_gain(data: Data, spec: Mapping[str, Any]) -> Groups:
     return {
         "": [
             Unit("speed: total cost", (Contrast("tensor - scratch", c["tensor"], c["scratch"], sign=-1),)),
-            Unit("asymptotic success", (Contrast("tensor - scratch", sr["tensor"], sr["scratch"]),)),
+            Unit("asymptotic success", (Contrast("tensor - scratch", sr["tensor"], sr["scratch"], kind="share"),)),
         ]
     }

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from thesis_repro import paths, report
+from thesis_repro.claims import registry
 
 #: The code-stamp keys of a saved file, kept in the index (not in the data file) so that a refresh after a code
 #: change whose numbers did not change leaves the data file byte-identical.
@@ -59,14 +60,12 @@ def page_of(name: str) -> str:
 def files() -> list[str]:
     """The saved files the ledger reads (sorted): ``<page>.data.json`` of every claim's data pages and
     ``<page>.verdicts.json`` of every page-verdict claim's page."""
-    from thesis_repro.claims import ledger
-
     out: set[str] = set()
-    for s in ledger.specs():
+    for s in registry.specs():
         if "page_verdict" in s.rule:
             out.add(report.verdicts_path(s.page, "x").name)
         elif not s.rule.get("derived") and not s.rule.get("visual"):
-            out.update(ledger.data_path(p, "x").name for p in s.data_pages)
+            out.update(registry.data_name(p) for p in s.data_pages)
     return sorted(out)
 
 

@@ -23,6 +23,7 @@ fewer than two seeds there is no CI: the point estimates give a leaning, reporte
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -31,7 +32,16 @@ from typing import Any
 import numpy as np
 from scipy import stats as st
 
-from thesis_repro.report import DOES_NOT, INCONCLUSIVE, INDICATIVE, NOT_COMPUTED, PARTLY, REPRODUCES
+from thesis_repro.report import (
+    AT_LEAST_PARTLY,
+    AT_MOST_PARTLY,
+    DOES_NOT,
+    INCONCLUSIVE,
+    INDICATIVE,
+    NOT_COMPUTED,
+    PARTLY,
+    REPRODUCES,
+)
 
 YES, NO, UNDECIDED = "yes", "no", "undecided"
 #: Two-sided confidence level of every interval (a contrast is "yes" at one-sided 2.5 %).
@@ -135,6 +145,9 @@ class Contrast:
     margin: float = 0.0
     ref: float = 0.0
     proportion: bool = False
+    #: what one unit of the v2 margin means (:func:`contrast_scale`): ``value`` (a fraction of the reference
+    #: side's mean), ``r`` (a correlation: in r, intervals through Fisher z), ``share`` (absolute)
+    kind: str = "value"
 
     def directed_label(self) -> str:
         """The label of the quantity :meth:`estimate` reports: ``-(label)`` when the claim says smaller, so a
@@ -392,3 +405,297 @@ def null_pass_rate(
         statuses = [rules[g].judge([u.null_draw(rng) for u in us]).status for g, us in groups.items() if us]
         passes += bool(statuses) and combine_groups(statuses) == REPRODUCES
     return passes / draws
+
+
+# ---------------------------------------------------------------- design v2: margins, bounds, pooled tests
+_REGION = {DOES_NOT: 0, PARTLY: 1, REPRODUCES: 2}
+_BOUNDS = {(2, 2): REPRODUCES, (1, 1): PARTLY, (0, 0): DOES_NOT, (1, 2): AT_LEAST_PARTLY, (0, 1): AT_MOST_PARTLY}
+KINDS = ("value", "r", "share")
+_Z_CLIP = 0.999999
+
+
+def bounded_label(low: str, high: str) -> str:
+    """The v2 label of an interval of regions ``[low, high]``: the region itself, *at least partly* (partly or
+    reproduces), *at most partly* (does not or partly), *inconclusive* only when it spans all three.
+
+    >>> bounded_label(DOES_NOT, PARTLY), bounded_label(PARTLY, REPRODUCES), bounded_label(DOES_NOT, REPRODUCES)
+    ('at most partly', 'at least partly', 'inconclusive')
+    """
+    return _BOUNDS.get((_REGION[low], _REGION[high]), INCONCLUSIVE)
+
+
+def label_bounds(label: str) -> tuple[int, int]:
+    """The region interval of a v2 label (0 does not, 1 partly, 2 reproduces).
+
+    >>> label_bounds(AT_MOST_PARTLY), label_bounds(INCONCLUSIVE)
+    ((0, 1), (0, 2))
+    """
+    for k, v in _BOUNDS.items():
+        if v == label:
+            return k
+    return (0, 2)
+
+
+def combine_bounded(statuses: Sequence[str]) -> str:
+    """v2's :func:`combine_groups`: a claim holds when every part holds, so its lower region combines the parts'
+    lower bounds and its upper region their upper bounds (all reproduce: reproduces; all do not: does not; else
+    partly). A clearly failing part is no longer hidden by an undecided one.
+
+    >>> combine_bounded([DOES_NOT, INCONCLUSIVE]), combine_bounded([REPRODUCES, AT_LEAST_PARTLY])
+    ('at most partly', 'at least partly')
+    >>> combine_bounded([REPRODUCES, REPRODUCES]), combine_bounded([DOES_NOT, DOES_NOT])
+    ('reproduces', 'does not reproduce')
+    """
+    if not statuses or NOT_COMPUTED in statuses:
+        return NOT_COMPUTED
+    judged = (REPRODUCES, PARTLY, DOES_NOT, INCONCLUSIVE, INDICATIVE, AT_LEAST_PARTLY, AT_MOST_PARTLY)
+    other = [s for s in statuses if s not in judged]
+    if other:
+        return other[0]
+    if INDICATIVE in statuses:
+        return INDICATIVE
+    b = [label_bounds(s) for s in statuses]
+
+    def comb(xs: list[int]) -> int:
+        return 2 if all(x == 2 for x in xs) else 0 if all(x == 0 for x in xs) else 1
+
+    return _BOUNDS.get((comb([x[0] for x in b]), comb([x[1] for x in b])), INCONCLUSIVE)
+
+
+def contrast_scale(c: Contrast) -> float:
+    """What a v2 margin of 1 means for ``c``: 1 for correlations, shares and relative contrasts; otherwise the
+    reference side's mean magnitude (``|mean(b)|``, else ``|ref|``, else ``|mean(a)|``), so a margin of 0.05 is
+    5 % of the compared learner's value on that task.
+
+    >>> contrast_scale(Contrast("a - b", (10.0, 12.0), (200.0, 220.0)))
+    210.0
+    >>> contrast_scale(Contrast("r", (-0.5, -0.6), kind="r"))
+    1.0
+    """
+    if c.kind in ("r", "share") or c.relative or c.proportion:
+        return 1.0
+    for side in (c.b, None if c.ref == 0 else (c.ref,), c.a):
+        m = abs(_mean(side)) if side is not None and len(side) else float("nan")
+        if math.isfinite(m) and m > 0:
+            return m
+    return 1.0
+
+
+def _z(x: np.ndarray) -> np.ndarray:
+    return np.arctanh(np.clip(x, -_Z_CLIP, _Z_CLIP))
+
+
+def estimate_v2(c: Contrast, level: float = LEVEL) -> Estimate:
+    """:meth:`Contrast.estimate` with correlations through Fisher z: the t-interval of ``atanh(r)`` across seeds,
+    mapped back with ``tanh`` (so it stays inside [-1, 1]); every other kind as v1.
+
+    >>> e = estimate_v2(Contrast("r", (-0.9, -0.95, -0.99), sign=-1, kind="r"))
+    >>> -1 <= e.lo <= e.hi <= 1, e.outcome
+    (True, 'yes')
+    """
+    if c.kind != "r" or c.b is not None:
+        return c.estimate(level)
+    a = _clean(c.a)
+    z = _z(a) - math.atanh(c.ref)
+    m, lo, hi = _mean_ci(z, level)
+    d, lo, hi = (math.tanh(x) if math.isfinite(x) else x for x in (m, lo, hi))
+    if c.sign < 0:
+        d, lo, hi = -d, -hi, -lo
+    return Estimate(d - c.margin, lo - c.margin, hi - c.margin, a.size)
+
+
+def unit_margin(c: Contrast, margin: float) -> float:
+    """The smallest effect of interest of one contrast, in its own units: ``margin`` x :func:`contrast_scale`; 0
+    for a contrast whose v1 rule already states a bound (``c.margin`` != 0: non-inferiority)."""
+    return 0.0 if c.margin != 0 else margin * contrast_scale(c)
+
+
+def outcome_v2(e: Estimate, delta: float) -> str:
+    """A contrast's v2 outcome with smallest effect of interest ``delta`` (>= 0): *yes* when the CI lies above 0
+    and reaches ``delta``; *no* when it excludes effects of size ``delta`` in the claim's direction (hi <
+    ``delta``; with ``delta`` 0, hi <= 0 as in v1); *undecided* otherwise. Point signs without a CI.
+
+    >>> outcome_v2(Estimate(0.02, -0.01, 0.05, 3), 0.1), outcome_v2(Estimate(0.3, 0.1, 0.5, 3), 0.1)
+    ('no', 'yes')
+    >>> outcome_v2(Estimate(0.05, -0.2, 0.3, 3), 0.1), outcome_v2(Estimate(0.05, 0.01, 0.08, 3), 0.1)
+    ('undecided', 'no')
+    """
+    if not math.isfinite(e.est):
+        return UNDECIDED
+    if not (math.isfinite(e.lo) and math.isfinite(e.hi)):
+        return YES if e.est > 0 else NO
+    if e.hi < delta or e.hi <= 0:
+        return NO
+    return YES if e.lo > 0 else UNDECIDED
+
+
+def unit_outcome_v2(u: Unit, margin: float, level: float = LEVEL) -> str:
+    """A unit's v2 outcome: its contrasts' :func:`outcome_v2` combined as in v1 (all / any / any of all)."""
+
+    def one(c: Contrast) -> str:
+        return outcome_v2(estimate_v2(c, level), unit_margin(c, margin))
+
+    if u.groups:
+        return _combine([_combine([one(c) for c in g], "all") for g in u.groups], "any")
+    return _combine([one(c) for c in u.parts], u.combine)
+
+
+def unit_summary_v2(u: Unit, margin: float, level: float = LEVEL) -> dict[str, Any]:
+    """JSON-ready v2 unit: label, outcome, seeds, each contrast's estimate, CI and margin in its own units."""
+    rows = []
+    for c in u.contrasts():
+        e = estimate_v2(c, level)
+        rows.append(
+            {
+                "label": c.directed_label(),
+                "estimate": _r(e.est),
+                "ci": [_r(e.lo), _r(e.hi)],
+                "margin": _r(unit_margin(c, margin)),
+                "n": e.n,
+                "outcome": outcome_v2(e, unit_margin(c, margin)),
+            }
+        )
+    return {"label": u.label, "outcome": unit_outcome_v2(u, margin, level), "n_seeds": u.n(), "contrasts": rows}
+
+
+def judge_count_v2(rule: CountRule, units: Sequence[Unit], margin: float, summaries: bool = False) -> Judgement:
+    """A count (or *each*: ``reproduces`` 1) rule under v2: units' :func:`unit_outcome_v2`, the yes-share
+    interval ``[yes / n, (yes + undecided) / n]`` and :func:`bounded_label` of its two regions (``summaries``:
+    with each unit's JSON summary).
+
+    >>> us = [Unit(str(i), (Contrast("a-b", a=(1.0, 1.1, 0.9), b=(1.0, 1.05, 0.95)),)) for i in range(4)]
+    >>> judge_count_v2(CountRule(0.5, 0.25), us, 0.5).status
+    'does not reproduce'
+    """
+    if not units:
+        return Judgement(NOT_COMPUTED)
+    level = rule.level(len(units))
+    n_seeds = min((u.n() for u in units if u.n() > 0), default=0)
+    if n_seeds == 1:
+        j = rule.judge(units)
+        return j
+    outcomes = [unit_outcome_v2(u, margin, level) for u in units]
+    yes, und, n = outcomes.count(YES), outcomes.count(UNDECIDED), len(units)
+    low, high = rule.region(yes / n, n), rule.region((yes + und) / n, n)
+    rows = [{**unit_summary_v2(u, margin, level), "point": _point(u)} for u in units] if summaries else []
+    status = bounded_label(low, high) if rule.partly is not None else (low if low == high else INCONCLUSIVE)
+    return Judgement(status, yes, und, n - yes - und, n_seeds, units=rows, level=level)
+
+
+def seed_effects(c: Contrast) -> np.ndarray:
+    """Per training seed, the contrast's directed effect in margin units (divided by :func:`contrast_scale`;
+    Fisher z for correlations), v1 bound subtracted; ``a`` and ``b`` paired by seed index, NaN where missing."""
+    a = np.asarray(c.a, float)
+    if c.proportion:
+        d = (a > 0.5).astype(float) - c.ref
+    elif c.kind == "r" and c.b is None:
+        d = _z(a) - math.atanh(c.ref)
+    elif c.b is None:
+        d = a - c.ref
+    else:
+        b = np.asarray(c.b, float)
+        m = min(a.size, b.size)
+        d = a[:m] - b[:m]
+    d = c.sign * d / contrast_scale(c)
+    return d - (math.atanh(c.margin) if c.kind == "r" and c.b is None else c.margin)
+
+
+def unit_seed_effects(u: Unit) -> np.ndarray:
+    """Per seed, a unit's effect: the weakest contrast for ``all``, the strongest for ``any`` (groups: the best
+    group's weakest)."""
+
+    def stack(cs: Sequence[Contrast]) -> np.ndarray:
+        es = [seed_effects(c) for c in cs]
+        n = max((e.size for e in es), default=0)
+        return np.array([np.pad(e, (0, n - e.size), constant_values=np.nan) for e in es])
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        if u.groups:
+            inner = [np.nanmin(stack(g), axis=0) for g in u.groups]
+            n = max(x.size for x in inner)
+            return np.nanmax(np.array([np.pad(x, (0, n - x.size), constant_values=np.nan) for x in inner]), axis=0)
+        s = stack(u.parts)
+        return np.nanmin(s, axis=0) if u.combine == "all" else np.nanmax(s, axis=0)
+
+
+@dataclass(frozen=True)
+class Pooled:
+    """A pooled effect over a claim's units (tasks as fixed effects): mean across units of each seed's effect,
+    then a t-interval across seeds; ``kind`` r: in Fisher z, reported back in r. ``p_yes``/``p_no``: one-sided
+    p-values of "effect <= 0" and "effect >= margin"."""
+
+    est: float
+    lo: float
+    hi: float
+    n: int
+    margin: float
+    kind: str
+    p_yes: float
+    p_no: float
+    units: int
+
+    def outcome(self, alpha: float = (1 - LEVEL) / 2) -> str:
+        """yes / no / undecided at one-sided ``alpha`` (0.025 = the 95 % CI's; Holm passes a smaller one)."""
+        if not math.isfinite(self.est):
+            return UNDECIDED
+        if self.n < 2:
+            return YES if self.est > 0 else NO
+        if self.p_no < alpha or (self.margin == 0 and self.hi <= 0):
+            return NO
+        return YES if self.p_yes < alpha else UNDECIDED
+
+    def shown(self, sign: int) -> tuple[float, float, float]:
+        """Estimate and CI with the claim's own sign (an r reads as r, not as the directed effect)."""
+        f = math.tanh if self.kind == "r" else (lambda x: x)
+        pts = [f(x) if math.isfinite(x) else x for x in (self.est, self.lo, self.hi)]
+        if sign < 0:
+            return -pts[0], -pts[2], -pts[1]
+        return pts[0], pts[1], pts[2]
+
+
+def pooled(units: Sequence[Unit], margin: float, level: float = LEVEL) -> Pooled:
+    """:class:`Pooled` of ``units`` with smallest effect of interest ``margin`` (in margin units; r for
+    correlations). Per seed, units missing that seed are left out of its mean.
+
+    >>> us = [Unit(t, (Contrast("r", (0.7, 0.8, 0.75), sign=-1, kind="r"),)) for t in "abcde"]
+    >>> p = pooled(us, 0.1)
+    >>> p.outcome(), round(p.shown(-1)[0], 2)
+    ('no', 0.75)
+    """
+    kinds = {c.kind for u in units for c in u.contrasts()}
+    kind = "r" if kinds == {"r"} else "value"
+    rows = [unit_seed_effects(u) for u in units]
+    n = max((r.size for r in rows), default=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        per_seed = np.nanmean(np.array([np.pad(r, (0, n - r.size), constant_values=np.nan) for r in rows]), axis=0)
+    x = per_seed[np.isfinite(per_seed)] if n else np.array([])
+    delta = math.atanh(min(margin, _Z_CLIP)) if kind == "r" else margin
+    m, lo, hi = _mean_ci(x, level)
+    if x.size >= 2:
+        se = float(np.std(x, ddof=1)) / math.sqrt(x.size)
+        if se > 0:
+            p_yes = float(st.t.sf(m / se, x.size - 1))
+            p_no = float(st.t.cdf((m - delta) / se, x.size - 1))
+        else:
+            p_yes, p_no = float(m <= 0), float(m >= delta)
+    else:
+        p_yes = p_no = float("nan")
+    return Pooled(m, lo, hi, int(x.size), delta, kind, p_yes, p_no, len(units))
+
+
+def holm(pvalues: Sequence[float], alpha: float = (1 - LEVEL) / 2) -> list[bool]:
+    """Holm's step-down over a family: which hypotheses are rejected at family-wise ``alpha``.
+
+    >>> holm([0.001, 0.02, 0.012]), holm([0.001, 0.02, 0.013])
+    ([True, True, True], [True, False, False])
+    """
+    order = sorted(range(len(pvalues)), key=lambda i: pvalues[i] if math.isfinite(pvalues[i]) else 2.0)
+    out = [False] * len(pvalues)
+    m = len(pvalues)
+    for rank, i in enumerate(order):
+        if not (math.isfinite(pvalues[i]) and pvalues[i] < alpha / (m - rank)):
+            break
+        out[i] = True
+    return out
