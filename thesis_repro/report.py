@@ -55,6 +55,9 @@ STATUSES: tuple[str, ...] = (
     VISUAL,
 )
 
+#: Longest printed verdict line (the book and ``claims --json`` carry the whole line and its evidence).
+LINE = 160
+
 #: Admonition class of each status in the book (MyST ``{admonition}`` with a class).
 _STYLE = {
     REPRODUCES: "tip",
@@ -79,15 +82,26 @@ class Verdict:
     claim: str
     status: str
     evidence: str = ""
+    #: one line (``label · id · l. N short claim · thesis: value · ours: value [CI]``): printed alone, the
+    #: evidence folded below it in the book
+    headline: str = ""
 
     def __post_init__(self) -> None:
         check_choice(self.status, STATUSES, "verdict status")
 
     def __str__(self) -> str:
+        if self.headline:
+            label, _, rest = self.headline.partition(" · ")
+            line = f"[{self.figure}] {label.upper()} · {rest}"
+            return line if len(line) <= LINE else line[: LINE - 1] + "…"
         tail = f": {self.evidence}" if self.evidence else ""
         return f"[{self.figure}] {self.status.upper()} - {self.claim}{tail}"
 
     def _repr_markdown_(self) -> str:
+        if self.headline:
+            label, _, rest = self.headline.partition(" · ")
+            body = f"{self.claim}\n\n<details><summary>evidence</summary>\n\n{self.evidence}\n\n</details>"
+            return f"```{{admonition}} {label.capitalize()} · {rest}\n:class: {_STYLE[self.status]}\n{body}\n```\n"
         title = f"{self.status.capitalize()}: {self.claim}"
         body = self.evidence or ""
         return f"```{{admonition}} {title}\n:class: {_STYLE[self.status]}\n{body}\n```\n"

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -56,36 +56,59 @@ def _m(x: Sequence[float] | None) -> float:
     return float(a.mean()) if a.size else 0.0
 
 
-def draw_contrast(c: Contrast, rng: np.random.Generator, n: int, effect: float) -> Contrast:
-    """``c`` redrawn with ``n`` seeds per side whose true directed effect is ``effect`` (margin units) beyond its
-    v1 bound, each side with its observed spread (correlations in Fisher z; shares as 0/1 outcomes when ``c``
-    is a proportion)."""
-    if c.proportion:
-        p = min(max(c.ref + c.sign * (effect + c.margin), 0.0), 1.0)
-        return replace(c, a=tuple(float(v) for v in rng.random(n) < p))
+@dataclass(frozen=True)
+class _Plan:
+    """What a draw of one contrast needs, computed once from its observed values."""
+
+    c: Contrast
+    mb: float  # the reference side's mean (``ref`` when there is no ``b``)
+    scale: float  # raw value of one margin unit
+    sd_a: float
+    sd_b: float
+    sd_d: float  # spread of the paired differences (of Fisher z for a correlation)
+
+
+def plan(c: Contrast) -> _Plan:
+    """The observed spreads and scale a draw of ``c`` uses."""
     if c.kind == "r" and c.b is None:
         z = np.arctanh(np.clip(np.asarray(c.a, float), -0.999999, 0.999999))
-        mu = math.atanh(c.ref) + c.sign * math.atanh(max(min(effect + c.margin, 0.999999), -0.999999))
-        return replace(c, a=tuple(np.tanh(mu + _sd(z, 0.3) * rng.standard_normal(n))))
+        return _Plan(c, 0.0, 1.0, 0.0, 0.0, _sd(z, 0.3))
     mb = _m(c.b) if c.b is not None else c.ref
     scale = abs(mb) if c.relative and mb != 0 else S.contrast_scale(c)
-    shift = c.sign * (effect + c.margin) * scale
     fb = FALLBACK_SD * scale
-    if c.b is None:
-        return replace(c, a=tuple(c.ref + shift + _sd(c.a, fb) * rng.standard_normal(n)))
-    bb = mb + _sd(c.b, fb) * rng.standard_normal(n)
-    if c.paired:
+    sd_d = fb
+    if c.b is not None and c.paired:
         m = min(len(c.a), len(c.b))
-        d = np.asarray(c.a, float)[:m] - np.asarray(c.b, float)[:m]
-        return replace(c, a=tuple(bb + shift + _sd(d, fb) * rng.standard_normal(n)), b=tuple(bb))
-    return replace(c, a=tuple(mb + shift + _sd(c.a, fb) * rng.standard_normal(n)), b=tuple(bb))
+        sd_d = _sd(np.asarray(c.a, float)[:m] - np.asarray(c.b, float)[:m], fb)
+    return _Plan(c, mb, scale, _sd(c.a, fb), _sd(c.b, fb), sd_d)
 
 
-def draw_unit(u: Unit, rng: np.random.Generator, n: int, effect: float) -> Unit:
-    """Every contrast of ``u`` redrawn (:func:`draw_contrast`)."""
+def draw_contrast(p: _Plan, rng: np.random.Generator, n: int, effect: float) -> Contrast:
+    """The planned contrast redrawn with ``n`` seeds per side whose true directed effect is ``effect`` (margin
+    units) beyond its v1 bound, each side with its observed spread (correlations in Fisher z; shares as 0/1
+    outcomes when the contrast is a proportion)."""
+    c = p.c
+    if c.proportion:
+        q = min(max(c.ref + c.sign * (effect + c.margin), 0.0), 1.0)
+        return replace(c, a=tuple((rng.random(n) < q).astype(float)))
+    if c.kind == "r" and c.b is None:
+        mu = math.atanh(c.ref) + c.sign * math.atanh(max(min(effect + c.margin, 0.999999), -0.999999))
+        return replace(c, a=tuple(np.tanh(mu + p.sd_d * rng.standard_normal(n))))
+    shift = c.sign * (effect + c.margin) * p.scale
+    if c.b is None:
+        return replace(c, a=tuple(c.ref + shift + p.sd_a * rng.standard_normal(n)))
+    bb = p.mb + p.sd_b * rng.standard_normal(n)
+    if c.paired:
+        return replace(c, a=tuple(bb + shift + p.sd_d * rng.standard_normal(n)), b=tuple(bb))
+    return replace(c, a=tuple(p.mb + shift + p.sd_a * rng.standard_normal(n)), b=tuple(bb))
+
+
+def draw_unit(u: Unit, plans: Mapping[int, _Plan], rng: np.random.Generator, n: int, effect: float) -> Unit:
+    """Every contrast of ``u`` redrawn (:func:`draw_contrast`) from its plan (by ``id`` of the contrast)."""
     if u.groups:
-        return replace(u, groups=tuple(tuple(draw_contrast(c, rng, n, effect) for c in g) for g in u.groups))
-    return replace(u, parts=tuple(draw_contrast(c, rng, n, effect) for c in u.parts))
+        groups = tuple(tuple(draw_contrast(plans[id(c)], rng, n, effect) for c in g) for g in u.groups)
+        return replace(u, groups=groups)
+    return replace(u, parts=tuple(draw_contrast(plans[id(c)], rng, n, effect) for c in u.parts))
 
 
 def judge_groups(
@@ -105,12 +128,12 @@ def _rate(
     seed: int,
 ) -> float:
     rng = np.random.default_rng(seed)
+    plans = {id(c): plan(c) for us in groups.values() for u in us for c in u.contrasts()}
+    sizes = {id(u): n_seeds or max(u.n(), S.NULL_SEEDS) for us in groups.values() for u in us}
+    eff = {id(u): effects(g, u) for g, us in groups.items() for u in us}
     hits = 0
     for _ in range(draws):
-        drawn = {
-            g: [draw_unit(u, rng, n_seeds or max(u.n(), S.NULL_SEEDS), effects(g, u)) for u in us]
-            for g, us in groups.items()
-        }
+        drawn = {g: [draw_unit(u, plans, rng, sizes[id(u)], eff[id(u)]) for u in us] for g, us in groups.items()}
         hits += judge(drawn) == status
     return hits / draws
 
@@ -159,9 +182,9 @@ def power(
     draws: int = POWER_DRAWS,
     seed: int = 0,
 ) -> dict[str, Any]:
-    """The fewest training seeds (of :data:`SEED_GRID`, bisected) at which the rule says *reproduces* in >= 80 % of draws
-    when each unit's true effect is ``effects[label]`` (the thesis's; units without one: the mean of those given,
-    or the margin when none is), at the observed spread. ``None`` past the grid's end."""
+    """The fewest training seeds (of :data:`SEED_GRID`, bisected) at which the rule says *reproduces* in >= 80 %
+    of draws when each unit's true effect is ``effects[label]`` (the thesis's; units without one: the mean of
+    those given, or the margin when none is), at the observed spread. ``None`` past the grid's end."""
     effects = dict(effects or {})
     known = [v for v in effects.values() if math.isfinite(v)]
     fallback = float(np.mean(known)) if known else margin

@@ -34,21 +34,24 @@ from functools import cache
 from typing import Any
 
 from thesis_repro import paths
-from thesis_repro.claims import measures, stats
+from thesis_repro.claims import judge, measures, registry, stats
 
 VERSION = "v2"
 LEVELS = ("pooled", "each", "count")
 #: Wording fields of a ``v2:`` block: shown, not judged, so outside the rule's hash.
 WORDING = ("short", "claim12", "thesis_value", "margin_basis")
-#: The judging code whose syntax tree the engine hash covers (v2's statistics and the measures it reads).
+#: The judging code whose syntax trees the engine hash covers: v2's statistics, the judging of a claim's units,
+#: and every top-level definition of the measures (by name, so moving a definition between modules keeps the hash).
 ENGINE = (
     stats.Contrast,
     stats.Estimate,
     stats._mean_ci,
     stats._welch_ci,
     stats._combine,
+    stats._point,
     stats.CountRule,
     stats.bounded_label,
+    stats.label_bounds,
     stats.combine_bounded,
     stats.contrast_scale,
     stats.estimate_v2,
@@ -61,8 +64,13 @@ ENGINE = (
     stats.Pooled,
     stats.pooled,
     stats.holm,
-    measures,
+    judge.count_rule,
+    judge._pooled_status,
+    judge.decisive_p,
+    judge.holm_outcome,
+    judge.judge_v2,
 )
+ENGINE_MODULES = (measures,)
 
 
 def lock_path() -> Any:
@@ -126,16 +134,26 @@ def _tree(obj: Any) -> str:
     return ast.dump(tree, annotate_fields=False, include_attributes=False)
 
 
+def _module_defs(module: Any) -> list[tuple[str, str]]:
+    """Every top-level function and class of ``module`` as (name, syntax tree without docstrings)."""
+    tree = ast.parse(inspect.getsource(module))
+    out = []
+    for node in tree.body:
+        if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+            out.append((node.name, _tree(getattr(module, node.name))))
+    return out
+
+
 def engine_hash() -> str:
-    """SHA-256 over the syntax trees of :data:`ENGINE` and the v2 constants."""
+    """SHA-256 over the syntax trees of :data:`ENGINE`, the definitions of :data:`ENGINE_MODULES` (sorted by
+    name) and the v2 constants."""
     consts = _canonical({"level": stats.LEVEL, "levels": LEVELS, "version": VERSION})
-    return _sha(consts + "".join(_tree(o) for o in ENGINE))
+    defs = sorted(d for m in ENGINE_MODULES for d in _module_defs(m))
+    return _sha(consts + "".join(_tree(o) for o in ENGINE) + "".join(f"{n}:{t}" for n, t in defs))
 
 
 def rule_hashes() -> dict[str, str]:
     """Per claim id with a rule: SHA-256 of its v1 rule, v2 rule, level and margin (wording left out)."""
-    from thesis_repro.claims import registry  # the registry module reads this one's rule()
-
     out = {}
     for s in registry.specs():
         judged = {k: v for k, v in s.v2.items() if k not in WORDING}

@@ -1035,9 +1035,9 @@ def verdicts(page: str, scale: str) -> list[report.Verdict]:
         where = f"thesis l. {', '.join(map(str, s.lines))}" if s.lines else "kit extension"
         tag = "[beyond the thesis] " if s.beyond else ""
         again = f" (judged on {s.page}; repeated here, counted once)" if s.page != page else ""
-        out.append(
-            report.Verdict(page.removeprefix("fig-"), f"{tag}{s.text} ({where}){again}", row.status, describe(row))
-        )
+        claim = f"{tag}{s.text} ({where}){again}"
+        evidence = f"v1 verdict: {row.v1_status or row.status}; {describe(row)}"
+        out.append(report.Verdict(page.removeprefix("fig-"), claim, row.status, evidence, headline(row, width=400)))
     return out
 
 
@@ -1131,7 +1131,10 @@ def as_json(rows: Sequence[Row], scale: str = "") -> dict[str, Any]:
     return {
         "claims": [r.as_dict() for r in rows if not r.spec.beyond],
         "beyond_the_thesis": [r.as_dict() for r in rows if r.spec.beyond],
+        "design": design.stamp(),
+        "decision_rule": RULE_WORDS,
         "counts": dict(counts(rows)),
+        "v1_counts": dict(Counter(r.v1_status or r.status for r in rows if not r.spec.beyond)),
         "beyond_counts": dict(counts(rows, beyond=True)),
         "stale_pages": stale_pages(rows),
         "shipped_pages": shipped_pages(rows),
@@ -1140,10 +1143,10 @@ def as_json(rows: Sequence[Row], scale: str = "") -> dict[str, Any]:
 
 
 def scoreboard(scale: str, rows: Sequence[Row] | None = None) -> str:
-    """Markdown scoreboard of distinct thesis claims per chapter, the beyond-the-thesis count, and the method
-    (each rule's null pass rate)."""
+    """Markdown scoreboard of distinct thesis claims: the counts under design v2 (v1's beside them), which claims
+    reproduce and which do not (one line each), per chapter, the beyond-the-thesis count, and the method."""
     rows = ledger(scale) if rows is None else rows
-    cols = list(COUNTED)
+    cols = [c for c in COUNTED if any(r.status == c for r in rows if not r.spec.beyond)]
     head = ["| chapter | " + " | ".join(SHORT[c] for c in cols) + " |", "|---|" + "---|" * len(cols)]
     total: Counter = Counter()
     by_ch: dict[str, Counter] = {}
@@ -1159,17 +1162,23 @@ def scoreboard(scale: str, rows: Sequence[Row] | None = None) -> str:
         )
     head.append("| **all** | " + " | ".join(f"**{total.get(c, 0)}**" for c in cols) + " |")
     extra = counts(rows, beyond=True)
+    v1 = Counter(r.v1_status or r.status for r in rows if not r.spec.beyond)
+    d = design.stamp()
     lead = (
-        f"\n\n## Scoreboard at scale `{scale}`\n\n"
-        f"Distinct claims of the thesis: **{sum(total.values())}**; **{total.get(report.REPRODUCES, 0)} reproduce**, "
-        f"**{total.get(report.PARTLY, 0)} partly**, **{total.get(report.DOES_NOT, 0)} do not**, "
-        f"{total.get(report.INCONCLUSIVE, 0)} inconclusive (the CI across training seeds spans two outcomes, or the "
-        "evidence cannot decide, e.g. every run of the method the claim is about diverged), "
-        f"{total.get(report.INDICATIVE, 0)} indicative (one training seed: no CI), "
-        f"{total.get(report.VISUAL, 0)} not judged (visual: the sentence is about what a figure looks like), "
-        f"{total.get(report.NOT_RUN, 0)} not run, {total.get(report.NOT_COMPUTED, 0)} not computed in this build.\n\n"
-        f"Beyond the thesis (the kit's own extensions: kl_exact, the Eq 4.11 analysis): "
-        + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(extra.items()))
+        f"\n\n## Scoreboard at scale `{scale}` (claims design {d['version']})\n\n"
+        f"Distinct claims of the thesis: **{sum(total.values())}**: "
+        + ", ".join(f"**{v} {SHORT.get(k, k)}**" for k, v in sorted(total.items(), key=lambda kv: _order(kv[0])))
+        + ". Under design v1 the same numbers read: "
+        + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(v1.items(), key=lambda kv: _order(kv[0])))
+        + ".\n\n"
+    )
+    for label, want in (("Do not reproduce", report.DOES_NOT), ("Reproduce", report.REPRODUCES)):
+        hits = [r for r in rows if not r.spec.beyond and r.status == want]
+        if hits:
+            lead += f"**{label}:**\n\n" + "\n".join(f"- {headline(r, 400)}" for r in hits) + "\n\n"
+    lead += (
+        "Beyond the thesis (the kit's own extensions: kl_exact, the Eq 4.11 analysis): "
+        + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(extra.items(), key=lambda kv: _order(kv[0])))
         + " (not in the counts above).\n\n"
     )
     hint = stale_hint(stale_pages(rows), scale)
@@ -1178,37 +1187,64 @@ def scoreboard(scale: str, rows: Sequence[Row] | None = None) -> str:
         "\n\nEach thesis sentence is one claim, judged once by the rule registered for it in "
         "`data/thesis/claims.yaml` (pages that repeat it show the same verdict). Kit-made checks such as the "
         "agreement of the Welch bolding are shown on their pages and not counted. `python -m thesis_repro claims "
-        f"--scale {scale} --json` prints this ledger.\n"
+        f"--scale {scale} --json` prints this ledger; {{doc}}`What changed from v1, and why <claims-design-v2>` "
+        "explains the design.\n"
     )
     if scale == "smoke":
         tail += "At `smoke` nothing is judged: the runs only exercise the plumbing.\n"
     return lead + "\n".join(head) + tail + method(rows)
 
 
+def _order(status: str) -> int:
+    return COUNTED.index(status) if status in COUNTED else len(COUNTED)
+
+
+#: The v2 decision rule in words (the method page and ``claims --json``).
+RULE_WORDS = (
+    "Every claim has a level, a margin and a rule registered before the confirmatory seeds existed "
+    "(`data/thesis/claims.yaml`, frozen in `data/thesis/claims-design.json`). The unit of replication is the "
+    "training seed. Each unit compares per-seed values with a 95 % CI (Welch across seeds; a one-sample or "
+    "paired t interval; correlations through Fisher z; Clopper-Pearson for 0/1 outcomes). With margin m (the "
+    "smallest effect of interest, in the claim's units: r for correlations, a share for success rates, else a "
+    "fraction of the reference learner's value on that task), a unit is **yes** when its CI lies above 0 and "
+    "reaches m, **no** when its CI ends below m (effects of the margin's size are excluded: an equivalence / "
+    "non-superiority test; a unit whose v1 rule states its own bound uses m = 0), **undecided** otherwise. "
+    "**pooled** claims (\"most\", \"generally\", \"on average\") pool each seed's effect over the units "
+    "(tasks as fixed effects) and take a t-interval across seeds, Holm-adjusted across the pooled claims that "
+    "share a page's data: yes -> reproduces, no -> does not reproduce, else inconclusive. **each** claims "
+    "(\"each\", \"every\", \"in all\") need every unit yes; **count** claims keep their thresholds. The "
+    "yes-share interval [yes / n, (yes + undecided) / n] gives two regions: one region -> that verdict; partly "
+    "to reproduces -> *at least partly*; does not to partly -> *at most partly*; all three -> *inconclusive*. A "
+    "claim of several parts holds when each part does (lower and upper regions combined apart). One seed -> at "
+    "most indicative. **Calibration**: over 1,000 synthetic draws each way at the observed spread (>= 3 seeds), "
+    "the share judged *reproduces* when every effect is 0 (false R), and *does not reproduce* when every effect "
+    "equals the margin (false D). **Power**: the fewest training seeds at which 80 % of draws reproduce when "
+    "the effects are the thesis's own (or the margin where the thesis reports none)."
+)
+
+
 def method(rows: Sequence[Row]) -> str:
-    """The method section: how a verdict is decided, and each rule's null pass rate."""
+    """The method section: the v2 decision rule, and per claim its level, margin, both verdicts, calibration and
+    power."""
     out = [
         "\n\n## Method: rules fixed in advance, statistics across training seeds\n",
-        "Every claim has a rule registered before results were seen (`data/thesis/claims.yaml`): a statistic, "
-        "its units (rows, cells, panels), and thresholds, tied to the thesis's own k/n where it reports one "
-        f"({THESIS_SHARE:g} x its share). The unit of replication is the training seed: each unit compares "
-        "per-seed values with a 95 % CI (Welch across seeds, or a one-sample / paired t interval, or "
-        "Clopper-Pearson for success shares; `scipy.stats`): yes when the CI is above 0 (the claim's side), no when "
-        "it ends at or below 0 (a tie in every seed leaves no room for the claimed effect), else undecided. The "
-        "yes-share interval [CI-supported yes, yes + "
-        "undecided] decides: inside one region -> that verdict, across two -> inconclusive. One seed -> at most "
-        "indicative; a unit with no seed at all (e.g. every run of its learner diverged) is undecided and does not "
-        "count as one seed, so a claim none of whose units has a seed is inconclusive. **Null pass rate**: the "
-        "share of synthetic null draws (every contrast redrawn at its null "
-        f"boundary with its observed spread and >= 3 seeds; {NULL_DRAWS} draws) the rule judges *reproduces*.\n",
+        RULE_WORDS + "\n",
         sensitivity_method(),
-        "| claim | page | verdict | null pass rate |",
-        "|---|---|---|---|",
+        "| claim | level | margin | verdict | v1 | false R | false D | seeds for 80 % |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        rate = "n/a (not computed)" if r.null_pass_rate is None else f"{r.null_pass_rate:.2f}"
+        c = r.calibration
+        fr = "n/a" if c.get("false_reproduces") is None else f"{c['false_reproduces']:.3f}"
+        fd = "n/a" if c.get("false_does_not") is None else f"{c['false_does_not']:.3f}"
+        seeds = c.get("seeds_for_80", "n/a") if c else "n/a"
+        seeds = "> 128" if c and seeds is None else seeds
         tag = " (beyond)" if r.spec.beyond else ""
-        out.append(f"| {r.spec.id}{tag} | {r.spec.page} | {r.status} | {rate} |")
+        mg = "" if r.margin is None else f"{r.margin:g}"
+        out.append(
+            f"| {r.spec.id}{tag} | {r.level or '-'} | {mg} | {r.status} | {r.v1_status or r.status} | {fr} | {fd} "
+            f"| {seeds} |"
+        )
     return "\n".join(out) + "\n"
 
 

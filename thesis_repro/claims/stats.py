@@ -596,13 +596,17 @@ def seed_effects(c: Contrast) -> np.ndarray:
         b = np.asarray(c.b, float)
         m = min(a.size, b.size)
         d = a[:m] - b[:m]
-    d = c.sign * d / contrast_scale(c)
+    scale = abs(_mean(c.b)) if c.relative and c.b is not None else contrast_scale(c)
+    d = c.sign * d / (scale if scale > 0 else float("nan"))
     return d - (math.atanh(c.margin) if c.kind == "r" and c.b is None else c.margin)
 
 
 def unit_seed_effects(u: Unit) -> np.ndarray:
     """Per seed, a unit's effect: the weakest contrast for ``all``, the strongest for ``any`` (groups: the best
     group's weakest)."""
+
+    if not u.groups and len(u.parts) == 1:
+        return seed_effects(u.parts[0])
 
     def stack(cs: Sequence[Contrast]) -> np.ndarray:
         es = [seed_effects(c) for c in cs]
@@ -667,9 +671,12 @@ def pooled(units: Sequence[Unit], margin: float, level: float = LEVEL) -> Pooled
     kind = "r" if kinds == {"r"} else "value"
     rows = [unit_seed_effects(u) for u in units]
     n = max((r.size for r in rows), default=0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        per_seed = np.nanmean(np.array([np.pad(r, (0, n - r.size), constant_values=np.nan) for r in rows]), axis=0)
+    grid = np.full((len(rows), n), np.nan)
+    for i, r in enumerate(rows):
+        grid[i, : r.size] = r
+    ok = np.isfinite(grid)
+    count = ok.sum(axis=0)
+    per_seed = np.where(count > 0, np.where(ok, grid, 0.0).sum(axis=0) / np.maximum(count, 1), np.nan)
     x = per_seed[np.isfinite(per_seed)] if n else np.array([])
     delta = math.atanh(min(margin, _Z_CLIP)) if kind == "r" else margin
     m, lo, hi = _mean_ci(x, level)
