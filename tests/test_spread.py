@@ -151,7 +151,7 @@ def _parse(line: str) -> dict:
     }
 
 
-def test_readme_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
+def test_book_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the real shipped layer
     text, lines = _readme_block()
     assert COMMAND in text, f"{PAGE.name} must name the command that regenerates its spread block"

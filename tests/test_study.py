@@ -135,4 +135,5 @@ def test_book_study_block_is_the_summary_of_the_shipped_runs(monkeypatch, name, 
     block = text.split(f"<!-- {marker}:begin -->")[1].split(f"<!-- {marker}:end -->")[0].strip()
     spec = study.SPECS[name]
     expected = study.summary(spec.jobs(), budgets.shipped_cache(), spec).strip()
-    assert block == expected, f"book/learners.md {marker} block is stale: paste `python -m thesis_repro.study {name} --summary`"
+    stale = f"book/learners.md {marker} block is stale: paste `python -m thesis_repro.study {name} --summary`"
+    assert block == expected, stale

@@ -266,9 +266,30 @@ def scoreboard(executed: list[str], scale: str) -> str:
     :func:`thesis_repro.claims.ledger.scoreboard`, the same ledger as ``python -m thesis_repro claims``),
     with the beyond-the-thesis count and the method section (each rule's null pass rate). ``executed`` is
     kept for the caller; the ledger judges every registered claim from the numbers the pages saved."""
-    from thesis_repro.claims import ledger  # the claims layer judges; the book only shows
+    from thesis_repro.claims import ledger, results  # the claims layer judges and words; the book only shows
 
-    return ledger.scoreboard(scale)
+    rows = ledger.ledger(scale)
+    head, sep, method = ledger.scoreboard(scale, rows).partition(_METHOD)
+    return f"{head}\n\n{results.verdict_lists(ledger.as_json(rows, scale))}\n{sep}{method}"
+
+
+#: Where ``intro.md`` takes the scoreboard (else it is appended); the method section goes last either way.
+SCOREBOARD_MARK = "<!-- scoreboard -->"
+_METHOD = "\n\n## Method"
+
+
+def place_scoreboard(intro: str, board: str) -> str:
+    r"""``intro`` with the scoreboard ``board`` at :data:`SCOREBOARD_MARK` and its method section at the end.
+
+    >>> place_scoreboard("# T\n<!-- scoreboard -->\nHow to read", "\n\n## Scoreboard\n\n## Method\nm")
+    '# T\n\n\n## Scoreboard\nHow to read\n\n## Method\nm'
+    >>> place_scoreboard("# T", "\n\n## Scoreboard")
+    '# T\n\n## Scoreboard'
+    """
+    if SCOREBOARD_MARK not in intro:
+        return intro + board
+    head, sep, method = board.partition(_METHOD)
+    return intro.replace(SCOREBOARD_MARK, head, 1) + sep + method
 
 
 #: Static pages of ``book/`` on how the kit works (moved out of the README), last in the contents, in this order.
@@ -347,7 +368,7 @@ def progress_line(i: int, n: int, page: str, action: str) -> str:
 
 
 class Progress:
-    """Which notebook the book is on: one plain line per notebook in a log, a tqdm bar in a terminal (``bar``:
+    r"""Which notebook the book is on: one plain line per notebook in a log, a tqdm bar in a terminal (``bar``:
     force either; default: whether ``stream`` is a TTY).
 
     >>> import io; out = io.StringIO(); p = Progress(2, out); p.step("fig-3.3", "up to date"); p.close()
@@ -372,8 +393,8 @@ class Progress:
         if self.bar is None:
             print(line, file=self.stream, flush=True)
         else:
-            self.bar.set_description_str(line, refresh=False)
             self.bar.update(1)
+            self.bar.set_description_str(line)  # redrawn now: the notebook may run for minutes
 
     def close(self) -> None:
         if self.bar is not None:
@@ -449,9 +470,9 @@ def build(
     for md in root.glob("chapter-*.md"):
         with md.open("a") as f:
             f.write(chapter_summary(md.stem.split("-", 1)[1], judged, scale, pending))
-    with (root / "intro.md").open("a") as f:
-        f.write(scoreboard(judged, scale))
-        f.write(f"\n_Built at scale `{scale}` from commit `{_git_rev()}` on {time.strftime('%Y-%m-%d %H:%M')}._\n")
+    intro = root / "intro.md"
+    built = f"\n_Built at scale `{scale}` from commit `{_git_rev()}` on {time.strftime('%Y-%m-%d %H:%M')}._\n"
+    intro.write_text(place_scoreboard(intro.read_text(), scoreboard(judged, scale)) + built)
     write_toc(ids, root)
     jb = Path(sys.executable).parent / "jupyter-book"
     done = subprocess.run([str(jb), "build", str(root), "--quiet"], capture_output=True, text=True)

@@ -66,7 +66,7 @@ def ours(claim: Mapping[str, Any]) -> str:
     """Our key number with its CI (``ours``), else the yes-share of the units with its interval, or ``-``.
 
     >>> ours({"statistic": {"k": 3, "n": 20, "value": 0.4, "ci": [0.15, 0.9], "undecided": 14}})
-    '3/20 units yes, share in [0.15, 0.90]'
+    '3/20 units yes, yes-share [0.15, 0.90]'
     >>> ours({"ours": "r = 0.71 [0.02, 1.39]"}), ours({"statistic": {}})
     ('r = 0.71 [0.02, 1.39]', '-')
     """
@@ -81,7 +81,7 @@ def ours(claim: Mapping[str, Any]) -> str:
     if len(stats) > 1:
         return f"{k}/{n} units yes"
     lo, hi = stats[0].get("ci") or (None, None)
-    interval = f", share in [{lo:.2f}, {hi:.2f}]" if lo is not None and hi is not None else ""
+    interval = f", yes-share [{lo:.2f}, {hi:.2f}]" if lo is not None and hi is not None else ""
     return f"{k}/{n} units yes{interval}"
 
 
@@ -147,7 +147,7 @@ def results_md(ledger_json: Mapping[str, Any], scale: str) -> str:
         "evidence; `python -m thesis_repro claims --scale " + scale + " --json` prints all of it.",
         "",
         f"**{len(claims)} distinct thesis claims:** "
-        + ", ".join(f"{n} {lab}" for lab, n in label_counts(claims))
+        + ", ".join(f"{lab} {n}" for lab, n in label_counts(claims))
         + ".",
     ]
     if ledger_json.get("stale_pages"):
@@ -160,7 +160,7 @@ def results_md(ledger_json: Mapping[str, Any], scale: str) -> str:
             "## Beyond the thesis",
             "",
             "The kit's own extensions (not counted above): "
-            + ", ".join(f"{n} {lab}" for lab, n in label_counts(beyond))
+            + ", ".join(f"{lab} {n}" for lab, n in label_counts(beyond))
             + ".",
             "",
             claims_table(beyond),
@@ -188,6 +188,32 @@ def readme_results(ledger_json: Mapping[str, Any], scale: str) -> str:
         out.append("No claim of the thesis is judged not to reproduce.")
     out += ["", "Every claim, with the thesis's value beside ours: [RESULTS.md](RESULTS.md)."]
     return "\n".join(out)
+
+
+#: A verdict group of the book's scoreboard lists its claims one by one up to this many (else only its count).
+LIST_AT_MOST = 10
+
+
+def verdict_lists(ledger_json: Mapping[str, Any]) -> str:
+    """The scoreboard's lists of which thesis claims got which verdict: one list per label with at most
+    :data:`LIST_AT_MOST` claims (the larger groups by count only).
+
+    >>> print(verdict_lists({"claims": [{"id": "a", "verdict": "reproduces", "claim": "x", "thesis_lines": [1]}]}))
+    **reproduces (1):**
+    <BLANKLINE>
+    - `a` (l. 1): x
+    """
+    claims = list(ledger_json.get("claims") or [])
+    blocks, big = [], []
+    for lab, n in label_counts(claims):
+        if n > LIST_AT_MOST:
+            big.append(f"{n} {lab}")
+            continue
+        items = [f"- `{c.get('id')}` ({thesis_lines(c)}): {short(c)}" for c in claims if label(c) == lab]
+        blocks.append(f"**{lab} ({n}):**\n\n" + "\n".join(items))
+    if big:
+        blocks.append("Not listed: " + ", ".join(big) + " (the chapter pages table every claim).")
+    return "\n\n".join(blocks)
 
 
 def scales_table(settings: Mapping[str, Mapping[str, Any]], descriptions: Mapping[str, str]) -> str:
