@@ -3,6 +3,8 @@ claims snapshot, and worded from the ledger's JSON whichever keys it carries."""
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from thesis_repro import paths
@@ -68,3 +70,14 @@ def test_an_unknown_scale_is_one_error_line(capsys):
     assert main(["results", "--scale", "huge"]) == 2
     err = capsys.readouterr().err
     assert "invalid choice: 'huge'" in err and "small" in err and "full" in err
+
+
+def test_the_ledger_is_judged_from_the_snapshot_not_from_this_builds_pages(monkeypatch, tmp_path):
+    monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path))
+    monkeypatch.setenv(paths.PUBLISHED_ENV, str(tmp_path))
+    (tmp_path / "small" / "figures").mkdir(parents=True)
+    (tmp_path / "small" / "figures" / "fig-3.3.data.json").write_text("{}")
+    with results.snapshot_only():
+        assert not paths.figures("small").exists() and paths.PUBLISHED_ENV not in os.environ
+    assert paths.figures("small") == tmp_path / "small" / "figures"
+    assert os.environ[paths.PUBLISHED_ENV] == str(tmp_path)

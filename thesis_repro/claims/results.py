@@ -28,6 +28,7 @@ from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 #: The README's generated blocks: the results summary and the scale table.
 RESULTS_MARKERS = ("<!-- results:start -->", "<!-- results:end -->")
@@ -267,18 +268,10 @@ def snapshot_only() -> Iterator[None]:
     """Inside: the ledger sees no build pages, so it judges the shipped claims snapshot (as a fresh clone does)."""
     from thesis_repro import paths
 
-    saved = {k: os.environ.get(k) for k in ("THESIS_REPRO_BUILD", paths.PUBLISHED_ENV)}
     with tempfile.TemporaryDirectory(prefix="thesis-repro-results-") as empty:
-        os.environ["THESIS_REPRO_BUILD"] = empty
-        os.environ.pop(paths.PUBLISHED_ENV, None)
-        try:
+        with mock.patch.dict(os.environ, {"THESIS_REPRO_BUILD": empty}):  # the whole environment comes back after
+            os.environ.pop(paths.PUBLISHED_ENV, None)
             yield
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
 
 
 def ledger_json(scale: str) -> dict[str, Any]:
