@@ -4,6 +4,7 @@ scoreboard goes, and the static guide pages in the table of contents."""
 from __future__ import annotations
 
 import io
+import sys
 
 import yaml
 
@@ -17,10 +18,9 @@ class _Tty(io.StringIO):
 
 def test_a_log_gets_one_plain_line_per_notebook():
     out = io.StringIO()
-    progress = book.Progress(3, out)
-    for page, action in [("fig-3.3", "executing ..."), ("table-3.4", "up to date"), ("fig-3.6", "executing ...")]:
-        progress.step(page, action)
-    progress.close()
+    with book.Progress(3, out) as progress:
+        for page, action in [("fig-3.3", "executing ..."), ("table-3.4", "up to date"), ("fig-3.6", "executing ...")]:
+            progress.step(page, action)
     assert out.getvalue().splitlines() == [
         "[1/3] fig-3.3 executing ...",
         "[2/3] table-3.4 up to date",
@@ -28,15 +28,19 @@ def test_a_log_gets_one_plain_line_per_notebook():
     ]
 
 
-def test_a_terminal_gets_a_bar_naming_the_notebook():
+def test_a_terminal_gets_the_same_lines_above_a_bar_and_the_notebooks_output_between_them():
     out = _Tty()
-    progress = book.Progress(24, out)
-    assert progress.bar is not None
-    for i in range(7):
-        progress.step(f"page-{i}", "executing ...")
-    assert "[7/24] page-6 executing ..." in out.getvalue()
-    assert "\n[7/24]" not in out.getvalue()  # redrawn in place, not one line each
-    progress.close()
+    with book.Progress(24, out) as progress:
+        assert progress.bar is not None
+        for i in range(7):
+            progress.step(f"page-{i}", "executing ...")
+            print(f"verdict of page-{i}")  # what a notebook prints passes above the bar
+    assert progress.bar is None and sys.stdout is not out
+    text = out.getvalue()
+    lines = [ln.split("\r")[-1].strip() for ln in text.split("\n")]
+    assert "[7/24] page-6 executing ..." in lines and "verdict of page-6" in lines
+    assert lines.index("[7/24] page-6 executing ...") < lines.index("verdict of page-6")
+    assert "[7/24] page-6 |" in text  # the bar names the notebook too
 
 
 def test_the_scoreboard_opens_the_first_page_and_its_method_closes_it():

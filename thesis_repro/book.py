@@ -28,6 +28,7 @@ train them, and counts as *no verdict* (a book in minutes while the shipped runs
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import re
@@ -368,10 +369,13 @@ def progress_line(i: int, n: int, page: str, action: str) -> str:
 
 
 class Progress:
-    r"""Which notebook the book is on: one plain line per notebook in a log, a tqdm bar in a terminal (``bar``:
-    force either; default: whether ``stream`` is a TTY).
+    r"""Which notebook the book is on: one plain line per notebook (:func:`progress_line`); in a terminal (``bar``:
+    force it; default: whether ``stream`` is a TTY) also a tqdm bar below the output, which the notebooks' printed
+    lines pass above while it is open (a context manager).
 
-    >>> import io; out = io.StringIO(); p = Progress(2, out); p.step("fig-3.3", "up to date"); p.close()
+    >>> import io; out = io.StringIO()
+    >>> with Progress(2, out) as p:
+    ...     p.step("fig-3.3", "up to date")
     >>> out.getvalue()
     '[1/2] fig-3.3 up to date\n'
     """
@@ -379,12 +383,23 @@ class Progress:
     def __init__(self, total: int, stream: Any = None, bar: bool | None = None):
         self.total, self.done = total, 0
         self.stream = sys.stdout if stream is None else stream
-        tty = bool(getattr(self.stream, "isatty", lambda: False)()) if bar is None else bar
-        self.bar = None
-        if tty:
-            from tqdm import tqdm
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)()) if bar is None else bar
+        self.bar: Any = None
+        self._exit = contextlib.ExitStack()
 
-            self.bar = tqdm(total=total, file=self.stream, bar_format="{desc} |{bar}| {elapsed}", leave=False)
+    def __enter__(self) -> Progress:
+        if self.tty:
+            from tqdm import tqdm
+            from tqdm.contrib import DummyTqdmFile
+
+            self.bar = tqdm(total=self.total, file=self.stream, bar_format="{desc} |{bar}| {elapsed}", leave=False)
+            self._exit.callback(self.bar.close)
+            self._exit.enter_context(contextlib.redirect_stdout(DummyTqdmFile(self.stream)))
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._exit.close()
+        self.bar = None
 
     def step(self, page: str, action: str) -> None:
         """The next notebook, ``page``, and what happens to it (``executing ...``, ``up to date``, ...)."""
@@ -392,13 +407,10 @@ class Progress:
         line = progress_line(self.done, self.total, page, action)
         if self.bar is None:
             print(line, file=self.stream, flush=True)
-        else:
-            self.bar.update(1)
-            self.bar.set_description_str(line)  # redrawn now: the notebook may run for minutes
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+            return
+        self.bar.write(line, file=self.stream)  # above the bar
+        self.bar.update(1)
+        self.bar.set_description_str(f"[{self.done}/{self.total}] {page}")  # redrawn now: it may run for minutes
 
 
 def _git_rev() -> str:
@@ -433,39 +445,40 @@ def build(
     (root / "executed").mkdir()
     ran, kept, failed, pending = [], [], {}, {}
     order = execution_order(ids)  # pages read by other pages' claims first; the TOC keeps book order
-    progress = Progress(len(order))
-    for nid in order:
-        total, todo = untrained(nid, scale) if shipped_only else (0, [])
-        if todo:
-            page_id = notebooks.page_id(nid)
-            pending[page_id] = pending_note(nid, scale, total, len(todo))
-            progress.step(page_id, f"not run: {len(todo)}/{total} training runs to compute")
-            page = pending_page(nid, scale, pending[page_id])
-            (root / "executed" / f"{page_id}.ipynb").write_text(json.dumps(page, indent=1, ensure_ascii=False))
-            continue
-        src = notebooks.executed_path(nid, scale)
-        fresh = src.exists() and (reuse or notebooks.is_current(nid, scale))
-        try:
-            if force or not fresh:
-                ran.append(nid)
-                progress.step(notebooks.page_id(nid), "executing ...")
-                src = notebooks.execute(nid, scale)
-            else:
-                kept.append(nid)
-                progress.step(notebooks.page_id(nid), "up to date")
-            page = prepare_page(json.loads(src.read_text()), nid, scale)
-        except Exception as err:  # one broken notebook must not sink an hour-long build: report it at the end
-            failed[nid] = (
-                _last_line(err)
-                if isinstance(err, notebooks.NotebookError)
-                else f"{type(err).__name__}: {_last_line(err)}"
+    with Progress(len(order)) as progress:
+        for nid in order:
+            total, todo = untrained(nid, scale) if shipped_only else (0, [])
+            if todo:
+                page_id = notebooks.page_id(nid)
+                pending[page_id] = pending_note(nid, scale, total, len(todo))
+                progress.step(page_id, f"not run: {len(todo)}/{total} training runs to compute")
+                page = pending_page(nid, scale, pending[page_id])
+                (root / "executed" / f"{page_id}.ipynb").write_text(json.dumps(page, indent=1, ensure_ascii=False))
+                continue
+            src = notebooks.executed_path(nid, scale)
+            fresh = src.exists() and (reuse or notebooks.is_current(nid, scale))
+            try:
+                if force or not fresh:
+                    ran.append(nid)
+                    progress.step(notebooks.page_id(nid), "executing ...")
+                    src = notebooks.execute(nid, scale)
+                else:
+                    kept.append(nid)
+                    progress.step(notebooks.page_id(nid), "up to date")
+                page = prepare_page(json.loads(src.read_text()), nid, scale)
+            except Exception as err:  # one broken notebook must not sink an hour-long build: report it at the end
+                failed[nid] = (
+                    _last_line(err)
+                    if isinstance(err, notebooks.NotebookError)
+                    else f"{type(err).__name__}: {_last_line(err)}"
+                )
+                print(
+                    f"[thesis_repro] {notebooks.page_id(nid)} FAILED at scale {scale}: {failed[nid]}", file=sys.stderr
+                )
+                page = failed_page(nid, scale, failed[nid])
+            (root / "executed" / f"{notebooks.page_id(nid)}.ipynb").write_text(
+                json.dumps(page, indent=1, ensure_ascii=False)
             )
-            print(f"[thesis_repro] {notebooks.page_id(nid)} FAILED at scale {scale}: {failed[nid]}", file=sys.stderr)
-            page = failed_page(nid, scale, failed[nid])
-        (root / "executed" / f"{notebooks.page_id(nid)}.ipynb").write_text(
-            json.dumps(page, indent=1, ensure_ascii=False)
-        )
-    progress.close()
     judged = [n for n in ids if notebooks.page_id(n) not in pending]
     for md in root.glob("chapter-*.md"):
         with md.open("a") as f:
