@@ -219,11 +219,11 @@ def test_seeds_generated_ahead_of_the_scale_table_are_not_stale(monkeypatch):
     assert not {p.job.key for p in beyond} & pending
 
 
-def test_readme_names_exactly_the_items_with_three_seeds():
-    """README "Where it stands" lists the items whose seeds 1-2 are shipped; the scale table decides which."""
-    text = (paths.ROOT / "README.md").read_text()
+def test_book_names_exactly_the_items_with_three_seeds():
+    """The book page on shipped runs lists the items whose seeds 1-2 are shipped; the scale table decides which."""
+    text = (paths.ROOT / "book" / "runs.md").read_text()
     block = text.split("<!-- three-seeds:begin -->")[1].split("<!-- three-seeds:end -->")[0]
     assert block == protocol.items_with_seeds(3, "small"), (
-        "README's three-seeds list is stale: paste `python -c \"from thesis_repro import protocol; "
+        "book/runs.md's three-seeds list is stale: paste `python -c \"from thesis_repro import protocol; "
         'print(protocol.items_with_seeds(3))"`'
     )

@@ -1,5 +1,6 @@
-"""Seed spread of the training return beside published numbers (``budgets --spread``, issue 22), and the README
-block that shows it: every row of that block is recomputed here from the shipped runs, restricted to its seeds."""
+"""Seed spread of the training return beside published numbers (``budgets --spread``, issue 22), and the book
+page's block that shows it (``book/runs.md``): every row of that block is recomputed here from the shipped runs,
+restricted to its seeds."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ from thesis_repro.__main__ import main
 from thesis_repro.learners import train_config
 from thesis_repro.study import lr_schedule_jobs
 
-#: The README block and the command that regenerates it (the test checks that the README names this command).
+#: The page holding the block, the block and the command that regenerates it (the test checks that the page names it).
+PAGE = paths.ROOT / "book" / "runs.md"
 BEGIN, END = "<!-- spread:begin -->", "<!-- spread:end -->"
 AT, PROTOCOL = 1_000_000, "thesis"
 COMMAND = (
@@ -127,10 +129,10 @@ def test_final_and_at_returns_read_from_the_curves():
     assert row["seeds"] == (0, 1) and row["final_sd"] == pytest.approx(np.sqrt(0.5))
 
 
-# ---------------------------------------------------------------- the README block
+# ---------------------------------------------------------------- the book page's block
 def _readme_block() -> tuple[str, list[str]]:
-    text = (paths.ROOT / "README.md").read_text()
-    assert text.count(BEGIN) == 1 and text.count(END) == 1, f"README needs one {BEGIN} ... {END} block"
+    text = PAGE.read_text()
+    assert text.count(BEGIN) == 1 and text.count(END) == 1, f"{PAGE.name} needs one {BEGIN} ... {END} block"
     block = text.split(BEGIN, 1)[1].split(END, 1)[0]
     return text, [line for line in block.strip().splitlines() if line.startswith("|")]
 
@@ -149,12 +151,12 @@ def _parse(line: str) -> dict:
     }
 
 
-def test_readme_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
+def test_book_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the real shipped layer
     text, lines = _readme_block()
-    assert COMMAND in text, "the README must name the command that regenerates its spread block"
+    assert COMMAND in text, f"{PAGE.name} must name the command that regenerates its spread block"
     header, rows = lines[:2], lines[2:]
-    assert rows, "the README spread block has no rows"
+    assert rows, "the spread block has no rows"
     per_run = budgets.seed_runs("small", protocol=PROTOCOL, at=AT, cache=budgets.shipped_cache())
     published = reference.published()
     empty = budgets.aggregate_seeds(per_run.iloc[:0])
@@ -169,13 +171,13 @@ def test_readme_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
             & (per_run["protocol"] == row["protocol"])
             & (labels == row["steps"])
         ]
-        assert mine["timesteps"].nunique() <= 1, f"ambiguous README row: {line}"
+        assert mine["timesteps"].nunique() <= 1, f"ambiguous spread row: {line}"
         mine = mine[mine["seed"].isin(row["seeds"])]
-        assert tuple(sorted(mine["seed"])) == row["seeds"], f"README row not (all) shipped: {line}"
+        assert tuple(sorted(mine["seed"])) == row["seeds"], f"spread row not (all) shipped: {line}"
         recomputed = budgets.render_spread(budgets.aggregate_seeds(mine), at=AT, published=published).splitlines()[2]
-        assert recomputed == line.strip(), f"README row is stale; rerun `{COMMAND}`"
+        assert recomputed == line.strip(), f"spread row in {PAGE.name} is stale; rerun `{COMMAND}`"
     keys = [tuple(v for k, v in _parse(line).items() if k != "seeds") for line in rows]
-    assert len(set(keys)) == len(keys), "a setting has two rows in the README block"
+    assert len(set(keys)) == len(keys), "a setting has two rows in the spread block"
 
 
 def test_the_spread_counts_seeds_shipped_ahead_of_the_scale_table(monkeypatch):

@@ -121,18 +121,19 @@ def test_the_registry_declares_the_meta_learning_studies_on_table_3_7s_claim(nam
     assert {s.id for s in L.specs() if name in s.sensitivity} == {"3.7-maml-reptile"}
 
 
-#: The README block of each study shown there (its marker) and the command that regenerates it.
-README_BLOCKS = {"reptile-outer-step": "reptile-study", "maml-outer-update": "maml-study"}
+#: The block of each study shown on the book page ``book/learners.md`` (its marker); the page names the command.
+STUDY_BLOCKS = {"reptile-outer-step": "reptile-study", "maml-outer-update": "maml-study"}
 
 
-@pytest.mark.parametrize(("name", "marker"), README_BLOCKS.items())
-def test_readme_study_block_is_the_summary_of_the_shipped_runs(monkeypatch, name, marker):
+@pytest.mark.parametrize(("name", "marker"), STUDY_BLOCKS.items())
+def test_book_study_block_is_the_summary_of_the_shipped_runs(monkeypatch, name, marker):
     from thesis_repro import budgets, paths
 
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the real shipped layer
-    text = (paths.ROOT / "README.md").read_text()
+    text = (paths.ROOT / "book" / "learners.md").read_text()
     assert f"python -m thesis_repro.study {name} [--summary]" in text
     block = text.split(f"<!-- {marker}:begin -->")[1].split(f"<!-- {marker}:end -->")[0].strip()
     spec = study.SPECS[name]
     expected = study.summary(spec.jobs(), budgets.shipped_cache(), spec).strip()
-    assert block == expected, f"README {marker} block is stale: paste `python -m thesis_repro.study {name} --summary`"
+    stale = f"book/learners.md {marker} block is stale: paste `python -m thesis_repro.study {name} --summary`"
+    assert block == expected, stale

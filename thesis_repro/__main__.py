@@ -1,6 +1,6 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
 ``reference-runs --scale small`` | ``budgets --scale small [--spread]`` | ``plan 3.3 --scale full --cores 64`` |
-``claims ...`` | ``verify --scale small -n 20``.
+``claims ...`` | ``results [--check]`` | ``verify --scale small -n 20``.
 
 Every failure a user can cause ends in one ``error: ...`` line on stderr and a non-zero exit code, never a
 traceback: a bad argument or setting (2), a notebook that failed (its own exception, 1), a folder that cannot
@@ -196,8 +196,11 @@ def _main(argv: list[str]) -> int:
         help="shipped kinds to sample from (default: evaluate; chapter 5's arm kinds too, e.g. arm-target)",
     )
     sub.add_parser("claims", help="the thesis's claims ledger (`claims --help` for its commands)", add_help=False)
+    sub.add_parser("results", help="write RESULTS.md and the README's results block (`results --help`)", add_help=False)
     if argv[:1] == ["claims"]:  # everything after `claims` is the ledger's own command line
         return _guarded(lambda: _claims(argv[1:]))
+    if argv[:1] == ["results"]:
+        return _guarded(lambda: _results(argv[1:]))
     try:
         args = parser.parse_args(argv)
     except SystemExit as done:  # --help, or a usage error (already printed as one `error:` line)
@@ -276,6 +279,16 @@ def _claims(argv: list[str]) -> int:
     except ImportError as err:
         raise RuntimeError(f"the claims ledger is not available ({err})") from None
     return int(cli.main(argv) or 0)
+
+
+def _results(argv: list[str]) -> int:
+    """``python -m thesis_repro results ...``: RESULTS.md and the README blocks from the shipped claims snapshot."""
+    from thesis_repro.claims import results
+
+    try:
+        return int(results.main(argv, parser=Parser) or 0)
+    except SystemExit as done:  # --help, or a usage error (already printed as one `error:` line)
+        return int(done.code or 0)
 
 
 def _command(args: argparse.Namespace) -> int:

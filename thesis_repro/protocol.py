@@ -214,7 +214,7 @@ def protocols_at(scale: str = "small") -> dict[str, list[str]]:
 
 def items_with_seeds(seeds: int, scale: str = "small") -> str:
     """The chapter 3-4 items that train ``seeds`` training seeds at ``scale`` (from the scale table), in words:
-    ``"Figs 3.2 and 3.4 and Table 3.3"`` (the README's "Where it stands" quotes it; a test keeps them equal).
+    ``"Figs 3.2 and 3.4 and Table 3.3"`` (the book page ``book/runs.md`` quotes it; a test keeps them equal).
 
     >>> items_with_seeds(99)
     'no item'

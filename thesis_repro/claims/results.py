@@ -1,0 +1,332 @@
+"""``python -m thesis_repro results`` (``make results``): RESULTS.md and the README's generated blocks.
+
+Everything here but :func:`main` is wording: pure functions over the claims ledger's JSON dicts
+(:func:`thesis_repro.claims.ledger.as_json`) and the scale table's resolved settings. A claim's dict is read
+through :func:`label`, :func:`short`, :func:`thesis_value` and :func:`ours`, which use the keys ``label``,
+``short``, ``thesis_value`` and ``ours`` when the ledger provides them, else today's ``verdict``, ``claim`` and
+``statistic``. :func:`main` judges every claim from the shipped claims snapshot
+(``data/reference/claims/<scale>/``, never a build's own pages, so the files match a fresh clone) and writes
+``RESULTS.md`` and the README blocks between :data:`RESULTS_MARKERS` and :data:`SCALES_MARKERS`; ``--check``
+only says which are out of date (exit 1).
+
+>>> words("one two three", limit=2)
+'one two ...'
+>>> label({"verdict": "inconclusive"}), label({"verdict": "inconclusive", "label": "holds within bounds"})
+('inconclusive', 'holds within bounds')
+>>> replace_block("a\\n<!-- x:start -->\\nold\\n<!-- x:end -->\\nb", ("<!-- x:start -->", "<!-- x:end -->"), "new")
+'a\\n<!-- x:start -->\\nnew\\n<!-- x:end -->\\nb'
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import sys
+import tempfile
+from collections import Counter
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+from unittest import mock
+
+#: The README's generated blocks: the results summary and the scale table.
+RESULTS_MARKERS = ("<!-- results:start -->", "<!-- results:end -->")
+SCALES_MARKERS = ("<!-- scales:start -->", "<!-- scales:end -->")
+#: Words of a claim shown when the ledger gives no ``short`` wording.
+SHORT_WORDS = 12
+#: Labels of a claim that does not reproduce (listed one by one in the README); a label starting with
+#: "does not" counts too.
+NOT_REPRODUCING: tuple[str, ...] = ("does not reproduce", "contradicted", "refuted")
+COMMAND = "python -m thesis_repro results"
+#: The scale whose claims snapshot is shipped, and so the one RESULTS.md reports.
+SCALE = "small"
+
+
+# ---------------------------------------------------------------- one claim's fields
+def words(text: str, limit: int = SHORT_WORDS) -> str:
+    """``text`` on one line, cut to its first ``limit`` words (``...`` when cut)."""
+    parts = " ".join(str(text).split()).split(" ")
+    return " ".join(parts[:limit]) + (" ..." if len(parts) > limit else "")
+
+
+def label(claim: Mapping[str, Any]) -> str:
+    """The claim's verdict label (``label``, else today's ``verdict``)."""
+    return str(claim.get("label") or claim.get("verdict") or "not computed")
+
+
+def short(claim: Mapping[str, Any]) -> str:
+    """The claim in at most :data:`SHORT_WORDS` words (``short``, else the thesis's sentence cut)."""
+    return words(claim.get("short") or claim.get("claim") or "")
+
+
+def thesis_value(claim: Mapping[str, Any]) -> str:
+    """The thesis's own value (``thesis_value``), or ``-``."""
+    return str(claim.get("thesis_value") or "-")
+
+
+def ours(claim: Mapping[str, Any]) -> str:
+    """Our key number with its CI (``ours``), else the yes-share of the units with its interval, or ``-``.
+
+    >>> ours({"statistic": {"k": 3, "n": 20, "value": 0.4, "ci": [0.15, 0.9], "undecided": 14}})
+    '3/20 units yes, yes-share [0.15, 0.90]'
+    >>> ours({"ours": "r = 0.71 [0.02, 1.39]"}), ours({"statistic": {}})
+    ('r = 0.71 [0.02, 1.39]', '-')
+    """
+    if claim.get("ours"):
+        return str(claim["ours"])
+    st = claim.get("statistic") or {}
+    stats = [st] if "n" in st else [v for v in st.values() if isinstance(v, Mapping) and "n" in v]
+    stats = [s for s in stats if s.get("n")]
+    if not stats:
+        return "-"
+    k, n = sum(int(s.get("k", 0)) for s in stats), sum(int(s["n"]) for s in stats)
+    if len(stats) > 1:
+        return f"{k}/{n} units yes"
+    lo, hi = stats[0].get("ci") or (None, None)
+    interval = f", yes-share [{lo:.2f}, {hi:.2f}]" if lo is not None and hi is not None else ""
+    return f"{k}/{n} units yes{interval}"
+
+
+def thesis_lines(claim: Mapping[str, Any]) -> str:
+    """``l. 547`` (``l. 547, 555`` for several lines; ``-`` for none)."""
+    lines = claim.get("thesis_lines") or []
+    return "l. " + ", ".join(str(x) for x in lines) if lines else "-"
+
+
+def does_not_reproduce(lab: str) -> bool:
+    """Whether a verdict label says the claim does not reproduce.
+
+    >>> does_not_reproduce("does not reproduce"), does_not_reproduce("inconclusive")
+    (True, False)
+    """
+    lab = lab.lower()
+    return lab in NOT_REPRODUCING or lab.startswith("does not")
+
+
+def _cell(text: str) -> str:
+    return " ".join(str(text).replace("|", "\\|").split())
+
+
+# ---------------------------------------------------------------- whole documents
+def label_counts(claims: Sequence[Mapping[str, Any]]) -> list[tuple[str, int]]:
+    """(label, number of claims), most frequent first (ties by name).
+
+    >>> label_counts([{"verdict": "b"}, {"verdict": "a"}, {"verdict": "b"}])
+    [('b', 2), ('a', 1)]
+    """
+    c = Counter(label(x) for x in claims)
+    return sorted(c.items(), key=lambda kv: (-kv[1], kv[0]))
+
+
+def _chapter(claim: Mapping[str, Any]) -> str:
+    page = str(claim.get("page", ""))
+    return page.split("-", 1)[-1].split("-")[0].split(".")[0]
+
+
+def claims_table(claims: Sequence[Mapping[str, Any]]) -> str:
+    """The Markdown table of RESULTS.md: one row per claim."""
+    rows = [
+        "| claim | thesis line | claim, in short | thesis | ours (95 % CI) | verdict |",
+        "|---|---|---|---|---|---|",
+    ]
+    for c in claims:
+        cells = (f"`{c.get('id', '?')}`", thesis_lines(c), short(c), thesis_value(c), ours(c), f"**{label(c)}**")
+        rows.append("| " + " | ".join(_cell(x) for x in cells) + " |")
+    return "\n".join(rows)
+
+
+def results_md(ledger_json: Mapping[str, Any], scale: str) -> str:
+    """The whole RESULTS.md: counts, then each chapter's claims, then the claims beyond the thesis."""
+    claims = list(ledger_json.get("claims") or [])
+    beyond = list(ledger_json.get("beyond_the_thesis") or [])
+    out = [
+        f"# Results at scale `{scale}`",
+        "",
+        f"Generated by `{COMMAND}` (`make results`) from the shipped claims snapshot"
+        + (f" ({ledger_json['snapshot']})" if ledger_json.get("snapshot") else "")
+        + "; do not edit by hand. Each row is one sentence of the thesis, judged by the rule registered for it in "
+        "`data/thesis/claims.yaml`, with training seeds as the unit of replication. The book's pages show the "
+        "evidence; `python -m thesis_repro claims --scale " + scale + " --json` prints all of it.",
+        "",
+        f"**{len(claims)} distinct thesis claims:** "
+        + ", ".join(f"{lab} {n}" for lab, n in label_counts(claims))
+        + ".",
+    ]
+    if ledger_json.get("stale_pages"):
+        out += ["", "Stale (written by other kit code): " + ", ".join(ledger_json["stale_pages"]) + "."]
+    for ch in sorted({_chapter(c) for c in claims}, key=lambda x: (not x.isdigit(), int(x) if x.isdigit() else x)):
+        out += ["", f"## Chapter {ch}", "", claims_table([c for c in claims if _chapter(c) == ch])]
+    if beyond:
+        out += [
+            "",
+            "## Beyond the thesis",
+            "",
+            "The kit's own extensions (not counted above): "
+            + ", ".join(f"{lab} {n}" for lab, n in label_counts(beyond))
+            + ".",
+            "",
+            claims_table(beyond),
+        ]
+    return "\n".join(out) + "\n"
+
+
+def readme_results(ledger_json: Mapping[str, Any], scale: str) -> str:
+    """The README's results block: counts per label, and one line per thesis claim that does not reproduce."""
+    claims = list(ledger_json.get("claims") or [])
+    out = [
+        f"At scale `{scale}` the shipped runs judge **{len(claims)}** distinct claims of the thesis:",
+        "",
+        "| verdict | claims |",
+        "|---|---|",
+        *(f"| {lab} | {n} |" for lab, n in label_counts(claims)),
+        "",
+    ]
+    against = [c for c in claims if does_not_reproduce(label(c))]
+    if against:
+        out.append("Claims that do not reproduce:")
+        out.append("")
+        out += [f"- `{c.get('id')}` ({thesis_lines(c)}): {short(c)}; ours: {ours(c)}" for c in against]
+    else:
+        out.append("No claim of the thesis is judged not to reproduce.")
+    out += ["", "Every claim, with the thesis's value beside ours: [RESULTS.md](RESULTS.md)."]
+    return "\n".join(out)
+
+
+#: A verdict group of the book's scoreboard lists its claims one by one up to this many (else only its count).
+LIST_AT_MOST = 10
+
+
+def verdict_lists(ledger_json: Mapping[str, Any]) -> str:
+    """The scoreboard's lists of which thesis claims got which verdict: one list per label with at most
+    :data:`LIST_AT_MOST` claims (the larger groups by count only).
+
+    >>> print(verdict_lists({"claims": [{"id": "a", "verdict": "reproduces", "claim": "x", "thesis_lines": [1]}]}))
+    **reproduces (1):**
+    <BLANKLINE>
+    - `a` (l. 1): x
+    """
+    claims = list(ledger_json.get("claims") or [])
+    blocks, big = [], []
+    for lab, n in label_counts(claims):
+        if n > LIST_AT_MOST:
+            big.append(f"{n} {lab}")
+            continue
+        items = [f"- `{c.get('id')}` ({thesis_lines(c)}): {short(c)}" for c in claims if label(c) == lab]
+        blocks.append(f"**{lab} ({n}):**\n\n" + "\n".join(items))
+    if big:
+        blocks.append("Not listed: " + ", ".join(big) + " (the chapter pages table every claim).")
+    return "\n\n".join(blocks)
+
+
+def scales_table(settings: Mapping[str, Mapping[str, Any]], descriptions: Mapping[str, str]) -> str:
+    """The README's scale table from each scale's resolved default settings.
+
+    >>> print(scales_table({"smoke": {"train_seeds": 1, "test_rollouts": 2, "sigmas": [0, 0.5],
+    ...     "max_episode_steps": 50}}, {"smoke": "for CI"}))
+    | scale | for | training seeds | test rollouts | testing σ grid | episode steps |
+    |---|---|---|---|---|---|
+    | `smoke` | for CI | 1 | 2 | 2 points, 0 to 0.5 | 50 |
+    """
+    rows = [
+        "| scale | for | training seeds | test rollouts | testing σ grid | episode steps |",
+        "|---|---|---|---|---|---|",
+    ]
+    for scale, s in settings.items():
+        sig = list(s.get("sigmas") or [])
+        grid = f"{len(sig)} points, {sig[0]:g} to {sig[-1]:g}" if sig else "-"
+        cells = (
+            f"`{scale}`",
+            descriptions.get(scale, ""),
+            s.get("train_seeds", "-"),
+            s.get("test_rollouts", "-"),
+            grid,
+            s.get("max_episode_steps", "-"),
+        )
+        rows.append("| " + " | ".join(_cell(str(x)) for x in cells) + " |")
+    return "\n".join(rows)
+
+
+def replace_block(text: str, markers: tuple[str, str], body: str) -> str:
+    """``text`` with the lines between ``markers`` replaced by ``body``; a ``ValueError`` when the markers are
+    not there exactly once each, in order."""
+    start, end = markers
+    if text.count(start) != 1 or text.count(end) != 1 or text.index(start) > text.index(end):
+        raise ValueError(f"README.md needs one {start} ... {end} block, in that order")
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    return f"{head}{start}\n{body.strip()}\n{end}{tail}"
+
+
+def render(ledger_json: Mapping[str, Any], scale: str, readme: str, scale_rows: str) -> dict[str, str]:
+    """{file name: its new text} for RESULTS.md and README.md (given the README's current text)."""
+    text = replace_block(readme, RESULTS_MARKERS, readme_results(ledger_json, scale))
+    return {"RESULTS.md": results_md(ledger_json, scale), "README.md": replace_block(text, SCALES_MARKERS, scale_rows)}
+
+
+# ---------------------------------------------------------------- gathering and writing
+@contextlib.contextmanager
+def snapshot_only() -> Iterator[None]:
+    """Inside: the ledger sees no build pages, so it judges the shipped claims snapshot (as a fresh clone does)."""
+    from thesis_repro import paths
+
+    with tempfile.TemporaryDirectory(prefix="thesis-repro-results-") as empty:
+        with mock.patch.dict(os.environ, {"THESIS_REPRO_BUILD": empty}):  # the whole environment comes back after
+            os.environ.pop(paths.PUBLISHED_ENV, None)
+            yield
+
+
+def ledger_json(scale: str) -> dict[str, Any]:
+    """The ledger's JSON at ``scale`` from the shipped snapshot (no null pass rates: they are not shown)."""
+    from thesis_repro.claims import ledger
+
+    with snapshot_only():
+        rows = sorted((ledger.judge(s, scale, False) for s in ledger.specs()), key=lambda r: r.spec.beyond)
+        return ledger.as_json(rows, scale)
+
+
+def scale_rows() -> str:
+    """The README's scale table, from ``thesis_repro/config/scales.yaml``."""
+    import yaml
+
+    from thesis_repro import paths, scales
+
+    descriptions = yaml.safe_load((paths.CONFIG / "scales.yaml").read_text())["scales"]
+    return scales_table({s: scales.figure_settings("_example", s) for s in scales.SCALES}, descriptions)
+
+
+def generate(scale: str = SCALE, root: Path | None = None) -> dict[Path, str]:
+    """{path: text} of every generated file, rendered from the shipped snapshot (nothing is written)."""
+    from thesis_repro import paths
+
+    root = Path(root) if root is not None else paths.ROOT
+    readme = (root / "README.md").read_text()
+    texts = render(ledger_json(scale), scale, readme, scale_rows())
+    return {root / name: text for name, text in texts.items()}
+
+
+def main(argv: list[str] | None = None, parser: type[argparse.ArgumentParser] = argparse.ArgumentParser) -> int:
+    """Write (or with ``--check`` compare) RESULTS.md and the README blocks; returns the exit code (``parser``:
+    the command line's own class, whose errors are one line)."""
+    import warnings
+
+    warnings.simplefilter("ignore", RuntimeWarning)  # NaN means of cells a scale does not run
+    ap = parser(prog=COMMAND, description=__doc__.split("\n")[0])
+    ap.add_argument("--check", action="store_true", help="write nothing; exit 1 if a generated file is out of date")
+    args = ap.parse_args(argv)
+    stale = []
+    for path, text in generate(SCALE).items():
+        if (path.read_text() if path.exists() else None) == text:
+            continue
+        stale.append(path.name)
+        if not args.check:
+            path.write_text(text)
+    if args.check:
+        print(f"out of date: {', '.join(stale)}; `make results` rewrites them" if stale else "up to date")
+        return 1 if stale else 0
+    print(f"wrote {', '.join(stale)}" if stale else "RESULTS.md and README.md already up to date", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
