@@ -452,6 +452,16 @@ def _numerics() -> dict[str, str | None]:
     return numerics()
 
 
+def claims_design() -> dict[str, str]:
+    """The frozen claims design in force when an entry was made (``version``, ``hash``), read from
+    ``data/thesis/claims-design.json`` (written by :mod:`thesis_repro.claims.design`); ``{}`` when none is."""
+    try:
+        lock = json.loads((paths.THESIS_DATA / "claims-design.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return {"version": str(lock.get("version", "")), "hash": str(lock.get("hash", ""))}
+
+
 def provenance(start: float, end: float) -> dict[str, Any]:
     """Who/what/when made an entry: command line, git commit (+ dirty flag), package versions, host, times,
     and the :func:`platform_info` that decides its float rounding."""
@@ -470,6 +480,7 @@ def provenance(start: float, end: float) -> dict[str, Any]:
         "end": datetime.fromtimestamp(end, UTC).isoformat(timespec="seconds"),
         "wall_seconds": round(end - start, 3),
         "cache_version": CACHE_VERSION,
+        "claims_design": claims_design(),
     }
 
 

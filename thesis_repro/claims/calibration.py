@@ -11,9 +11,9 @@ at a chosen true effect (in margin units, :func:`thesis_repro.claims.stats.contr
 Each rate carries its Monte-Carlo standard error. Pooled rules are simulated without Holm's adjustment across a
 page (which only makes them more conservative).
 
->>> from thesis_repro.claims.stats import Contrast, Unit
+>>> from thesis_repro.claims.stats import Contrast, CountRule, Unit
 >>> us = {"": [Unit(t, (Contrast("a - b", (1.0, 1.2, 0.9), (1.0, 1.1, 1.0)),)) for t in "abc"]}
->>> c = calibrate(us, "pooled", 0.05, {}, draws=400)
+>>> c = calibrate(us, "pooled", 0.05, {"": CountRule()}, draws=400)
 >>> c["false_reproduces"] <= 0.05 + 2 * c["mc_se"] and c["false_does_not"] <= 0.05 + 2 * c["mc_se"]
 True
 """

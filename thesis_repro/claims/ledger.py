@@ -593,7 +593,7 @@ def calibration_of(
 ) -> dict[str, Any]:
     """A claim's calibration and power (:func:`thesis_repro.claims.calibration.calibration_result`), cached by the
     content of its units and rule: the build's cache first, then the shipped snapshot's."""
-    key = J.units_key(run, design.rule_hashes().get(s.id, ""))
+    key = J.units_key(run, design.rule_hashes().get(s.id, "") + design.frozen().get("engine", ""))
     store = paths.figures(scale) / CALIBRATION
     for p in (paths.page_output(scale, CALIBRATION), snapshot.folder(scale) / CALIBRATION):
         known = _read_json(p)
