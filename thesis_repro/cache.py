@@ -258,10 +258,12 @@ def _files(root: Path) -> list[Path]:
     return sorted(p for p in root.rglob("*") if p.is_file() and p.name != "manifest.json")
 
 
-def write_manifest(folder: Path) -> dict[str, str]:
-    """Write ``folder/manifest.json`` (SHA-256 of every other file) and return the sums."""
+def write_manifest(folder: Path, identity: str | None = None) -> dict[str, str]:
+    """Write ``folder/manifest.json`` (SHA-256 of every other file) and return the sums; ``identity`` keeps the
+    :func:`entry_identity` of an entry whose artefacts were rewritten in another format with the same content."""
     sums = {str(p.relative_to(folder)): _sha256(p) for p in _files(folder)}
-    (folder / "manifest.json").write_text(json.dumps({"sha256": sums}, indent=1))
+    manifest: dict[str, Any] = {"sha256": sums} if identity is None else {"sha256": sums, "identity": identity}
+    (folder / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return sums
 
 
@@ -293,9 +295,14 @@ def entry_identity(path: str | Path) -> str:
 
     Equal for a local entry and its shipped copy (``runs.export``), and for two computations that give the same
     bytes; different when a recomputation gives other weights or results. Read from the manifest (an entry is
-    verified when it is loaded).
+    verified when it is loaded). A manifest's ``identity`` wins: the shipped training runs whose policies were
+    rewritten from pickles to tensors only (the same weights, bit for bit) keep the identity they were first
+    committed with, so the evaluations pinned to them keep their keys.
     """
-    sums = json.loads((Path(path) / "manifest.json").read_text())["sha256"]
+    manifest = json.loads((Path(path) / "manifest.json").read_text())
+    if manifest.get("identity"):
+        return str(manifest["identity"])
+    sums = manifest["sha256"]
     kept = {
         rel: digest
         for rel, digest in sums.items()

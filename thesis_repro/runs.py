@@ -240,7 +240,7 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
             shutil.copy2(src / name, tmp / name)
     if (src / "out").is_dir():
         shutil.copytree(src / "out", tmp / "out", ignore=ignore)
-    write_manifest(tmp)
+    write_manifest(tmp, json.loads((src / "manifest.json").read_text()).get("identity"))
     read_entry(tmp)  # the copy verifies before it replaces anything
     if dest.exists():
         shutil.rmtree(dest)
@@ -416,15 +416,14 @@ def verify_local(root: str | Path | None = None) -> dict[Path, str]:
 
 
 def _policy_arrays(result_or_path: Result | str | Path) -> dict[str, np.ndarray]:
-    import torch as th  # local: keep the listing importable without torch
+    from thesis_repro.learners.policy import read_state_dict  # local: keep the listing importable without torch
 
     folder = Path(getattr(result_or_path, "out", result_or_path))
     if not (folder / "policy.pth").exists() and (folder / "out" / "policy.pth").exists():
         folder = folder / "out"
-    saved = th.load(folder / "policy.pth", map_location="cpu", weights_only=False)
-    arrays = {f"policy.{k}": v.detach().numpy() for k, v in saved["state_dict"].items()}
+    arrays = {f"policy.{k}": v.numpy() for k, v in read_state_dict(folder / "policy.pth").items()}
     if (folder / "obs_norm.npz").exists():
-        with np.load(folder / "obs_norm.npz") as z:
+        with np.load(folder / "obs_norm.npz", allow_pickle=False) as z:
             arrays.update({f"obs_norm.{k}": z[k] for k in ("mean", "var")})
     return arrays
 
