@@ -299,7 +299,9 @@ def test_keyboard_interrupt_anywhere_is_one_line_and_code_130(monkeypatch, capsy
 
     monkeypatch.setattr(notebooks, "execute", interrupted)
     assert main(["figure", "3.3", "--scale", "smoke"]) == 130
-    assert error_lines(capsys.readouterr().err) == [INTERRUPTED]
+    err = capsys.readouterr().err
+    assert error_lines(err) == [INTERRUPTED]
+    assert err.endswith(f"\n{INTERRUPTED}\n")  # on its own line, even after a progress bar's unfinished one
 
 
 # ---------------------------------------------------------------- folders and settings

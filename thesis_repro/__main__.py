@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         nb = sys.modules.get("thesis_repro.notebooks")
         if nb is not None:  # no kernel can be running if the notebooks module was never imported
             nb.kill_kernels()
-        print(INTERRUPTED, file=sys.stderr)
+        print(f"\n{INTERRUPTED}", file=sys.stderr)  # on its own line, never glued onto a progress bar's
         return err.code if isinstance(err, Terminated) else 130
 
 
@@ -194,6 +194,16 @@ def _main(argv: list[str]) -> int:
         nargs="+",
         default=None,
         help="shipped kinds to sample from (default: evaluate; chapter 5's arm kinds too, e.g. arm-target)",
+    )
+    ver.add_argument("--figure", default=None, help="recompute every shipped evaluation behind a figure, e.g. 3.3")
+    ver.add_argument("--entry", default=None, help="recompute one shipped entry (its key, or its first 6+ characters)")
+    ver.add_argument(
+        "--claim",
+        default=None,
+        help="recompute every entry behind a claim and its pages' saved numbers (vs the snapshot)",
+    )
+    ver.add_argument(
+        "--all", action="store_true", help="recompute every shipped evaluation of the scale (make verify-all)"
     )
     sub.add_parser("claims", help="the thesis's claims ledger (`claims --help` for its commands)", add_help=False)
     if argv[:1] == ["claims"]:  # everything after `claims` is the ledger's own command line
