@@ -120,6 +120,12 @@ def test_failed_notebook_is_one_line_and_leaves_the_previous_outputs_intact(toy,
     assert not notebooks.failed_path("9.1", "smoke").exists()
 
 
+def test_an_unknown_notebook_parameter_is_an_error(toy, capsys):
+    assert main(["figure", "9.1", "--scale", "smoke", "-p", "NOSUCH", "1"]) == 2
+    assert_one_error(capsys.readouterr().err, "unknown parameter 'NOSUCH' of notebook fig-9.1", "MODE, MARKER")
+    assert not (paths.figures("smoke") / "fig-9.1.png").exists()  # nothing ran
+
+
 def test_a_scale_parameter_cannot_override_the_scale(toy, capsys, monkeypatch):
     ran = []
     monkeypatch.setattr(notebooks, "execute", lambda *a, **k: ran.append(a))
@@ -368,6 +374,20 @@ def test_full_disk(monkeypatch, capsys):
     monkeypatch.setattr(notebooks, "execute", writes_fail)
     assert main(["figure", "3.3", "--scale", "smoke"]) == 1
     assert_one_error(capsys.readouterr().err, f"{target} (the build folder, THESIS_REPRO_BUILD): No space left")
+
+
+def test_a_full_disk_during_a_commit_names_the_entry(monkeypatch, capsys):
+    from thesis_repro import cache as cache_mod
+    from thesis_repro.__main__ import _guarded
+
+    def no_space(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # as a write() reports it: no file name
+
+    monkeypatch.setattr(cache_mod, "write_manifest", no_space)
+    runs_dir = paths.runs()
+    assert _guarded(lambda: RunCache(runs_dir, reference=False).run(Job("square", {"x": 3}))) == 1
+    line = assert_one_error(capsys.readouterr().err, str(runs_dir), "(the run cache, THESIS_REPRO_DATA)", "No space")
+    assert "/.tmp-" in line and "Errno" not in line
 
 
 @pytest.mark.parametrize("value", ["x", "0", "-2", "1.5", ""])

@@ -311,6 +311,25 @@ def entry_identity(path: str | Path) -> str:
     return hashlib.sha256(canonical_json(kept).encode()).hexdigest()[:20]
 
 
+@contextmanager
+def naming(path: Path) -> Iterator[None]:
+    """An ``OSError`` raised in the block without a file name (``ENOSPC`` from a write, an fsync) is re-raised
+    naming ``path``, so its one ``error:`` line says where.
+
+    >>> with naming(Path("/x/runs/.tmp-k")):
+    ...     raise OSError(28, "No space left on device")
+    Traceback (most recent call last):
+    ...
+    OSError: [Errno 28] No space left on device: '/x/runs/.tmp-k'
+    """
+    try:
+        yield
+    except OSError as err:
+        if err.filename is None and err.errno is not None:
+            raise OSError(err.errno, err.strerror or str(err), str(path)) from err
+        raise
+
+
 def pid_alive(pid: int) -> bool:
     """Is process ``pid`` running on this machine (or not ours to signal)?"""
     try:
@@ -698,24 +717,25 @@ class RunCache:
         sweep_tmp(final.parent)
         tmp = final.parent / f".tmp-{job.key}-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        if (workdir / "out").exists():
-            shutil.copytree(workdir / "out", tmp / "out")
-        meta = {"kind": job.kind, "config": job.config, "key": job.key, "label": job.label, "fn": job.fn}
-        (tmp / "config.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
-        (tmp / "provenance.json").write_text(json.dumps(prov, indent=1))
-        (tmp / "result.json").write_text(json.dumps(scalars, indent=1, sort_keys=True))
-        if arrays:
-            # deflated: a diverging learner's 2M-step run logs ~130k short episodes (3.2 MB raw, 0.8 MB deflated)
-            save_arrays(tmp / "arrays.npz", arrays)
-        write_manifest(tmp)
-        for p in tmp.rglob("*"):
-            if p.is_file():
-                with open(p, "rb") as fh:
-                    os.fsync(fh.fileno())
-        if final.exists():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
+        with naming(tmp):  # a full disk names the entry being written, not just "[Errno 28]"
+            tmp.mkdir(parents=True)
+            if (workdir / "out").exists():
+                shutil.copytree(workdir / "out", tmp / "out")
+            meta = {"kind": job.kind, "config": job.config, "key": job.key, "label": job.label, "fn": job.fn}
+            (tmp / "config.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
+            (tmp / "provenance.json").write_text(json.dumps(prov, indent=1))
+            (tmp / "result.json").write_text(json.dumps(scalars, indent=1, sort_keys=True))
+            if arrays:
+                # deflated: a diverging learner's 2M-step run logs ~130k short episodes (3.2 MB raw, 0.8 MB deflated)
+                save_arrays(tmp / "arrays.npz", arrays)
+            write_manifest(tmp)
+            for p in tmp.rglob("*"):
+                if p.is_file():
+                    with open(p, "rb") as fh:
+                        os.fsync(fh.fileno())
+            if final.exists():
+                shutil.rmtree(final)
+            os.replace(tmp, final)
         return final
 
     def compute(self, job: Job) -> Path:
