@@ -49,12 +49,13 @@ $(CHROMIUM_STAMP): $(STAMP)
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
 	touch $(CHROMIUM_STAMP)
 
-## make figure-3.3 SCALE=small : execute notebooks/fig-3.3.py at SCALE, write build/$(SCALE)/
+## make figure-3.3 SCALE=small [TRAIN=1] : execute notebooks/fig-3.3.py at SCALE, write build/$(SCALE)/; a figure
+## whose training runs are neither shipped nor cached refuses (naming their cost) unless TRAIN=1 (or RETRAIN=1)
 figure-%: $(NEEDS)
-	$(BIN)/python -m thesis_repro figure $* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS))
+	$(BIN)/python -m thesis_repro figure $* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS)) $(if $(TRAIN),--train)
 
 table-%: $(NEEDS)
-	$(BIN)/python -m thesis_repro figure table-$* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS))
+	$(BIN)/python -m thesis_repro figure table-$* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS)) $(if $(TRAIN),--train)
 
 ## make smoke : every notebook at SCALE=smoke (seconds each)
 smoke: $(NEEDS)

@@ -106,6 +106,11 @@ def _main(argv: list[str]) -> int:
     fig.add_argument("--scale", default="small", help="smoke | small | full")
     fig.add_argument("--jobs", type=positive_int, default=None, help="parallel worker processes, >= 1 (default: cores)")
     fig.add_argument(
+        "--train",
+        action="store_true",
+        help="train the runs that are neither shipped nor cached (without it such a figure refuses, naming the cost)",
+    )
+    fig.add_argument(
         "-p",
         "--parameter",
         nargs=2,
@@ -301,6 +306,11 @@ def _command(args: argparse.Namespace) -> int:
         params = notebook_parameters(args.parameter, args.scale)
         for folder in (paths.runs(), paths.build(args.scale)):
             check_writable(folder)
+        if args.scale != "smoke" and not (args.train or paths.retrain()):
+            from thesis_repro import plan
+
+            for nid in ids:
+                plan.refuse_training(nid, args.scale)
         for nid in ids:
             notebooks.execute(nid, args.scale, params)
     elif args.cmd == "plan":
