@@ -495,3 +495,17 @@ def test_claims_subcommand(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "thesis_repro.claims.cli", fake)
     assert main(["claims", "show", "--scale", "small"]) == 3
     assert seen == [["show", "--scale", "small"]]
+
+
+@pytest.mark.parametrize(
+    ("data", "says"),
+    [
+        (b"claims:\n  - id: a\n    text: [unclosed\n", "claims.yaml:4: not valid YAML"),
+        (b"claims:\n  - id: a\n    text: caf\xe9\n", "claims.yaml:3: not UTF-8 (byte 0xe9"),
+    ],
+)
+def test_a_malformed_claims_registry_is_one_line_naming_file_and_line(monkeypatch, tmp_path, capsys, data, says):
+    (tmp_path / "claims.yaml").write_bytes(data)
+    monkeypatch.setattr(paths, "THESIS_DATA", tmp_path)
+    assert main(["claims", "--scale", "small"]) == 2
+    assert_one_error(capsys.readouterr().err, str(tmp_path / "claims.yaml").rsplit("/", 1)[0], says)

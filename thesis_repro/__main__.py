@@ -286,6 +286,10 @@ def check_writable(folder: Path) -> None:
 
 def _claims(argv: list[str]) -> int:
     """``python -m thesis_repro claims ...``: the claims ledger's own command line."""
+    from thesis_repro import paths
+    from thesis_repro.validation import read_yaml
+
+    read_yaml(paths.THESIS_DATA / "claims.yaml")  # a truncated or non-UTF-8 registry: one line naming file and line
     try:
         from thesis_repro.claims import cli
     except ImportError as err:
