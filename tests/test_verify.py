@@ -184,7 +184,7 @@ def test_a_consistent_edit_is_caught_by_verify_entry_and_verify_figure(layer, ca
     assert runs.verify_shipped(layer) == {}  # the manifest is consistent: only recomputing catches it
     assert main(["verify", "--scale", "smoke", "--entry", _key(target)[:8]]) == 1
     out = capsys.readouterr().out
-    assert "1 shipped entries to recompute" in out and "0/1 match; 1 MISMATCH" in out
+    assert "1 shipped entry to recompute" in out and "0/1 match; 1 MISMATCH" in out
     assert "MISMATCH: not bit-identical (max |diff| " in out and "0.0431 relative" in out
     assert main(["verify", "--scale", "smoke", "--figure", "_verify"]) == 1
     out = capsys.readouterr().out

@@ -254,6 +254,17 @@ def recorded_seconds(paths_: Iterable[Path]) -> float:
     return sum(float(_provenance(p).get("wall_seconds") or 0.0) for p in paths_)
 
 
+def _duration(seconds: float) -> str:
+    """``42 s``, ``17 min``, ``3.2 h``.
+
+    >>> _duration(10.8), _duration(1020), _duration(11520)
+    ('11 s', '17 min', '3.2 h')
+    """
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.0f} min" if seconds < 7200 else f"{seconds / 3600:.1f} h"
+
+
 def recompute_pages(
     pages: Sequence[str], scale: str, layer: Path, root: Path, log: Callable[[str], None]
 ) -> dict[str, str]:
@@ -620,9 +631,9 @@ def run(
         if chosen is not None and chosen and chosen[0].parent.name == "train":
             ok = _retrain_entry(chosen[0], tmp / "runs", log)
         elif chosen is not None:
-            cost = recorded_seconds(chosen)
+            cost, noun = recorded_seconds(chosen), "entry" if len(chosen) == 1 else "entries"
             log(
-                f"verify ({scale}) {what}: {len(chosen)} shipped entries to recompute, {cost / 60:.0f} min of compute "
+                f"verify ({scale}) {what}: {len(chosen)} shipped {noun} to recompute, {_duration(cost)} of compute "
                 f"when they were made; recomputed in {tmp}; {RULE}"
             )
             if chosen:
