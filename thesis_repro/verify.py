@@ -279,6 +279,9 @@ def recompute_pages(
     out: dict[str, str] = {}
     for page in pages:
         nid = notebooks.check_notebook(page)
+        if not [n for n in snapshot.files() if snapshot.page_of(n) == page]:
+            log(f"  the page {page} saves no numbers for the ledger: nothing to compare with the snapshot")
+            continue
         log(f"  recomputing the page {page} from the recomputed entries (its notebook at {scale}) ...")
         cmd = [sys.executable, "-m", "thesis_repro", "figure", nid, "--scale", scale]
         done = subprocess.run(cmd, env=env, cwd=paths.ROOT, capture_output=True, text=True, check=False)
