@@ -17,11 +17,12 @@ ifdef BACKEND
 export THESIS_REPRO_BACKEND := $(BACKEND)
 endif
 RAY_STAMP := $(VENV)/.installed-ray
+CHROMIUM_STAMP := $(VENV)/.installed-chromium
 NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
 .PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs seeds runs-% plan-% verify \
-	ship-claims check-claims results
+	verify-all chromium ship-claims check-claims results
 
 venv: $(STAMP)
 
@@ -38,12 +39,23 @@ $(RAY_STAMP): $(STAMP)
 	$(BIN)/pip install -q --disable-pip-version-check -e ".[dev,ray]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
 	touch $(RAY_STAMP)
 
-## make figure-3.3 SCALE=small : execute notebooks/fig-3.3.py at SCALE, write build/$(SCALE)/
+## make chromium : the browser test's headless Chromium (Debian's package), installed with apt-get when missing;
+## a step of make test (no test installs anything)
+chromium: $(CHROMIUM_STAMP)
+
+$(CHROMIUM_STAMP): $(STAMP)
+	@command -v chromium >/dev/null || command -v chromium-browser >/dev/null || { \
+	  echo "installing chromium (Debian's package) for the browser test ..."; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
+	touch $(CHROMIUM_STAMP)
+
+## make figure-3.3 SCALE=small [TRAIN=1] : execute notebooks/fig-3.3.py at SCALE, write build/$(SCALE)/; a figure
+## whose training runs are neither shipped nor cached refuses (naming their cost) unless TRAIN=1 (or RETRAIN=1)
 figure-%: $(NEEDS)
-	$(BIN)/python -m thesis_repro figure $* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS))
+	$(BIN)/python -m thesis_repro figure $* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS)) $(if $(TRAIN),--train)
 
 table-%: $(NEEDS)
-	$(BIN)/python -m thesis_repro figure table-$* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS))
+	$(BIN)/python -m thesis_repro figure table-$* --scale $(SCALE) $(if $(JOBS),--jobs $(JOBS)) $(if $(TRAIN),--train)
 
 ## make smoke : every notebook at SCALE=smoke (seconds each)
 smoke: $(NEEDS)
@@ -54,13 +66,15 @@ smoke: $(NEEDS)
 book: $(NEEDS)
 	$(BIN)/python -m thesis_repro book --scale $(SCALE) $(if $(FORCE),--force) $(if $(SHIPPED_ONLY),--shipped-only)
 
-## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale; lists the
-## 15 slowest tests (CI has 90 min on 2 cores; keep the whole well under 30)
-test: $(STAMP) $(RAY_STAMP)
+## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale, in two
+## processes (pytest -n 2: the smoke notebooks and the book share one, each module with a shared fixture stays in
+## one); lists the 15 slowest tests (CI has 90 min on 2 cores; keep the whole well under 30). Installs first what
+## the tests need (the venv, Ray's extra, chromium); no test installs anything
+test: $(STAMP) $(RAY_STAMP) $(CHROMIUM_STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
 	tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
 	export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build SB3_LOGDIR=$$tmp/sb3-log; \
-	$(BIN)/python -m pytest -q -rfEs --durations=15 --doctest-modules tests thesis_repro \
+	$(BIN)/python -m pytest -n 2 --dist loadgroup -q -rfEs --durations=15 --doctest-modules tests thesis_repro \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
 ## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [PROTOCOL=thesis] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] [UNTIL=22:40] :
@@ -83,13 +97,22 @@ seeds:
 	$(MAKE) reference-runs SCALE=small PROTOCOL=thesis SEEDS="0 1 2" KINDS="train evaluate" COMMIT=1 JOBS=2 \
 	  FIGURES="$(SEED_ORDER)" $(if $(UNTIL),UNTIL=$(UNTIL))
 
-## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] : recompute a seeded random
-## sample of N shipped evaluations on this machine (temporary cache) and compare: bit-identical on the platform that
-## made them, else rollout means within 5 %; prints a table, fails on a mismatch; TRAIN=1 also retrains the cheapest
-## shipped training run; KINDS samples other shipped kinds too (chapter 5's arm-target, arm-source, ...)
+## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] [FIGURE=3.3 | ENTRY=<key> |
+## CLAIM=<id>] : recompute a seeded random sample of N shipped evaluations on this machine (temporary cache) and
+## compare: bit-identical wherever the numerics are pinned (the default; any difference is a mismatch, with its size),
+## rollout means within 5 % only for entries made under THESIS_REPRO_NUMERICS=native on another CPU; prints a table,
+## fails on a mismatch; TRAIN=1 also retrains the cheapest shipped training run; KINDS samples other shipped kinds
+## too (chapter 5's arm-target, ...); FIGURE / ENTRY / CLAIM recompute every entry behind a figure, one entry, or a
+## claim (then its pages' saved numbers too, compared with the shipped claims snapshot)
 verify: $(STAMP)
 	$(BIN)/python -m thesis_repro verify --scale $(SCALE) $(if $(N),-n $(N)) $(if $(SEED),--seed $(SEED)) \
-	  $(if $(TRAIN),--train) $(if $(KINDS),--kind $(KINDS))
+	  $(if $(TRAIN),--train) $(if $(KINDS),--kind $(KINDS)) $(if $(FIGURE),--figure $(FIGURE)) \
+	  $(if $(ENTRY),--entry $(ENTRY)) $(if $(CLAIM),--claim $(CLAIM))
+
+## make verify-all SCALE=small : recompute every shipped evaluation (and chapter 5 entry) of the scale; prints the
+## count and the compute they took when made before it starts
+verify-all: $(STAMP)
+	$(BIN)/python -m thesis_repro verify --scale $(SCALE) --all
 
 ## make ship-claims SCALE=small : after `make book SCALE=small`, copy the numbers every ledger page saved into the
 ## claims snapshot data/reference/claims/$(SCALE) (what a fresh clone's `claims` judges before its book; refuses

@@ -1,7 +1,7 @@
 """The book as a reader sees it: built at smoke scale and opened page by page in headless Chromium.
 
-The browser part needs Debian's ``chromium``; the set-up installs it with apt-get when it is missing and
-this process may (root), and skips with the reason otherwise. The smoke runs and executed notebooks live
+The browser part needs Debian's ``chromium``, which the bootstrap installs (``make chromium``, a step of
+``make test``); without it the test skips with the reason. The smoke runs and executed notebooks live
 in one session folder shared with ``tests/test_notebooks.py`` (whichever runs first executes them).
 """
 
@@ -23,6 +23,10 @@ import yaml
 
 from thesis_repro import book, figures, notebooks, paths, report
 
+#: `make test` runs pytest in two processes (`-n 2 --dist loadgroup`): every test that shares the smoke
+#: notebooks' session folder runs in the same one, so they execute once.
+pytestmark = pytest.mark.xdist_group("smoke")
+
 THESIS_TXT = Path(os.environ.get("THESIS_TXT", "/work/shared/thesis.txt"))
 PROGRESS = re.compile(r"it/s\]|s/it\]|\d%\|")
 STATUS_TITLE = re.compile(
@@ -39,27 +43,12 @@ def shared_smoke_dirs(tmp_path_factory) -> dict[str, str]:
 
 
 def chromium() -> str:
-    """Path of a headless-capable Chromium; installs Debian's package if possible, else skips the test."""
+    """Path of a headless-capable Chromium (the bootstrap installs Debian's package: `make test` depends on
+    ``make chromium``); skips with the reason when there is none. No test installs anything."""
     for name in ("chromium", "chromium-browser"):
         if shutil.which(name):
             return shutil.which(name)
-    if shutil.which("apt-get") is None or os.geteuid() != 0:
-        pytest.skip("browser test needs 'chromium' (apt-get install -y chromium): not installed and cannot install")
-    try:
-        subprocess.run(["apt-get", "update", "-qq"], check=True, capture_output=True, timeout=300)
-        subprocess.run(
-            ["apt-get", "install", "-y", "-qq", "chromium"],
-            check=True,
-            capture_output=True,
-            timeout=900,
-            env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"},
-        )
-    except (subprocess.SubprocessError, OSError) as err:
-        pytest.skip(f"browser test needs 'chromium'; 'apt-get install -y chromium' failed: {err}")
-    found = shutil.which("chromium")
-    if not found:
-        pytest.skip("browser test needs 'chromium'; apt-get ran but no chromium binary appeared")
-    return found
+    pytest.skip("browser test needs 'chromium': `make chromium` (part of `make test`) installs it with apt-get")
 
 
 @functools.cache

@@ -26,6 +26,9 @@ from thesis_repro.claims import ledger as L
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import synthetic as S
 
+#: one `make test` process runs this module (its module-scoped fixture is set up once)
+pytestmark = pytest.mark.xdist_group("claims-seeds")
+
 #: Measures whose rule is comparative: a contrast between learners / algorithms / strategies / conditions.
 COMPARATIVE = {
     # two learners (or strategies, conditions), Welch across seeds

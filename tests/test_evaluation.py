@@ -14,6 +14,9 @@ from thesis_repro.cache import Job, RunCache
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation import jobs as jobs_mod
 
+#: one `make test` process runs this module (its module-scoped fixture is set up once)
+pytestmark = pytest.mark.xdist_group("evaluation")
+
 W = np.random.default_rng(0).normal(0.0, 0.3, size=(3, 11))
 
 

@@ -120,6 +120,12 @@ def test_failed_notebook_is_one_line_and_leaves_the_previous_outputs_intact(toy,
     assert not notebooks.failed_path("9.1", "smoke").exists()
 
 
+def test_an_unknown_notebook_parameter_is_an_error(toy, capsys):
+    assert main(["figure", "9.1", "--scale", "smoke", "-p", "NOSUCH", "1"]) == 2
+    assert_one_error(capsys.readouterr().err, "unknown parameter 'NOSUCH' of notebook fig-9.1", "MODE, MARKER")
+    assert not (paths.figures("smoke") / "fig-9.1.png").exists()  # nothing ran
+
+
 def test_a_scale_parameter_cannot_override_the_scale(toy, capsys, monkeypatch):
     ran = []
     monkeypatch.setattr(notebooks, "execute", lambda *a, **k: ran.append(a))
@@ -299,7 +305,9 @@ def test_keyboard_interrupt_anywhere_is_one_line_and_code_130(monkeypatch, capsy
 
     monkeypatch.setattr(notebooks, "execute", interrupted)
     assert main(["figure", "3.3", "--scale", "smoke"]) == 130
-    assert error_lines(capsys.readouterr().err) == [INTERRUPTED]
+    err = capsys.readouterr().err
+    assert error_lines(err) == [INTERRUPTED]
+    assert err.endswith(f"\n{INTERRUPTED}\n")  # on its own line, even after a progress bar's unfinished one
 
 
 # ---------------------------------------------------------------- folders and settings
@@ -366,6 +374,20 @@ def test_full_disk(monkeypatch, capsys):
     monkeypatch.setattr(notebooks, "execute", writes_fail)
     assert main(["figure", "3.3", "--scale", "smoke"]) == 1
     assert_one_error(capsys.readouterr().err, f"{target} (the build folder, THESIS_REPRO_BUILD): No space left")
+
+
+def test_a_full_disk_during_a_commit_names_the_entry(monkeypatch, capsys):
+    from thesis_repro import cache as cache_mod
+    from thesis_repro.__main__ import _guarded
+
+    def no_space(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # as a write() reports it: no file name
+
+    monkeypatch.setattr(cache_mod, "write_manifest", no_space)
+    runs_dir = paths.runs()
+    assert _guarded(lambda: RunCache(runs_dir, reference=False).run(Job("square", {"x": 3}))) == 1
+    line = assert_one_error(capsys.readouterr().err, str(runs_dir), "(the run cache, THESIS_REPRO_DATA)", "No space")
+    assert "/.tmp-" in line and "Errno" not in line
 
 
 @pytest.mark.parametrize("value", ["x", "0", "-2", "1.5", ""])
@@ -473,3 +495,17 @@ def test_claims_subcommand(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "thesis_repro.claims.cli", fake)
     assert main(["claims", "show", "--scale", "small"]) == 3
     assert seen == [["show", "--scale", "small"]]
+
+
+@pytest.mark.parametrize(
+    ("data", "says"),
+    [
+        (b"claims:\n  - id: a\n    text: [unclosed\n", "claims.yaml:4: not valid YAML"),
+        (b"claims:\n  - id: a\n    text: caf\xe9\n", "claims.yaml:3: not UTF-8 (byte 0xe9"),
+    ],
+)
+def test_a_malformed_claims_registry_is_one_line_naming_file_and_line(monkeypatch, tmp_path, capsys, data, says):
+    (tmp_path / "claims.yaml").write_bytes(data)
+    monkeypatch.setattr(paths, "THESIS_DATA", tmp_path)
+    assert main(["claims", "--scale", "small"]) == 2
+    assert_one_error(capsys.readouterr().err, str(tmp_path / "claims.yaml").rsplit("/", 1)[0], says)

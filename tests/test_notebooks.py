@@ -9,6 +9,10 @@ import pytest
 from tests.test_book import shared_smoke_dirs
 from thesis_repro import notebooks, paths
 
+#: `make test` runs pytest in two processes (`-n 2 --dist loadgroup`): every test that shares the smoke
+#: notebooks' session folder runs in the same one, so they execute once.
+pytestmark = pytest.mark.xdist_group("smoke")
+
 IDS = notebooks.notebook_ids()
 
 

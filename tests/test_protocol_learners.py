@@ -14,6 +14,7 @@ from thesis_repro.learners import multidomain as md
 from thesis_repro.learners import train as lt
 from thesis_repro.learners import train_config, train_job
 from thesis_repro.learners.arpl import ARPLVecEnv, arpl_perturbation
+from thesis_repro.learners.policy import read_state_dict
 
 th.set_num_threads(1)
 
@@ -244,9 +245,7 @@ def test_thesis_protocol_runs_resume_exactly(tmp_path, algo, over):
     assert resumed["resumed_from"] > 0
     for key in ("episode_returns", "episode_lengths", "curve_return"):
         assert np.array_equal(straight[key], resumed[key], equal_nan=True), key
-    a, b = (
-        th.load(tmp_path / r / "out" / "policy.pth", weights_only=False)["state_dict"] for r in ("straight", "resumed")
-    )
+    a, b = (read_state_dict(tmp_path / r / "out" / "policy.pth") for r in ("straight", "resumed"))
     assert all(th.equal(a[k], b[k]) for k in a)
 
 

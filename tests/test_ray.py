@@ -26,6 +26,9 @@ from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job, RunCache, read_entry
 from thesis_repro.learners import train_config
 
+#: one `make test` process runs this module (its module-scoped fixture is set up once)
+pytestmark = pytest.mark.xdist_group("ray")
+
 NO_RAY = "ray is not installed: `pip install -e '.[ray]'` (make test installs it) to run the Ray backend tests"
 
 

@@ -10,6 +10,7 @@ import torch as th
 
 from tests.interrupt import Interrupt
 from thesis_repro.learners import train_config, train_job
+from thesis_repro.learners.policy import read_state_dict
 from thesis_repro.learners.resume import ResumeMismatch, capture, restore
 
 OFF = {"learning_starts": 40, "buffer_size": 2000, "train_freq": 16, "gradient_steps": 2, "batch_size": 32}
@@ -34,7 +35,7 @@ CASES = [
 
 
 def _params(workdir) -> dict[str, th.Tensor]:
-    return th.load(workdir / "out" / "policy.pth", weights_only=False)["state_dict"]
+    return read_state_dict(workdir / "out" / "policy.pth")
 
 
 @pytest.mark.parametrize(("algo", "env", "over"), CASES, ids=[c[0] for c in CASES])

@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-import torch as th
 
 from thesis_repro.learners import train_config, train_job
+from thesis_repro.learners.policy import read_state_dict
 
 FIXTURE = Path(__file__).parent / "data" / "speed_identity.json"
 OFF = {"learning_starts": 40, "buffer_size": 2000, "train_freq": 16, "gradient_steps": 2, "batch_size": 32}
@@ -72,7 +72,7 @@ def digest(protocol: str, algo: str, env: str, over: dict[str, Any], timesteps: 
     """sha256 digests of one tiny run's policy weights, obs filter, episodes and curves (+ a few plain numbers)."""
     cfg = train_config(algo, env, 3, timesteps, protocol=protocol, max_episode_steps=60, **over)
     res = train_job(cfg, workdir)
-    sd = th.load(workdir / "out" / "policy.pth", weights_only=False)["state_dict"]
+    sd = read_state_dict(workdir / "out" / "policy.pth")
     weights = _sha([k.encode() + v.detach().cpu().contiguous().numpy().tobytes() for k, v in sd.items()])
     norm = workdir / "out" / "obs_norm.npz"
     obs_norm = None

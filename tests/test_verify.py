@@ -66,6 +66,7 @@ def toy_figure(monkeypatch):
         return [Job("test-verify-policy", t) for t in TRAINS] + [_eval_job(t) for t in TRAINS]
 
     monkeypatch.setattr(verify, "KINDS", ("test-verify-eval",))
+    monkeypatch.setattr(verify, "VERIFIABLE", ("test-verify-eval",))
     yield
     figures.FIGURES.pop("_verify", None)
 
@@ -90,16 +91,21 @@ def _evaluations(layer: Path) -> list[Path]:
     return sorted((layer / "test-verify-eval").iterdir())
 
 
-def _rewrite(entry: Path, edit_returns=None, platform: dict | None = None) -> None:
-    """Forge a shipped entry (a valid manifest, other values or another recorded platform)."""
+NATIVE = {"MKL_CBWR": None, "ATEN_CPU_CAPABILITY": None, "torch_cpu_capability": "AVX512"}
+
+
+def _rewrite(entry: Path, edit_returns=None, platform: dict | None = None, numerics: dict | None = None) -> None:
+    """Forge a shipped entry (a valid manifest, other values, another recorded platform or numerics)."""
     if edit_returns is not None:
         values, _ = read_entry(entry)
         returns = edit_returns(np.array(values["returns"]))
         save_arrays(entry / "arrays.npz", {"returns": returns, "expected_return": returns.mean(axis=1)})
+    prov = json.loads((entry / "provenance.json").read_text())
     if platform is not None:
-        prov = json.loads((entry / "provenance.json").read_text())
         prov["platform"] = platform
-        (entry / "provenance.json").write_text(json.dumps(prov))
+    if numerics is not None:
+        prov["numerics"] = numerics
+    (entry / "provenance.json").write_text(json.dumps(prov))
     write_manifest(entry)
 
 
@@ -149,19 +155,57 @@ def test_verify_passes_on_shipped_evaluations(layer, capsys):
     assert all(verify._name(p) in out for p in chosen)
 
 
-def test_verify_fails_on_a_tampered_value_and_applies_the_tolerance_across_platforms(layer, capsys):
-    same, other_ok, other_bad = _evaluations(layer)
+def test_verify_is_bit_for_bit_where_numerics_are_pinned_and_states_the_native_tolerance(layer, capsys):
+    same, other_native, other_pinned = _evaluations(layer)
     _rewrite(same, lambda r: r + np.eye(*r.shape))  # one rollout 1.0 higher, on the platform that made it
-    _rewrite(other_ok, lambda r: r * 1.01, platform={"cpu": "another CPU"})  # 1 % off, made elsewhere
-    _rewrite(other_bad, lambda r: r * 1.2, platform={"cpu": "another CPU"})  # 20 % off
+    # 1 % off, made elsewhere under THESIS_REPRO_NUMERICS=native: the one case a tolerance applies
+    _rewrite(other_native, lambda r: r * 1.01, platform={"cpu": "another CPU"}, numerics=NATIVE)
+    # 1 % off, made elsewhere with pinned numerics (the default): a CPU flag is no excuse
+    _rewrite(other_pinned, lambda r: r * 1.01, platform={"cpu": "another CPU"})
     assert main(["verify", "--scale", "smoke", "-n", "3", "--seed", "0"]) == 1
     out = capsys.readouterr().out
+    assert "bit-identical wherever the numerics are pinned" in out and "THESIS_REPRO_NUMERICS=native" in out
     rows = {line.split()[0]: line for line in out.splitlines() if line.startswith("w")}
     row = rows[verify._name(same)]
-    assert "MISMATCH: same platform but not bit-identical" in row and row.split()[3] == "1"  # |diff|
-    assert "within 5% (another platform" in rows[verify._name(other_ok)]
-    assert "MISMATCH: rollout means differ by" in rows[verify._name(other_bad)]
+    assert "MISMATCH: not bit-identical (max |diff| 1," in row and row.split()[3] == "1"  # |diff|
+    assert "within 5% (native numerics on another CPU" in rows[verify._name(other_native)]
+    assert "MISMATCH: not bit-identical" in rows[verify._name(other_pinned)]
     assert "1/3 match; 2 MISMATCH" in out
+
+
+def _key(entry: Path) -> str:
+    return entry.name.rsplit("__", 1)[1]
+
+
+def test_a_consistent_edit_is_caught_by_verify_entry_and_verify_figure(layer, capsys):
+    """Issue 43's edit: one evaluation's returns x1.045 and its manifest rehashed; every manifest check passes."""
+    target = _evaluations(layer)[1]
+    _rewrite(target, lambda r: r * 1.045)
+    assert runs.verify_shipped(layer) == {}  # the manifest is consistent: only recomputing catches it
+    assert main(["verify", "--scale", "smoke", "--entry", _key(target)[:8]]) == 1
+    out = capsys.readouterr().out
+    assert "1 shipped entry to recompute" in out and "0/1 match; 1 MISMATCH" in out
+    assert "MISMATCH: not bit-identical (max |diff| " in out and "0.0431 relative" in out
+    assert main(["verify", "--scale", "smoke", "--figure", "_verify"]) == 1
+    out = capsys.readouterr().out
+    assert "figure _verify: 3 shipped entries to recompute" in out
+    assert "2/3 match; 1 MISMATCH" in out
+    rows = {line.split()[0]: line for line in out.splitlines() if line.startswith("w")}
+    assert "MISMATCH" in rows[verify._name(target)]
+    assert main(["verify", "--scale", "smoke", "--all"]) == 1
+    assert "2/3 match; 1 MISMATCH" in capsys.readouterr().out
+
+
+def test_verify_claim_recomputes_its_entries_and_compares_its_pages_with_the_snapshot(layer, monkeypatch, capsys):
+    monkeypatch.setattr(verify, "claim_pages", lambda cid: ["fig-_verify"])
+    saved = {"page": "fig-_verify", "frames": {"auc": [{"seed": 0, "auc": 317.41}]}, "kit": "k"}
+    snapshot = {**saved, "frames": {"auc": [{"seed": 0, "auc": 331.70}]}}  # edited, index rehashed
+    pages = lambda pages, scale, layer, root, log: {"fig-_verify.data.json": verify.compare_saved(saved, snapshot)}  # noqa: E731
+    monkeypatch.setattr(verify, "recompute_pages", pages)
+    assert main(["verify", "--scale", "smoke", "--claim", "toy"]) == 1
+    out = capsys.readouterr().out
+    assert "claim toy (pages fig-_verify): 3 shipped entries to recompute" in out and "3/3 match" in out
+    assert "fig-_verify.data.json: MISMATCH: the snapshot differs from the recomputed page in frames auc" in out
 
 
 def test_verify_reports_a_corrupt_entry_and_skips_one_whose_policy_is_not_shipped(layer, capsys):
@@ -191,6 +235,11 @@ def test_verify_with_no_shipped_evaluations_says_so(toy_figure, tmp_path, monkey
         (["verify", "-n", "-3"], "error: argument -n: invalid value '-3'; valid values are integers >= 1"),
         (["verify", "--scale", "medium"], "error: unknown scale 'medium'; valid scales are: 'smoke', 'small', 'full'"),
         (["verify", "--kind", "train"], "error: --kind: invalid value 'train'; valid kinds are: 'evaluate', 'arm-"),
+        (["verify", "--figure", "9.9"], "error: unknown --figure figure '9.9'; valid --figure figures are: '3.2'"),
+        (["verify", "--entry", "ab"], "error: --entry: 'ab' is too short"),
+        (["verify", "--entry", "0123456789abcdef0123"], "error: --entry: no shipped entry with key '0123456789abcd"),
+        (["verify", "--claim", "nosuch"], "error: unknown claim 'nosuch'; known: "),
+        (["verify", "--figure", "3.3", "--all"], "error: verify: --figure and --all exclude each other"),
     ],
 )
 def test_verify_bad_input_is_one_error_line(argv, says, capsys):
@@ -223,7 +272,7 @@ def test_compare_rules():
     near = {**a, "returns": np.array([[90.0, 211.0]])}  # rollouts differ, their mean by 0.3 %
     assert not verify.compare(a, near, same=True).ok
     assert verify.compare(a, near, same=False).ok and verify.compare(a, near, same=None).ok
-    assert "platform not recorded" in verify.compare(a, near, same=None).verdict
+    assert "native numerics, platform not recorded" in verify.compare(a, near, same=None).verdict
     assert not verify.compare(a, {**a, "auc": 3.0 * 1.2}, same=False).ok
     assert not verify.compare(a, {**a, "label": "y"}, same=False).ok
     assert "different values" in verify.compare(a, {"returns": a["returns"], "label": "x"}, same=False).verdict
@@ -240,7 +289,7 @@ def test_arm_kinds_compare_their_summaries_across_platforms():
     other_path = {**arm, "mean_total_cost": 2223.8, "final_cost": np.array([1.62, 0.22]), "W": np.array([[0.5, 0.1]])}
     assert not verify.compare(arm, other_path, same=False).ok  # the evaluations' rule: final_cost off by 6 %
     ok = verify.compare(arm, other_path, same=False, summaries_only=True)
-    assert ok.ok and ok.verdict == "within 5% (another platform: summaries differ by 0.0%)"
+    assert ok.ok and ok.verdict == "within 5% (native numerics on another CPU: summaries differ by 0.0%)"
     assert not verify.compare(arm, other_path, same=True, summaries_only=True).ok  # same platform: bit-identity
     worse = {**other_path, "mean_total_cost": 2224.8 * 1.2}
     assert "MISMATCH: summaries differ by 16.7% > 5%" in verify.compare(arm, worse, False, summaries_only=True).verdict

@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         nb = sys.modules.get("thesis_repro.notebooks")
         if nb is not None:  # no kernel can be running if the notebooks module was never imported
             nb.kill_kernels()
-        print(INTERRUPTED, file=sys.stderr)
+        print(f"\n{INTERRUPTED}", file=sys.stderr)  # on its own line, never glued onto a progress bar's
         return err.code if isinstance(err, Terminated) else 130
 
 
@@ -105,6 +105,11 @@ def _main(argv: list[str]) -> int:
     fig.add_argument("figure", help="figure id such as 3.3, table-3.4, or 'all'")
     fig.add_argument("--scale", default="small", help="smoke | small | full")
     fig.add_argument("--jobs", type=positive_int, default=None, help="parallel worker processes, >= 1 (default: cores)")
+    fig.add_argument(
+        "--train",
+        action="store_true",
+        help="train the runs that are neither shipped nor cached (without it such a figure refuses, naming the cost)",
+    )
     fig.add_argument(
         "-p",
         "--parameter",
@@ -195,6 +200,16 @@ def _main(argv: list[str]) -> int:
         default=None,
         help="shipped kinds to sample from (default: evaluate; chapter 5's arm kinds too, e.g. arm-target)",
     )
+    ver.add_argument("--figure", default=None, help="recompute every shipped evaluation behind a figure, e.g. 3.3")
+    ver.add_argument("--entry", default=None, help="recompute one shipped entry (its key, or its first 6+ characters)")
+    ver.add_argument(
+        "--claim",
+        default=None,
+        help="recompute every entry behind a claim and its pages' saved numbers (vs the snapshot)",
+    )
+    ver.add_argument(
+        "--all", action="store_true", help="recompute every shipped evaluation of the scale (make verify-all)"
+    )
     sub.add_parser("claims", help="the thesis's claims ledger (`claims --help` for its commands)", add_help=False)
     sub.add_parser("results", help="write RESULTS.md and the README's results block (`results --help`)", add_help=False)
     if argv[:1] == ["claims"]:  # everything after `claims` is the ledger's own command line
@@ -274,6 +289,10 @@ def check_writable(folder: Path) -> None:
 
 def _claims(argv: list[str]) -> int:
     """``python -m thesis_repro claims ...``: the claims ledger's own command line."""
+    from thesis_repro import paths
+    from thesis_repro.validation import read_yaml
+
+    read_yaml(paths.THESIS_DATA / "claims.yaml")  # a truncated or non-UTF-8 registry: one line naming file and line
     try:
         from thesis_repro.claims import cli
     except ImportError as err:
@@ -304,6 +323,11 @@ def _command(args: argparse.Namespace) -> int:
         params = notebook_parameters(args.parameter, args.scale)
         for folder in (paths.runs(), paths.build(args.scale)):
             check_writable(folder)
+        if args.scale != "smoke" and not (args.train or paths.retrain()):
+            from thesis_repro import plan
+
+            for nid in ids:
+                plan.refuse_training(nid, args.scale)
         for nid in ids:
             notebooks.execute(nid, args.scale, params)
     elif args.cmd == "plan":

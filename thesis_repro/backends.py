@@ -187,17 +187,70 @@ def run_jobs(
     else:
         import multiprocessing as mp
 
-        with ProcessPoolExecutor(max_workers=min(n_jobs, len(todo)), mp_context=mp.get_context("spawn")) as ex:
+        workers = min(n_jobs, len(todo))
+        with ProcessPoolExecutor(
+            max_workers=workers, mp_context=mp.get_context("spawn"), initializer=die_with_parent
+        ) as ex:
             ref = str(cache.reference) if cache.reference is not None else False
-            futures = {ex.submit(execute, job, str(cache.root), ref): key for key, job in todo.items()}
-            for fut in as_completed(futures):
-                results[futures[fut]] = fut.result()
-                if bar:
-                    bar.update()
+            try:  # Ctrl-C or SIGTERM: end the workers now (their runs resume from their checkpoints), one line
+                with sigint_held():  # the workers start deaf to Ctrl-C: this process ends them
+                    futures = {ex.submit(execute, job, str(cache.root), ref): key for key, job in todo.items()}
+                for fut in as_completed(futures):
+                    results[futures[fut]] = fut.result()
+                    if bar:
+                        bar.update()
+            except BaseException:
+                stop_pool(ex)
+                raise
     if bar:
         bar.set_postfix_str(f"{time.time() - t0:.0f}s")
         bar.close()
     return [results[job.key] for job in jobs]
+
+
+# ---------------------------------------------------------------- worker processes
+def die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker processes
+    """Worker initializer of every process pool of the kit: on Linux, end this worker when the process that
+    spawned it dies (a killed figure or generator must not leave orphan workers training on, holding their job
+    locks); ignore Ctrl-C, which the parent handles by ending its workers (:func:`stop_pool`) instead of each
+    printing a traceback."""
+    import ctypes
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the spawning parent (sigint_held)
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    import multiprocessing as mp
+
+    parent = mp.parent_process()
+    if parent is not None and os.getppid() != parent.pid:  # the parent died before prctl took effect
+        os._exit(143)
+
+
+@contextmanager
+def sigint_held() -> Iterator[None]:
+    """Block SIGINT in this thread for the block: processes spawned in it start with it blocked (their
+    :func:`die_with_parent` ignores and then unblocks it, dropping a pending one), and a Ctrl-C that arrives
+    meanwhile is held, not lost: it is raised as KeyboardInterrupt when the block ends."""
+    import signal
+
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a Ctrl-C held pending above lands now (unless blocked before)
+
+
+def stop_pool(ex: ProcessPoolExecutor) -> None:
+    """End a process pool's workers now and drop its queued jobs (leaving the ``with`` block would otherwise
+    wait for every running and queued job to finish)."""
+    workers = list((getattr(ex, "_processes", None) or {}).values())  # shutdown() forgets them
+    ex.shutdown(wait=False, cancel_futures=True)
+    for proc in workers:
+        proc.terminate()
 
 
 # ---------------------------------------------------------------- packed entries

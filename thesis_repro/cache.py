@@ -258,10 +258,12 @@ def _files(root: Path) -> list[Path]:
     return sorted(p for p in root.rglob("*") if p.is_file() and p.name != "manifest.json")
 
 
-def write_manifest(folder: Path) -> dict[str, str]:
-    """Write ``folder/manifest.json`` (SHA-256 of every other file) and return the sums."""
+def write_manifest(folder: Path, identity: str | None = None) -> dict[str, str]:
+    """Write ``folder/manifest.json`` (SHA-256 of every other file) and return the sums; ``identity`` keeps the
+    :func:`entry_identity` of an entry whose artefacts were rewritten in another format with the same content."""
     sums = {str(p.relative_to(folder)): _sha256(p) for p in _files(folder)}
-    (folder / "manifest.json").write_text(json.dumps({"sha256": sums}, indent=1))
+    manifest: dict[str, Any] = {"sha256": sums} if identity is None else {"sha256": sums, "identity": identity}
+    (folder / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return sums
 
 
@@ -293,15 +295,39 @@ def entry_identity(path: str | Path) -> str:
 
     Equal for a local entry and its shipped copy (``runs.export``), and for two computations that give the same
     bytes; different when a recomputation gives other weights or results. Read from the manifest (an entry is
-    verified when it is loaded).
+    verified when it is loaded). A manifest's ``identity`` wins: the shipped training runs whose policies were
+    rewritten from pickles to tensors only (the same weights, bit for bit) keep the identity they were first
+    committed with, so the evaluations pinned to them keep their keys.
     """
-    sums = json.loads((Path(path) / "manifest.json").read_text())["sha256"]
+    manifest = json.loads((Path(path) / "manifest.json").read_text())
+    if manifest.get("identity"):
+        return str(manifest["identity"])
+    sums = manifest["sha256"]
     kept = {
         rel: digest
         for rel, digest in sums.items()
         if rel in ("result.json", "arrays.npz") or (rel.startswith("out/") and not _unshipped(rel))
     }
     return hashlib.sha256(canonical_json(kept).encode()).hexdigest()[:20]
+
+
+@contextmanager
+def naming(path: Path) -> Iterator[None]:
+    """An ``OSError`` raised in the block without a file name (``ENOSPC`` from a write, an fsync) is re-raised
+    naming ``path``, so its one ``error:`` line says where.
+
+    >>> with naming(Path("/x/runs/.tmp-k")):
+    ...     raise OSError(28, "No space left on device")
+    Traceback (most recent call last):
+    ...
+    OSError: [Errno 28] No space left on device: '/x/runs/.tmp-k'
+    """
+    try:
+        yield
+    except OSError as err:
+        if err.filename is None and err.errno is not None:
+            raise OSError(err.errno, err.strerror or str(err), str(path)) from err
+        raise
 
 
 def pid_alive(pid: int) -> bool:
@@ -702,24 +728,25 @@ class RunCache:
         sweep_tmp(final.parent)
         tmp = final.parent / f".tmp-{job.key}-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        if (workdir / "out").exists():
-            shutil.copytree(workdir / "out", tmp / "out")
-        meta = {"kind": job.kind, "config": job.config, "key": job.key, "label": job.label, "fn": job.fn}
-        (tmp / "config.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
-        (tmp / "provenance.json").write_text(json.dumps(prov, indent=1))
-        (tmp / "result.json").write_text(json.dumps(scalars, indent=1, sort_keys=True))
-        if arrays:
-            # deflated: a diverging learner's 2M-step run logs ~130k short episodes (3.2 MB raw, 0.8 MB deflated)
-            save_arrays(tmp / "arrays.npz", arrays)
-        write_manifest(tmp)
-        for p in tmp.rglob("*"):
-            if p.is_file():
-                with open(p, "rb") as fh:
-                    os.fsync(fh.fileno())
-        if final.exists():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
+        with naming(tmp):  # a full disk names the entry being written, not just "[Errno 28]"
+            tmp.mkdir(parents=True)
+            if (workdir / "out").exists():
+                shutil.copytree(workdir / "out", tmp / "out")
+            meta = {"kind": job.kind, "config": job.config, "key": job.key, "label": job.label, "fn": job.fn}
+            (tmp / "config.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
+            (tmp / "provenance.json").write_text(json.dumps(prov, indent=1))
+            (tmp / "result.json").write_text(json.dumps(scalars, indent=1, sort_keys=True))
+            if arrays:
+                # deflated: a diverging learner's 2M-step run logs ~130k short episodes (3.2 MB raw, 0.8 MB deflated)
+                save_arrays(tmp / "arrays.npz", arrays)
+            write_manifest(tmp)
+            for p in tmp.rglob("*"):
+                if p.is_file():
+                    with open(p, "rb") as fh:
+                        os.fsync(fh.fileno())
+            if final.exists():
+                shutil.rmtree(final)
+            os.replace(tmp, final)
         return final
 
     def compute(self, job: Job) -> Path:

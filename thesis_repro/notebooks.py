@@ -124,9 +124,7 @@ def failed_path(nid: str, scale: str) -> Path:
 #: Tag of the cell appended to the staged notebook to list the kit modules the kernel imported.
 DEPS_TAG = "thesis-repro-deps"
 _DEPS_CODE = (
-    "import json as _json\n"
-    "from thesis_repro import paths as _paths\n"
-    "print(_json.dumps(_paths.imported_modules()))"
+    "import json as _json\nfrom thesis_repro import paths as _paths\nprint(_json.dumps(_paths.imported_modules()))"
 )
 
 
@@ -317,6 +315,27 @@ def shown(path: Path) -> str:
         return str(path)
 
 
+def parameter_names(nid: str) -> list[str]:
+    """Names the notebook's ``parameters`` cell assigns (what ``-p NAME VALUE`` may set), in its order.
+
+    >>> parameter_names("3.3")[:2]
+    ['SCALE', 'SELECTION']
+    """
+    import ast
+
+    text = paths.notebook(page_id(check_notebook(nid))).read_text()
+    parts = text.split('# %% tags=["parameters"]', 1)
+    if len(parts) < 2:
+        return []
+    names: list[str] = []
+    for node in ast.parse(parts[1].split("\n# %%", 1)[0]).body:
+        targets = (
+            node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+        )
+        names += [t.id for t in targets if isinstance(t, ast.Name) and t.id not in names]
+    return names
+
+
 def check_parameters(parameters: dict[str, Any] | None, scale: str) -> dict[str, Any]:
     """The notebook parameters without ``SCALE``: the scale argument sets it, and a different ``SCALE``
     parameter is a ``ValueError`` (it would run one scale and file the result under another).
@@ -402,6 +421,11 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     check_scale(scale)
     parameters = check_parameters(parameters, scale)
     page = page_id(nid)
+    known = [n for n in parameter_names(nid) if n != "SCALE"]
+    unknown = sorted(set(parameters) - set(known))
+    if unknown:
+        valid = ", ".join(known) or "none (only --scale)"
+        raise ValueError(f"unknown parameter {unknown[0]!r} of notebook {page}; valid parameters are: {valid}")
     build_root = paths.build(scale).parent.absolute()  # absolute: the kernel runs in the repository
     clean_stale(build_root)
     src = paths.notebook(page)

@@ -459,6 +459,32 @@ def to_compute(jobs: Iterable[Job]) -> list[Job]:
     return [j for j in jobs if cache.state(j) not in ("cached", "shipped")]
 
 
+def refuse_training(figure_id: str, scale: str, rates: Rates | None = None) -> int:
+    """Before figure ``figure_id`` runs at ``scale`` without ``--train``: a ``ValueError`` naming what it would
+    train and the cost when some of its training runs are neither shipped nor cached (a missing or moved shipped
+    layer must not start hours of training silently); else the number of its training runs read from the local
+    cache although a shipped copy exists, said on screen (0: none, or not a figure that trains)."""
+    if figure_id not in figures.ids():
+        return 0
+    jobs = figures.training_jobs(figure_id, scale)
+    missing = to_compute(jobs)
+    if missing:
+        p = plan_jobs(figure_id, missing, scale, os.cpu_count() or 1, rates)
+        raise ValueError(
+            f"figure {figure_id} at {scale} would train {len(missing)} of its {len(jobs)} runs "
+            f"({p.env_steps:,.0f} env steps, {_num(p.core_hours)} core-hours): they are neither shipped in "
+            f"{paths.reference()} nor cached; pass --train (make figure-{figure_id} TRAIN=1) to train them"
+        )
+    cache = RunCache()
+    local = sum(cache.state(j) == "cached" and cache.shipped(j) is not None for j in jobs)
+    if local:
+        print(
+            f"figure {figure_id}: {local} of its {len(jobs)} training runs come from the local cache "
+            f"{paths.runs()}, not the shipped ones (`python -m thesis_repro runs {figure_id}` lists them)"
+        )
+    return local
+
+
 def plan_book(
     scale: str,
     cores: int | None = None,

@@ -30,9 +30,8 @@ import os
 import shutil
 import subprocess
 import time
-from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -42,7 +41,10 @@ import numpy as np
 
 from thesis_repro import figures, paths
 from thesis_repro import jobs as registry
+from thesis_repro.backends import die_with_parent as _die_with_parent  # study.py imports it from here
 from thesis_repro.backends import execute
+from thesis_repro.backends import sigint_held as _sigint_held
+from thesis_repro.backends import stop_pool as _stop_pool
 from thesis_repro.cache import (
     UNSHIPPED,
     Job,
@@ -240,7 +242,7 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
             shutil.copy2(src / name, tmp / name)
     if (src / "out").is_dir():
         shutil.copytree(src / "out", tmp / "out", ignore=ignore)
-    write_manifest(tmp)
+    write_manifest(tmp, json.loads((src / "manifest.json").read_text()).get("identity"))
     read_entry(tmp)  # the copy verifies before it replaces anything
     if dest.exists():
         shutil.rmtree(dest)
@@ -416,15 +418,14 @@ def verify_local(root: str | Path | None = None) -> dict[Path, str]:
 
 
 def _policy_arrays(result_or_path: Result | str | Path) -> dict[str, np.ndarray]:
-    import torch as th  # local: keep the listing importable without torch
+    from thesis_repro.learners.policy import read_state_dict  # local: keep the listing importable without torch
 
     folder = Path(getattr(result_or_path, "out", result_or_path))
     if not (folder / "policy.pth").exists() and (folder / "out" / "policy.pth").exists():
         folder = folder / "out"
-    saved = th.load(folder / "policy.pth", map_location="cpu", weights_only=False)
-    arrays = {f"policy.{k}": v.detach().numpy() for k, v in saved["state_dict"].items()}
+    arrays = {f"policy.{k}": v.numpy() for k, v in read_state_dict(folder / "policy.pth").items()}
     if (folder / "obs_norm.npz").exists():
-        with np.load(folder / "obs_norm.npz") as z:
+        with np.load(folder / "obs_norm.npz", allow_pickle=False) as z:
             arrays.update({f"obs_norm.{k}": z[k] for k in ("mean", "var")})
     return arrays
 
@@ -702,21 +703,6 @@ class _Followers:
                 if find_entry(self.layer, bound[0].job) is None:
                     out.append(bound[0])
         return out
-
-
-def _die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker processes
-    """Worker initializer: on Linux, end this worker when the generator process dies (a killed background
-    generator must not leave orphan workers training on); ignore Ctrl-C, which the generator handles by
-    ending its workers (:func:`_stop_pool`) instead of each printing a traceback."""
-    import ctypes
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the spawning parent (_sigint_held)
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
 
 
 def wall_seconds(result: Result) -> float:
@@ -1037,28 +1023,3 @@ def generate(
                 raise
     queue.report()
     return done
-
-
-@contextmanager
-def _sigint_held() -> Iterator[None]:
-    """Block SIGINT in this thread for the block: processes spawned in it start with it blocked (their
-    :func:`_die_with_parent` ignores and then unblocks it, dropping a pending one), and a Ctrl-C that arrives meanwhile
-    is held, not lost: it is raised as KeyboardInterrupt when the block ends, or inside it if another thread of this
-    process takes the signal. (Ignoring SIGINT here instead, as before, lost a Ctrl-C sent while workers spawned.)
-    """
-    import signal
-
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a Ctrl-C held pending above lands now (unless blocked before)
-
-
-def _stop_pool(ex: ProcessPoolExecutor) -> None:
-    """End a process pool's workers now and drop its queued jobs (leaving the ``with`` block would otherwise
-    wait for every running and queued job to finish)."""
-    workers = list((getattr(ex, "_processes", None) or {}).values())  # shutdown() forgets them
-    ex.shutdown(wait=False, cancel_futures=True)
-    for proc in workers:
-        proc.terminate()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 
@@ -54,3 +55,35 @@ def check_positive(value: float, what: str) -> float:
     if v == 0.0:
         raise ValueError(f"{what} must be > 0, got {value!r}")
     return v
+
+
+def read_yaml(path: str | Path) -> Any:
+    r"""The YAML file ``path`` parsed; a one-line ``ValueError`` naming the file and line when it is not UTF-8 or
+    not valid YAML (never a traceback of the parser).
+
+    >>> import tempfile, pathlib
+    >>> bad = pathlib.Path(tempfile.mkdtemp()) / "claims.yaml"
+    >>> _ = bad.write_text("a: 1\nb: [2\n")
+    >>> read_yaml(bad)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: .../claims.yaml:3: not valid YAML (expected ',' or ']', but got '<stream end>'); fix the file
+    """
+    import yaml
+
+    path = Path(path)
+    data = path.read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data[: err.start].count(b"\n") + 1
+        raise ValueError(
+            f"{path}:{line}: not UTF-8 (byte 0x{data[err.start]:02x} at offset {err.start}); save it as UTF-8"
+        ) from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        what = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ValueError(f"{where}: not valid YAML ({what}); fix the file") from None

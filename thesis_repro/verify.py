@@ -4,15 +4,21 @@ Picks a seeded random sample (seed printed, so a run can be repeated) of ``N`` s
 scale (``data/reference/evaluate/``, keys made by that scale's figures; ``--kind`` picks other shipped kinds of
 :data:`VERIFIABLE`, such as chapter 5's ``arm-target``), recomputes each into a temporary run
 cache (never ``data/runs``) from the shipped policy it pins, in a worker process with the float numerics the
-entry records (:func:`numerics_env`), and compares the values with the shipped ones:
+entry records (:func:`numerics_env`), and compares the values with the shipped ones. It trusts nothing it
+checks: a manifest only says the files are the ones it lists, so every value is recomputed.
 
-* **same platform** (:func:`same_numerics`: the recomputation's ``provenance.json`` records the same platform
-  as the shipped entry's, as :func:`thesis_repro.runs.same_platform` compares them: CPU, SIMD kernels, PyTorch CPU
-  capability, NumPy SIMD; and the same numerics): evaluation is deterministic, so every value must be
-  bit-identical;
-* **another platform, or one not recorded**: individual rollouts may differ (see :data:`VERIFY_RTOL`), the
-  averages over the rollouts must agree within :data:`VERIFY_RTOL` (for chapter 5's arm kinds, the entry's
-  scalar summaries: see :func:`compare`).
+* **numerics pinned** (:func:`pinned`: the entry's provenance records ``MKL_CBWR``, the default since
+  :data:`thesis_repro.PORTABLE_NUMERICS`), or made on this very platform: every value must be bit-identical;
+  any difference is a mismatch, reported with its size;
+* **native numerics** (``THESIS_REPRO_NUMERICS=native``) **on another CPU, or one not recorded**: individual
+  rollouts may differ (see :data:`VERIFY_RTOL`), the averages over the rollouts must agree within
+  :data:`VERIFY_RTOL` (for chapter 5's arm kinds, the entry's scalar summaries: see :func:`compare`); the
+  verdict says so.
+
+Targets instead of a sample: ``--entry KEY`` (one shipped entry, any kind; a training run is retrained),
+``--figure 3.3`` (every shipped evaluation behind a figure), ``--claim ID`` (every one behind the claim's pages,
+then the pages' saved numbers recomputed from them and compared with the shipped claims snapshot) and ``--all``
+(``make verify-all``: every shipped evaluation of the scale, its cost printed first).
 
 It prints a table (entry, shipped value, recomputed value, largest |diff| of any value, verdict) and exits 1 on
 a mismatch. With ``--train`` it also retrains the cheapest shipped training run of the scale from scratch (into
@@ -22,7 +28,7 @@ run was resumed after an interruption and whether that resume was exact.
 >>> compare({"r": np.array([[1.0, 2.0]])}, {"r": np.array([[1.0, 2.0]])}, same=True).verdict
 'identical'
 >>> compare({"r": np.array([[100.0, 200.0]])}, {"r": np.array([[120.0, 182.0]])}, same=False).verdict
-'within 5% (another platform: rollout means differ by 0.7%)'
+'within 5% (native numerics on another CPU: rollout means differ by 0.7%)'
 >>> compare({"r": np.array([[100.0, 200.0]])}, {"r": np.array([[100.0, 200.1]])}, same=True).ok
 False
 """
@@ -51,6 +57,7 @@ import thesis_repro
 from thesis_repro import jobs as registry
 from thesis_repro import paths, runs, scales
 from thesis_repro.cache import Result, RunCache, find_entry, read_entry
+from thesis_repro.validation import check_choice
 
 #: Shipped kinds whose entries ``verify`` recomputes by default (evaluations: seconds to minutes each, from a
 #: shipped policy).
@@ -123,6 +130,12 @@ def headline(values: Mapping[str, Any]) -> float | None:
     return next((float(a) for k, a in sorted(nums.items()) if a.ndim == 0), None)
 
 
+def _relative(x: np.ndarray, y: np.ndarray) -> float:
+    """Largest ``|x - y| / max(|x|, |y|, 1)`` (NaN pairs ignored; 0.0 for empty arrays)."""
+    r = np.abs(x - y) / np.maximum(np.maximum(np.abs(x), np.abs(y)), 1.0)
+    return float(np.nanmax(r)) if r.size and not np.all(np.isnan(r)) else 0.0
+
+
 def _averaged(arr: np.ndarray) -> np.ndarray:
     """What must agree across platforms: the mean over the last axis (rollouts) of a 2-D or deeper array."""
     return arr.mean(axis=-1) if arr.ndim >= 2 else arr
@@ -136,7 +149,9 @@ def compare(
     entry: str = "",
     summaries_only: bool = False,
 ) -> Check:
-    """Compare a shipped entry's values with their recomputation (see the module docstring for the rule).
+    """Compare a shipped entry's values with their recomputation (see the module docstring for the rule):
+    ``same`` True requires bit-identity (numerics pinned, or the same platform); False / None (native numerics on
+    another CPU / on one not recorded) allows ``rtol`` on the rollout means.
 
     ``summaries_only`` (chapter 5's arm kinds): across platforms judge only the entry's scalars (its mean total
     cost, success rate, ...). A CMA-ES search made on another CPU takes another path once a float rounds
@@ -144,7 +159,7 @@ def compare(
 
     >>> a = {"cost": 2224.81, "curve": np.array([[11.3, 1.6]])}
     >>> compare(a, {"cost": 2223.84, "curve": np.array([[11.3, 1.5]])}, same=False, summaries_only=True).verdict
-    'within 5% (another platform: summaries differ by 0.0%)'
+    'within 5% (native numerics on another CPU: summaries differ by 0.0%)'
     """
     a_num, a_other = _numeric(shipped)
     b_num, b_other = _numeric(fresh)
@@ -165,8 +180,9 @@ def compare(
     if nan_same and diff == 0.0:
         return check(0.0, "identical", True)
     if same:
-        return check(diff, "MISMATCH: same platform but not bit-identical", False)
-    where = "another platform" if same is False else "platform not recorded"
+        rel = max((_relative(a_num[k], b_num[k]) for k in a_num), default=0.0)
+        return check(diff, f"MISMATCH: not bit-identical (max |diff| {diff:.3g}, {rel:.3g} relative)", False)
+    where = "native numerics on another CPU" if same is False else "native numerics, platform not recorded"
     rel = 0.0
     for k in a_num:
         if summaries_only and a_num[k].ndim:
@@ -195,6 +211,115 @@ def shipped_of_scale(scale: str, layer: Path, kinds: Iterable[str] = KINDS) -> t
     keys = runs.current_keys(scale, kinds, layer_root=layer)
     ours = [p for p in entries if p.name.rsplit("__", 1)[1] in keys]
     return ours, [p for p in entries if p not in ours]
+
+
+def shipped_of_figures(
+    scale: str, layer: Path, figure_ids: Iterable[str], kinds: Iterable[str] | None = None
+) -> list[Path]:
+    """Every shipped entry of ``kinds`` (default :data:`VERIFIABLE`) that the figures ``figure_ids`` make at
+    ``scale`` (keys bound to the shipped policies), in listing order."""
+    kinds, figure_ids = tuple(VERIFIABLE if kinds is None else kinds), list(figure_ids)
+    if not figure_ids:
+        return []
+    keys = runs.current_keys(scale, kinds, figure_ids=figure_ids, layer_root=layer)
+    return [p for p in runs.shipped_entries(layer) if p.parent.name in kinds and p.name.rsplit("__", 1)[1] in keys]
+
+
+def find_shipped(key: str, layer: Path) -> Path:
+    """The shipped entry whose key (or folder name) is ``key`` or starts with it (at least 6 characters); a
+    ``ValueError`` naming what to pass when there is none or several."""
+    key = str(key).strip().rstrip("/").rsplit("/", 1)[-1]
+    bare = key.rsplit("__", 1)[-1]
+    if len(bare) < 6:
+        raise ValueError(f"--entry: {key!r} is too short; pass an entry's key (20 hex digits, or its first 6+)")
+    found = [p for p in runs.shipped_entries(layer) if p.name == key or p.name.rsplit("__", 1)[1].startswith(bare)]
+    if not found:
+        raise ValueError(
+            f"--entry: no shipped entry with key {bare!r} in {layer} (`python -m thesis_repro runs` lists them)"
+        )
+    if len(found) > 1:
+        raise ValueError(f"--entry: {bare!r} matches {len(found)} shipped entries; pass more of the key")
+    return found[0]
+
+
+def claim_pages(claim_id: str) -> list[str]:
+    """The pages whose saved numbers claim ``claim_id`` reads (``ValueError`` for an unknown claim)."""
+    from thesis_repro.claims import ledger
+
+    return ledger.spec(claim_id).data_pages
+
+
+def recorded_seconds(paths_: Iterable[Path]) -> float:
+    """Wall time the entries took when they were made, as their provenance records it (0 where it does not)."""
+    return sum(float(_provenance(p).get("wall_seconds") or 0.0) for p in paths_)
+
+
+def _duration(seconds: float) -> str:
+    """``42 s``, ``17 min``, ``3.2 h``.
+
+    >>> _duration(10.8), _duration(1020), _duration(11520)
+    ('11 s', '17 min', '3.2 h')
+    """
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.0f} min" if seconds < 7200 else f"{seconds / 3600:.1f} h"
+
+
+def recompute_pages(
+    pages: Sequence[str], scale: str, layer: Path, root: Path, log: Callable[[str], None]
+) -> dict[str, str]:
+    """Execute the notebooks of ``pages`` at ``scale`` into a temporary build (``root/build``), reading the
+    recomputed entries of ``root/runs`` first (then the shipped layer), and compare each file they save for the
+    ledger with the shipped claims snapshot: ``{file: "identical" | "MISMATCH: ..."}``."""
+    from thesis_repro import notebooks
+    from thesis_repro.claims import snapshot
+
+    env = {**os.environ, "THESIS_REPRO_BUILD": str(root / "build"), "THESIS_REPRO_DATA": str(root / "runs")}
+    env["THESIS_REPRO_REFERENCE"] = str(layer)
+    out: dict[str, str] = {}
+    for page in pages:
+        nid = notebooks.check_notebook(page)
+        if not [n for n in snapshot.files() if snapshot.page_of(n) == page]:
+            log(f"  the page {page} saves no numbers for the ledger: nothing to compare with the snapshot")
+            continue
+        log(f"  recomputing the page {page} from the recomputed entries (its notebook at {scale}) ...")
+        cmd = [sys.executable, "-m", "thesis_repro", "figure", nid, "--scale", scale]
+        done = subprocess.run(cmd, env=env, cwd=paths.ROOT, capture_output=True, text=True, check=False)
+        names = [n for n in snapshot.files() if snapshot.page_of(n) == page]
+        for name in names:
+            if done.returncode != 0:
+                tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
+                out[name] = f"MISMATCH: the page failed to recompute ({tail})"
+                continue
+            built = json.loads((root / "build" / scale / "figures" / name).read_text())
+            try:
+                shipped = snapshot.read(name, scale)
+            except snapshot.CorruptSnapshot as err:
+                out[name] = f"MISMATCH: {_one_line(err)}"
+                continue
+            out[name] = compare_saved(built, shipped)
+    return out
+
+
+def compare_saved(built: Mapping[str, Any], shipped: Mapping[str, Any] | None) -> str:
+    """``identical`` when a page's recomputed saved file holds exactly the shipped snapshot's numbers, else a
+    ``MISMATCH`` naming the frames (or meta) that differ.
+
+    >>> compare_saved({"frames": {"auc": [1.0]}, "kit": "a"}, {"frames": {"auc": [1.0]}, "kit": "b"})
+    'identical'
+    >>> compare_saved({"frames": {"auc": [1.0]}}, {"frames": {"auc": [1.045]}})
+    'MISMATCH: the snapshot differs from the recomputed page in frames auc'
+    """
+    if shipped is None:
+        return "MISMATCH: not in the shipped snapshot"
+    from thesis_repro.claims.snapshot import STAMP_KEYS
+
+    a, b = ({k: v for k, v in x.items() if k not in (*STAMP_KEYS, "version")} for x in (built, shipped))
+    if a == b:
+        return "identical"
+    frames = sorted(k for k in a.get("frames", {}) if a["frames"][k] != b.get("frames", {}).get(k))
+    where = f"frames {', '.join(frames)}" if frames else "meta or verdicts"
+    return f"MISMATCH: the snapshot differs from the recomputed page in {where}"
 
 
 def sample(entries: Sequence[Path], n: int, seed: int) -> list[Path]:
@@ -303,6 +428,12 @@ def same_numerics(shipped: Path, fresh: Path) -> bool | None:
     return same
 
 
+def pinned(path: Path) -> bool:
+    """Was entry ``path`` made with pinned numerics (:data:`thesis_repro.PORTABLE_NUMERICS`, its provenance's
+    ``numerics`` records ``MKL_CBWR``)? Then its recomputation must be bit-identical on any x86-64 CPU."""
+    return bool((_provenance(path).get("numerics") or {}).get("MKL_CBWR"))
+
+
 def check_entry(path: Path, fresh: Path | str) -> Check:
     """Compare shipped entry ``path`` with its recomputation ``fresh`` (or the error that stopped it)."""
     name = _name(path)
@@ -314,7 +445,8 @@ def check_entry(path: Path, fresh: Path | str) -> Check:
         return Check(name, headline(shipped_values), None, None, f"MISMATCH: {fresh.removeprefix('error: ')}", False)
     fresh_values, _ = read_entry(fresh)
     summaries = path.parent.name in ARM_KINDS
-    return compare(shipped_values, fresh_values, same_numerics(path, fresh), entry=name, summaries_only=summaries)
+    same = True if pinned(path) else same_numerics(path, fresh)
+    return compare(shipped_values, fresh_values, same, entry=name, summaries_only=summaries)
 
 
 def missing_dependencies(path: Path, layer: Path) -> list[str]:
@@ -395,6 +527,63 @@ def check_kinds(kinds: Iterable[str]) -> tuple[str, ...]:
     return kinds
 
 
+def _check_all(chosen: Sequence[Path], layer: Path, root: Path) -> dict[Path, Check]:
+    """Recompute each of ``chosen`` into the cache at ``root`` and compare it with the shipped one."""
+    checks: dict[Path, Check] = {}
+    for path in chosen:
+        try:
+            missing = missing_dependencies(path, layer)
+        except Exception as err:  # noqa: BLE001 - e.g. a config that no longer hashes to its key
+            checks[path] = check_entry(path, f"error: {_one_line(err)}")
+            continue
+        if missing:
+            checks[path] = check_entry(path, f"error: its {', '.join(missing)} is not shipped")
+    todo = [p for p in chosen if p not in checks]
+    for path, fresh in recompute_all(todo, layer, root).items():
+        checks[path] = check_entry(path, fresh)
+    return {p: checks[p] for p in chosen}
+
+
+def _report(checks: Mapping[Path, Check], log: Callable[[str], None]) -> bool:
+    log("")
+    log(runs.table([c.row() for c in checks.values()], ("entry", "shipped", "recomputed", "|diff|", "verdict")))
+    bad = sum(not c.ok for c in checks.values())
+    log(f"\n{len(checks) - bad}/{len(checks)} match" + (f"; {bad} MISMATCH" if bad else ""))
+    return not bad
+
+
+#: The rule, as every run states it.
+RULE = (
+    "bit-identical wherever the numerics are pinned (the default) or on the platform that made the entry; "
+    f"rollout means within {VERIFY_RTOL:.0%} only for entries made under THESIS_REPRO_NUMERICS=native on another CPU"
+)
+
+
+def _retrain_entry(path: Path, root: Path, log: Callable[[str], None]) -> bool:
+    """``--entry`` of a training run: retrain it and require the same weights bit for bit (numerics pinned),
+    else :func:`thesis_repro.runs.compare_retrain`'s rule."""
+    values, config = read_entry(path)
+    shipped = Result(path, values, config, source="shipped")
+    job = runs.shipped_job(path)
+    cost = runs.shipped_seconds(path)
+    log(
+        f"verify --entry: retraining {job.label} ({runs.cost(job):,.0f} steps"
+        + (f", {cost / 60:.0f} min when made)" if cost == cost else ")")
+    )
+    fresh = runs.recompute(job, root, shipped)
+    if pinned(path):
+        diff = runs.max_abs_diff(shipped, fresh)
+        check = compare(values, read_entry(fresh.path)[0], True, entry=_name(path))
+        ok = diff == 0.0 and check.ok
+        log(f"weights: max |diff| {diff:.3g}; values: {check.verdict}")
+    else:
+        retrain = runs.compare_retrain(shipped, fresh)
+        ok = retrain.ok
+        log(retrain.message)
+    log("ok" if ok else "MISMATCH")
+    return ok
+
+
 def run(
     scale: str,
     n: int = DEFAULT_N,
@@ -403,56 +592,63 @@ def run(
     layer_root: str | Path | None = None,
     kinds: Iterable[str] | None = None,
     log: Callable[[str], None] = print,
+    figure: str | None = None,
+    entry: str | None = None,
+    claim: str | None = None,
+    everything: bool = False,
 ) -> int:
-    """``python -m thesis_repro verify``: the exit code (0 all checks pass, 1 a mismatch)."""
+    """``python -m thesis_repro verify``: the exit code (0 all checks pass, 1 a mismatch). ``figure``, ``entry``,
+    ``claim`` and ``everything`` (at most one) recompute every entry behind them instead of a sample."""
     scales.check_scale(scale)
     n = check_n(n)
+    targets = [f"--{k}" for k, v in (("figure", figure), ("entry", entry), ("claim", claim), ("all", everything)) if v]
+    if len(targets) > 1:
+        raise ValueError(
+            f"verify: {' and '.join(targets)} exclude each other; pass one of --figure, --entry, --claim, --all"
+        )
     layer = Path(layer_root) if layer_root is not None else paths.reference()
-    seed = secrets.randbelow(2**31) if seed is None else int(seed)
     kinds = KINDS if kinds is None else check_kinds(kinds)
-    ours, others = shipped_of_scale(scale, layer, kinds)
-    what = "/".join(kinds)
+    pages: list[str] = []
+    chosen: list[Path] | None = None
+    if entry:
+        chosen = [find_shipped(entry, layer)]
+        what = f"entry {_name(chosen[0])}"
+    elif figure:
+        from thesis_repro import figures
+
+        fid = check_choice(str(figure).removeprefix("fig-"), figures.ids(), "--figure figure")
+        chosen, what = shipped_of_figures(scale, layer, [fid]), f"figure {fid}"
+    elif claim:
+        from thesis_repro import figures
+
+        pages = claim_pages(claim)
+        fids = [f for f in (pg.removeprefix("fig-") for pg in pages) if f in figures.ids()]
+        chosen, what = shipped_of_figures(scale, layer, fids), f"claim {claim} (pages {', '.join(pages)})"
+    elif everything:
+        chosen, what = shipped_of_scale(scale, layer, VERIFIABLE)[0], f"every shipped entry at {scale}"
+    if chosen is not None and not chosen and not pages:
+        raise ValueError(f"verify: nothing shipped behind {what} at scale {scale} in {layer}; nothing to recompute")
     tmp = Path(tempfile.mkdtemp(prefix="thesis-repro-verify-"))
     ok = True
     try:
-        if not ours:
+        if chosen is not None and chosen and chosen[0].parent.name == "train":
+            ok = _retrain_entry(chosen[0], tmp / "runs", log)
+        elif chosen is not None:
+            cost, noun = recorded_seconds(chosen), "entry" if len(chosen) == 1 else "entries"
             log(
-                f"no shipped {'evaluations' if kinds == KINDS else what + ' entries'} yet at scale {scale} ({what} "
-                f"entries in {layer}: {len(others)} of other scales or stale); nothing to re-evaluate"
+                f"verify ({scale}) {what}: {len(chosen)} shipped {noun} to recompute, {_duration(cost)} of compute "
+                f"when they were made; recomputed in {tmp}; {RULE}"
             )
-            if not train:
-                log(f"nothing verified; `make verify SCALE={scale} TRAIN=1` retrains the cheapest shipped training run")
+            if chosen:
+                ok = _report(_check_all(chosen, layer, tmp / "runs"), log)
+            if pages:
+                saved = recompute_pages(pages, scale, layer, tmp, log)
+                for name, verdict in saved.items():
+                    log(f"{name}: {verdict}")
+                ok = ok and all(v == "identical" for v in saved.values())
         else:
-            chosen = sample(ours, n, seed)
-            log(
-                f"verify ({scale}): {len(chosen)} of {len(ours)} shipped {what} entries, seed {seed} "
-                f"(repeat with --seed {seed}); recomputed in {tmp}; tolerance across platforms {VERIFY_RTOL:.0%} "
-                "of the rollout means, bit-identical on the platform that made the entry"
-            )
-            if others:
-                log(
-                    f"({len(others)} other shipped {what} entries are not made by the {scale} figures from the shipped "
-                    "policies: of another scale, or stale (`runs --check`); skipped)"
-                )
-            checks: dict[Path, Check] = {}
-            for path in chosen:
-                try:
-                    missing = missing_dependencies(path, layer)
-                except Exception as err:  # noqa: BLE001 - e.g. a config that no longer hashes to its key
-                    checks[path] = check_entry(path, f"error: {_one_line(err)}")
-                    continue
-                if missing:
-                    checks[path] = check_entry(path, f"error: its {', '.join(missing)} is not shipped")
-            todo = [p for p in chosen if p not in checks]
-            for path, fresh in recompute_all(todo, layer, tmp / "runs").items():
-                checks[path] = check_entry(path, fresh)
-            checks = {p: checks[p] for p in chosen}
-            log("")
-            rows = [c.row() for c in checks.values()]
-            log(runs.table(rows, ("entry", "shipped", "recomputed", "|diff|", "verdict")))
-            bad = sum(not c.ok for c in checks.values())
-            ok = not bad
-            log(f"\n{len(checks) - bad}/{len(checks)} match" + (f"; {bad} MISMATCH" if bad else ""))
+            seed = secrets.randbelow(2**31) if seed is None else int(seed)
+            ok = _sample_run(scale, n, seed, layer, kinds, tmp, train, log)
         if train:
             ok = retrain_check(scale, layer, tmp / "train", log) and ok
     finally:
@@ -460,6 +656,50 @@ def run(
     return 0 if ok else 1
 
 
+def _sample_run(
+    scale: str,
+    n: int,
+    seed: int,
+    layer: Path,
+    kinds: tuple[str, ...],
+    tmp: Path,
+    train: bool,
+    log: Callable[[str], None],
+) -> bool:
+    ours, others = shipped_of_scale(scale, layer, kinds)
+    what = "/".join(kinds)
+    if not ours:
+        log(
+            f"no shipped {'evaluations' if kinds == KINDS else what + ' entries'} yet at scale {scale} ({what} "
+            f"entries in {layer}: {len(others)} of other scales or stale); nothing to re-evaluate"
+        )
+        if not train:
+            log(f"nothing verified; `make verify SCALE={scale} TRAIN=1` retrains the cheapest shipped training run")
+        return True
+    chosen = sample(ours, n, seed)
+    log(
+        f"verify ({scale}): {len(chosen)} of {len(ours)} shipped {what} entries, seed {seed} "
+        f"(repeat with --seed {seed}); recomputed in {tmp}; {RULE}"
+    )
+    if others:
+        log(
+            f"({len(others)} other shipped {what} entries are not made by the {scale} figures from the shipped "
+            "policies: of another scale, or stale (`runs --check`); skipped)"
+        )
+    return _report(_check_all(chosen, layer, tmp / "runs"), log)
+
+
 def main(args: argparse.Namespace) -> int:
-    """The ``verify`` subcommand (``args``: ``scale``, ``n``, ``seed``, ``train``, ``kind``)."""
-    return run(args.scale, args.n, args.seed, args.train, kinds=getattr(args, "kind", None))
+    """The ``verify`` subcommand (``args``: ``scale``, ``n``, ``seed``, ``train``, ``kind``, ``figure``, ``entry``,
+    ``claim``, ``all``)."""
+    return run(
+        args.scale,
+        args.n,
+        args.seed,
+        args.train,
+        kinds=getattr(args, "kind", None),
+        figure=getattr(args, "figure", None),
+        entry=getattr(args, "entry", None),
+        claim=getattr(args, "claim", None),
+        everything=bool(getattr(args, "all", False)),
+    )

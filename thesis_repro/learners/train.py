@@ -52,6 +52,7 @@ from thesis_repro.learners.config import iteration_steps
 from thesis_repro.learners.fast import FastPPO, FastSAC, FastTRPO  # leaner, equivalent (tests/test_fast.py)
 from thesis_repro.learners.multidomain import CLASSES as MULTI_DOMAIN_CLASSES
 from thesis_repro.learners.policies import SCNPolicy
+from thesis_repro.learners.policy import save_policy
 from thesis_repro.learners.resume import ResumeMismatch, capture, global_rng_state, restore, set_global_rng_state
 
 RETURN_WINDOW = 100  # training episodes averaged into train_return and the curve
@@ -199,21 +200,22 @@ def checkpoint_steps(workdir: str | Path) -> int:
 
 
 def save_artifacts(model: BaseAlgorithm, folder: Path, cfg: dict[str, Any], full: bool) -> None:
-    """Write ``policy.pth`` + ``obs_norm.npz`` + ``learner.json`` (and ``model.zip``/``vecnormalize.pkl`` if full)."""
+    """Write ``policy.pth`` (tensors only: :func:`~thesis_repro.learners.policy.save_policy`) + ``obs_norm.npz`` +
+    ``learner.json`` (and if full the local resume state ``model.zip``/``vecnormalize.pkl``: pickles, never shipped)."""
     folder.mkdir(parents=True, exist_ok=True)
-    model.policy.save(str(folder / "policy.pth"))
+    spec = save_policy(model.policy, folder)
     vn = model.get_vec_normalize_env()
     if vn is not None and vn.norm_obs:
         np.savez(
             folder / "obs_norm.npz", mean=vn.obs_rms.mean, var=vn.obs_rms.var, clip_obs=vn.clip_obs, epsilon=vn.epsilon
         )
-    pcls = type(model.policy)
     meta = {
-        "policy_class": f"{pcls.__module__}:{pcls.__qualname__}",
+        "policy_class": spec["policy_class"],
         "algorithm": cfg["algorithm"],
         "class": cfg["class"],
         "env": cfg["env"],
         "num_timesteps": int(model.num_timesteps),
+        "policy_kwargs": spec["policy_kwargs"],
     }
     (folder / "learner.json").write_text(json.dumps(meta, indent=1))
     if full:
