@@ -17,6 +17,7 @@ from __future__ import annotations
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -33,8 +34,8 @@ from thesis_repro.validation import check_choice, check_nonneg
 README_EXAMPLE = """\
 from stable_baselines3 import PPO
 from thesis_repro.agent import compare_with_shipped, score_model
-model = PPO("MlpPolicy", "Hopper-v5", seed=0).learn(4096)
-scores = score_model(model, "Hopper", scale="small")  # the book's σ grid, rollouts and testing seeds
+model = PPO("MlpPolicy", "InvertedPendulum-v5", seed=0).learn(2048)
+scores = score_model(model, "InvertedPendulum", scale="small")  # the book's σ grid, rollouts and testing seeds
 print(scores, compare_with_shipped(scores), sep="\\n\\n")  # AUCs with 95 % CIs beside every shipped learner
 """
 
@@ -82,13 +83,20 @@ def _benchmark(settings: dict[str, Any], algo: str, task: str, seeds: Sequence[i
 @dataclass
 class Comparison:
     """Your agent beside the shipped learners: ``table`` (one row per test and learner: ``env, test, method,
-    seed_mean, ci_lo, ci_hi, n_seeds``, the AUC across training seeds), the tidy ``returns`` behind it and a
-    Fig 3.4-style ``figure``."""
+    seed_mean, ci_lo, ci_hi, n_seeds``, the AUC across training seeds), the tidy ``returns`` behind it, what the
+    intervals are (``ci_label``) and a Fig 3.4-style ``figure``; ``str()`` / :meth:`wide` give the table as text."""
 
     table: pd.DataFrame
     returns: pd.DataFrame
-    figure: Any
     ci_label: str
+    scores: Scores
+    title: str
+
+    @cached_property
+    def figure(self) -> Any:
+        """The Fig 3.4-style figure (drawn on first access): testing return vs σ per test type, one line per
+        learner (mean over training seeds), band the 95 % t-interval across seeds."""
+        return _figure(self.returns, self.scores, self.title)
 
     def wide(self) -> pd.DataFrame:
         """AUC mean [95 % CI] (seeds) per learner (rows) and test (columns), as text."""
@@ -169,8 +177,8 @@ def compare_with_shipped(
     aucs = pd.concat([scores.aucs(), aucs[aucs["test"].isin(scores.tests)]], ignore_index=True)
     table = tables.seed_ci(aucs)
     label = tables.ci_label(table["n_seeds"])
-    fig = _figure(rets, scores, title or f"{scores.label} beside the shipped learners on {task}")
-    return Comparison(table=table, returns=rets, figure=fig, ci_label=label)
+    title = title or f"{scores.label} beside the shipped learners on {task}"
+    return Comparison(table=table, returns=rets, ci_label=label, scores=scores, title=title)
 
 
 def _figure(rets: pd.DataFrame, scores: Scores, title: str) -> Any:

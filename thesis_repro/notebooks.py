@@ -124,9 +124,7 @@ def failed_path(nid: str, scale: str) -> Path:
 #: Tag of the cell appended to the staged notebook to list the kit modules the kernel imported.
 DEPS_TAG = "thesis-repro-deps"
 _DEPS_CODE = (
-    "import json as _json\n"
-    "from thesis_repro import paths as _paths\n"
-    "print(_json.dumps(_paths.imported_modules()))"
+    "import json as _json\nfrom thesis_repro import paths as _paths\nprint(_json.dumps(_paths.imported_modules()))"
 )
 
 
