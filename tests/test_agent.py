@@ -137,6 +137,7 @@ def test_train_runs_one_job_through_the_cache(tmp_path, monkeypatch, capsys):
 
 
 def test_enjoy_renders_a_cached_policy_to_a_video(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("imageio", reason="the [video] extra (make venv installs it)")
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "runs"))
     assert main(["enjoy", "ppo", "InvertedPendulum", "--scale", "smoke"]) == 2
     assert "train ppo InvertedPendulum --seed 0 --scale smoke" in capsys.readouterr().err

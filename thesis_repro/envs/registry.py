@@ -6,7 +6,8 @@
 'Hopper-v5'
 
 :func:`register_envs` (run by ``import thesis_repro.envs``) registers one id per task and test type, σ and seed
-being ``gymnasium.make`` keyword arguments (as CARL and sunblaze's rl-generalization register theirs):
+being ``gymnasium.make`` keyword arguments (as CARL and sunblaze's rl-generalization register theirs); without the
+import, ``gymnasium.make("thesis_repro.envs:thesis_repro/Hopper-obs-v0", sigma=0.2)`` imports it first:
 
 >>> import gymnasium as gym
 >>> import thesis_repro.envs
