@@ -137,7 +137,7 @@ def test_train_runs_one_job_through_the_cache(tmp_path, monkeypatch, capsys):
 
 
 def test_enjoy_renders_a_cached_policy_to_a_video(tmp_path, monkeypatch, capsys):
-    pytest.importorskip("imageio", reason="the [video] extra (make venv installs it)")
+    pytest.importorskip("imageio_ffmpeg", reason="the [video] extra (make venv installs it)")
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "runs"))
     assert main(["enjoy", "ppo", "InvertedPendulum", "--scale", "smoke"]) == 2
     assert "train ppo InvertedPendulum --seed 0 --scale smoke" in capsys.readouterr().err
@@ -172,3 +172,12 @@ def test_the_readme_example_runs_as_written(capsys, shipped):
     exec(compile(code, "README.md", "exec"), {})
     out = capsys.readouterr().out
     assert re.search(r"your agent on \w+ \(scale small", out) and "ppo" in out
+
+
+def test_enjoy_without_the_video_extra_is_one_line(monkeypatch, capsys):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # as if the [video] extra were not installed
+    assert main(["enjoy", "ppo", "InvertedPendulum", "--scale", "smoke", "--video", "x.mp4"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: writing .mp4 videos needs imageio_ffmpeg: pip install"), err

@@ -244,6 +244,8 @@ def enjoy(
     sigma = check_nonneg(sigma, "sigma")
     if video is not None and Path(video).suffix.lower() not in (".mp4", ".gif"):
         raise ValueError(f"video must end in .mp4 or .gif, got {str(video)!r}")
+    if video is not None:
+        _check_video_writer(Path(video))
     job = train_job(algo, task, seed, scale)
     run = (cache or RunCache()).load(job)
     if run is None:
@@ -277,13 +279,23 @@ def enjoy(
     return {"return": total, "length": steps, "video": None if video is None else str(video), "source": run.source}
 
 
-def _write_video(path: Path, frames: list[np.ndarray], fps: int) -> None:
+def _check_video_writer(path: Path) -> None:
+    """``RuntimeError`` (one line) if the packages that write ``path`` are missing: imageio, and imageio-ffmpeg for
+    an .mp4 (the ``[video]`` extra)."""
     try:
-        import imageio.v2 as imageio
+        import imageio  # noqa: F401
+
+        if path.suffix.lower() == ".mp4":
+            import imageio_ffmpeg  # noqa: F401
     except ImportError as err:
         raise RuntimeError(
-            "writing a video needs imageio and imageio-ffmpeg: pip install 'thesis_repro[video]'"
-        ) from err
+            f"writing {path.suffix} videos needs {err.name}: pip install 'thesis_repro[video]' (make venv has it)"
+        ) from None
+
+
+def _write_video(path: Path, frames: list[np.ndarray], fps: int) -> None:
+    import imageio.v2 as imageio
+
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() == ".gif":
         imageio.mimsave(path, frames, duration=1000 / fps, loop=0)
