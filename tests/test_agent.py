@@ -181,3 +181,15 @@ def test_enjoy_without_the_video_extra_is_one_line(monkeypatch, capsys):
     assert main(["enjoy", "ppo", "InvertedPendulum", "--scale", "smoke", "--video", "x.mp4"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: writing .mp4 videos needs imageio_ffmpeg: pip install"), err
+
+
+def test_score_command_puts_a_zip_beside_the_shipped_learners(tmp_path, shipped, capsys):
+    from stable_baselines3 import PPO
+
+    PPO("MlpPolicy", "InvertedPendulum-v5", n_steps=64, batch_size=32, seed=0, device="cpu").save(tmp_path / "m.zip")
+    png = tmp_path / "cmp.png"
+    argv = ["score", str(tmp_path / "m.zip"), "--task", "InvertedPendulum", "--scale", "small", "--figure", str(png)]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "testing AUC, 95 % CI of the mean across" in out and re.search(r"^ppo +\S", out, re.M), out
+    assert png.stat().st_size > 0

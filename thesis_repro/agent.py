@@ -27,7 +27,7 @@ import pandas as pd
 from thesis_repro.cache import Job, Result, RunCache
 from thesis_repro.envs import ENVS, TESTS, make_env, short_name
 from thesis_repro.evaluation import tables
-from thesis_repro.evaluation.score import GRID_ITEM, Scores, book_grid, score_model
+from thesis_repro.evaluation.score import Scores, book_grid, score_model
 from thesis_repro.validation import check_choice, check_nonneg
 
 #: Your agent beside the shipped learners in five lines (the README's "use it on your own agent").
@@ -182,18 +182,49 @@ def compare_with_shipped(
 
 
 def _figure(rets: pd.DataFrame, scores: Scores, title: str) -> Any:
-    from thesis_repro.figures import ch3_curves, ch3_tables
+    """Fig 3.4's top row for this task: testing return vs σ, one panel per test type, a line per learner (the
+    mean over training seeds of each seed's mean over its rollouts) with its 95 % t-interval band across seeds;
+    your agent in black, on top."""
+    import matplotlib.pyplot as plt
+    import seaborn as sns
 
+    per_seed = tables.seed_means(rets, "return", ["env", "method", "test", "sigma"])
     order = list(dict.fromkeys(rets["method"]))
-    settings = {
-        **ch3_tables.settings(GRID_ITEM, scores.scale),
-        "env": scores.task,
-        "tests": scores.tests,
-        "algos": order,
-        "skip_algos": [],
-    }
-    res = ch3_tables.Results(returns=rets, aucs=pd.DataFrame(), episodes=pd.DataFrame())
-    return ch3_curves.plot_curves(res, settings, title)
+    others = order[1:]
+    palette = dict(zip(others, sns.color_palette("husl", len(others)), strict=True))
+    palette[scores.label] = (0.0, 0.0, 0.0)
+    tests = scores.tests
+    fig, axes = plt.subplots(1, len(tests), figsize=(3.2 * len(tests) + 2.0, 3.6), squeeze=False, sharey=True)
+    for j, test in enumerate(tests):
+        ax = axes[0, j]
+        d = per_seed[per_seed["test"] == test]
+        for method in [*others, scores.label]:
+            m = d[d["method"] == method]
+            mine = method == scores.label
+            sns.lineplot(
+                m,
+                x="sigma",
+                y="return",
+                errorbar=tables.t_errorbar,
+                color=palette[method],
+                linewidth=2.4 if mine else 1.0,
+                marker="o",
+                markersize=4 if mine else 2.5,
+                label=method if j == 0 else None,
+                ax=ax,
+                zorder=3 if mine else 2,
+            )
+        ax.set_title(f"{scores.task} — {test}", fontsize=9)
+        ax.set(xlabel="σ (Σ for dom)", ylabel="testing return" if j == 0 else "")
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="center left", bbox_to_anchor=(0.87, 0.5), fontsize=7, frameon=False)
+    n = per_seed.groupby(["method", "test", "sigma"])["seed"].nunique()
+    band = f"band: {tables.ci_label(n)}" if n.max() > 1 else "no band: 1 training seed"
+    fig.suptitle(f"{title} (scale {scores.scale})\nline: mean over training seeds; {band}", fontsize=9)
+    fig.tight_layout(rect=(0, 0, 0.87, 1))
+    return fig
 
 
 # ---------------------------------------------------------------- single runs
