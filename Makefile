@@ -26,17 +26,19 @@ export PYTHONUNBUFFERED := 1
 
 venv: $(STAMP)
 
-# torch==2.13.0 goes in first (a CPU wheel lies on these machines); the pin in pyproject keeps it there.
-$(STAMP): pyproject.toml
+# torch==2.13.0 goes in first (a CPU wheel lies on these machines); constraints.txt holds it and every other exact
+# version there (pyproject.toml declares only compatible ranges).
+PIP := $(BIN)/pip install -q --disable-pip-version-check -c constraints.txt
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install -q --disable-pip-version-check torch==2.13.0 2>&1 | { grep -v "is ignored: it is neither" || true; }
-	$(BIN)/pip install -q --disable-pip-version-check -e ".[dev]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	$(PIP) torch==2.13.0 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	$(PIP) -e ".[dev,video]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
 	$(BIN)/python -m ipykernel install --sys-prefix --name python3 >/dev/null
 	touch $(STAMP)
 
 # the optional Ray extra (pyproject's [ray]): installed only for BACKEND=ray and for make test (its Ray tests)
 $(RAY_STAMP): $(STAMP)
-	$(BIN)/pip install -q --disable-pip-version-check -e ".[dev,ray]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	$(PIP) -e ".[dev,video,ray]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
 	touch $(RAY_STAMP)
 
 ## make chromium : the browser test's headless Chromium (Debian's package), installed with apt-get when missing;

@@ -243,11 +243,12 @@ def test_sb3_policy_matches_predict_for_squashed_sac():
 def test_score_model_shapes_and_auc(tiny_ppo):
     sig = [0.0, 0.2]
     scores = ev.score_model(tiny_ppo, "Hopper", tests=("obs", "dom"), sigmas=sig, n_rollouts=2, max_episode_steps=20)
-    assert set(scores) == {"obs", "dom"}
-    for s in scores.values():
-        assert s["returns"].shape == (2, 2) and s["expected_return"].shape == (2,)
-        assert s["auc"] == pytest.approx(0.2 * s["returns"].mean(axis=1).sum())
-    assert ev.summarise(scores)["obs"] == scores["obs"]["auc"]
+    assert scores.tests == ["obs", "dom"]
+    for r in scores.returns.values():
+        assert r.shape == (1, 2, 2)  # (models, sigmas, rollouts)
+    area = scores.auc()
+    assert area["obs"] == pytest.approx(0.2 * scores.returns["obs"][0].mean(axis=1).sum())
+    assert ev.summarise(scores) == area
     with pytest.raises(ValueError, match="valid test types"):
         ev.score_model(tiny_ppo, "Hopper", tests=("noise",), sigmas=sig)
     with pytest.raises(ValueError, match="uniform"):

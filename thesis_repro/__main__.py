@@ -1,6 +1,9 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
 ``reference-runs --scale small`` | ``budgets --scale small [--spread]`` | ``plan 3.3 --scale full --cores 64`` |
-``claims ...`` | ``results [--check]`` | ``verify --scale small -n 20``.
+``claims ...`` | ``results [--check]`` | ``verify --scale small -n 20`` | ``score model.zip --task Hopper --scale small`` |
+``train ppo Hopper --seed 0 --scale small`` | ``enjoy ppo Hopper --seed 0 --test obs --sigma 0.4 --video out.mp4``
+(your agent under the thesis's protocol, :mod:`thesis_repro.agent`) | ``--version``. Installed, the same command
+line is the ``thesis-repro`` console script.
 
 Every failure a user can cause ends in one ``error: ...`` line on stderr and a non-zero exit code, never a
 traceback: a bad argument or setting (2), a notebook that failed (its own exception, 1), a folder that cannot
@@ -66,6 +69,27 @@ def nonneg_int(text: str) -> int:
     return positive_int(text, low=0)
 
 
+def main_exit() -> None:
+    """The ``thesis-repro`` console script: :func:`main`, its return value as the exit code."""
+    sys.exit(main())
+
+
+def version() -> str:
+    """The kit's version: the installed distribution's, else the package's ``__version__``.
+
+    >>> version() == __import__("thesis_repro").__version__
+    True
+    """
+    from importlib import metadata
+
+    import thesis_repro
+
+    try:
+        return metadata.version("thesis_repro")
+    except metadata.PackageNotFoundError:
+        return thesis_repro.__version__
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (see the module docstring)."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -100,6 +124,7 @@ def _signals_as_interrupts() -> Iterator[None]:
 
 def _main(argv: list[str]) -> int:
     parser = Parser(prog="python -m thesis_repro")
+    parser.add_argument("--version", action="version", version=f"thesis_repro {version()}")
     sub = parser.add_subparsers(dest="cmd", required=True)
     fig = sub.add_parser("figure", help="execute one notebook (or 'all') at a scale")
     fig.add_argument("figure", help="figure id such as 3.3, table-3.4, or 'all'")
@@ -210,6 +235,7 @@ def _main(argv: list[str]) -> int:
     ver.add_argument(
         "--all", action="store_true", help="recompute every shipped evaluation of the scale (make verify-all)"
     )
+    _agent_parsers(sub)
     sub.add_parser("claims", help="the thesis's claims ledger (`claims --help` for its commands)", add_help=False)
     sub.add_parser("results", help="write RESULTS.md and the README's results block (`results --help`)", add_help=False)
     if argv[:1] == ["claims"]:  # everything after `claims` is the ledger's own command line
@@ -332,6 +358,8 @@ def _command(args: argparse.Namespace) -> int:
             notebooks.execute(nid, args.scale, params)
     elif args.cmd == "plan":
         return _plan_command(args)
+    elif args.cmd in AGENT_COMMANDS:
+        return _agent_command(args)
     elif args.cmd == "verify":
         from thesis_repro import verify
 
@@ -363,6 +391,84 @@ def _command(args: argparse.Namespace) -> int:
         for folder in (paths.runs(), paths.build(args.scale)):
             check_writable(folder)
         book_mod.build(args.scale, reuse=args.reuse, force=args.force, shipped_only=args.shipped_only)
+    return 0
+
+
+#: Subcommands for your own agent (:mod:`thesis_repro.agent`).
+AGENT_COMMANDS = ("score", "train", "enjoy")
+
+
+def _agent_parsers(sub: Any) -> None:
+    sc = sub.add_parser("score", help="score SB3 model zips (one per training seed) beside the shipped learners")
+    sc.add_argument("models", nargs="+", help="SB3 .zip files saved with model.save (several: training seeds)")
+    sc.add_argument("--task", required=True, help="InvertedPendulum | InvertedDoublePendulum | Walker2d | Hopper | ...")
+    sc.add_argument("--scale", default="small", help="the book grid of this scale: smoke | small | full")
+    sc.add_argument("--algo", default=None, help="the models' SB3 class (ppo, sac, td3, ...; default: detected)")
+    sc.add_argument("--label", default="your agent", help="the models' name in the table and figure")
+    sc.add_argument("--figure", default=None, metavar="PNG", help="save the Fig 3.4-style comparison here")
+    sc.add_argument("--no-compare", action="store_true", help="only your scores, not the shipped learners beside")
+    tr = sub.add_parser("train", help="train (or load) one chapter-3 run through the run cache")
+    tr.add_argument("algo", help="a chapter-3 learner: ppo, trpo, ddpg, sac, ppo-16, ...")
+    tr.add_argument("task", help="InvertedPendulum | InvertedDoublePendulum | Walker2d | Hopper | HalfCheetah")
+    tr.add_argument("--seed", type=nonneg_int, default=0, help="training seed, >= 0 (default 0)")
+    tr.add_argument("--scale", default="small", help="smoke | small | full (the book's budget at that scale)")
+    en = sub.add_parser("enjoy", help="watch one episode of a shipped or cached policy (offscreen video)")
+    en.add_argument("algo", help="a chapter-3 learner: ppo, trpo, ddpg, sac, ppo-16, ...")
+    en.add_argument("task", help="InvertedPendulum | InvertedDoublePendulum | Walker2d | Hopper | HalfCheetah")
+    en.add_argument("--seed", type=nonneg_int, default=0, help="training seed, >= 0 (default 0)")
+    en.add_argument("--scale", default="small", help="smoke | small | full")
+    en.add_argument("--test", default="none", help="perturbation: none | obs | act | env | dom (default none)")
+    en.add_argument("--sigma", type=float, default=0.0, help="its σ (default 0)")
+    en.add_argument("--video", default=None, metavar="OUT.mp4", help="write the episode here (.mp4 or .gif)")
+    en.add_argument("--episode-seed", type=nonneg_int, default=0, help="seed of the episode (default 0)")
+    en.add_argument("--max-steps", type=positive_int, default=None, help="stop after this many steps (default 1000)")
+
+
+def _agent_command(args: argparse.Namespace) -> int:
+    from thesis_repro import agent, scales
+
+    scales.check_scale(args.scale)
+    if args.cmd == "train":
+        res = agent.train_run(args.algo, args.task, args.seed, args.scale)
+        import numpy as np
+
+        tr = res.get("train_return")
+        ret = "" if tr is None else f", training return {float(np.mean(tr)):.1f}"
+        print(f"{args.algo} on {args.task} (seed {args.seed}, scale {args.scale}): {res.source}{ret}\n{res.path}")
+    elif args.cmd == "enjoy":
+        out = agent.enjoy(
+            args.algo,
+            args.task,
+            args.seed,
+            args.scale,
+            test=args.test,
+            sigma=args.sigma,
+            video=args.video,
+            episode_seed=args.episode_seed,
+            max_steps=args.max_steps,
+        )
+        where = f"; video: {out['video']}" if out["video"] else ""
+        print(
+            f"{args.algo} on {args.task} ({args.test}, σ {args.sigma}): return {out['return']:.1f} in "
+            f"{out['length']} steps ({out['source']} run){where}"
+        )
+    else:
+        from thesis_repro.envs import short_name
+        from thesis_repro.evaluation.score import score_model
+
+        task = short_name(args.task)
+        models = [agent.load_sb3(p, args.algo) for p in args.models]
+        scores = score_model(models, task, args.scale, label=args.label)
+        print(scores)
+        if not args.no_compare:
+            cmp = agent.compare_with_shipped(scores)
+            print()
+            print(cmp)
+            if args.figure:
+                cmp.figure.savefig(args.figure, dpi=120)
+                print(f"figure: {args.figure}")
+        elif args.figure:
+            raise ValueError("--figure shows the comparison; drop --no-compare")
     return 0
 
 

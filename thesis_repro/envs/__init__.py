@@ -17,11 +17,16 @@ inertias) together; wind (Walker2d, Hopper) is a horizontal force ξ·M0 on the 
 >>> sorted(info["factors"])
 ['body_mass', 'friction', 'gravity', 'wind']
 >>> env.close()
+
+The same env as a registered Gymnasium id (five tasks x four test types; σ and seed are ``make`` arguments):
+
+>>> import gymnasium as gym
+>>> env = gym.make("thesis_repro/Hopper-env-v0", sigma=0.2, seed=0)
 """
 
 from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE, BoundFactor, Factor, FactorSet, check_factors
-from thesis_repro.envs.make import PERTURBATIONS, make_env, wrap_env
-from thesis_repro.envs.registry import ENVS, resolve_env, short_name
+from thesis_repro.envs.make import PERTURBATIONS, make_env, make_registered, wrap_env
+from thesis_repro.envs.registry import ENV_IDS, ENVS, TESTS, env_id, register_envs, resolve_env, short_name
 from thesis_repro.envs.wrappers import (
     ActionNoise,
     DomainShift,
@@ -51,4 +56,11 @@ __all__ = [
     "resolve_env",
     "short_name",
     "wrap_env",
+    "ENV_IDS",
+    "TESTS",
+    "env_id",
+    "make_registered",
+    "register_envs",
 ]
+
+register_envs()

@@ -237,12 +237,91 @@ FACTORS: dict[str, dict[str, Factor]] = {
 assert set(FACTORS) == set(ENVS)
 
 
+#: Every factor by name, for MuJoCo envs outside the five tasks: a factor applies to any model that has the bodies
+#: it names (``body_mass``, ``friction`` and ``gravity`` apply to every model; ``wind`` needs a ``torso``).
+CATALOGUE: dict[str, Factor] = {name: f for table in FACTORS.values() for name, f in table.items()}
+#: Factors of a MuJoCo env outside the five tasks when none are named.
+GENERIC_DEFAULT: tuple[str, ...] = ("body_mass", "friction", "gravity")
+
+
 def env_short_name(env) -> str:
     """Short task name of a Gymnasium env (wrapped or not) from its spec id."""
     spec = env.unwrapped.spec
     if spec is None:
         raise ValueError("env has no spec; build it with gymnasium.make or thesis_repro.envs.make_env")
     return short_name(spec.id)
+
+
+def task_of(env) -> str | None:
+    """Short task name of one of the five tasks, else ``None`` (any other env, or one without a spec).
+
+    >>> import gymnasium as gym
+    >>> task_of(gym.make("Hopper-v5")), task_of(gym.make("Ant-v5"))
+    ('Hopper', None)
+    """
+    spec = env.unwrapped.spec
+    if spec is None:
+        return None
+    try:
+        return short_name(spec.id)
+    except ValueError:
+        return None
+
+
+def env_label(env) -> str:
+    """The env's spec id, or its class name when it has no spec (for error messages)."""
+    spec = env.unwrapped.spec
+    return spec.id if spec is not None else type(env.unwrapped).__name__
+
+
+def check_mujoco(env, who: str) -> None:
+    """``ValueError`` naming ``who`` and the env unless ``env`` is a MuJoCo env (``model`` and ``data``).
+
+    >>> import gymnasium as gym
+    >>> check_mujoco(gym.make("Pendulum-v1"), "DomainShift")
+    Traceback (most recent call last):
+    ...
+    ValueError: DomainShift needs a MuJoCo env (with a mujoco.MjModel in .model and .data), but Pendulum-v1 is not one
+    """
+    base = env.unwrapped
+    if not isinstance(getattr(base, "model", None), mujoco.MjModel) or getattr(base, "data", None) is None:
+        raise ValueError(
+            f"{who} needs a MuJoCo env (with a mujoco.MjModel in .model and .data), but {env_label(env)} is not one"
+        )
+
+
+def _bodies(factor: Factor) -> tuple[str, ...]:
+    if isinstance(factor, BodyMass):
+        return factor.bodies
+    if isinstance(factor, WindForce):
+        return (factor.body,)
+    return ()
+
+
+def check_generic_factors(env, names: Iterable[str] | None) -> tuple[str, ...]:
+    """Validated factor names for a MuJoCo env outside the five tasks (``None``: :data:`GENERIC_DEFAULT`).
+
+    A factor needs the bodies it names; a missing one is a ``ValueError`` naming it and the model's bodies.
+    """
+    if names is None:
+        return GENERIC_DEFAULT
+    out = (names,) if isinstance(names, str) else tuple(names)
+    if not out:
+        raise ValueError(f"factors must not be empty; valid factors are: {', '.join(CATALOGUE)}")
+    if len(set(out)) != len(out):
+        raise ValueError(f"duplicate factor names in {out}")
+    model = env.unwrapped.model
+    all_bodies = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(model.nbody)]
+    all_bodies = [b for b in all_bodies if b]
+    for n in out:
+        check_choice(n, list(CATALOGUE), "factor")
+        missing = [b for b in _bodies(CATALOGUE[n]) if b not in all_bodies]
+        if missing:
+            raise ValueError(
+                f"factor {n!r} needs body {missing[0]!r}, which the MuJoCo model of {env_label(env)} does not have "
+                f"(its bodies: {', '.join(str(b) for b in all_bodies)})"
+            )
+    return out
 
 
 def check_factors(env: str, names: Iterable[str] | None) -> tuple[str, ...]:
@@ -263,15 +342,24 @@ def check_factors(env: str, names: Iterable[str] | None) -> tuple[str, ...]:
 
 
 class FactorSet:
-    """Several bound factors of one env, sampled and written together (used by the wrappers).
+    """Several bound factors of one MuJoCo env, sampled and written together (used by the wrappers).
+
+    On one of the five tasks the factors are Table 3.2's (default: all of the task's); on any other MuJoCo env
+    any factor of :data:`CATALOGUE` whose bodies the model has (default: :data:`GENERIC_DEFAULT`).
 
     ``sample(rng, sigma)`` draws one ε per factor: ratios max(1 + σε, MIN_RATIO), wind σ·ε·WIND_SCALE.
     """
 
-    def __init__(self, env, names: Iterable[str] | None) -> None:
-        task = env_short_name(env)
-        self.names = check_factors(task, names)
-        self.bound = [FACTORS[task][n].bind(env) for n in self.names]
+    def __init__(self, env, names: Iterable[str] | None, who: str = "a factor wrapper") -> None:
+        check_mujoco(env, who)
+        task = task_of(env)
+        if task is not None:  # one of the five tasks: Table 3.2's factors
+            self.names = check_factors(task, names)
+            table = FACTORS[task]
+        else:
+            self.names = check_generic_factors(env, names)
+            table = CATALOGUE
+        self.bound = [table[n].bind(env) for n in self.names]
         self._n = len(self.bound)
         self._wind = [b for b in self.bound if not b.relative]
 

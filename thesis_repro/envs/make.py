@@ -116,3 +116,23 @@ def make_env(
         out.action_space.seed(int(seed))
         out.reset(seed=int(seed))
     return out
+
+
+def make_registered(
+    task: str,
+    test: str,
+    sigma: float = 0.0,
+    seed: int | None = None,
+    render_mode: str | None = None,
+    **kwargs: Any,
+) -> gym.Env:
+    """Entry point of the registered ids (:func:`thesis_repro.envs.registry.register_envs`): ``make_env(task,
+    test, sigma, seed=seed, **kwargs)``, ``render_mode`` passed to the task.
+
+    >>> type(make_registered("Hopper", "act", 0.1)).__name__
+    'ActionNoise'
+    """
+    env_kwargs = dict(kwargs.pop("env_kwargs", None) or {})
+    if render_mode is not None:
+        env_kwargs["render_mode"] = render_mode
+    return make_env(task, test, sigma, seed=seed, env_kwargs=env_kwargs or None, **kwargs)

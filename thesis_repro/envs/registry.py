@@ -1,9 +1,19 @@
-"""The five chapter-3 tasks (thesis Table 3.2) as Gymnasium v5 MuJoCo ids.
+"""The five chapter-3 tasks (thesis Table 3.2) as Gymnasium v5 MuJoCo ids, and the kit's own Gymnasium ids.
 
 >>> resolve_env("Hopper")
 'Hopper-v5'
 >>> resolve_env("Hopper-v5")
 'Hopper-v5'
+
+:func:`register_envs` (run by ``import thesis_repro.envs``) registers one id per task and test type, σ and seed
+being ``gymnasium.make`` keyword arguments (as CARL and sunblaze's rl-generalization register theirs); without the
+import, ``gymnasium.make("thesis_repro.envs:thesis_repro/Hopper-obs-v0", sigma=0.2)`` imports it first:
+
+>>> import gymnasium as gym
+>>> import thesis_repro.envs
+>>> env = gym.make("thesis_repro/Hopper-dom-v0", sigma=0.2, seed=0)
+>>> env.spec.id, sorted(env.reset(seed=1)[1]["factors"])
+('thesis_repro/Hopper-dom-v0', ['body_mass', 'friction', 'gravity', 'wind'])
 """
 
 from __future__ import annotations
@@ -27,6 +37,42 @@ _BY_ID: dict[str, str] = {v: k for k, v in ENVS.items()}
 #: ``settotalmass="14"``, which MuJoCo 4 reports as deprecated on every model load; our copy gives the
 #: same masses and inertias with an explicit geom density (``tests/test_quiet.py`` checks they match).
 MODEL_XML: dict[str, Path] = {"HalfCheetah": Path(__file__).resolve().parent / "assets" / "half_cheetah.xml"}
+
+
+#: The test types a registered id perturbs with (thesis "Obs", "Act", "Env", "Dom"; see ``make.PERTURBATIONS``).
+TESTS: tuple[str, ...] = ("obs", "act", "env", "dom")
+NAMESPACE = "thesis_repro"
+
+
+def env_id(task: str, test: str) -> str:
+    """The kit's Gymnasium id of ``task`` under test type ``test``.
+
+    >>> env_id("Walker2d-v5", "obs")
+    'thesis_repro/Walker2d-obs-v0'
+    """
+    check_choice(test, TESTS, "test type")
+    return f"{NAMESPACE}/{short_name(task)}-{test}-v0"
+
+
+#: Every registered id: five tasks x four test types.
+ENV_IDS: tuple[str, ...] = tuple(f"{NAMESPACE}/{t}-{p}-v0" for t in ENVS for p in TESTS)
+
+
+def register_envs() -> None:
+    """Register :data:`ENV_IDS` with Gymnasium (idempotent): ``gymnasium.make(id, sigma=..., seed=...)`` builds
+    :func:`thesis_repro.envs.make_env` (task, test type, σ; any other ``make_env`` keyword passes through)."""
+    import gymnasium as gym
+
+    for task in ENVS:
+        for test in TESTS:
+            name = env_id(task, test)
+            if name not in gym.registry:
+                gym.register(
+                    name,
+                    entry_point="thesis_repro.envs.make:make_registered",
+                    kwargs={"task": task, "test": test},
+                    max_episode_steps=None,  # make_env's own time limit (the task's 1,000 steps)
+                )
 
 
 def short_name(env: str) -> str:

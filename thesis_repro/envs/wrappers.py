@@ -14,6 +14,11 @@ therefore untouched by the noise draws: with the same seed, every σ and every p
 episodes from the same initial states (common random numbers across a σ sweep). Without a seed the
 wrapper's generator is derived once from the base env's seed.
 
+Every wrapper records its constructor arguments (``gymnasium.utils.RecordConstructorArgs``), so ``env.spec``
+recreates it and ``gymnasium.utils.env_checker.check_env`` passes in full. The factor wrappers work on any MuJoCo
+env whose model has the bodies their factors scale (:mod:`thesis_repro.envs.factors`); any other env is a
+one-line ``ValueError`` naming what is missing.
+
 Factor wrappers put the applied values in ``info["factors"]`` (ratios; wind ξ in m/s²) and restore the
 model's defaults on ``close()`` (and each ``reset()`` writes values computed from the defaults).
 
@@ -26,6 +31,7 @@ model's defaults on ``close()`` (and each ``reset()`` writes values computed fro
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -36,14 +42,31 @@ from thesis_repro.envs.factors import FactorSet
 from thesis_repro.validation import check_nonneg
 
 
-class _Seeded(gym.Wrapper):
-    """Wrapper with its own ``np_random``, reseeded by ``reset(seed=...)``."""
+class _Seeded(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Wrapper with its own ``np_random``, reseeded by ``reset(seed=...)``; records its constructor arguments."""
 
     _SALT = 0
 
-    def __init__(self, env: gym.Env) -> None:
-        super().__init__(env)
+    def __init__(self, env: gym.Env, **recorded: Any) -> None:
+        if not isinstance(env, gym.Env):
+            raise ValueError(f"{type(self).__name__} wraps a gymnasium.Env, got {type(env).__name__}")
+        gym.utils.RecordConstructorArgs.__init__(self, **recorded)
+        gym.Wrapper.__init__(self, env)
         self._own_rng: np.random.Generator | None = None
+
+    @property
+    def metadata(self) -> dict[str, Any]:  # type: ignore[override]
+        """The env's metadata; without a display (no ``DISPLAY``/``WAYLAND_DISPLAY``) ``render_modes`` leaves out
+        ``"human"``, which needs a window (MuJoCo's GLFW viewer aborts the process without a monitor)."""
+        meta = self._metadata if self._metadata is not None else self.env.metadata
+        modes = meta.get("render_modes") or []
+        if "human" in modes and not _has_display():
+            meta = {**meta, "render_modes": [m for m in modes if m != "human"]}
+        return meta
+
+    @metadata.setter
+    def metadata(self, value: dict[str, Any]) -> None:
+        self._metadata = value
 
     @property
     def np_random(self) -> np.random.Generator:  # type: ignore[override]
@@ -75,8 +98,9 @@ class ObservationNoise(_Seeded):
     _SALT = 1
 
     def __init__(self, env: gym.Env, sigma: float) -> None:
-        super().__init__(env)
-        self.sigma = check_nonneg(sigma, "observation noise sigma")
+        sigma = check_nonneg(sigma, "observation noise sigma")
+        super().__init__(env, sigma=sigma)
+        self.sigma = sigma
 
     def _noisy(self, obs: np.ndarray) -> np.ndarray:
         if self.sigma == 0.0:
@@ -105,8 +129,9 @@ class ActionNoise(_Seeded):
     _SALT = 2
 
     def __init__(self, env: gym.Env, sigma: float) -> None:
-        super().__init__(env)
-        self.sigma = check_nonneg(sigma, "action noise sigma")
+        sigma = check_nonneg(sigma, "action noise sigma")
+        super().__init__(env, sigma=sigma)
+        self.sigma = sigma
         space = env.action_space
         if not isinstance(space, gym.spaces.Box):
             raise ValueError(f"ActionNoise needs a Box action space, got {space}")
@@ -132,9 +157,9 @@ class ActionNoise(_Seeded):
 class _FactorWrapper(_Seeded):
     """Base of the wrappers that write environment factors; restores defaults on ``close()``."""
 
-    def __init__(self, env: gym.Env, factors: Iterable[str] | None) -> None:
-        super().__init__(env)
-        self.factors = FactorSet(env, factors)
+    def __init__(self, env: gym.Env, names: Iterable[str] | None, /, **recorded: Any) -> None:
+        super().__init__(env, **recorded)
+        self.factors = FactorSet(env, names, who=type(self).__name__)
 
     @property
     def factor_names(self) -> tuple[str, ...]:
@@ -178,8 +203,9 @@ class EnvironmentNoise(_FactorWrapper):
     _SALT = 3
 
     def __init__(self, env: gym.Env, sigma: float, factors: Iterable[str] | None = None) -> None:
-        super().__init__(env, factors)
-        self.sigma = check_nonneg(sigma, "environment noise sigma")
+        sigma, factors = check_nonneg(sigma, "environment noise sigma"), _names(factors)
+        super().__init__(env, factors, sigma=sigma, factors=factors)
+        self.sigma = sigma
 
     def _before_step(self) -> None:
         if self.sigma == 0.0:
@@ -226,8 +252,9 @@ class DomainShift(_EpisodeDomain):
     _SALT = 4
 
     def __init__(self, env: gym.Env, sigma: float, factors: Iterable[str] | None = None) -> None:
-        super().__init__(env, factors)
-        self.sigma = check_nonneg(sigma, "domain shift sigma")
+        sigma, factors = check_nonneg(sigma, "domain shift sigma"), _names(factors)
+        super().__init__(env, factors, sigma=sigma, factors=factors)
+        self.sigma = sigma
 
     def _draw(self) -> None:
         if self.sigma == 0.0:
@@ -252,7 +279,7 @@ class SystematicShift(_FactorWrapper):
     def __init__(self, env: gym.Env, ratios: Mapping[str, float]) -> None:
         if not isinstance(ratios, Mapping) or not ratios:
             raise ValueError(f"ratios must be a non-empty dict of factor -> value, got {ratios!r}")
-        super().__init__(env, list(ratios))
+        super().__init__(env, list(ratios), ratios=dict(ratios))
         values: dict[str, float] = {}
         for b in self.factors.bound:
             v = ratios[b.name]
@@ -279,14 +306,30 @@ class Wind(_EpisodeDomain):
     _SALT = 6
 
     def __init__(self, env: gym.Env, low: float, high: float) -> None:
-        super().__init__(env, ["wind"])
-        self.low, self.high = _check_finite(low, "wind low"), _check_finite(high, "wind high")
-        if self.low > self.high:
+        lo, hi = _check_finite(low, "wind low"), _check_finite(high, "wind high")
+        if lo > hi:
             raise ValueError(f"wind low must be <= high, got low={low!r}, high={high!r}")
+        super().__init__(env, ["wind"], low=lo, high=hi)
+        self.low, self.high = lo, hi
         (self._bound,) = self.factors.bound
 
     def _draw(self) -> None:
         self._bound.set(float(self.np_random.uniform(self.low, self.high)))
+
+
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def _names(factors: Iterable[str] | None) -> tuple[str, ...] | None:
+    """Factor names as a tuple (recorded and compared by ``env.spec``); ``None`` stays ``None``."""
+    if factors is None:
+        return None
+    if isinstance(factors, str):
+        return (factors,)
+    if not isinstance(factors, Iterable):
+        raise ValueError(f"factors must be factor names or None, got {factors!r}")
+    return tuple(factors)
 
 
 def _check_finite(value: float, what: str) -> float:

@@ -24,7 +24,7 @@ from thesis_repro.evaluation.jobs import (
     evaluate_job,
 )
 from thesis_repro.evaluation.metrics import auc, correlation, expected_return, pareto_frontier, sigma_step
-from thesis_repro.evaluation.score import default_sigmas, sb3_policy, score_model, summarise
+from thesis_repro.evaluation.score import Scores, book_grid, default_sigmas, sb3_policy, score_model, summarise
 
 __all__ = [
     "PERTURBATIONS",
@@ -32,8 +32,10 @@ __all__ = [
     "Benchmark",
     "BenchmarkResult",
     "Rollouts",
+    "Scores",
     "auc",
     "benchmark_jobs",
+    "book_grid",
     "check_test",
     "correlation",
     "default_sigmas",

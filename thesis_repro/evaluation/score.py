@@ -1,18 +1,34 @@
-"""Public one-call API: score any Stable-Baselines3 model on the chapter-3 generalisation benchmark."""
+"""Public one-call API: score any Stable-Baselines3 model (one per training seed) on the chapter-3 benchmark,
+under the book's own protocol, with 95 % CIs across training seeds.
+
+:func:`score_model` defaults to a scale's book grid (σ points, testing rollouts, episode length and test types of
+the chapter-3 pages in ``config/scales.yaml``) and the book's testing seeds, so its AUCs are comparable with the
+shipped learners' (:func:`thesis_repro.agent.compare_with_shipped` puts them side by side). The CIs are the pages'
+(:func:`thesis_repro.evaluation.tables.seed_ci`: per seed the mean over its rollouts, then the t-interval across
+seeds; one model: no interval).
+"""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from functools import cache
 from typing import Any
 
 import numpy as np
+import pandas as pd
 import yaml
 
-from thesis_repro import paths
+from thesis_repro import paths, scales
+from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.evaluator import PERTURBATIONS, EnvMaker, Policy, check_shapes, default_make, evaluate
-from thesis_repro.evaluation.metrics import auc, expected_return, sigma_step
+from thesis_repro.evaluation.metrics import auc, sigma_step
 from thesis_repro.validation import check_choice
+
+#: The chapter-3 item whose settings give a scale's book grid (every chapter-3 item shares it, scales.yaml).
+GRID_ITEM = "table-3.4"
+#: The method name of the scored agent in tables and figures (``label=`` changes it).
+AGENT = "your agent"
 
 
 @cache
@@ -20,6 +36,23 @@ def default_sigmas() -> tuple[float, ...]:
     """The thesis-scale testing grid (``defaults.full.sigmas`` of ``config/scales.yaml``)."""
     table = yaml.safe_load((paths.CONFIG / "scales.yaml").read_text())
     return tuple(float(s) for s in table["defaults"]["full"]["sigmas"])
+
+
+def book_grid(scale: str = "small") -> dict[str, Any]:
+    """The chapter-3 pages' testing protocol at ``scale``: ``tests``, ``sigmas``, ``n_rollouts``,
+    ``max_episode_steps`` (the scale's training protocol's overrides applied, as the book runs it).
+
+    >>> g = book_grid("small")
+    >>> g["sigmas"], g["n_rollouts"], g["tests"]
+    ([0.0, 0.2, 0.4, 0.6, 0.8], 10, ['obs', 'act', 'env', 'dom'])
+    """
+    s = scales.figure_settings(GRID_ITEM, scale)
+    return {
+        "tests": list(s["tests"]),
+        "sigmas": [float(x) for x in s["sigmas"]],
+        "n_rollouts": int(s["test_rollouts"]),
+        "max_episode_steps": int(s["max_episode_steps"]),
+    }
 
 
 def sb3_policy(model: Any, vecnormalize: Any = None) -> Policy:
@@ -116,49 +149,187 @@ def check_model_fits(model: Any, env: str, make: EnvMaker | None = None) -> None
         task_env.close()
 
 
+@dataclass(frozen=True)
+class Scores:
+    """What :func:`score_model` returns: per test type the testing returns of every model (training seed).
+
+    ``returns[test]`` has shape ``(n_models, len(sigmas), n_rollouts)``. :meth:`table` gives the AUC (Eq. 3.6)
+    per test with its 95 % CI across models, :meth:`auc` the mean AUC per test.
+    """
+
+    task: str
+    scale: str | None
+    label: str
+    sigmas: tuple[float, ...]
+    n_rollouts: int
+    seed: int
+    returns: dict[str, np.ndarray]
+
+    @property
+    def tests(self) -> list[str]:
+        return list(self.returns)
+
+    @property
+    def n_models(self) -> int:
+        return int(next(iter(self.returns.values())).shape[0])
+
+    def returns_frame(self) -> pd.DataFrame:
+        """Tidy returns: ``env, method, seed, test, sigma, rollout, return`` (``seed`` = the model's index)."""
+        parts = []
+        for test, r in self.returns.items():
+            mi, si, ri = np.indices(r.shape).reshape(3, -1)
+            parts.append(
+                pd.DataFrame(
+                    {
+                        "env": self.task,
+                        "method": self.label,
+                        "seed": mi,
+                        "test": test,
+                        "sigma": np.asarray(self.sigmas)[si],
+                        "rollout": ri,
+                        "return": r.reshape(-1),
+                    }
+                )
+            )
+        return pd.concat(parts, ignore_index=True)
+
+    def aucs(self) -> pd.DataFrame:
+        """Eq. 3.6 per testing rollout, as the chapter-3 pages tabulate it: ``env, method, seed, test, rollout,
+        value`` (the AUC of a seed's mean return curve is the mean of its rollouts' AUCs)."""
+        parts = []
+        for test, r in self.returns.items():
+            per = auc(r, list(self.sigmas), axis=1)  # (models, rollouts)
+            mi, ri = np.indices(per.shape).reshape(2, -1)
+            parts.append(
+                pd.DataFrame(
+                    {
+                        "env": self.task,
+                        "method": self.label,
+                        "seed": mi,
+                        "test": test,
+                        "rollout": ri,
+                        "value": per.reshape(-1),
+                    }
+                )
+            )
+        return pd.concat(parts, ignore_index=True)
+
+    def table(self) -> pd.DataFrame:
+        """AUC per test across models: ``env, test, method, seed_mean, ci_lo, ci_hi, n_seeds`` (95 % t-interval
+        over per-model means, the pages' :func:`~thesis_repro.evaluation.tables.seed_ci`; one model: NaN bounds)."""
+        return tables.seed_ci(self.aucs())
+
+    def auc(self) -> dict[str, float]:
+        """Mean AUC over models per test type."""
+        t = self.table()
+        return {str(r.test): float(r.seed_mean) for r in t.itertuples()}
+
+    def ci_label(self) -> str:
+        """What the intervals are (the pages' caption: level and number of training seeds)."""
+        return tables.ci_label(self.n_models)
+
+    def __str__(self) -> str:
+        t = self.table()
+        lines = [
+            f"{self.label} on {self.task} (scale {self.scale}, σ {list(self.sigmas)}, "
+            f"{self.n_rollouts} rollouts): testing AUC, {self.ci_label()}"
+        ]
+        for r in t.itertuples():
+            ci = "" if not np.isfinite(r.ci_lo) else f" [{r.ci_lo:.1f}, {r.ci_hi:.1f}]"
+            lines.append(f"  {r.test:4s} {r.seed_mean:10.1f}{ci}  (seeds: {int(r.n_seeds)})")
+        return "\n".join(lines)
+
+
+def _models(model_or_models: Any) -> list[Any]:
+    if isinstance(model_or_models, (list, tuple)):
+        if not model_or_models:
+            raise ValueError("model_or_models must hold at least one model")
+        return list(model_or_models)
+    return [model_or_models]
+
+
 def score_model(
-    model: Any,
-    env: str,
+    model_or_models: Any,
+    task: str,
+    scale: str | None = "small",
     *,
-    tests: Sequence[str] = ("obs", "act", "env", "dom"),
+    tests: Sequence[str] | None = None,
     sigmas: Sequence[float] | None = None,
-    n_rollouts: int = 20,
+    n_rollouts: int | None = None,
+    max_episode_steps: int | None = None,
     seed: int = 0,
     vecnormalize: Any = None,
-    max_episode_steps: int = 1000,
     n_envs: int = 16,
     make: EnvMaker | None = None,
-) -> dict[str, dict[str, Any]]:
-    """Score any SB3 model on the benchmark: per test type the returns, expected return per σ and AUC.
+    label: str = AGENT,
+    progress: bool = True,
+) -> Scores:
+    """Score SB3 model(s) on ``task`` under the book's protocol at ``scale``; returns :class:`Scores`.
 
-    ``env`` is a task name of ``thesis_repro.envs.make_env`` (e.g. ``"Hopper"``); ``sigmas`` defaults to
-    the thesis-scale grid :func:`default_sigmas`. Returns ``{test: {"sigmas", "returns" (len(sigmas),
-    n_rollouts), "expected_return" (len(sigmas),), "auc" (Eq. 3.6)}}``.
+    ``model_or_models``: one model or a list (one per training seed: the CIs are across them). ``task``: a task
+    of :data:`thesis_repro.envs.ENVS` (``"Hopper"``). ``tests``, ``sigmas``, ``n_rollouts`` and
+    ``max_episode_steps`` default to the scale's book grid (:func:`book_grid`; ``scale=None``: the thesis's full
+    grid, 20 rollouts, 1,000 steps). ``seed`` is the testing seed (0: the book's, so every model meets the
+    shipped learners' initial states and noise). ``vecnormalize``: one ``VecNormalize`` or a list, one per model.
+    Shows a progress bar (``progress=False``: none).
 
     >>> from stable_baselines3 import PPO  # doctest: +SKIP
-    >>> model = PPO("MlpPolicy", "Hopper-v5").learn(10_000)  # doctest: +SKIP
-    >>> scores = score_model(model, "Hopper", sigmas=[0.0, 0.1, 0.2], n_rollouts=5)  # doctest: +SKIP
-    >>> {t: round(s["auc"], 1) for t, s in scores.items()}  # doctest: +SKIP
-    {'obs': 41.3, 'act': 55.0, 'env': 60.2, 'dom': 58.7}
+    >>> models = [PPO("MlpPolicy", "Hopper-v5", seed=s).learn(10_000) for s in range(3)]  # doctest: +SKIP
+    >>> print(score_model(models, "Hopper", "small"))  # doctest: +SKIP
     """
-    sig = list(default_sigmas() if sigmas is None else sigmas)
-    sigma_step(sig)  # validate the grid before spending any compute
+    if tests is None:
+        tests = book_grid(scale)["tests"] if scale is not None else PERTURBATIONS[1:]
     if isinstance(tests, str):
         tests = (tests,)
     for t in tests:
         check_choice(t, PERTURBATIONS, "test type")
-    check_model_fits(model, env, make)
-    policy = sb3_policy(model, vecnormalize)
-    out: dict[str, dict[str, Any]] = {}
-    for t in tests:
-        returns = evaluate(
-            policy, env, t, sig, n_rollouts, seed=seed, max_episode_steps=max_episode_steps, n_envs=n_envs, make=make
+    grid = (
+        book_grid(scale)
+        if scale is not None
+        else {
+            "sigmas": list(default_sigmas()),
+            "n_rollouts": 20,
+            "max_episode_steps": 1000,
+        }
+    )
+    sig = [float(x) for x in (grid["sigmas"] if sigmas is None else sigmas)]
+    sigma_step(sig)  # validate the grid before spending any compute
+    n_rollouts = int(grid["n_rollouts"] if n_rollouts is None else n_rollouts)
+    steps = int(grid["max_episode_steps"] if max_episode_steps is None else max_episode_steps)
+    models = _models(model_or_models)
+    norms = vecnormalize if isinstance(vecnormalize, (list, tuple)) else [vecnormalize] * len(models)
+    if len(norms) != len(models):
+        raise ValueError(f"got {len(norms)} vecnormalize objects for {len(models)} models; give one per model")
+    for m in models:
+        check_model_fits(m, task, make)
+    policies = [sb3_policy(m, v) for m, v in zip(models, norms, strict=True)]
+    from tqdm.auto import tqdm
+
+    returns: dict[str, list[np.ndarray]] = {t: [] for t in tests}
+    todo = [(t, i) for t in tests for i in range(len(policies))]
+    bar = tqdm(todo, desc=f"score {task}", unit="test", disable=not progress, leave=False)
+    for t, i in bar:
+        bar.set_postfix_str(f"{t}, model {i + 1}/{len(policies)}")
+        returns[t].append(
+            evaluate(
+                policies[i], task, t, sig, n_rollouts, seed=seed, max_episode_steps=steps, n_envs=n_envs, make=make
+            )
         )
-        eta = expected_return(returns, axis=1)
-        out[t] = {"sigmas": np.asarray(sig), "returns": returns, "expected_return": eta, "auc": auc(eta, sig)}
-    return out
+    from thesis_repro.envs import short_name
+
+    return Scores(
+        task=short_name(task),
+        scale=scale,
+        label=str(label),
+        sigmas=tuple(sig),
+        n_rollouts=n_rollouts,
+        seed=int(seed),
+        returns={t: np.stack(r) for t, r in returns.items()},
+    )
 
 
-def summarise(scores: Mapping[str, Mapping[str, Any]]) -> dict[str, float]:
-    """``{test: AUC}`` of a :func:`score_model` result."""
+def summarise(scores: Scores | Mapping[str, Mapping[str, Any]]) -> dict[str, float]:
+    """``{test: mean AUC}`` of a :func:`score_model` result."""
+    if isinstance(scores, Scores):
+        return scores.auc()
     return {t: float(s["auc"]) for t, s in scores.items()}
