@@ -77,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
+        where = ledger.ship_calibration(args.scale)
+        print(f"shipped the claims' calibration and power to {where}")
         print(
             f"shipped {len(snapshot.files())} saved file(s) to {snapshot.provenance(args.scale)}; "
             f"{len(changed)} data file(s) changed" + (f": {', '.join(changed)}" if changed else "")

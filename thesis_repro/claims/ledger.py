@@ -94,6 +94,8 @@ THESIS_SHARE = 0.75
 NULL_DRAWS = 60
 #: The build's (and the shipped snapshot's) cache of v2 calibration and power, keyed by content.
 CALIBRATION = "claims-calibration.json"
+#: ``judge(with_null=CACHED)``: calibration and power from the caches only, never computed.
+CACHED = "cached"
 
 
 # ---------------------------------------------------------------- thresholds (from the thesis's own numbers)
@@ -417,8 +419,10 @@ def page_data(s: Spec, scale: str) -> tuple[dict[str, pd.DataFrame], dict[str, A
     return (frames, {**meta, **extra}) if found else None
 
 
-def judge(s: Spec, scale: str, with_null: bool = True) -> Row:
-    """One claim's ledger row at ``scale`` from the saved numbers of its page(s)."""
+def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
+    """One claim's ledger row at ``scale`` from the saved numbers of its page(s). ``with_null``: compute the
+    claim's calibration and power when they are not cached (True), read them only from the caches
+    (:data:`CACHED`, the default: a book page never spends minutes on them), or leave them out (False)."""
     r = s.rule
     if r.get("visual"):
         return Row(s, report.VISUAL, note="the claim is about the gait's look; the page shows the key frames")
@@ -476,7 +480,9 @@ def _corrupt(s: Spec, scale: str, err: snapshot.CorruptSnapshot) -> Row:
     return Row(s, report.NOT_COMPUTED, note=f"{err}: `make {_make_target(s.page)} SCALE={scale}` recomputes it")
 
 
-def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.DataFrame], meta: dict[str, Any]) -> Row:
+def _judge_frames(
+    s: Spec, scale: str, with_null: bool | str, frames: dict[str, pd.DataFrame], meta: dict[str, Any]
+) -> Row:
     """:func:`judge` of a claim with a measure, from its pages' saved ``frames`` and ``meta``: design v2's verdict
     (:mod:`thesis_repro.claims.judge`), with design v1's beside it."""
     v1 = _judge_v1_frames(s, scale, False, frames, meta)
@@ -516,7 +522,7 @@ def _judge_frames(s: Spec, scale: str, with_null: bool, frames: dict[str, pd.Dat
     )
     row.pooled_seeds = v1.pooled_seeds
     if with_null and scale != "smoke":
-        row.calibration = calibration_of(s, scale, run, lv, mg, rules, rule2)
+        row.calibration = calibration_of(s, scale, run, lv, mg, rules, rule2, compute=with_null is True)
         row.null_pass_rate = row.calibration.get("false_reproduces")
     if status not in (report.REPRODUCES, report.NOT_JUDGED):
         measured = [m for m in (study_result(n) for n in s.sensitivity) if m is not None]
@@ -590,6 +596,7 @@ def calibration_of(
     mg: float,
     rules: Mapping[str, CountRule],
     rule2: Mapping[str, Any],
+    compute: bool = True,
 ) -> dict[str, Any]:
     """A claim's calibration and power (:func:`thesis_repro.claims.calibration.calibration_result`), cached by the
     content of its units and rule: the build's cache first, then the shipped snapshot's."""
@@ -598,8 +605,11 @@ def calibration_of(
     for p in (paths.page_output(scale, CALIBRATION), snapshot.folder(scale) / CALIBRATION):
         known = _read_json(p)
         if key in known:
+            _USED[key] = known[key]
             return known[key]
-    got = calibration.calibration_result(run, lv, mg, rules, thesis_effects(s, rule2))
+    if not compute:
+        return {}
+    got = _USED[key] = calibration.calibration_result(run, lv, mg, rules, thesis_effects(s, rule2))
     known = _read_json(store)
     known[key] = got
     store.parent.mkdir(parents=True, exist_ok=True)
@@ -607,6 +617,24 @@ def calibration_of(
     tmp.write_text(json.dumps(known, sort_keys=True, indent=0))
     tmp.replace(store)
     return got
+
+
+#: Calibration entries read or computed in this process, by key (what :func:`ship_calibration` ships).
+_USED: dict[str, dict[str, Any]] = {}
+
+
+def ship_calibration(scale: str) -> Path:
+    """Judge every claim at ``scale`` computing what is not cached, and write the calibration and power of exactly
+    those claims into the shipped snapshot (``data/reference/claims/<scale>/claims-calibration.json``), so a fresh
+    clone's ``claims --json`` carries them without recomputing."""
+    _USED.clear()
+    ledger(scale, with_null=True)
+    out = snapshot.folder(scale) / CALIBRATION
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp")
+    tmp.write_text(json.dumps(dict(sorted(_USED.items())), sort_keys=True, indent=0) + "\n")
+    tmp.replace(out)
+    return out
 
 
 def _read_json(p: Path) -> dict[str, Any]:
@@ -780,7 +808,7 @@ def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any], sensitivities: 
     return "; ".join(bits)
 
 
-def ledger(scale: str, with_null: bool = True) -> list[Row]:
+def ledger(scale: str, with_null: bool | str = CACHED) -> list[Row]:
     """Every registered claim judged at ``scale`` from saved numbers (thesis claims first, then beyond)."""
     rows = [judge(s, scale, with_null) for s in specs()]
     return sorted(rows, key=lambda r: r.spec.beyond)
@@ -1209,10 +1237,10 @@ RULE_WORDS = (
     "fraction of the reference learner's value on that task), a unit is **yes** when its CI lies above 0 and "
     "reaches m, **no** when its CI ends below m (effects of the margin's size are excluded: an equivalence / "
     "non-superiority test; a unit whose v1 rule states its own bound uses m = 0), **undecided** otherwise. "
-    "**pooled** claims (\"most\", \"generally\", \"on average\") pool each seed's effect over the units "
+    '**pooled** claims ("most", "generally", "on average") pool each seed\'s effect over the units '
     "(tasks as fixed effects) and take a t-interval across seeds, Holm-adjusted across the pooled claims that "
     "share a page's data: yes -> reproduces, no -> does not reproduce, else inconclusive. **each** claims "
-    "(\"each\", \"every\", \"in all\") need every unit yes; **count** claims keep their thresholds. The "
+    '("each", "every", "in all") need every unit yes; **count** claims keep their thresholds. The '
     "yes-share interval [yes / n, (yes + undecided) / n] gives two regions: one region -> that verdict; partly "
     "to reproduces -> *at least partly*; does not to partly -> *at most partly*; all three -> *inconclusive*. A "
     "claim of several parts holds when each part does (lower and upper regions combined apart). One seed -> at "
