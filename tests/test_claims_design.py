@@ -10,9 +10,8 @@ import pytest
 
 from thesis_repro import report
 from thesis_repro.claims import calibration as C
-from thesis_repro.claims import design
+from thesis_repro.claims import design, registry
 from thesis_repro.claims import measures as M
-from thesis_repro.claims import registry
 from thesis_repro.claims import stats as S
 from thesis_repro.claims.judge import count_rule, judge_v2
 from thesis_repro.claims.stats import Contrast, CountRule, Unit
@@ -29,8 +28,18 @@ def test_a_changed_rule_without_a_new_version_is_caught(monkeypatch):
     reg = registry.registry()
     spec = next(s for s in registry.specs() if s.id == "3.3-negative-correlation")
     changed = [
-        registry.Spec(s.id, s.page, s.text, s.lines, s.rule, s.beyond, s.pages, s.evidence, s.sensitivity,
-                      {**s.v2, "margin": 0.05} if s.id == spec.id else s.v2)
+        registry.Spec(
+            s.id,
+            s.page,
+            s.text,
+            s.lines,
+            s.rule,
+            s.beyond,
+            s.pages,
+            s.evidence,
+            s.sensitivity,
+            {**s.v2, "margin": 0.05} if s.id == spec.id else s.v2,
+        )
         for s in registry.specs()
     ]
     monkeypatch.setattr(registry, "specs", lambda: tuple(changed))
@@ -99,8 +108,12 @@ def test_a_clearly_failing_group_is_not_hidden_by_an_undecided_one():
 def test_pooled_correlation_refutes_a_claimed_negative_correlation():
     """Fig 3.3's shape: 20 cells, 3 seeds, r clearly positive in most: pooled r through Fisher z says does not."""
     rng = np.random.default_rng(0)
-    units = {"": [Unit(f"c{i}", (Contrast("r", tuple(np.tanh(1.0 + 0.4 * rng.standard_normal(3))), sign=-1,
-                                          kind="r"),)) for i in range(20)]}
+    units = {
+        "": [
+            Unit(f"c{i}", (Contrast("r", tuple(np.tanh(1.0 + 0.4 * rng.standard_normal(3))), sign=-1, kind="r"),))
+            for i in range(20)
+        ]
+    }
     v = judge_v2(units, "pooled", 0.1, {"": CountRule(0.675, 0.25)})
     assert v.status == report.DOES_NOT
     lo, hi = v.groups["all"]["pooled"]["ci"]
@@ -127,8 +140,10 @@ def _shapes() -> dict[str, tuple[dict[str, list[Unit]], str, float, dict[str, Co
         b = tuple(100 + 10 * rng.standard_normal(3))
         return Contrast(f"a{i} - b{i}", a, b, paired=paired)
 
-    r_units = [Unit(f"r{i}", (Contrast("r", tuple(np.tanh(0.3 * rng.standard_normal(3))), sign=-1, kind="r"),))
-               for i in range(10)]
+    r_units = [
+        Unit(f"r{i}", (Contrast("r", tuple(np.tanh(0.3 * rng.standard_normal(3))), sign=-1, kind="r"),))
+        for i in range(10)
+    ]
     v_units = [Unit(f"v{i}", (val(i),)) for i in range(5)]
     p_units = [Unit(f"p{i}", (val(i, paired=True),)) for i in range(4)]
     share = [Unit("s", (Contrast("share", (1.0, 0.0, 1.0), proportion=True, ref=0.5, kind="share"),))]
@@ -164,8 +179,9 @@ def _returns(drop: float) -> pd.DataFrame:
     rows = []
     for seed, noise in enumerate((0.0, 1.0, -1.0)):
         rows.append({"env": "H", "method": "ppo", "test": "obs", "seed": seed, "sigma": 0.0, "return": 100 + noise})
-        rows.append({"env": "H", "method": "ppo", "test": "obs", "seed": seed, "sigma": 0.8,
-                     "return": 100 * (1 - drop) + noise})
+        rows.append(
+            {"env": "H", "method": "ppo", "test": "obs", "seed": seed, "sigma": 0.8, "return": 100 * (1 - drop) + noise}
+        )
     return pd.DataFrame(rows)
 
 
@@ -210,8 +226,9 @@ def test_one_reversing_pair_is_not_enough_when_a_third_learner_wins_everywhere()
 
 def test_reach_to_bic_uses_clopper_pearson_on_seeds():
     s = registry.spec("5.4-reach-to-bic")
-    summary = pd.DataFrame({"strategy": "tensor", "source": "reach", "target": "bic", "seed": [0, 1, 2],
-                            "success_rate": [0.0, 0.4, 0.0]})
+    summary = pd.DataFrame(
+        {"strategy": "tensor", "source": "reach", "target": "bic", "seed": [0, 1, 2], "success_rate": [0.0, 0.4, 0.0]}
+    )
     v1 = M.MEASURES["reach_bic"]({"summary": summary}, s.rule)[""][0].parts[0]
     v2 = M.MEASURES["reach_bic"]({"summary": summary}, design.rule(s.rule, s.v2))[""][0].parts[0]
     assert not v1.proportion and v1.estimate().lo < 0  # a t-interval on shares runs below 0

@@ -1,7 +1,8 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
 ``reference-runs --scale small`` | ``budgets --scale small [--spread]`` | ``plan 3.3 --scale full --cores 64`` |
 ``claims ...`` | ``results [--check]`` | ``verify --scale small -n 20`` |
-``score model.zip --task Hopper --scale small`` | ``train ppo Hopper --seed 0 --scale small`` | ``enjoy ppo Hopper --seed 0 --test obs --sigma 0.4 --video out.mp4``
+``score model.zip --task Hopper --scale small`` | ``train ppo Hopper --seed 0 --scale small`` |
+``enjoy ppo Hopper --seed 0 --test obs --sigma 0.4 --video out.mp4``
 (your agent under the thesis's protocol, :mod:`thesis_repro.agent`) | ``--version``. Installed, the same command
 line is the ``thesis-repro`` console script.
 
