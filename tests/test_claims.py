@@ -186,7 +186,7 @@ def test_ledger_reads_saved_numbers_and_counts_claims_once(tmp_path, monkeypatch
     nc = [r for r in rows if r.spec.page == "fig-3.3"]
     assert nc and all(r.status in (report.NOT_COMPUTED,) or r.spec.rule.get("derived") for r in nc)
     board = L.scoreboard("small", rows)
-    assert "Distinct claims of the thesis" in board and "Beyond the thesis" in board and "null pass rate" in board
+    assert "Distinct claims of the thesis" in board and "Beyond the thesis" in board and "false R" in board
     # the headline's counts add up to the number of distinct claims (every status is named, visual included)
     head = board.split("Distinct claims of the thesis: ")[1].split("in this build")[0]
     total, rest = head.split(";", 1)
