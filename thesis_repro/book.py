@@ -164,6 +164,20 @@ def clean_outputs(outputs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return kept
 
 
+def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
+    """The page's verdicts first, one line per claim (label · claim · thesis · ours with its CI), or None when
+    the page saved none; each verdict's evidence stays at the end of the page."""
+    lines = [f"- {_escape_md(v.headline)}" for v in report.load(page, scale) if v.headline]
+    if not lines:
+        return None
+    head = "**Verdicts** (claims design v2; each one's evidence is at the end of the page):\n\n"
+    return md_cell(head + "\n".join(lines))
+
+
+def _escape_md(text: str) -> str:
+    return text.replace("*", "\\*").replace("_", "\\_")
+
+
 def thesis_cell(page: str, scale: str) -> dict[str, Any]:
     """The page's opening: the thesis's caption and claims, quoted with line references, and the scale."""
     entry = claims().get(page)
@@ -185,7 +199,7 @@ def thesis_cell(page: str, scale: str) -> dict[str, Any]:
         cmd = f"python -m thesis_repro figure {page} --scale {scale}"
     lines.append(
         f"Executed at scale **`{scale}`** (`{cmd}`). Numbers labelled *thesis* are the thesis's own; "
-        "numbers labelled *reproduced* were computed by the kit. The verdicts are at the end of the page."
+        "numbers labelled *reproduced* were computed by the kit. Each verdict's evidence is at the end of the page."
     )
     return md_cell("\n".join(lines))
 
@@ -216,6 +230,9 @@ def prepare_page(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
         cells.insert(0, md_cell(f"# {title(page)}"))
         at = 1
     cells.insert(at, thesis_cell(page, scale))
+    first_verdicts = verdicts_cell(page, scale)
+    if first_verdicts is not None:
+        cells.insert(at, first_verdicts)
     if not report.load(page, scale):
         cells.append(
             md_cell(
