@@ -47,13 +47,10 @@ def test_an_items_own_protocol_overrides_come_after_the_protocols(monkeypatch):
         "protocol_overrides": {"thesis": {"train_seeds": 3}},
     }
     monkeypatch.setattr(scales, "_table", lambda: table)
-    with scales.under_protocol("thesis"):
-        s = scales.figure_settings("_example", "small")
-        assert s["train_seeds"] == 3 and s["test_rollouts"] == 10  # own pin, then the protocol's rollouts
-        assert "protocol_overrides" not in s
-        assert scales.figure_settings("_example", "small", train_seeds=5)["train_seeds"] == 5  # the caller's last
-    with scales.under_protocol("kit-v1"):
-        assert scales.figure_settings("_example", "small")["train_seeds"] == 2  # not pinned under kit-v1
+    s = scales.figure_settings("_example", "small")
+    assert s["train_seeds"] == 3 and s["test_rollouts"] == 10  # own pin, then the protocol's rollouts
+    assert "protocol_overrides" not in s
+    assert scales.figure_settings("_example", "small", train_seeds=5)["train_seeds"] == 5  # the caller's last
     table["figures"]["_example"]["small"]["protocol_overrides"] = {"thesis": {"train_seed": 3}}
-    with scales.under_protocol("thesis"), pytest.raises(ValueError, match="unknown protocol_overrides setting"):
+    with pytest.raises(ValueError, match="unknown protocol_overrides setting"):
         scales.figure_settings("_example", "small")

@@ -38,9 +38,8 @@ def test_shipped_layer_is_compact():
     big = sorted(f"{p.relative_to(LAYER)} ({n / 2**20:.1f} MiB)" for p, n in sizes.items() if n > 2**21)
     assert not big, f"shipped files over 2 MiB (store arrays deflated, thin the logs): {big}"
     total = sum(sizes.values())
-    # ~0.35 MB per training run (99 kit-v1 runs: 35 MB). Until small switches protocol, both protocols' runs are
-    # shipped side by side, and issue 22 brings 3 seeds: ~300 thesis runs + evaluations after the switch (the kit-v1
-    # runs are deleted then). Still compact files, never optimiser state.
+    # ~0.35 MB per training run: small's 3 seeds of every chapter 3-4 run (issue 22) and their evaluations.
+    # Compact files, never optimiser state.
     assert total < 150e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is 150 MB"
 
 
@@ -51,7 +50,7 @@ def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
     assert runs.cost(job) <= 250_000, f"cheapest shipped run {job.label} costs {runs.cost(job):,.0f} steps"
     shipped = RunCache(tmp_path / "unused", reference=LAYER).load(job)
     assert shipped is not None and shipped.source == "shipped"
-    # in the numerics the shipped run was made in (kit-v1 runs: native MKL dispatch; later ones: portable)
+    # in the numerics the shipped run was made in (its provenance says native MKL dispatch or portable)
     fresh = runs.recompute(job, tmp_path / "runs", shipped)
     # bit-identical where the shipped run was made on this platform; elsewhere the same outcome (runs.OUTCOME_RTOL)
     check = runs.compare_retrain(shipped, fresh)

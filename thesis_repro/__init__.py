@@ -19,8 +19,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 #: Cost (measured 2026-11-25, README): 9-27 % of training throughput by learner. Must be set before torch loads
 #: MKL: ``import thesis_repro`` first (the Makefile exports them too); :func:`numerics` reports what is in effect
 #: (kept in every entry's provenance).
-#: ``THESIS_REPRO_NUMERICS=native`` leaves them unset (how the kit-v1 runs were trained: ``make verify`` and the
-#: retrain test recompute an entry in the numerics its provenance records).
+#: ``THESIS_REPRO_NUMERICS=native`` leaves them unset (how the earliest shipped runs were trained: ``make verify``
+#: and the retrain test recompute an entry in the numerics its provenance records).
 PORTABLE_NUMERICS = {"MKL_CBWR": "COMPATIBLE", "ATEN_CPU_CAPABILITY": "avx2"}
 NUMERICS_ENV = "THESIS_REPRO_NUMERICS"
 if os.environ.get(NUMERICS_ENV, "portable") != "native":

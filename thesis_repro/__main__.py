@@ -140,9 +140,6 @@ def _main(argv: list[str]) -> int:
         "--seeds", nargs="+", type=nonneg_int, default=None, help="only these training seeds (default: all)"
     )
     ref.add_argument(
-        "--protocol", default=None, help="training protocol: thesis | kit-v1 (default: the scale's, scales.yaml)"
-    )
-    ref.add_argument(
         "--jobs", type=positive_int, default=None, help="runs trained at once, >= 1 (default 1; 2 on two idle cores)"
     )
     ref.add_argument(
@@ -157,7 +154,7 @@ def _main(argv: list[str]) -> int:
     bud.add_argument(
         "--spread", action="store_true", help="seed spread per learner and task (markdown), beside published numbers"
     )
-    bud.add_argument("--protocol", default=None, help="with --spread: only this protocol's runs (thesis | kit-v1)")
+    bud.add_argument("--protocol", default=None, help="with --spread: only this protocol's runs (thesis)")
     bud.add_argument(
         "--at", type=positive_int, default=None, help="with --spread: also the training return at this many env steps"
     )
@@ -416,11 +413,9 @@ def _runs_command(args: argparse.Namespace) -> int:
         for folder in (paths.runs(), paths.reference()):
             check_writable(folder)
         kinds = args.kind or figures.TRAINING_KINDS
-        from thesis_repro.learners.config import ALGORITHMS, PROTOCOLS
+        from thesis_repro.learners.config import ALGORITHMS
         from thesis_repro.validation import check_choice
 
-        if args.protocol is not None:
-            os.environ[scales.PROTOCOL_ENV] = check_choice(args.protocol, PROTOCOLS, "protocol")
         for algo in args.algos or ():
             check_choice(algo, ALGORITHMS, "algorithm")
         only = {"algos": args.algos, "seeds": args.seeds}

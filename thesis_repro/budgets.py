@@ -253,12 +253,11 @@ def _flat(cfg: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 def config_protocols(cfg: Mapping[str, Any]) -> tuple[str, ...]:
     """The training protocols (:data:`~thesis_repro.learners.config.PROTOCOLS`) under which ``cfg`` is a run's
     config: those whose default config of the learner holds the same protocol settings (``lr_schedule``, ...,
-    :data:`~thesis_repro.learners.config.THESIS_PROTOCOL_KEYS`). A learner no protocol setting applies to (TRPO)
-    trains alike under both, so its runs belong to both.
+    :data:`~thesis_repro.learners.config.THESIS_PROTOCOL_KEYS`); none for a config without them.
 
     >>> from thesis_repro.learners import train_config
-    >>> [config_protocols(train_config(a, "Hopper", 0, 1000, protocol="thesis")) for a in ("ppo", "trpo")]
-    [('thesis',), ('thesis', 'kit-v1')]
+    >>> [config_protocols(train_config(a, "Hopper", 0, 1000)) for a in ("ppo", "trpo")]
+    [('thesis',), ('thesis',)]
     """
     from thesis_repro.learners.config import PROTOCOLS, THESIS_PROTOCOL_KEYS, train_config
 
@@ -300,22 +299,18 @@ def shipped_cache() -> RunCache:
 
 
 def spread_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
-    """Every ``train`` job of the figures (all by default) at ``scale`` under every training protocol, with the
+    """Every ``train`` job of the figures (all by default) at ``scale``, with the
     seeds the scale is being given ahead of its table (:data:`~thesis_repro.scales.TARGET_TRAIN_SEEDS`: a seed-1
     run shows in the spread as soon as it is shipped), and (for all figures) the protocol studies' runs
     (:func:`thesis_repro.study.study_jobs`), deduplicated by key."""
-    from thesis_repro.learners.config import PROTOCOLS
-    from thesis_repro.scales import TARGET_TRAIN_SEEDS, under_protocol
+    from thesis_repro.scales import TARGET_TRAIN_SEEDS
     from thesis_repro.study import study_jobs
 
     target = TARGET_TRAIN_SEEDS.get(scale)
-    jobs: dict[str, Job] = {}
-    for protocol in PROTOCOLS:
-        with under_protocol(protocol):
-            jobs.update((j.key, j) for j in training_jobs(scale, figure_ids))
-            if target:
-                ahead = runs.plan(scale, figure_ids, kinds=("train",), seeds=range(target))
-                jobs.update((p.job.key, p.job) for p in ahead)
+    jobs: dict[str, Job] = {j.key: j for j in training_jobs(scale, figure_ids)}
+    if target:
+        ahead = runs.plan(scale, figure_ids, kinds=("train",), seeds=range(target))
+        jobs.update((p.job.key, p.job) for p in ahead)
     if figure_ids is None:
         jobs.update((j.key, j) for j in study_jobs())
     return list(jobs.values())

@@ -195,8 +195,7 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
 
 def protocols_at(scale: str = "small") -> dict[str, list[str]]:
     """Training protocol -> the chapter 3-4 items (figure ids of scales.yaml with training seeds and test
-    rollouts) under it at ``scale``, each as ``"<id> (<seeds>×<rollouts>)"``, from the scale table alone
-    (``THESIS_REPRO_PROTOCOL`` is ignored).
+    rollouts) under it at ``scale``, each as ``"<id> (<seeds>×<rollouts>)"``, from the scale table.
 
     >>> "3.3 (1×10)" in protocols_at("small")["thesis"] or "3.3 (3×10)" in protocols_at("small")["thesis"]
     True
@@ -204,11 +203,10 @@ def protocols_at(scale: str = "small") -> dict[str, list[str]]:
     from thesis_repro import scales
 
     out: dict[str, list[str]] = {}
-    with scales.under_protocol(""):  # the table's own word, not a generator's override
-        for fig in scales.figures():
-            s = scales.figure_settings(fig, scale)
-            if "train_seeds" in s and "test_rollouts" in s and not fig.startswith(("5.", "analysis-")):
-                out.setdefault(str(s["protocol"]), []).append(f"{fig} ({s['train_seeds']}×{s['test_rollouts']})")
+    for fig in scales.figures():
+        s = scales.figure_settings(fig, scale)
+        if "train_seeds" in s and "test_rollouts" in s and not fig.startswith(("5.", "analysis-")):
+            out.setdefault(str(s["protocol"]), []).append(f"{fig} ({s['train_seeds']}×{s['test_rollouts']})")
     return out
 
 
@@ -222,11 +220,10 @@ def items_with_seeds(seeds: int, scale: str = "small") -> str:
     from thesis_repro import scales
 
     figs, tables = [], []
-    with scales.under_protocol(""):
-        for fig in scales.figures():
-            s = scales.figure_settings(fig, scale)
-            if "test_rollouts" in s and s.get("train_seeds") == seeds and not fig.startswith(("5.", "analysis-")):
-                (tables if fig.startswith("table-") else figs).append(fig.removeprefix("table-"))
+    for fig in scales.figures():
+        s = scales.figure_settings(fig, scale)
+        if "test_rollouts" in s and s.get("train_seeds") == seeds and not fig.startswith(("5.", "analysis-")):
+            (tables if fig.startswith("table-") else figs).append(fig.removeprefix("table-"))
 
     def words(kind: str, ids: list[str]) -> str:
         if not ids:
@@ -239,8 +236,8 @@ def items_with_seeds(seeds: int, scale: str = "small") -> str:
 
 
 def switch_summary(scale: str = "small") -> str:
-    """A section naming the chapter 3-4 items on each training protocol at ``scale`` (``small`` switches item by
-    item), each with its training seeds × test rollouts."""
+    """A section naming the chapter 3-4 items on each training protocol at ``scale``, each with its training
+    seeds × test rollouts."""
     lines = [
         f"## Which items train under which protocol at `{scale}`",
         "",

@@ -324,19 +324,13 @@ PENDING_SEEDS: tuple[int, ...] = (0, 1, 2)
 
 
 def pending_keys(scale: str, layer_root: str | Path | None = None) -> set[str]:
-    """Keys a shipped entry may have besides :func:`current_keys`: every figure's jobs under each training
-    protocol (runs regenerated for the thesis protocol land before an item switches to it) for the
+    """Keys a shipped entry may have besides :func:`current_keys`: every figure's jobs for the
     :data:`PENDING_SEEDS` (evaluations bound to the entries of ``layer_root``, as in :func:`current_keys`), and
     the protocol studies' runs (:mod:`thesis_repro.study`)."""
-    from thesis_repro.learners.config import PROTOCOLS
-    from thesis_repro.scales import under_protocol
     from thesis_repro.study import study_jobs
 
     keys = {j.key for j in study_jobs()}
-    for protocol in PROTOCOLS:
-        with under_protocol(protocol):
-            keys |= current_keys(scale, layer_root=layer_root, seeds=PENDING_SEEDS)
-    return keys
+    return keys | current_keys(scale, layer_root=layer_root, seeds=PENDING_SEEDS)
 
 
 def shipped_job(path: str | Path) -> Job:

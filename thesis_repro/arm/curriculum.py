@@ -23,7 +23,7 @@ thesis: 6000 + 4000 trials, line 1155):
 * ``NC`` (no curriculum): ``pretrain`` trials of MTL on BIC from the same random start, then ``bic`` trials
   of the same alternation on BIC (L extracted from its own factors, each task keeping its own s).
 
-``transfer: joint`` selects the kit's earlier procedure (kit-v1 of Fig 5.6, σ 0.05 then): every stage joint
+``transfer: joint`` selects the kit's earlier procedure (Fig 5.6 at σ 0.05): every stage joint
 CMA-ES on all four factors, carried from family to family including the task rows of U3.
 
 >>> CONDITIONS, TRANSFERS

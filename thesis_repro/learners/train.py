@@ -120,7 +120,7 @@ def _wrap(cfg: dict[str, Any], inner: VecEnv, vecnorm_path: Path | None) -> VecE
                 gamma=cfg["sb3"].get("gamma", 0.99),
             )
     if cfg.get("arpl") is not None:
-        arpl = cfg["arpl"]  # delta absent (kit-v1): the rescaled form those runs used
+        arpl = cfg["arpl"]  # delta absent: the rescaled form (ARPL_DELTAS)
         venv = ARPLVecEnv(venv, arpl["epsilon"], arpl["prob"], seed=cfg["seed"], delta=arpl.get("delta", "rescaled"))
     return venv
 
