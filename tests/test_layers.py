@@ -162,23 +162,3 @@ def test_runs_needs_only_the_figure_registry():
     assert not reaches(ROOT / "runs.py", "thesis_repro.claims")
     chapters = {f"thesis_repro.figures.{p.stem}" for p in FIGURES if p.stem != "__init__"}
     assert not mods & chapters, sorted(mods & chapters)
-
-
-def test_a_page_on_fewer_seeds_says_how_many_runs_of_the_others_are_ready(tmp_path, monkeypatch):
-    """A page on fewer seeds than its scale's target (as every chapter 3-4 item was while its seeds 1-2 were
-    generated) counts the runs of the missing seeds that are ready; a page on its target seeds says nothing more.
-    Every item has its target now, so the target is raised to 4 here: seed 3 is the one "being generated"."""
-    from thesis_repro import figures, pages, scales
-
-    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path / "reference"))
-    monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "runs"))
-    target = scales.TARGET_TRAIN_SEEDS["small"]
-    assert figures.settings("4.7", "small")["train_seeds"] == target
-    assert pages.seeds_to_come("4.7", "small", figures.settings("4.7", "small")) == ""
-    monkeypatch.setitem(scales.TARGET_TRAIN_SEEDS, "small", target + 1)
-    jobs = figures.jobs("4.7", "small")
-    per_seed = [j for j in jobs if j.kind in figures.TRAINING_KINDS and j.config["seed"] == 0]
-    line = pages.runs_summary("4.7", "small")
-    assert line.endswith(
-        f"seeds {target} (being generated): 0 of {len(per_seed)} training runs ready, this page uses them once all are"
-    )

@@ -105,23 +105,16 @@ def test_every_shipped_ppo_run_anneals_or_names_its_schedule():
     assert checked
 
 
-def test_protocol_overrides_apply_before_the_caller_s_overrides(monkeypatch):
-    """The thesis protocol's `small` takes its `protocol_overrides` (10 rollouts; 3 seeds once every chapter 3-4
-    run's seeds 1-2 are shipped), then an item's own `protocol_overrides`, but a caller's explicit override is the
-    last word (the generator plans seeds past the scale's count so)."""
+def test_each_scale_states_its_seeds_and_rollouts_once():
+    """`defaults` of scales.yaml give each scale's seeds and rollouts; no figure block of `small` restates them
+    (Fig 3.2 counts 3 like the rest), and the caller's explicit override is the last word."""
     table = scales._table()
-    thesis_small = table["protocol_overrides"]["thesis"]["small"]
-    assert thesis_small["test_rollouts"] == 10 and thesis_small["train_seeds"] in (1, 3)
-    s = scales.figure_settings("4.1", "small")  # an item without its own overrides
-    assert (s["train_seeds"], s["test_rollouts"]) == (thesis_small["train_seeds"], 10)
+    assert (table["defaults"]["small"]["train_seeds"], table["defaults"]["small"]["test_rollouts"]) == (3, 10)
+    assert set(table) == {"scales", "defaults", "figures"}
+    for fid in scales.figures():
+        block = table["figures"][fid]["small"] or {}
+        assert not {"train_seeds", "test_rollouts"} & set(block), fid
     assert scales.figure_settings("3.3", "small", train_seeds=5)["train_seeds"] == 5
-    assert scales.figure_settings("table-3.4", "small")["skip_algos"] == []
-    own = {"thesis": {"train_seeds": 2, "test_rollouts": 4}}  # an item's own block, applied after the scale's
-    block = {**table["figures"]["4.1"]["small"], "protocol_overrides": own}
-    monkeypatch.setitem(table["figures"]["4.1"], "small", block)
-    s = scales.figure_settings("4.1", "small")
-    assert (s["train_seeds"], s["test_rollouts"]) == (2, 4)
-    assert scales.figure_settings("4.1", "small", train_seeds=5)["train_seeds"] == 5
     s = scales.figure_settings("table-3.5", "small", protocol="thesis")
     assert (s["protocol"], s["test_rollouts"]) == ("thesis", 10)
 
@@ -141,32 +134,19 @@ def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
     assert not missing, f"small training runs neither shipped nor cached: {missing}"
 
 
-def test_the_thesis_protocol_brings_small_3_seeds_and_10_rollouts(monkeypatch):
-    """Issue 22's evidence at small (10 test rollouts; 3 training seeds once seeds 1-2 are shipped) comes with the
-    thesis protocol; chapter 5 keeps its own seeds."""
-    table = scales._table()
-    thesis_small = table["protocol_overrides"]["thesis"]["small"]
-
-    def seeds(fid: str) -> int:  # the scale-wide count, or the item's own once its seeds 1-2 are shipped
-        own = table["figures"][fid]["small"].get("protocol_overrides", {}).get("thesis", {})
-        return own.get("train_seeds", thesis_small["train_seeds"])
-
+def test_small_has_3_seeds_10_rollouts_and_every_learner():
+    """Issue 22's evidence at small: 3 training seeds x 10 test rollouts for every chapter 3-4 item, no learner
+    skipped; chapter 5 keeps its own seeds."""
     small = {fid: scales.figure_settings(fid, "small") for fid in scales.figures()}
-    switched = [fid for fid, s in small.items() if s["protocol"] == "thesis"]
-    assert switched == list(small)
-    assert seeds("3.2") == small["3.2"]["train_seeds"] == 3  # the first item with its 3 seeds shipped
-    for fid in switched:
-        s = small[fid]
-        assert (s["train_seeds"], s["test_rollouts"], s.get("skip_algos", [])) == (seeds(fid), 10, [])
-    for fid in ("3.3", "3.2", "4.1", "table-3.7"):
-        s = scales.figure_settings(fid, "small")
-        assert (s["train_seeds"], s["test_rollouts"]) == (seeds(fid), 10), fid
+    assert {s["protocol"] for s in small.values()} == {"thesis"}
+    for s in small.values():
+        assert (s["train_seeds"], s["test_rollouts"], s.get("skip_algos", [])) == (3, 10, []), s["figure"]
     assert scales.figure_settings("5.6", "small")["seeds"] == [0, 1, 2]
     assert scales.figure_settings("3.3", "full")["train_seeds"] == 12
 
 
-def test_the_generator_can_take_one_seed_first(monkeypatch):
-    """`--seeds 0` plans seed 0 only; `--seeds 0 1 2` plans the three seeds, seed by seed, past the scale's count."""
+def test_the_generator_can_take_one_seed_first():
+    """`--seeds 0` plans seed 0 only; `--seeds 0 1 2` plans the three seeds, seed by seed."""
     from thesis_repro import runs
 
     planned = runs.plan("small", ["3.3"], seeds=[0], algos=["ppo"])
@@ -197,17 +177,16 @@ def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
     )
 
 
-def test_seeds_generated_ahead_of_the_scale_table_are_not_stale(monkeypatch):
-    """The generator ships seeds 1-2 under the thesis protocol while `small` counts 1 seed: their keys are pending
-    (`check_shipped` must not call them stale), a seed past `runs.PENDING_SEEDS` is not."""
+def test_a_seed_past_the_scales_count_is_stale():
+    """`check_shipped` counts a scale's own seeds (and the protocol studies' runs) as current, no seed beyond."""
     from thesis_repro import runs
 
-    ahead = runs.plan("small", ["table-3.6"], seeds=[2], algos=["ppo-16"])
+    within = runs.plan("small", ["table-3.6"], seeds=[2], algos=["ppo-16"])
     beyond = runs.plan("small", ["table-3.6"], seeds=[5], algos=["ppo-16"])
-    assert ahead and beyond
-    pending = runs.pending_keys("small")
-    assert {p.job.key for p in ahead} <= pending
-    assert not {p.job.key for p in beyond} & pending
+    assert within and beyond
+    current = runs.current_keys("small", figure_ids=["table-3.6"])
+    assert {p.job.key for p in within} <= current
+    assert not {p.job.key for p in beyond} & current
 
 
 def test_readme_names_exactly_the_items_with_three_seeds():

@@ -176,17 +176,3 @@ def test_readme_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
         assert recomputed == line.strip(), f"README row is stale; rerun `{COMMAND}`"
     keys = [tuple(v for k, v in _parse(line).items() if k != "seeds") for line in rows]
     assert len(set(keys)) == len(keys), "a setting has two rows in the README block"
-
-
-def test_the_spread_counts_seeds_shipped_ahead_of_the_scale_table(monkeypatch):
-    """An item whose small table says fewer seeds than the scale's target (as every chapter 3-4 item did while its
-    seeds 1-2 were generated) has the missing seeds' runs in the spread as soon as they are shipped; `full` has no
-    target and keeps its own seeds. Every item has its target now, so the target is raised by one here."""
-    from thesis_repro import figures, scales
-
-    target = scales.TARGET_TRAIN_SEEDS["small"]
-    assert figures.settings("4.7", "small")["train_seeds"] == target
-    assert {j.config["seed"] for j in budgets.spread_jobs("small", ["4.7"])} == set(range(target))
-    monkeypatch.setitem(scales.TARGET_TRAIN_SEEDS, "small", target + 1)
-    assert {j.config["seed"] for j in budgets.spread_jobs("small", ["4.7"])} == set(range(target + 1))
-    assert {j.config["seed"] for j in budgets.spread_jobs("full", ["table-3.4"])} == set(range(12))  # no target

@@ -162,7 +162,7 @@ def test_auc_change_is_scale_free_per_task():
 
 
 # ================================================================ the chapter-3 items (figures.ch3_tables / ch3_curves)
-from thesis_repro import figures, paths, report, scales  # noqa: E402
+from thesis_repro import figures, paths, report  # noqa: E402
 from thesis_repro.figures import ch3_curves as C  # noqa: E402
 from thesis_repro.figures import ch3_tables as F  # noqa: E402
 
@@ -172,12 +172,6 @@ ITEMS = ["table-3.3", "table-3.4", "table-3.5", "table-3.6", "table-3.7", "3.4",
 def keys(item: str, scale: str, train_only: bool = False, **overrides) -> set[str]:
     jobs = figures.training_jobs(item, scale, **overrides) if train_only else figures.jobs(item, scale, **overrides)
     return {j.key for j in jobs}
-
-
-def own_seeds(item: str, scale: str, protocol: str) -> int | None:
-    """The training-seed count an item pins for itself under ``protocol`` (its seeds 1-2 shipped first), if any."""
-    own = scales._table()["figures"][item][scale].get("protocol_overrides", {}).get(protocol, {})
-    return own.get("train_seeds")
 
 
 def test_every_item_is_registered_with_a_notebook_and_settings_at_every_scale():
@@ -210,14 +204,8 @@ def test_budgets_are_fig_3_3s():
     for item in ITEMS:
         for scale in ("smoke", "small", "full"):
             s, ref = F.settings(item, scale), figures.settings("3.3", scale)
-            for key in ("timesteps", "test_rollouts", "max_episode_steps", "train_overrides"):
+            for key in ("timesteps", "train_seeds", "test_rollouts", "max_episode_steps", "train_overrides"):
                 assert s[key] == ref[key], (item, scale, key)
-            # the seed count too, unless the item (or Fig 3.3) pins its own: its seeds 1-2 are shipped first
-            pins = own_seeds(item, scale, "thesis"), own_seeds("3.3", scale, "thesis")
-            if pins == (None, None):
-                assert s["train_seeds"] == ref["train_seeds"], (item, scale)
-            elif pins[0] is not None:
-                assert s["train_seeds"] == pins[0], (item, scale)
 
 
 def test_settings_errors_name_the_valid_choices():

@@ -299,18 +299,11 @@ def shipped_cache() -> RunCache:
 
 
 def spread_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
-    """Every ``train`` job of the figures (all by default) at ``scale``, with the
-    seeds the scale is being given ahead of its table (:data:`~thesis_repro.scales.TARGET_TRAIN_SEEDS`: a seed-1
-    run shows in the spread as soon as it is shipped), and (for all figures) the protocol studies' runs
-    (:func:`thesis_repro.study.study_jobs`), deduplicated by key."""
-    from thesis_repro.scales import TARGET_TRAIN_SEEDS
+    """Every ``train`` job of the figures (all by default) at ``scale`` and (for all figures) the protocol studies'
+    runs (:func:`thesis_repro.study.study_jobs`), deduplicated by key."""
     from thesis_repro.study import study_jobs
 
-    target = TARGET_TRAIN_SEEDS.get(scale)
     jobs: dict[str, Job] = {j.key: j for j in training_jobs(scale, figure_ids)}
-    if target:
-        ahead = runs.plan(scale, figure_ids, kinds=("train",), seeds=range(target))
-        jobs.update((p.job.key, p.job) for p in ahead)
     if figure_ids is None:
         jobs.update((j.key, j) for j in study_jobs())
     return list(jobs.values())

@@ -318,21 +318,6 @@ def current_keys(
     return keys
 
 
-#: Training seeds the reference runs are generated for ahead of the scale table (issue 22: 3 at ``small``; the
-#: generator's ``--seeds 0 1 2`` ships seeds 1-2 while ``small`` still counts 1).
-PENDING_SEEDS: tuple[int, ...] = (0, 1, 2)
-
-
-def pending_keys(scale: str, layer_root: str | Path | None = None) -> set[str]:
-    """Keys a shipped entry may have besides :func:`current_keys`: every figure's jobs for the
-    :data:`PENDING_SEEDS` (evaluations bound to the entries of ``layer_root``, as in :func:`current_keys`), and
-    the protocol studies' runs (:mod:`thesis_repro.study`)."""
-    from thesis_repro.study import study_jobs
-
-    keys = {j.key for j in study_jobs()}
-    return keys | current_keys(scale, layer_root=layer_root, seeds=PENDING_SEEDS)
-
-
 def shipped_job(path: str | Path) -> Job:
     """The :class:`Job` a shipped (or cached) entry was made from, rebuilt from its ``config.json``;
     ``ValueError`` if it no longer hashes to the entry's key (e.g. after a ``CACHE_VERSION`` bump)."""
@@ -389,7 +374,9 @@ def check_shipped(scale: str = "small", layer_root: str | Path | None = None) ->
     An empty list means every shipped run is still used; otherwise each :attr:`StaleRun.message` says how
     to regenerate.
     """
-    keys = current_keys(scale, layer_root=layer_root) | pending_keys(scale, layer_root)
+    from thesis_repro.study import study_jobs
+
+    keys = current_keys(scale, layer_root=layer_root) | {j.key for j in study_jobs()}  # the studies' runs too
     stale = []
     for path in shipped_entries(layer_root):
         key = path.name.rsplit("__", 1)[1]
