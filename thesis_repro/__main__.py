@@ -423,7 +423,10 @@ def _runs_command(args: argparse.Namespace) -> int:
         runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1, until=until, **only)
         return 0
     if args.check:
-        stale, corrupt, local = runs.check_shipped(args.scale), runs.verify_shipped(), runs.verify_local()
+        from thesis_repro.study import study_jobs
+
+        stale = runs.check_shipped(args.scale, also={j.key for j in study_jobs()})
+        corrupt, local = runs.verify_shipped(), runs.verify_local()
         for s in stale:
             print(s.message)
         for path, err in corrupt.items():

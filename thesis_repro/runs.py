@@ -55,7 +55,8 @@ from thesis_repro.cache import (
     sweep_tmp,
     write_manifest,
 )
-from thesis_repro.plan import Rates, job_rate, shipped_rates, work
+from thesis_repro.plan import Rates, job_rate, seed_count, shipped_rates, work
+from thesis_repro.plan import table as table  # re-exported: the run listing's table (the CLI, verify)
 from thesis_repro.plan import training_seed as job_seed  # the training seed of a job (an evaluation: its policy's)
 from thesis_repro.validation import check_choice
 
@@ -123,19 +124,6 @@ def rows(figure_id: str, scale: str, cache: RunCache | None = None, verify: bool
     :func:`job_state`."""
     cache = cache or RunCache()
     return [job_row(job, cache, verify) for job in figures.jobs(figure_id, scale)]
-
-
-def table(rows: Sequence[Mapping[str, str]], columns: Sequence[str] = ("kind", "label", "key", "state", "path")) -> str:
-    """Plain-text table of ``rows`` (what ``python -m thesis_repro runs`` prints).
-
-    >>> print(table([{"kind": "train", "label": "ppo__Hopper__s0", "key": "ab12", "state": "shipped", "path": "p"}]))
-    kind   label            key   state    path
-    train  ppo__Hopper__s0  ab12  shipped  p
-    """
-    widths = [max([len(c), *(len(str(r[c])) for r in rows)]) for c in columns]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)).rstrip()]
-    lines += ["  ".join(str(r[c]).ljust(w) for c, w in zip(columns, widths, strict=True)).rstrip() for r in rows]
-    return "\n".join(lines)
 
 
 def summary(jobs: Iterable[Job], cache: RunCache | None = None, verify: bool = False) -> str:
@@ -368,15 +356,16 @@ def shipped_seconds(path: str | Path) -> float:
         return math.nan
 
 
-def check_shipped(scale: str = "small", layer_root: str | Path | None = None) -> list[StaleRun]:
-    """Shipped entries whose key is no longer produced by any figure's current config at ``scale`` (stale).
+def check_shipped(
+    scale: str = "small", layer_root: str | Path | None = None, also: Iterable[str] = ()
+) -> list[StaleRun]:
+    """Shipped entries whose key is no longer produced by any figure's current config at ``scale`` (stale), nor
+    is one of ``also`` (the protocol studies' runs: :func:`thesis_repro.study.study_keys`).
 
     An empty list means every shipped run is still used; otherwise each :attr:`StaleRun.message` says how
     to regenerate.
     """
-    from thesis_repro.study import study_jobs
-
-    keys = current_keys(scale, layer_root=layer_root) | {j.key for j in study_jobs()}  # the studies' runs too
+    keys = current_keys(scale, layer_root=layer_root) | set(also)
     stale = []
     for path in shipped_entries(layer_root):
         key = path.name.rsplit("__", 1)[1]
@@ -587,15 +576,6 @@ def job_algorithm(job: Job) -> str | None:
     """The learner a training job trains, or an evaluation evaluates (``None`` for other kinds)."""
     cfg = job.config.get("train", job.config)
     return cfg.get("algorithm") if isinstance(cfg, Mapping) else None
-
-
-def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, int]:
-    """The ``train_seeds`` override that makes ``figure_id`` plan every one of ``seeds`` (seeds past the scale's
-    own count are produced ahead of the scale table, e.g. seeds 1-2 while ``small`` shows 1); ``{}`` if none."""
-    if not seeds:
-        return {}
-    have = figures.settings(figure_id, scale).get("train_seeds")
-    return {"train_seeds": max(seeds) + 1} if have is not None and max(seeds) + 1 > int(have) else {}
 
 
 def plan(

@@ -338,6 +338,7 @@ def produce(
     jobs: Sequence[Job], n_jobs: int = 1, ship: bool = False, commit: bool = False, spec: StudySpec | None = None
 ) -> None:
     """Train the jobs that are neither cached nor shipped, ``n_jobs`` at a time; export (and commit) each."""
+    # local: only the generator needs runs (which imports the figure layer); the claims layer imports this module
     from thesis_repro.backends import execute
     from thesis_repro.runs import _die_with_parent, export, git_commit, wall_seconds
 

@@ -36,8 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from thesis_repro.arm.learn import ALGO_VERSION
-from thesis_repro.arm.tasks import SIM_VERSION
+from thesis_repro.arm.learn import ALGO_VERSION, evaluate_policies, mtl_alternate, mtl_refine
+from thesis_repro.arm.policy import RBFPolicy
+from thesis_repro.arm.tasks import SIM_VERSION, sample_tasks
+from thesis_repro.arm.transfer import Tucker, hosvd
 from thesis_repro.validation import check_choice
 
 CONDITIONS: tuple[str, ...] = ("CL", "NC")
@@ -68,9 +70,6 @@ CURRICULUM_DEFAULTS: dict[str, Any] = {
 
 
 def _random_start(n_tasks: int, n_basis: int, ranks: tuple[int, int, int], scale: float, rng: np.random.Generator):
-    from thesis_repro.arm.policy import RBFPolicy
-    from thesis_repro.arm.transfer import hosvd
-
     W = np.tile(RBFPolicy(n_basis=n_basis).default_params(), (n_tasks, 1, 1))
     W[:, :n_basis] += scale * rng.normal(size=(n_tasks, n_basis, 2))
     D = n_basis + 2
@@ -86,10 +85,6 @@ def curriculum_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any
     rate of the multiplied-out BIC policies; with ``transfer: alternate`` also ``phases`` (G,), the phase
     (``"s"`` or ``"L"``) of every BIC generation.
     """
-    from thesis_repro.arm.learn import evaluate_policies, mtl_alternate, mtl_refine
-    from thesis_repro.arm.tasks import sample_tasks
-    from thesis_repro.arm.transfer import Tucker
-
     cfg = {**CURRICULUM_DEFAULTS, **config}
     condition = check_choice(cfg["condition"], CONDITIONS, "curriculum condition")
     transfer = check_choice(cfg["transfer"], TRANSFERS, "curriculum transfer")
