@@ -49,7 +49,8 @@ from thesis_repro.envs.vec import LeanVecEnv, LeanVecNormalize
 from thesis_repro.learners.algos import DDPGSplit
 from thesis_repro.learners.arpl import ARPLVecEnv
 from thesis_repro.learners.config import iteration_steps
-from thesis_repro.learners.fast import FastPPO, FastSAC, FastTRPO  # leaner, equivalent (tests/test_fast.py)
+from thesis_repro.learners.fast import FastPPO, FastTRPO  # leaner, equivalent (tests/test_fast.py)
+from thesis_repro.learners.fast_offpolicy import FastSAC
 from thesis_repro.learners.multidomain import CLASSES as MULTI_DOMAIN_CLASSES
 from thesis_repro.learners.policies import SCNPolicy
 from thesis_repro.learners.resume import ResumeMismatch, capture, global_rng_state, restore, set_global_rng_state
