@@ -50,7 +50,6 @@ from thesis_repro.cache import (
     RunCache,
     entry_identity,
     find_entry,
-    platform_info,
     read_entry,
     sweep_tmp,
     write_manifest,
@@ -58,6 +57,7 @@ from thesis_repro.cache import (
 from thesis_repro.plan import Rates, job_rate, seed_count, shipped_rates, work
 from thesis_repro.plan import table as table  # re-exported: the run listing's table (the CLI, verify)
 from thesis_repro.plan import training_seed as job_seed  # the training seed of a job (an evaluation: its policy's)
+from thesis_repro.provenance import numerics_env, platform_info, same_platform
 from thesis_repro.validation import check_choice
 
 #: States of a job in :func:`rows`.
@@ -415,37 +415,6 @@ WEIGHTS_ATOL = 1e-6
 #: sample of the same training procedure: its training return and its deterministic policy's testing return
 #: must match the shipped run's within this relative tolerance.
 OUTCOME_RTOL = 0.05
-
-
-def same_platform(result_or_path: Result | str | Path) -> bool | None:
-    """Was this run made on a platform equal to this one (:func:`~thesis_repro.cache.platform_info`) and in the
-    numerics in effect here (:func:`thesis_repro.numerics`)? ``None`` if its provenance does not record a
-    platform (runs made before it was recorded)."""
-    path = Path(getattr(result_or_path, "path", result_or_path))
-    prov = json.loads((path / "provenance.json").read_text())
-    recorded = prov.get("platform")
-    if recorded is None:
-        return None
-    return recorded == json.loads(json.dumps(platform_info())) and numerics_env(path) == numerics_env(None)
-
-
-def numerics_env(result_or_path: Result | str | Path | None) -> dict[str, str]:
-    """The numerics variables that recompute an entry as it was made: its provenance's ``numerics`` (entries
-    made before they were recorded: native, ``THESIS_REPRO_NUMERICS=native``); ``None``: this process's.
-
-    >>> numerics_env(None)["MKL_CBWR"]
-    'COMPATIBLE'
-    """
-    import thesis_repro
-
-    if result_or_path is None:
-        rec: dict[str, Any] | None = thesis_repro.numerics()
-    else:
-        path = Path(getattr(result_or_path, "path", result_or_path))
-        rec = json.loads((path / "provenance.json").read_text()).get("numerics")
-    if not rec or not rec.get("MKL_CBWR"):
-        return {thesis_repro.NUMERICS_ENV: "native"}
-    return {thesis_repro.NUMERICS_ENV: "portable", **{k: str(rec[k]) for k in thesis_repro.PORTABLE_NUMERICS}}
 
 
 _RECOMPUTE = """
