@@ -54,7 +54,7 @@ def numerics() -> dict[str, str | None]:
     >>> numerics()["MKL_CBWR"]
     'COMPATIBLE'
     """
-    import torch
+    import torch  # local: the numerics variables above must be set before torch loads MKL
 
     return {
         **{k: os.environ.get(k) for k in PORTABLE_NUMERICS},

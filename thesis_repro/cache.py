@@ -388,7 +388,7 @@ def single_threaded() -> Iterator[None]:
     2
     """
     try:
-        import torch
+        import torch  # local: the cache machinery itself needs no torch (and stays quick to import)
     except ImportError:  # pragma: no cover - the kit's jobs need torch; the cache machinery does not
         yield
         return

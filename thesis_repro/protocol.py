@@ -34,7 +34,7 @@ from typing import Any
 
 import yaml
 
-from thesis_repro import paths
+from thesis_repro import paths, scales
 
 #: The data file of the page (outside ``data/thesis``, whose files are part of every notebook's execution key:
 #: editing the table must not re-execute the book's notebooks, which never read it).
@@ -105,13 +105,14 @@ def scales_ids(table: Mapping[str, Any] | None = None) -> set[str]:
 
 def run_ids() -> set[str]:
     """``run:<key>`` for every run setting of :data:`thesis_repro.learners.config.RUN_DEFAULTS`."""
-    from thesis_repro.learners.config import RUN_DEFAULTS
+    from thesis_repro.learners.config import RUN_DEFAULTS  # local: the learners package loads torch and SB3
 
     return {f"run:{k}" for k in RUN_DEFAULTS}
 
 
 def arm_ids() -> set[str]:
     """``arm:<block>.<key>`` for chapter 5's job defaults and the RBF-PD policy's fields."""
+    # local: the arm modules load cma's and the simulator's stack; only the setting ids need them
     from thesis_repro.arm.baselines import TARGET_DEFAULTS
     from thesis_repro.arm.curriculum import CURRICULUM_DEFAULTS
     from thesis_repro.arm.learn import SOURCE_DEFAULTS
@@ -200,8 +201,6 @@ def protocols_at(scale: str = "small") -> dict[str, list[str]]:
     >>> "3.3 (1×10)" in protocols_at("small")["thesis"] or "3.3 (3×10)" in protocols_at("small")["thesis"]
     True
     """
-    from thesis_repro import scales
-
     out: dict[str, list[str]] = {}
     for fig in scales.figures():
         s = scales.figure_settings(fig, scale)
@@ -217,8 +216,6 @@ def items_with_seeds(seeds: int, scale: str = "small") -> str:
     >>> items_with_seeds(99)
     'no item'
     """
-    from thesis_repro import scales
-
     figs, tables = [], []
     for fig in scales.figures():
         s = scales.figure_settings(fig, scale)

@@ -52,6 +52,8 @@ from stable_baselines3.common.utils import explained_variance, obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
+from thesis_repro.learners.policies import SCNExtractor
+
 _LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
 
 
@@ -174,8 +176,6 @@ class _ManualActorCritic:
     @staticmethod
     def build(policy: nn.Module) -> _ManualActorCritic | None:
         """The manual path for ``policy``, or None if its structure is not one the kit uses."""
-        from thesis_repro.learners.policies import SCNExtractor
-
         if not isinstance(policy, ActorCriticPolicy) or type(policy.action_dist) is not DiagGaussianDistribution:
             return None
         if policy.use_sde or policy.squash_output or not isinstance(policy.observation_space, spaces.Box):
