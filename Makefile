@@ -79,15 +79,14 @@ test: $(STAMP) $(RAY_STAMP) $(CHROMIUM_STAMP)
 	$(BIN)/python -m pytest -n 2 --dist loadgroup -q -rfEs --durations=15 --doctest-modules tests thesis_repro \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
-## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [PROTOCOL=thesis] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] [UNTIL=22:40] :
+## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] [UNTIL=22:40] :
 ## train every figure's training runs (cheapest first, resumable: re-run after an interruption) and ship them in
-## data/reference; COMMIT=1 commits each as it lands; PROTOCOL overrides the scale's training protocol; several
-## SEEDS: the first one of every figure, then the others figure by figure; KINDS="train evaluate" also ships each evaluation as soon
-## as the run it loads has landed; UNTIL=HH:MM starts only jobs expected to end by then (a session's end: a run cut
+## data/reference; COMMIT=1 commits each as it lands; several SEEDS: the first one of every figure, then the others
+## figure by figure; KINDS="train evaluate" also ships each evaluation as soon as the run it loads has landed; UNTIL=HH:MM starts only jobs expected to end by then (a session's end: a run cut
 ## off there restarts on a new machine)
 reference-runs: $(STAMP)
 	nice -n 10 $(BIN)/python -m thesis_repro reference-runs --scale $(SCALE) $(if $(FIGURES),--figures $(FIGURES)) \
-	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS)) $(if $(PROTOCOL),--protocol $(PROTOCOL)) \
+	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS)) \
 	  $(if $(ALGOS),--algos $(ALGOS)) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(KINDS),--kind $(KINDS)) \
 	  $(if $(UNTIL),--until $(UNTIL))
 
@@ -96,7 +95,7 @@ reference-runs: $(STAMP)
 ## at a time, item by item in SEED_ORDER (cheap, many-claim items first); UNTIL = the session's end
 SEED_ORDER := table-3.3 4.4 4.7 4.2 3.4 table-3.6 table-3.4 3.3 3.7 table-3.5 3.5 table-3.7 3.6 3.8 4.1 4.3 4.5 4.6 3.2
 seeds:
-	$(MAKE) reference-runs SCALE=small PROTOCOL=thesis SEEDS="0 1 2" KINDS="train evaluate" COMMIT=1 JOBS=2 \
+	$(MAKE) reference-runs SCALE=small SEEDS="0 1 2" KINDS="train evaluate" COMMIT=1 JOBS=2 \
 	  FIGURES="$(SEED_ORDER)" $(if $(UNTIL),UNTIL=$(UNTIL))
 
 ## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] [FIGURE=3.3 | ENTRY=<key> |

@@ -225,7 +225,7 @@ def _off_policy_twin(model):
 def _off_policy_model(kind: str):
     from thesis_repro.envs import make_env
     from thesis_repro.learners.algos import DDPGSplit
-    from thesis_repro.learners.fast import FastDDPG, FastSAC
+    from thesis_repro.learners.fast_offpolicy import FastDDPG, FastSAC
 
     pk = {"net_arch": [32, 32], "activation_fn": th.nn.ReLU, "optimizer_kwargs": {"fused": True}}
     common = dict(buffer_size=5000, learning_starts=200, train_freq=50, gradient_steps=50, seed=0, device="cpu")

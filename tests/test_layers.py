@@ -7,6 +7,9 @@ the figure registry (job lists), never a chapter module or the claims layer.
 The direction is ``runs -> figures``, ``budgets -> figures, runs`` and ``pages -> figures, runs, budgets``: no
 figure module imports ``runs``, ``budgets`` or the claims layer, directly or through any other module of the
 package (what a page prints about its runs lives in :mod:`thesis_repro.pages`).
+
+The whole package follows the package map of ``thesis_repro/__init__.py``: each layer (core; store and backends;
+envs; learners, mdl, arm; evaluation; figures; runs; claims; book and CLI) imports only itself and the layers below.
 """
 
 from __future__ import annotations
@@ -164,21 +167,59 @@ def test_runs_needs_only_the_figure_registry():
     assert not mods & chapters, sorted(mods & chapters)
 
 
-def test_a_page_on_fewer_seeds_says_how_many_runs_of_the_others_are_ready(tmp_path, monkeypatch):
-    """A page on fewer seeds than its scale's target (as every chapter 3-4 item was while its seeds 1-2 were
-    generated) counts the runs of the missing seeds that are ready; a page on its target seeds says nothing more.
-    Every item has its target now, so the target is raised to 4 here: seed 3 is the one "being generated"."""
-    from thesis_repro import figures, pages, scales
+# ------------------------------------------------------------------ the package map: each layer imports downward
+def package_map() -> list[tuple[str, list[str]]]:
+    """The layers of the package docstring (``thesis_repro/__init__.py``), bottom up: (name, module prefixes)."""
+    import re
 
-    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path / "reference"))
-    monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "runs"))
-    target = scales.TARGET_TRAIN_SEEDS["small"]
-    assert figures.settings("4.7", "small")["train_seeds"] == target
-    assert pages.seeds_to_come("4.7", "small", figures.settings("4.7", "small")) == ""
-    monkeypatch.setitem(scales.TARGET_TRAIN_SEEDS, "small", target + 1)
-    jobs = figures.jobs("4.7", "small")
-    per_seed = [j for j in jobs if j.kind in figures.TRAINING_KINDS and j.config["seed"] == 0]
-    line = pages.runs_summary("4.7", "small")
-    assert line.endswith(
-        f"seeds {target} (being generated): 0 of {len(per_seed)} training runs ready, this page uses them once all are"
-    )
+    layers = []
+    for m in re.finditer(r"^\d+\. \*\*(.+?)\*\*: (.+?) --", thesis_repro.__doc__ or "", re.M | re.S):
+        names = re.findall(r"``([\w.]+)``", m.group(2))
+        layers.append((m.group(1), [n if n == "thesis_repro" else f"thesis_repro.{n}" for n in names]))
+    return layers
+
+
+def layer_of(module: str, layers: list[tuple[str, list[str]]]) -> int | None:
+    """The index of ``module``'s layer: the one naming its longest prefix (``bench.evaluation`` before ``bench``)."""
+    best: tuple[int, int] | None = None
+    for i, (_, prefixes) in enumerate(layers):
+        for p in prefixes:
+            if (module == p or module.startswith(p + ".")) and (best is None or len(p) > best[1]):
+                best = (i, len(p))
+    return None if best is None else best[0]
+
+
+def upward_imports(imports: dict[str, set[str]], layers: list[tuple[str, list[str]]]) -> list[str]:
+    """Every import (module -> what it imports, nested ones too) of a module from a higher layer, as
+    ``"a (layer) -> b (layer)"``."""
+    out = []
+    for name, names in imports.items():
+        mine = layer_of(name, layers)
+        for target in sorted(names & set(imports)):
+            theirs = layer_of(target, layers)
+            if name.startswith(target + ".") or mine is None or theirs is None:
+                continue  # a submodule's own package, or a module the map misses (its own test fails)
+            if theirs > mine:
+                out.append(f"{name} ({layers[mine][0]}) -> {target} ({layers[theirs][0]})")
+    return out
+
+
+def test_the_package_map_lists_the_layers_of_the_issue_and_every_module():
+    layers = package_map()
+    assert [name for name, _ in layers] == [
+        "core", "store and backends", "envs", "learners, mdl, arm", "evaluation", "figures", "runs", "claims",
+        "book and CLI",
+    ]  # fmt: skip
+    unmapped = sorted(m for m in sources() if layer_of(m, layers) is None)
+    assert not unmapped, f"modules the package map (thesis_repro/__init__.py) does not place: {unmapped}"
+
+
+def test_each_layer_imports_only_downward():
+    up = upward_imports({name: imported(path) for name, path in sources().items()}, package_map())
+    assert not up, "imports against the package map (thesis_repro/__init__.py):\n" + "\n".join(up)
+
+
+def test_the_layer_check_catches_an_upward_import():
+    probe = imported(ROOT / "envs" / "probe.py", text="def f():\n    from thesis_repro import runs\n")
+    imports = {"thesis_repro.envs.probe": probe, "thesis_repro.runs": set()}
+    assert upward_imports(imports, package_map()) == ["thesis_repro.envs.probe (envs) -> thesis_repro.runs (runs)"]

@@ -1,9 +1,7 @@
-"""The training protocol (issue 20): baselines ppo1's linear annealing, the kit-v1 protocol that keeps the
-shipped small runs' keys, and the invariant that a fresh clone's small figure never trains for hours."""
+"""The training protocol (issue 20): baselines ppo1's linear annealing, the thesis protocol as the only one, and
+the invariant that a fresh clone's small figure never trains for hours."""
 
 from __future__ import annotations
-
-import copy
 
 import numpy as np
 import pytest
@@ -11,7 +9,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from thesis_repro import figures, paths, protocol, scales
 from thesis_repro.learners import train_config, train_job
-from thesis_repro.learners.config import THESIS_PROTOCOL_KEYS, iteration_steps
+from thesis_repro.learners.config import PROTOCOLS, THESIS_PROTOCOL_KEYS, iteration_steps
 from thesis_repro.learners.train import Ppo1Linear
 
 PPO = {"n_steps": 64, "n_envs": 2, "batch_size": 32, "n_epochs": 2}
@@ -62,63 +60,63 @@ def test_ppo1_schedule_values():
     assert s(0.9) == 1.0 and s(0.0) == pytest.approx(0.1) and s(-0.5) == 0.0
 
 
-def _without(cfg: dict, paths) -> dict:
-    """``cfg`` without the settings at the dotted ``paths`` (``"sb3.x"`` is ``cfg["sb3"]["x"]``)."""
-    out = copy.deepcopy(cfg)
-    for path in paths:
-        *parents, leaf = path.split(".")
-        holder = out
-        for part in parents:
-            holder = holder.get(part) if isinstance(holder, dict) else None
-        if isinstance(holder, dict):
-            holder.pop(leaf, None)
+def _flat(cfg: dict, prefix: str = "") -> set[str]:
+    """The dotted paths of ``cfg``'s settings (``"sb3.x"`` is ``cfg["sb3"]["x"]``)."""
+    out = set()
+    for key, value in cfg.items():
+        out.add(prefix + key)
+        if isinstance(value, dict):
+            out |= _flat(value, f"{prefix}{key}.")
     return out
 
 
-def test_kit_v1_protocol_drops_exactly_the_thesis_protocol_settings():
+def test_the_thesis_protocol_is_the_only_one_and_the_default():
+    assert PROTOCOLS == ("thesis",)
     algos = ("ppo", "ppo-mdl", "ppo-maml-dg", "ppo-reptile-dg", "ppo-epopt", "ppo-arpl", "kl-avg", "trpo", "sac")
     for algo in algos:
-        thesis = train_config(algo, "Hopper", 0, 1000, protocol="thesis")
-        old = train_config(algo, "Hopper", 0, 1000, protocol="kit-v1")
-        assert old == _without(thesis, THESIS_PROTOCOL_KEYS)
-        assert ("lr_schedule" in thesis) == (thesis["class"] not in ("TRPO", "SAC", "DDPG"))
-    with pytest.raises(ValueError, match="valid protocols are"):
+        cfg = train_config(algo, "Hopper", 0, 1000)
+        assert cfg == train_config(algo, "Hopper", 0, 1000, protocol="thesis")
+        assert ("lr_schedule" in cfg) == (cfg["class"] not in ("TRPO", "SAC", "DDPG"))
+        assert cfg.get("lr_schedule", "linear") == "linear"  # PPO's default anneals
+    keys = {"ppo-epopt": "sb3.epopt_rank", "ppo-maml-dg": "sb3.domain_per_batch", "ppo-arpl": "arpl.delta"}
+    for algo, key in keys.items():
+        assert {key, "lr_schedule"} <= _flat(train_config(algo, "Hopper", 0, 1000)) & set(THESIS_PROTOCOL_KEYS)
+    with pytest.raises(ValueError, match="valid protocols are: 'thesis'$"):
         train_config("ppo", "Hopper", 0, 1000, protocol="baselines")
 
 
-def test_the_protocol_override_is_validated(monkeypatch):
-    monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
-    assert scales.figure_settings("3.3", "small")["protocol"] == "thesis"
-    monkeypatch.setenv(scales.PROTOCOL_ENV, "bogus")
-    with pytest.raises(ValueError, match="valid THESIS_REPRO_PROTOCOL protocols are"):
-        scales.figure_settings("3.3", "small")
+def test_every_shipped_ppo_run_anneals_or_names_its_schedule():
+    """A shipped PPO-family run anneals linearly, or trains another named schedule of the lr-schedule study."""
+    import json
+
+    from thesis_repro.learners.config import LR_SCHEDULES
+    from thesis_repro.study import lr_schedule_jobs
+
+    study = {j.key for j in lr_schedule_jobs()}
+    checked = 0
+    for path in sorted((paths.ROOT / "data" / "reference" / "train").iterdir()):
+        meta = json.loads((path / "config.json").read_text())
+        cfg = meta["config"]
+        if cfg.get("class") in ("TRPO", "SAC", "DDPG"):  # no learning-rate schedule
+            continue
+        checked += 1
+        assert cfg.get("lr_schedule") in LR_SCHEDULES, f"{path.name}: no named lr_schedule"
+        assert cfg["lr_schedule"] == "linear" or meta["key"] in study, f"{path.name}: {cfg['lr_schedule']}"
+    assert checked
 
 
-def test_protocol_overrides_apply_before_the_caller_s_overrides(monkeypatch):
-    """The thesis protocol's `small` takes its `protocol_overrides` (10 rollouts; 3 seeds once every chapter 3-4
-    run's seeds 1-2 are shipped), then an item's own `protocol_overrides`, but a caller's explicit override is the
-    last word (the generator plans seeds past the scale's count so); a figure on kit-v1 keeps its own 3 rollouts
-    and its skipped learners."""
+def test_each_scale_states_its_seeds_and_rollouts_once():
+    """`defaults` of scales.yaml give each scale's seeds and rollouts; no figure block of `small` restates them
+    (Fig 3.2 counts 3 like the rest), and the caller's explicit override is the last word."""
     table = scales._table()
-    thesis_small = table["protocol_overrides"]["thesis"]["small"]
-    assert thesis_small["test_rollouts"] == 10 and thesis_small["train_seeds"] in (1, 3)
-    monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
-    s = scales.figure_settings("4.1", "small")  # an item without its own overrides
-    assert (s["train_seeds"], s["test_rollouts"]) == (thesis_small["train_seeds"], 10)
+    assert (table["defaults"]["small"]["train_seeds"], table["defaults"]["small"]["test_rollouts"]) == (3, 10)
+    assert set(table) == {"scales", "defaults", "figures"}
+    for fid in scales.figures():
+        block = table["figures"][fid]["small"] or {}
+        assert not {"train_seeds", "test_rollouts"} & set(block), fid
     assert scales.figure_settings("3.3", "small", train_seeds=5)["train_seeds"] == 5
-    assert scales.figure_settings("table-3.4", "small")["skip_algos"] == []
-    own = {"thesis": {"train_seeds": 2, "test_rollouts": 4}}  # an item's own block, applied after the scale's
-    block = {**table["figures"]["4.1"]["small"], "protocol_overrides": own}
-    monkeypatch.setitem(table["figures"]["4.1"], "small", block)
-    s = scales.figure_settings("4.1", "small")
-    assert (s["train_seeds"], s["test_rollouts"]) == (2, 4)
-    assert scales.figure_settings("4.1", "small", train_seeds=5)["train_seeds"] == 5
-    monkeypatch.delenv(scales.PROTOCOL_ENV)
     s = scales.figure_settings("table-3.5", "small", protocol="thesis")
     assert (s["protocol"], s["test_rollouts"]) == ("thesis", 10)
-    kit = scales.figure_settings("table-3.4", "small", protocol="kit-v1")
-    assert (kit["test_rollouts"], kit["skip_algos"]) == (3, ["ddpg", "sac"])  # kit-v1 skips them
-    assert scales.figure_settings("4.1", "small", protocol="kit-v1")["train_seeds"] == 1  # own thesis overrides only
 
 
 def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
@@ -130,50 +128,27 @@ def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path))
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
     monkeypatch.delenv("THESIS_REPRO_RETRAIN", raising=False)
-    monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
     cache = RunCache()
     jobs = {j.key: j for fid in figures.ids() for j in figures.jobs(fid, "small") if j.kind == "train"}
     missing = sorted(j.label for j in jobs.values() if cache.state(j) != "shipped")
     assert not missing, f"small training runs neither shipped nor cached: {missing}"
 
 
-def test_the_thesis_protocol_brings_small_3_seeds_and_10_rollouts(monkeypatch):
-    """Issue 22's evidence at small (10 test rollouts; 3 training seeds once seeds 1-2 are shipped) comes with the
-    thesis protocol, figure by figure as each is switched; the items still on kit-v1 keep their 1 seed x 3
-    rollouts (their shipped keys); chapter 5 keeps its own seeds."""
-    table = scales._table()
-    thesis_small = table["protocol_overrides"]["thesis"]["small"]
-
-    def seeds(fid: str) -> int:  # the scale-wide count, or the item's own once its seeds 1-2 are shipped
-        own = table["figures"][fid]["small"].get("protocol_overrides", {}).get("thesis", {})
-        return own.get("train_seeds", thesis_small["train_seeds"])
-
-    monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
+def test_small_has_3_seeds_10_rollouts_and_every_learner():
+    """Issue 22's evidence at small: 3 training seeds x 10 test rollouts for every chapter 3-4 item, no learner
+    skipped; chapter 5 keeps its own seeds."""
     small = {fid: scales.figure_settings(fid, "small") for fid in scales.figures()}
-    switched = [fid for fid, s in small.items() if s["protocol"] == "thesis"]
-    assert "table-3.6" in switched  # the first item switched (its seed-0 runs and evaluations are shipped)
-    assert seeds("3.2") == small["3.2"]["train_seeds"] == 3  # the first item with its 3 seeds shipped
-    for fid in switched:
-        s = small[fid]
-        assert (s["train_seeds"], s["test_rollouts"], s.get("skip_algos", [])) == (seeds(fid), 10, [])
-    own = ("3.2", "5.", "analysis-")  # Fig 3.2 counts its own seeds; chapter 5 and the analysis page train no RL runs
-    kept = [fid for fid, s in small.items() if s["protocol"] == "kit-v1" and not fid.startswith(own)]
-    for fid in kept:  # kit-v1 items keep their shipped keys: 1 seed x 3 rollouts
-        s = small[fid]
-        assert (s["train_seeds"], s["test_rollouts"]) == (1, 3), fid
-    monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
-    for fid in ("3.3", "3.2", "4.1", "table-3.7"):
-        s = scales.figure_settings(fid, "small")
-        assert (s["train_seeds"], s["test_rollouts"]) == (seeds(fid), 10), fid
+    assert {s["protocol"] for s in small.values()} == {"thesis"}
+    for s in small.values():
+        assert (s["train_seeds"], s["test_rollouts"], s.get("skip_algos", [])) == (3, 10, []), s["figure"]
     assert scales.figure_settings("5.6", "small")["seeds"] == [0, 1, 2]
     assert scales.figure_settings("3.3", "full")["train_seeds"] == 12
 
 
-def test_the_generator_can_take_one_seed_first(monkeypatch):
-    """`--seeds 0` plans seed 0 only; `--seeds 0 1 2` plans the three seeds, seed by seed, past the scale's count."""
+def test_the_generator_can_take_one_seed_first():
+    """`--seeds 0` plans seed 0 only; `--seeds 0 1 2` plans the three seeds, seed by seed."""
     from thesis_repro import runs
 
-    monkeypatch.setenv(scales.PROTOCOL_ENV, "thesis")
     planned = runs.plan("small", ["3.3"], seeds=[0], algos=["ppo"])
     assert {p.job.config["seed"] for p in planned} == {0} and {p.job.config["algorithm"] for p in planned} == {"ppo"}
     every = runs.plan("small", ["3.3"], seeds=[0, 1, 2], algos=["ppo"])
@@ -181,20 +156,18 @@ def test_the_generator_can_take_one_seed_first(monkeypatch):
     assert [p.job.config["seed"] for p in every] == sorted(p.job.config["seed"] for p in every)
 
 
-#: What a fresh clone's `make book SCALE=small` may evaluate on the fly (env steps, upper bound): the kit-v1
-#: book's 457 evaluations of 3 rollouts (9.5M steps, part of its ~17 min build). A switch of `small` to the thesis
-#: protocol (10 rollouts, 3 seeds, 1,347 evaluations) must ship its evaluations (`KINDS=evaluate`) to pass.
+#: What a fresh clone's `make book SCALE=small` may evaluate on the fly (env steps, upper bound): small's 1,347
+#: evaluations (10 rollouts, 3 seeds) are shipped (`KINDS=evaluate`), so it evaluates (almost) nothing.
 FRESH_CLONE_EVAL_STEPS = 10_000_000
 
 
 def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
     """Issue 22: every small evaluation is shipped, so a fresh clone's book loads rather than evaluates for hours;
-    until the switch, no more than the kit-v1 book's on-the-fly evaluations."""
+    no more than :data:`FRESH_CLONE_EVAL_STEPS`."""
     from thesis_repro import paths, plan
 
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path))
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
-    monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
     _, book = plan.plan_book("small", cores=2, rates=plan.Rates(dict(plan.DEFAULT_RATES), {}), missing=True)
     assert book.n_train == 0
     evaluation = sum(ln.work for ln in book.other if ln.family == "evaluate")
@@ -204,19 +177,16 @@ def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
     )
 
 
-def test_seeds_generated_ahead_of_the_scale_table_are_not_stale(monkeypatch):
-    """The generator ships seeds 1-2 under the thesis protocol while `small` counts 1 seed: their keys are pending
-    (`check_shipped` must not call them stale), a seed past `runs.PENDING_SEEDS` is not."""
+def test_a_seed_past_the_scales_count_is_stale():
+    """`check_shipped` counts a scale's own seeds (and the protocol studies' runs) as current, no seed beyond."""
     from thesis_repro import runs
 
-    monkeypatch.delenv(scales.PROTOCOL_ENV, raising=False)
-    with scales.under_protocol("thesis"):
-        ahead = runs.plan("small", ["table-3.6"], seeds=[2], algos=["ppo-16"])
-        beyond = runs.plan("small", ["table-3.6"], seeds=[5], algos=["ppo-16"])
-    assert ahead and beyond
-    pending = runs.pending_keys("small")
-    assert {p.job.key for p in ahead} <= pending
-    assert not {p.job.key for p in beyond} & pending
+    within = runs.plan("small", ["table-3.6"], seeds=[2], algos=["ppo-16"])
+    beyond = runs.plan("small", ["table-3.6"], seeds=[5], algos=["ppo-16"])
+    assert within and beyond
+    current = runs.current_keys("small", figure_ids=["table-3.6"])
+    assert {p.job.key for p in within} <= current
+    assert not {p.job.key for p in beyond} & current
 
 
 def test_book_names_exactly_the_items_with_three_seeds():

@@ -1,6 +1,6 @@
 """The thesis protocol's learners (issue 20 items 2-4): EPOpt ranks complete episodes by their full return,
-MAML-DG / Reptile-DG hold one domain Θ_i per meta-batch, ARPL's δ is §3.2.1's ε ∇_s‖π_θ(s)‖. Each new setting is
-absent under kit-v1 (the old behaviour); each test below fails on that old behaviour."""
+MAML-DG / Reptile-DG hold one domain Θ_i per meta-batch, ARPL's δ is §3.2.1's ε ∇_s‖π_θ(s)‖. Each setting has
+a named other option (fragments, a new domain every episode, the rescaled δ); each test below fails on it."""
 
 from __future__ import annotations
 
@@ -22,8 +22,8 @@ TINY = dict(n_envs=2, n_steps=64, batch_size=32, max_episode_steps=20, n_epochs=
 DOM = dict(perturbation="dom", sigma=0.2)
 
 
-def tiny(algo: str, protocol: str = "thesis", timesteps: int = 10**6, seed: int = 0, **kw) -> dict:
-    return train_config(algo, "Hopper", seed, timesteps, protocol=protocol, **{**TINY, **kw})
+def tiny(algo: str, timesteps: int = 10**6, seed: int = 0, **kw) -> dict:
+    return train_config(algo, "Hopper", seed, timesteps, **{**TINY, **kw})
 
 
 def model_for(cfg: dict):
@@ -117,9 +117,9 @@ def test_epopt_trains_only_on_complete_episodes_with_their_full_returns(monkeypa
     assert crossed > 0  # some ranked episodes started before the batch: ranked by their FULL return
 
 
-def test_kit_v1_epopt_is_the_fragment_ranking():
-    model = model_for(tiny("ppo-epopt", protocol="kit-v1"))
-    assert model.epopt_rank == "fragments" and model.epopt_warm_start is None and model.epopt_warmup == 0
+def test_epopt_fragment_ranking_is_a_named_option():
+    model = model_for(tiny("ppo-epopt", epopt_rank="fragments"))
+    assert model.epopt_rank == "fragments" and model.epopt_warm_start == 100 and model.epopt_warmup == 0
     with pytest.raises(ValueError, match="valid epopt_ranks are: 'episodes', 'fragments'"):
         tiny("ppo-epopt", epopt_rank="trajectories")
     with pytest.raises(ValueError, match=r"set epopt_warm_start .*, not epopt_warmup"):
@@ -150,12 +150,12 @@ class _Domains(BaseCallback):
 def test_one_domain_per_meta_batch(algo):
     batches = 2 if algo == "ppo-maml-dg" else 1  # D_i and D'_i, or D_i
     runs = {}
-    for protocol in ("thesis", "kit-v1"):
-        model, cb = model_for(tiny(algo, protocol=protocol, **DOM)), _Domains()
-        assert model.domain_per_batch is (protocol == "thesis")
+    for per_batch in (True, False):
+        model, cb = model_for(tiny(algo, domain_per_batch=per_batch, **DOM)), _Domains()
+        assert model.domain_per_batch is per_batch
         model.learn(3 * 2 * 64 * batches, callback=cb)
-        runs[protocol] = cb
-    thesis = runs["thesis"]
+        runs[per_batch] = cb
+    thesis = runs[True]
     assert sorted(thesis.steps) == [(i, d) for i in range(3) for d in range(2)]
     assert set(thesis.steps.values()) == {64 * batches}
     # every step of D_i (and D'_i) of domain i in an iteration ran in ONE domain Θ_i (20-step episodes: several
@@ -163,8 +163,8 @@ def test_one_domain_per_meta_batch(algo):
     assert all(len(thetas) == 1 for thetas in thesis.thetas.values())
     # ... and Θ_i is drawn anew per domain and iteration
     assert len({next(iter(t)) for t in thesis.thetas.values()}) == len(thesis.thetas)
-    # kit-v1 (a new domain every episode, 20-step episodes): batches span several domains
-    assert any(len(thetas) > 1 for thetas in runs["kit-v1"].thetas.values())
+    # false (a new domain every episode, 20-step episodes): batches span several domains
+    assert any(len(thetas) > 1 for thetas in runs[False].thetas.values())
 
 
 def test_a_held_domain_survives_resets_and_the_setting_is_validated():
@@ -206,18 +206,18 @@ def test_arpl_delta_is_epsilon_times_the_gradient_of_the_action_norm():
     grad = (((m / np.linalg.norm(m, axis=1, keepdims=True)) @ w2) * (1 - h**2)) @ w1
     delta = arpl_perturbation(pol, s, eps, delta="gradient")
     np.testing.assert_allclose(delta, eps * grad, rtol=1e-4, atol=1e-7)
-    # the kit-v1 form rescales it to length eps: another vector (|grad| != 1 here)
+    # the rescaled form rescales it to length eps: another vector (|grad| != 1 here)
     rescaled = arpl_perturbation(pol, s, eps, delta="rescaled")
     np.testing.assert_allclose(rescaled, eps * grad / np.linalg.norm(grad, axis=1, keepdims=True), rtol=1e-4)
     assert not np.allclose(rescaled, eps * grad, rtol=1e-2)
 
 
-def test_arpl_form_follows_the_protocol():
-    for protocol, form in (("thesis", "gradient"), ("kit-v1", "rescaled")):
-        cfg = train_config("ppo-arpl", "Hopper", 0, 1000, protocol=protocol)
+def test_arpl_form_follows_the_setting():
+    for delta, form in ((None, "gradient"), ("rescaled", "rescaled")):
+        over = {} if delta is None else {"arpl": {"epsilon": 0.2, "prob": 0.5, "delta": delta}}
+        cfg = train_config("ppo-arpl", "Hopper", 0, 1000, **over)
         venv = lt._wrap(cfg, lt.make_train_venv(cfg), None)
         assert isinstance(venv, ARPLVecEnv) and venv.delta == form
-        assert ("delta" in vars(venv)) is (protocol == "thesis")  # kit-v1's live state is unchanged (resume)
         venv.close()
     with pytest.raises(ValueError, match="valid arpl.deltas are: 'gradient', 'rescaled'"):
         train_config("ppo-arpl", "Hopper", 0, 1000, protocol="thesis", arpl={"epsilon": 0.2, "prob": 0.5, "delta": "x"})
@@ -250,18 +250,18 @@ def test_thesis_protocol_runs_resume_exactly(tmp_path, algo, over):
 
 
 # ------------------------------------------------------------- MAML-DG's outer update: cached gradient objects
-def _two_outer_updates(protocol: str) -> tuple[th.Tensor, float]:
-    model = model_for(tiny("ppo-maml-dg", protocol=protocol, seed=2, **DOM))
+def _two_outer_updates(per_batch: bool) -> tuple[th.Tensor, float]:
+    model = model_for(tiny("ppo-maml-dg", seed=2, domain_per_batch=per_batch, **DOM))
     np.random.seed(7)
     model.learn(2 * 2 * 2 * 64)  # two iterations: two outer updates
     return th.cat([p.detach().reshape(-1) for p in model.policy.parameters()]), float(np.random.rand())
 
 
-@pytest.mark.parametrize("protocol", ["thesis", "kit-v1"])
-def test_maml_outer_update_with_cached_gradient_objects_is_bit_identical(monkeypatch, protocol):
+@pytest.mark.parametrize("per_batch", [True, False])
+def test_maml_outer_update_with_cached_gradient_objects_is_bit_identical(monkeypatch, per_batch):
     """The PPO outer update builds each sub-policy's gradient recorder and closed-form path once per update;
     rebuilding them for every gradient (the earlier code) gives the same parameters, bit for bit."""
-    cached, draw = _two_outer_updates(protocol)
+    cached, draw = _two_outer_updates(per_batch)
     real, calls = md.post_adaptation_gradient, []
 
     def fresh(policy, data, recorder=None, manual=None, **kw):
@@ -269,6 +269,6 @@ def test_maml_outer_update_with_cached_gradient_objects_is_bit_identical(monkeyp
         return real(policy, data, **kw)  # ... which are dropped: fresh objects for every gradient
 
     monkeypatch.setattr(md, "post_adaptation_gradient", fresh)
-    rebuilt, draw_rebuilt = _two_outer_updates(protocol)
+    rebuilt, draw_rebuilt = _two_outer_updates(per_batch)
     assert calls and all(calls)
     assert th.equal(cached, rebuilt) and draw == draw_rebuilt

@@ -35,25 +35,3 @@ def test_override_and_every_figure_resolves_at_every_scale():
         for sc in scales.SCALES:
             s = scales.figure_settings(fig, sc)
             assert s["figure"] == fig and s["scale"] == sc
-
-
-def test_an_items_own_protocol_overrides_come_after_the_protocols(monkeypatch):
-    """An item whose seeds 1-2 ship before the others' pins `train_seeds: 3` under `thesis` only."""
-    import copy
-
-    table = copy.deepcopy(scales._table())
-    table["figures"]["_example"]["small"] = {
-        **(table["figures"]["_example"]["small"] or {}),
-        "protocol_overrides": {"thesis": {"train_seeds": 3}},
-    }
-    monkeypatch.setattr(scales, "_table", lambda: table)
-    with scales.under_protocol("thesis"):
-        s = scales.figure_settings("_example", "small")
-        assert s["train_seeds"] == 3 and s["test_rollouts"] == 10  # own pin, then the protocol's rollouts
-        assert "protocol_overrides" not in s
-        assert scales.figure_settings("_example", "small", train_seeds=5)["train_seeds"] == 5  # the caller's last
-    with scales.under_protocol("kit-v1"):
-        assert scales.figure_settings("_example", "small")["train_seeds"] == 2  # not pinned under kit-v1
-    table["figures"]["_example"]["small"]["protocol_overrides"] = {"thesis": {"train_seed": 3}}
-    with scales.under_protocol("thesis"), pytest.raises(ValueError, match="unknown protocol_overrides setting"):
-        scales.figure_settings("_example", "small")

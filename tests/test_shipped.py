@@ -21,7 +21,9 @@ def test_every_shipped_run_is_current_and_intact():
     entries = runs.shipped_entries(LAYER)
     if not entries:
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
-    stale = runs.check_shipped("small", LAYER)
+    from thesis_repro.study import study_jobs
+
+    stale = runs.check_shipped("small", LAYER, also={j.key for j in study_jobs()})  # the studies' runs are current
     assert not stale, "\n".join(s.message for s in stale)
     assert runs.verify_shipped(LAYER) == {}
     for entry in entries:  # rebuilt from its own config.json, each hashes to its folder's key
@@ -38,9 +40,8 @@ def test_shipped_layer_is_compact():
     big = sorted(f"{p.relative_to(LAYER)} ({n / 2**20:.1f} MiB)" for p, n in sizes.items() if n > 2**21)
     assert not big, f"shipped files over 2 MiB (store arrays deflated, thin the logs): {big}"
     total = sum(sizes.values())
-    # ~0.35 MB per training run (99 kit-v1 runs: 35 MB). Until small switches protocol, both protocols' runs are
-    # shipped side by side, and issue 22 brings 3 seeds: ~300 thesis runs + evaluations after the switch (the kit-v1
-    # runs are deleted then). Still compact files, never optimiser state.
+    # ~0.35 MB per training run: small's 3 seeds of every chapter 3-4 run (issue 22) and their evaluations.
+    # Compact files, never optimiser state.
     assert total < 150e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is 150 MB"
 
 
@@ -51,7 +52,7 @@ def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
     assert runs.cost(job) <= 250_000, f"cheapest shipped run {job.label} costs {runs.cost(job):,.0f} steps"
     shipped = RunCache(tmp_path / "unused", reference=LAYER).load(job)
     assert shipped is not None and shipped.source == "shipped"
-    # in the numerics the shipped run was made in (kit-v1 runs: native MKL dispatch; later ones: portable)
+    # in the numerics the shipped run was made in (its provenance says native MKL dispatch or portable)
     fresh = runs.recompute(job, tmp_path / "runs", shipped)
     # bit-identical where the shipped run was made on this platform; elsewhere the same outcome (runs.OUTCOME_RTOL)
     check = runs.compare_retrain(shipped, fresh)

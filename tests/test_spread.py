@@ -65,14 +65,14 @@ def test_two_runs_of_one_seed_in_a_row_are_an_error():
 def test_unknown_protocol_is_a_one_line_error_naming_the_valid_ones(capsys):
     with pytest.raises(ValueError) as err:
         budgets.spread(budgets.seed_runs("small", protocol="kit-v2"))
-    assert "\n" not in str(err.value) and "'thesis'" in str(err.value) and "'kit-v1'" in str(err.value)
+    assert "\n" not in str(err.value) and "'thesis'" in str(err.value)
     assert main(["budgets", "--spread", "--protocol", "kit-v2"]) == 2
     assert main(["budgets", "--at", "1000000"]) == 2  # --at without --spread
     assert main(["budgets", "--spread", "--at", "0"]) == 2
     assert main(["budgets", "--spread", "--algos", "ppo-17"]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 4 and all(line.startswith("error: ") for line in lines)
-    assert "valid protocols are: 'thesis', 'kit-v1'" in lines[0]
+    assert "valid protocols are: 'thesis'" in lines[0]
 
 
 def test_published_loader_returns_cleanrl_ppo_rows():
@@ -94,11 +94,11 @@ def test_published_loader_returns_cleanrl_ppo_rows():
 def test_protocol_and_setting_of_a_config():
     thesis = train_config("ppo", "Hopper", 0, 1000, protocol="thesis")
     assert budgets.config_protocols(thesis) == ("thesis",)
-    assert budgets.config_protocols(train_config("ppo", "Hopper", 0, 1000)) == ("kit-v1",)
-    assert budgets.config_protocols(train_config("trpo", "Hopper", 0, 1000)) == ("thesis", "kit-v1")
+    assert budgets.config_protocols(train_config("trpo", "Hopper", 0, 1000)) == ("thesis",)
+    assert budgets.config_protocols({k: v for k, v in thesis.items() if k != "lr_schedule"}) == ()
     assert budgets.config_setting(thesis, "thesis") == ""
     wind = train_config("joint", "Walker2d", 0, 1000, c_a=1.0, wind=[-2.5, 2.5])
-    assert budgets.config_setting(wind, "kit-v1") == "c_a=1.0, wind=[-2.5, 2.5]"
+    assert budgets.config_setting(wind, "thesis") == "c_a=1.0, wind=[-2.5, 2.5]"
 
 
 class _FakeCache:
@@ -178,17 +178,3 @@ def test_book_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
         assert recomputed == line.strip(), f"spread row in {PAGE.name} is stale; rerun `{COMMAND}`"
     keys = [tuple(v for k, v in _parse(line).items() if k != "seeds") for line in rows]
     assert len(set(keys)) == len(keys), "a setting has two rows in the spread block"
-
-
-def test_the_spread_counts_seeds_shipped_ahead_of_the_scale_table(monkeypatch):
-    """An item whose small table says fewer seeds than the scale's target (as every chapter 3-4 item did while its
-    seeds 1-2 were generated) has the missing seeds' runs in the spread as soon as they are shipped; `full` has no
-    target and keeps its own seeds. Every item has its target now, so the target is raised by one here."""
-    from thesis_repro import figures, scales
-
-    target = scales.TARGET_TRAIN_SEEDS["small"]
-    assert figures.settings("4.7", "small")["train_seeds"] == target
-    assert {j.config["seed"] for j in budgets.spread_jobs("small", ["4.7"])} == set(range(target))
-    monkeypatch.setitem(scales.TARGET_TRAIN_SEEDS, "small", target + 1)
-    assert {j.config["seed"] for j in budgets.spread_jobs("small", ["4.7"])} == set(range(target + 1))
-    assert {j.config["seed"] for j in budgets.spread_jobs("full", ["table-3.4"])} == set(range(12))  # no target

@@ -112,7 +112,7 @@ def _imports(name: str) -> set[str]:
 
 def test_cache_imports_neither_backends_nor_any_job_module():
     own = _imports("thesis_repro.cache")
-    assert own <= {"thesis_repro", "thesis_repro.jobs", "thesis_repro.paths"}, own
+    assert own <= {"thesis_repro", "thesis_repro.jobs", "thesis_repro.paths", "thesis_repro.provenance"}, own
     assert _imports("thesis_repro.jobs") <= {"thesis_repro.validation"}
     jobs_modules = _job_modules() - {"thesis_repro.cache"}
     assert not _imports("thesis_repro.backends") & jobs_modules
@@ -166,6 +166,7 @@ def test_each_module_imports_alone_in_a_fresh_process():
         "thesis_repro.cache",
         "thesis_repro.jobs",
         "thesis_repro.paths",
+        "thesis_repro.provenance",
         "thesis_repro.validation",
     }
     assert not loaded["thesis_repro.backends"] & (_job_modules() - {"thesis_repro.cache"})

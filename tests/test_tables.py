@@ -162,7 +162,7 @@ def test_auc_change_is_scale_free_per_task():
 
 
 # ================================================================ the chapter-3 items (figures.ch3_tables / ch3_curves)
-from thesis_repro import figures, paths, report, scales  # noqa: E402
+from thesis_repro import figures, paths, report  # noqa: E402
 from thesis_repro.figures import ch3_curves as C  # noqa: E402
 from thesis_repro.figures import ch3_tables as F  # noqa: E402
 
@@ -172,12 +172,6 @@ ITEMS = ["table-3.3", "table-3.4", "table-3.5", "table-3.6", "table-3.7", "3.4",
 def keys(item: str, scale: str, train_only: bool = False, **overrides) -> set[str]:
     jobs = figures.training_jobs(item, scale, **overrides) if train_only else figures.jobs(item, scale, **overrides)
     return {j.key for j in jobs}
-
-
-def own_seeds(item: str, scale: str, protocol: str) -> int | None:
-    """The training-seed count an item pins for itself under ``protocol`` (its seeds 1-2 shipped first), if any."""
-    own = scales._table()["figures"][item][scale].get("protocol_overrides", {}).get(protocol, {})
-    return own.get("train_seeds")
 
 
 def test_every_item_is_registered_with_a_notebook_and_settings_at_every_scale():
@@ -190,43 +184,28 @@ def test_every_item_is_registered_with_a_notebook_and_settings_at_every_scale():
             assert set(F.learners(s)) | set(F.skipped(s)) == set(s["algos"])
 
 
-@pytest.mark.parametrize("protocol", ["thesis", "kit-v1"])
-def test_items_share_runs_with_fig_3_3_and_each_other(protocol):
-    """Under one training protocol, a learner on a task is one run for the whole chapter (while `small` switches
-    item by item, two items on different protocols use different runs, by design). Compared at one seed count
-    (3): an item whose seeds 1-2 are shipped first counts 3 while the others count 1, and seed s is one run."""
-    from thesis_repro.scales import under_protocol
+def test_items_share_runs_with_fig_3_3_and_each_other():
+    """A learner on a task is one run for the whole chapter. Compared at one seed count (3): seed s is one run."""
 
     def at3(item: str, train_only: bool = False) -> set[str]:
         return keys(item, "small", train_only, train_seeds=3)
 
-    with under_protocol(protocol):
-        # every table-3.6 job (train and evaluate) is one of Fig 3.3's at small; Table 3.4's PPO/TRPO runs too
-        assert at3("table-3.6") <= at3("3.3")
-        assert at3("table-3.4", train_only=True) <= at3("3.3", train_only=True)
-        # Table 3.3's Walker2d evaluations are Table 3.5's; Fig 3.7 is Table 3.4's grid; Fig 3.4 adds heat maps only
-        assert at3("table-3.3") <= at3("table-3.5")
-        assert at3("3.7") == at3("table-3.4")
-        assert at3("3.4", train_only=True) <= at3("table-3.4", train_only=True)
-        assert at3("3.8") <= at3("table-3.5") | at3("table-3.6") | at3("table-3.7")
+    # every table-3.6 job (train and evaluate) is one of Fig 3.3's at small; Table 3.4's PPO/TRPO runs too
+    assert at3("table-3.6") <= at3("3.3")
+    assert at3("table-3.4", train_only=True) <= at3("3.3", train_only=True)
+    # Table 3.3's Walker2d evaluations are Table 3.5's; Fig 3.7 is Table 3.4's grid; Fig 3.4 adds heat maps only
+    assert at3("table-3.3") <= at3("table-3.5")
+    assert at3("3.7") == at3("table-3.4")
+    assert at3("3.4", train_only=True) <= at3("table-3.4", train_only=True)
+    assert at3("3.8") <= at3("table-3.5") | at3("table-3.6") | at3("table-3.7")
 
 
-@pytest.mark.parametrize("protocol", ["thesis", "kit-v1"])
-def test_budgets_are_fig_3_3s(protocol):
-    from thesis_repro.scales import under_protocol
-
-    with under_protocol(protocol):
-        for item in ITEMS:
-            for scale in ("smoke", "small", "full"):
-                s, ref = F.settings(item, scale), figures.settings("3.3", scale)
-                for key in ("timesteps", "test_rollouts", "max_episode_steps", "train_overrides"):
-                    assert s[key] == ref[key], (item, scale, key)
-                # the seed count too, unless the item (or Fig 3.3) pins its own: its seeds 1-2 are shipped first
-                pins = own_seeds(item, scale, protocol), own_seeds("3.3", scale, protocol)
-                if pins == (None, None):
-                    assert s["train_seeds"] == ref["train_seeds"], (item, scale)
-                elif pins[0] is not None:
-                    assert s["train_seeds"] == pins[0], (item, scale)
+def test_budgets_are_fig_3_3s():
+    for item in ITEMS:
+        for scale in ("smoke", "small", "full"):
+            s, ref = F.settings(item, scale), figures.settings("3.3", scale)
+            for key in ("timesteps", "train_seeds", "test_rollouts", "max_episode_steps", "train_overrides"):
+                assert s[key] == ref[key], (item, scale, key)
 
 
 def test_settings_errors_name_the_valid_choices():
@@ -254,8 +233,7 @@ def test_the_thesis_numbers_as_ours_agree_with_the_thesis_bolding(item):
 
 
 def test_unaffordable_learners_keep_the_thesis_numbers():
-    with scales.under_protocol("kit-v1"):  # kit-v1's small skips DDPG and SAC; the thesis protocol runs them
-        s = F.settings("table-3.4", "small")
+    s = F.settings("table-3.4", "small", skip_algos=["ddpg", "sac"])  # a scale that could not afford them
     assert F.skipped(s) == ["ddpg", "sac"]
     ours = thesis_as_ours("table-3.4", s)
     ours = ours[ours.method.isin(F.learners(s))]

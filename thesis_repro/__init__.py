@@ -1,7 +1,27 @@
 """thesis_repro: reproduce, figure by figure, C. Zhao's thesis on generalisation in deep RL.
 
-Sub-modules: ``paths`` (every location), ``scales`` (the smoke/small/full table), ``cache`` (the
-content-addressed run cache and job runner), ``notebooks`` (papermill execution), ``book``.
+The package map, layers from the bottom up. A module imports only from its own layer and the layers below it
+(``tests/test_layers.py`` reads this list and enforces it; ``tests/test_imports.py`` forbids import circles):
+
+1. **core**: ``thesis_repro``, ``paths``, ``validation``, ``provenance``, ``scales``, ``reference``, ``report``,
+   ``jobs``, ``bench`` -- locations, checks, where and in which numerics an entry was made, the scale table, the
+   thesis's numbers, the verdict words, the job registry and the timing helpers; they import the standard
+   library, third-party packages and each other only.
+2. **store and backends**: ``cache``, ``backends`` -- the run cache and where jobs run; may import core (a job
+   function is resolved by name through ``jobs``, never imported).
+3. **envs**: ``envs`` -- the MuJoCo tasks and their perturbations; may import core.
+4. **learners, mdl, arm**: ``learners``, ``mdl``, ``arm`` -- the RL learners, Alg 3's aggregation, chapter 5's
+   arm; may import envs, the store (a job loads its dependencies through the run cache) and core.
+5. **evaluation**: ``evaluation``, ``bench.evaluation`` -- the chapter 3 testing protocol; may import every
+   layer above this line.
+6. **figures**: ``figures`` -- each item's jobs and numbers, no verdicts; may import every layer below.
+7. **runs**: ``plan``, ``runs``, ``study``, ``budgets``, ``verify`` -- cost plans, the shipped runs and their
+   generator, the protocol studies, budgets, ``make verify``; may import figures and below.
+8. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed; may import runs (the
+   studies) and below, never figures.
+9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``__main__``, ``bench.__main__``,
+   ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside the shipped learners and the
+   command lines; may import everything.
 """
 
 import os
@@ -19,8 +39,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 #: Cost (measured 2026-11-25, README): 9-27 % of training throughput by learner. Must be set before torch loads
 #: MKL: ``import thesis_repro`` first (the Makefile exports them too); :func:`numerics` reports what is in effect
 #: (kept in every entry's provenance).
-#: ``THESIS_REPRO_NUMERICS=native`` leaves them unset (how the kit-v1 runs were trained: ``make verify`` and the
-#: retrain test recompute an entry in the numerics its provenance records).
+#: ``THESIS_REPRO_NUMERICS=native`` leaves them unset (how the earliest shipped runs were trained: ``make verify``
+#: and the retrain test recompute an entry in the numerics its provenance records).
 PORTABLE_NUMERICS = {"MKL_CBWR": "COMPATIBLE", "ATEN_CPU_CAPABILITY": "avx2"}
 NUMERICS_ENV = "THESIS_REPRO_NUMERICS"
 if os.environ.get(NUMERICS_ENV, "portable") != "native":
@@ -34,7 +54,7 @@ def numerics() -> dict[str, str | None]:
     >>> numerics()["MKL_CBWR"]
     'COMPATIBLE'
     """
-    import torch
+    import torch  # local: the numerics variables above must be set before torch loads MKL
 
     return {
         **{k: os.environ.get(k) for k in PORTABLE_NUMERICS},

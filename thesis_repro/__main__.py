@@ -171,9 +171,6 @@ def _main(argv: list[str]) -> int:
         "--seeds", nargs="+", type=nonneg_int, default=None, help="only these training seeds (default: all)"
     )
     ref.add_argument(
-        "--protocol", default=None, help="training protocol: thesis | kit-v1 (default: the scale's, scales.yaml)"
-    )
-    ref.add_argument(
         "--jobs", type=positive_int, default=None, help="runs trained at once, >= 1 (default 1; 2 on two idle cores)"
     )
     ref.add_argument(
@@ -188,7 +185,7 @@ def _main(argv: list[str]) -> int:
     bud.add_argument(
         "--spread", action="store_true", help="seed spread per learner and task (markdown), beside published numbers"
     )
-    bud.add_argument("--protocol", default=None, help="with --spread: only this protocol's runs (thesis | kit-v1)")
+    bud.add_argument("--protocol", default=None, help="with --spread: only this protocol's runs (thesis)")
     bud.add_argument(
         "--at", type=positive_int, default=None, help="with --spread: also the training return at this many env steps"
     )
@@ -560,11 +557,9 @@ def _runs_command(args: argparse.Namespace) -> int:
         for folder in (paths.runs(), paths.reference()):
             check_writable(folder)
         kinds = args.kind or figures.TRAINING_KINDS
-        from thesis_repro.learners.config import ALGORITHMS, PROTOCOLS
+        from thesis_repro.learners.config import ALGORITHMS
         from thesis_repro.validation import check_choice
 
-        if args.protocol is not None:
-            os.environ[scales.PROTOCOL_ENV] = check_choice(args.protocol, PROTOCOLS, "protocol")
         for algo in args.algos or ():
             check_choice(algo, ALGORITHMS, "algorithm")
         only = {"algos": args.algos, "seeds": args.seeds}
@@ -572,7 +567,10 @@ def _runs_command(args: argparse.Namespace) -> int:
         runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1, until=until, **only)
         return 0
     if args.check:
-        stale, corrupt, local = runs.check_shipped(args.scale), runs.verify_shipped(), runs.verify_local()
+        from thesis_repro.study import study_jobs
+
+        stale = runs.check_shipped(args.scale, also={j.key for j in study_jobs()})
+        corrupt, local = runs.verify_shipped(), runs.verify_local()
         for s in stale:
             print(s.message)
         for path, err in corrupt.items():

@@ -46,6 +46,8 @@ ValueError: THESIS_REPRO_BACKEND: unknown backend 'slurm'; valid backends are: '
 from __future__ import annotations
 
 import json
+import logging
+import multiprocessing as mp
 import os
 import shutil
 import socket
@@ -172,7 +174,7 @@ def run_jobs(
             todo[job.key] = job
     bar = None
     if progress and todo:
-        from tqdm import tqdm
+        from tqdm import tqdm  # local: only a progress bar needs it (the cache stays light to import)
 
         shipped = sum(r.source == "shipped" for r in results.values())
         bar = tqdm(total=len(todo), desc=f"{desc} ({len(results) - shipped} cached, {shipped} shipped)")
@@ -185,11 +187,8 @@ def run_jobs(
             if bar:
                 bar.update()
     else:
-        import multiprocessing as mp
-
-        workers = min(n_jobs, len(todo))
         with ProcessPoolExecutor(
-            max_workers=workers, mp_context=mp.get_context("spawn"), initializer=die_with_parent
+            max_workers=min(n_jobs, len(todo)), mp_context=mp.get_context("spawn"), initializer=die_with_parent
         ) as ex:
             ref = str(cache.reference) if cache.reference is not None else False
             try:  # Ctrl-C or SIGTERM: end the workers now (their runs resume from their checkpoints), one line
@@ -400,14 +399,12 @@ def retries() -> int:
 def init_ray() -> Any:
     """Import and connect Ray once: ``RAY_ADDRESS`` if set, else a new local instance (``THESIS_REPRO_JOBS`` CPUs)."""
     try:
-        import ray
+        import ray  # local: Ray is an optional extra (`pip install -e .[ray]`)
     except ImportError as err:
         raise RuntimeError(
             f"{ENV_VAR}=ray needs Ray: `pip install -e '.[ray]'` (`make figure-X.Y BACKEND=ray` installs it)"
         ) from err
     if not ray.is_initialized():
-        import logging
-
         address = os.environ.get("RAY_ADDRESS") or None
         kw: dict[str, Any] = {"log_to_driver": False, "logging_level": logging.WARNING}
         if address is None:

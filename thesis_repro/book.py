@@ -358,7 +358,7 @@ def execution_order(ids: list[str]) -> list[str]:
     >>> execution_order(["3.3", "3.4", "table-3.4"])
     ['3.3', 'table-3.4', '3.4']
     """
-    from thesis_repro.claims import ledger
+    from thesis_repro.claims import ledger  # local: the ledger loads scipy; only the execution order needs it
 
     by_page = {notebooks.page_id(n): n for n in ids}
     out: list[str] = []

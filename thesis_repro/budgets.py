@@ -26,6 +26,9 @@ import pandas as pd
 
 from thesis_repro import figures, paths, reference, runs
 from thesis_repro.cache import Job, RunCache
+from thesis_repro.figures.ch3 import training_return_at
+from thesis_repro.learners.config import ALGORITHMS, IDENTITY, PROTOCOLS, THESIS_PROTOCOL_KEYS, train_config
+from thesis_repro.study import study_jobs
 from thesis_repro.validation import check_choice
 
 #: Table 3.3a's rows (``noise_type``) as the kit's learner ids: the thesis's Walker2d training returns.
@@ -253,14 +256,12 @@ def _flat(cfg: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 def config_protocols(cfg: Mapping[str, Any]) -> tuple[str, ...]:
     """The training protocols (:data:`~thesis_repro.learners.config.PROTOCOLS`) under which ``cfg`` is a run's
     config: those whose default config of the learner holds the same protocol settings (``lr_schedule``, ...,
-    :data:`~thesis_repro.learners.config.THESIS_PROTOCOL_KEYS`). A learner no protocol setting applies to (TRPO)
-    trains alike under both, so its runs belong to both.
+    :data:`~thesis_repro.learners.config.THESIS_PROTOCOL_KEYS`); none for a config without them.
 
     >>> from thesis_repro.learners import train_config
-    >>> [config_protocols(train_config(a, "Hopper", 0, 1000, protocol="thesis")) for a in ("ppo", "trpo")]
-    [('thesis',), ('thesis', 'kit-v1')]
+    >>> [config_protocols(train_config(a, "Hopper", 0, 1000)) for a in ("ppo", "trpo")]
+    [('thesis',), ('thesis',)]
     """
-    from thesis_repro.learners.config import PROTOCOLS, THESIS_PROTOCOL_KEYS, train_config
 
     def present(c: Mapping[str, Any]) -> set[str]:
         flat = _flat(c)
@@ -283,8 +284,6 @@ def config_setting(cfg: Mapping[str, Any], protocol: str) -> str:
     >>> config_setting(train_config("ppo", "Hopper", 1, 1000, protocol="thesis", lr_schedule="constant"), "thesis")
     'lr_schedule=constant'
     """
-    from thesis_repro.learners.config import IDENTITY, train_config
-
     default = _flat(
         train_config(cfg["algorithm"], cfg["env"], int(cfg["seed"]), int(cfg["timesteps"]), protocol=protocol)
     )
@@ -300,22 +299,9 @@ def shipped_cache() -> RunCache:
 
 
 def spread_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
-    """Every ``train`` job of the figures (all by default) at ``scale`` under every training protocol, with the
-    seeds the scale is being given ahead of its table (:data:`~thesis_repro.scales.TARGET_TRAIN_SEEDS`: a seed-1
-    run shows in the spread as soon as it is shipped), and (for all figures) the protocol studies' runs
-    (:func:`thesis_repro.study.study_jobs`), deduplicated by key."""
-    from thesis_repro.learners.config import PROTOCOLS
-    from thesis_repro.scales import TARGET_TRAIN_SEEDS, under_protocol
-    from thesis_repro.study import study_jobs
-
-    target = TARGET_TRAIN_SEEDS.get(scale)
-    jobs: dict[str, Job] = {}
-    for protocol in PROTOCOLS:
-        with under_protocol(protocol):
-            jobs.update((j.key, j) for j in training_jobs(scale, figure_ids))
-            if target:
-                ahead = runs.plan(scale, figure_ids, kinds=("train",), seeds=range(target))
-                jobs.update((p.job.key, p.job) for p in ahead)
+    """Every ``train`` job of the figures (all by default) at ``scale`` and (for all figures) the protocol studies'
+    runs (:func:`thesis_repro.study.study_jobs`), deduplicated by key."""
+    jobs: dict[str, Job] = {j.key: j for j in training_jobs(scale, figure_ids)}
     if figure_ids is None:
         jobs.update((j.key, j) for j in study_jobs())
     return list(jobs.values())
@@ -336,9 +322,6 @@ def seed_runs(
     :data:`AT_WINDOW` training episodes finished by ``at`` env steps (NaN if the run did not get that far).
     ``protocol`` keeps only the runs of that protocol, ``algos`` those of these learners (a ``ValueError`` names
     the valid ones)."""
-    from thesis_repro.figures.ch3 import training_return_at
-    from thesis_repro.learners.config import ALGORITHMS, PROTOCOLS
-
     if protocol is not None:
         check_choice(protocol, PROTOCOLS, "protocol")
     keep = None if algos is None else {check_choice(a, ALGORITHMS, "algorithm") for a in algos}
@@ -412,8 +395,6 @@ def spread(runs: pd.DataFrame) -> pd.DataFrame:
     (:func:`aggregate_seeds`); rows sorted by protocol, learner (``hyperparams.yaml`` order), task, budget and
     setting. The lr-schedule study's runs are rows of their own (1M steps; ``setting="lr_schedule=constant"``
     for its constant arm)."""
-    from thesis_repro.learners.config import ALGORITHMS
-
     frame = aggregate_seeds(runs)
     envs = list(reference.ENVS)
     order = frame.assign(

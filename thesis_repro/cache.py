@@ -47,12 +47,8 @@ import fnmatch
 import hashlib
 import json
 import os
-import platform
 import re
-import shlex
 import shutil
-import subprocess
-import sys
 import time
 import warnings
 import zipfile
@@ -60,7 +56,6 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from functools import cache as _memo
 from pathlib import Path
 from typing import Any
@@ -69,21 +64,14 @@ import numpy as np
 
 from thesis_repro import jobs as registry
 from thesis_repro import paths
+from thesis_repro.provenance import platform_info as platform_info  # re-exported: callers read it from the cache
+from thesis_repro.provenance import record
 
 #: Bump to invalidate every cached entry after a change that alters results but not configs.
 #: 2: keys from the job kind instead of the module path; readable ``<kind>/<label>__<key>`` folders.
 CACHE_VERSION = 2
 #: Where a :class:`Result` came from.
 SOURCES: tuple[str, ...] = ("computed", "cached", "shipped")
-#: Packages whose versions go into every entry's provenance.
-PROVENANCE_PACKAGES: tuple[str, ...] = (
-    "torch",
-    "stable-baselines3",
-    "sb3-contrib",
-    "gymnasium",
-    "mujoco",
-    "numpy",
-)
 #: Result values that are measurements of the computation, not its outcome (they differ between identical
 #: runs): moved from ``result.json`` to ``provenance.json["measured"]``. A job may also return them (and any
 #: other measurement) in a ``"provenance"`` dict. Read them with :meth:`Result.measured`.
@@ -400,114 +388,10 @@ def find_entry(root: Path, job: Job) -> Path | None:
 
 
 @_memo
-def _versions() -> dict[str, str | None]:
-    from importlib import metadata
-
-    out: dict[str, str | None] = {"python": platform.python_version()}
-    for name in PROVENANCE_PACKAGES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = None
-    return out
-
-
-def _git(*args: str) -> str | None:
-    try:
-        proc = subprocess.run(
-            ["git", "-C", str(paths.ROOT), *args], capture_output=True, text=True, timeout=10, check=True
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return proc.stdout.strip()
-
-
-#: CPU features that select different float kernels (MKL, ATen, NumPy dispatch); part of :func:`platform_info`.
-_ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "avx512_fp16", "amx_tile")
-
-
-def platform_info() -> dict[str, Any]:
-    """What decides a run's float rounding besides its config and code: CPU, SIMD kernels, BLAS.
-
-    Training is deterministic on one platform, but MKL, PyTorch (ATen) and NumPy pick different SIMD
-    kernels on different CPUs, and RL amplifies the last-bit differences; so a run is bit-reproducible
-    only where this dict is equal (:func:`thesis_repro.runs.compare_retrain`).
-
-    >>> sorted(platform_info())
-    ['cpu', 'isa', 'machine', 'numpy_simd', 'torch_cpu_capability', 'vendor']
-    """
-    cpu = vendor = ""
-    flags: set[str] = set()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            key = key.strip()
-            if key == "model name" and not cpu:
-                cpu = value.strip()
-            elif key == "vendor_id" and not vendor:
-                vendor = value.strip()
-            elif key == "flags" and not flags:
-                flags = set(value.split())
-    except OSError:  # not Linux: the processor string is all we know
-        cpu = platform.processor()
-    try:
-        from numpy._core._multiarray_umath import __cpu_features__ as npf  # type: ignore[attr-defined]
-
-        numpy_simd = sorted(k for k, v in npf.items() if v and k.startswith(("AVX512", "X86_V", "AVX2", "FMA")))
-    except ImportError:  # pragma: no cover - other NumPy layouts
-        numpy_simd = []
-    try:
-        import torch
-
-        capability = torch.backends.cpu.get_cpu_capability()
-    except ImportError:  # pragma: no cover - torch is a dependency
-        capability = None
-    return {
-        "machine": platform.machine(),
-        "vendor": vendor,
-        "cpu": cpu,
-        "isa": [f for f in _ISA_FLAGS if f in flags],
-        "torch_cpu_capability": capability,
-        "numpy_simd": numpy_simd,
-    }
-
-
-def _numerics() -> dict[str, str | None]:
-    from thesis_repro import numerics
-
-    return numerics()
-
-
-def claims_design() -> dict[str, str]:
-    """The frozen claims design in force when an entry was made (``version``, ``hash``), read from
-    ``data/thesis/claims-design.json`` (written by :mod:`thesis_repro.claims.design`); ``{}`` when none is."""
-    try:
-        lock = json.loads((paths.THESIS_DATA / "claims-design.json").read_text())
-    except (OSError, ValueError):
-        return {}
-    return {"version": str(lock.get("version", "")), "hash": str(lock.get("hash", ""))}
-
-
 def provenance(start: float, end: float) -> dict[str, Any]:
-    """Who/what/when made an entry: command line, git commit (+ dirty flag), package versions, host, times,
-    and the :func:`platform_info` that decides its float rounding."""
-    commit = _git("rev-parse", "HEAD")
-    status = _git("status", "--porcelain", "--untracked-files=no") if commit else None
-    return {
-        "command": shlex.join(sys.argv),
-        "cwd": os.getcwd(),
-        "git_commit": commit,
-        "git_dirty": None if status is None else bool(status),
-        "packages": _versions(),
-        "hostname": platform.node(),
-        "platform": platform_info(),
-        "numerics": _numerics(),
-        "start": datetime.fromtimestamp(start, UTC).isoformat(timespec="seconds"),
-        "end": datetime.fromtimestamp(end, UTC).isoformat(timespec="seconds"),
-        "wall_seconds": round(end - start, 3),
-        "cache_version": CACHE_VERSION,
-        "claims_design": claims_design(),
-    }
+    """Who/what/when made an entry (:func:`thesis_repro.provenance.record`: command line, git commit, package
+    versions, host, times, the platform and numerics that decide its float rounding) and the cache version."""
+    return {**record(start, end), "cache_version": CACHE_VERSION}
 
 
 #: The cache whose :meth:`RunCache.run` is computing a job in this thread (:meth:`RunCache.current`).
@@ -530,7 +414,7 @@ def single_threaded() -> Iterator[None]:
     2
     """
     try:
-        import torch
+        import torch  # local: the cache machinery itself needs no torch (and stays quick to import)
     except ImportError:  # pragma: no cover - the kit's jobs need torch; the cache machinery does not
         yield
         return

@@ -48,7 +48,7 @@ from typing import Any
 
 from jupyter_client import AsyncKernelManager
 
-from thesis_repro import paths
+from thesis_repro import paths, report
 from thesis_repro.cache import pid_alive
 from thesis_repro.scales import check_scale
 from thesis_repro.validation import check_choice
@@ -409,13 +409,12 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     Outputs are staged and swapped in on success (module docstring); a failing cell raises
     :class:`NotebookError`; a ``SCALE`` parameter other than ``scale`` is a ``ValueError``.
     """
+    # local: papermill and jupytext take seconds to import; only executing a notebook needs them
     import jupytext
     import nbformat
     import papermill as pm
     from jupyter_client.kernelspec import NoSuchKernel
     from papermill.exceptions import PapermillExecutionError
-
-    from thesis_repro import report
 
     nid = check_notebook(nid)
     check_scale(scale)

@@ -19,58 +19,21 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from thesis_repro import budgets, figures, runs, scales
-from thesis_repro.cache import RunCache
+from thesis_repro import budgets, figures, runs
 
 
 def runs_summary(figure_id: str, scale: str) -> str:
     """One line: where the runs of ``figure_id`` at ``scale`` come from (shipped / cached / to compute).
 
-    Counts its training runs, or every job when the figure trains nothing (chapter 5's arm jobs). An item still
-    on fewer training seeds than its scale's target (:data:`~thesis_repro.scales.TARGET_TRAIN_SEEDS`) also says
-    how many runs of the missing seeds are ready (:func:`seeds_to_come`), so a page on seed 0 says why another
-    page shows the same cells over more seeds.
+    Counts its training runs, or every job when the figure trains nothing (chapter 5's arm jobs).
 
     >>> runs_summary("4.1", "smoke")  # doctest: +ELLIPSIS
     'fig-4.1 (smoke): 8 training runs: 0 shipped, ... cached, ... to compute'
     """
     fig = figures.get(figure_id)
-    settings = fig.settings(scale)
-    every = fig.jobs(settings)
+    every = fig.jobs(fig.settings(scale))
     training = [j for j in every if j.kind in figures.TRAINING_KINDS]
-    line = f"{fig.notebook_id} ({scale}): " + runs.summary(training or every)
-    if training:
-        line += seeds_to_come(figure_id, scale, settings)
-    return line
-
-
-def seeds_to_come(figure_id: str, scale: str, settings: Mapping[str, Any]) -> str:
-    """``"; seeds 1-2 (being generated): k of n training runs ready, ..."`` for an item on fewer training seeds
-    than the scale's :data:`~thesis_repro.scales.TARGET_TRAIN_SEEDS`; empty otherwise (and for items without
-    ``train_seeds``, or scales without a target).
-
-    >>> seeds_to_come("3.2", "small", {"train_seeds": 3})
-    ''
-    """
-    n, target = settings.get("train_seeds"), scales.TARGET_TRAIN_SEEDS.get(scale, 0)
-    if not isinstance(n, int) or n >= target:
-        return ""
-    from thesis_repro.plan import seed_jobs, training_seed  # local: plan prices jobs; only this line needs it
-
-    more = [
-        j
-        for j in seed_jobs(figure_id, scale, seeds=range(n, target))
-        if j.kind in figures.TRAINING_KINDS and (training_seed(j) or 0) >= n
-    ]
-    if not more:
-        return ""
-    cache = RunCache()
-    ready = sum(runs.job_state(j, cache, verify=False)[0] in ("shipped", "cached") for j in more)
-    seeds = f"{n}-{target - 1}" if target - n > 1 else f"{n}"
-    return (
-        f"; seeds {seeds} (being generated): {ready} of {len(more)} training runs ready, this page uses them once "
-        "all are"
-    )
+    return f"{fig.notebook_id} ({scale}): " + runs.summary(training or every)
 
 
 def claim_meta(figure_id: str, settings: Mapping[str, Any]) -> dict[str, Any]:
@@ -106,4 +69,4 @@ def claim_meta(figure_id: str, settings: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-__all__ = ["claim_meta", "runs_summary", "seeds_to_come"]
+__all__ = ["claim_meta", "runs_summary"]

@@ -400,6 +400,15 @@ def training_seed(job: Job) -> int | None:
     return None
 
 
+def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, int]:
+    """The ``train_seeds`` override that makes ``figure_id`` plan every one of ``seeds`` (seeds past the scale's
+    own count: the generator's ``--seeds`` may plan them); ``{}`` if none."""
+    if not seeds:
+        return {}
+    have = figures.settings(figure_id, scale).get("train_seeds")
+    return {"train_seeds": max(seeds) + 1} if have is not None and max(seeds) + 1 > int(have) else {}
+
+
 def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rates | None = None) -> Plan:
     """:class:`Plan` of ``jobs`` (deduplicated by key), priced with ``rates`` (default :func:`load_rates`)."""
     rates = rates or load_rates()
@@ -421,15 +430,13 @@ def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rat
 def seed_jobs(figure_id: str, scale: str, seeds: Iterable[int] | None = None, **overrides: Any) -> list[Job]:
     """The jobs of figure ``figure_id`` at ``scale``; with ``seeds``, only those of these training seeds
     (:func:`training_seed`; jobs without one are kept), planned past the scale's own count as the generator's
-    ``--seeds`` does (:func:`thesis_repro.runs.seed_count`).
+    ``--seeds`` does (:func:`seed_count`).
 
     >>> len(seed_jobs("3.3", "smoke", seeds=[0, 1, 2])) == 3 * len(seed_jobs("3.3", "smoke"))
     True
     """
     if seeds is None:
         return figures.jobs(figure_id, scale, **overrides)
-    from thesis_repro.runs import seed_count  # local: runs imports the learners' stack
-
     keep = {int(s) for s in seeds}
     jobs = figures.jobs(figure_id, scale, **{**seed_count(figure_id, scale, keep), **overrides})
     return [j for j in jobs if training_seed(j) is None or training_seed(j) in keep]
@@ -527,10 +534,21 @@ def summary(p: Plan) -> str:
     )
 
 
+def table(rows: Sequence[Mapping[str, str]], columns: Sequence[str] = ("kind", "label", "key", "state", "path")) -> str:
+    """Plain-text table of ``rows`` (what ``python -m thesis_repro runs`` prints).
+
+    >>> print(table([{"kind": "train", "label": "ppo__Hopper__s0", "key": "ab12", "state": "shipped", "path": "p"}]))
+    kind   label            key   state    path
+    train  ppo__Hopper__s0  ab12  shipped  p
+    """
+    widths = [max([len(c), *(len(str(r[c])) for r in rows)]) for c in columns]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)).rstrip()]
+    lines += ["  ".join(str(r[c]).ljust(w) for c, w in zip(columns, widths, strict=True)).rstrip() for r in rows]
+    return "\n".join(lines)
+
+
 def report(p: Plan, rates: Rates | None = None) -> str:
     """Table of ``p``'s lines (kind, family, jobs, work, rate and its source, core-hours) and its summary."""
-    from thesis_repro.runs import table
-
     rates = rates or load_rates()
     rows = [
         {

@@ -34,7 +34,7 @@ from typing import Any
 
 import yaml
 
-from thesis_repro import paths
+from thesis_repro import paths, scales
 
 #: The data file of the page (outside ``data/thesis``, whose files are part of every notebook's execution key:
 #: editing the table must not re-execute the book's notebooks, which never read it).
@@ -105,13 +105,14 @@ def scales_ids(table: Mapping[str, Any] | None = None) -> set[str]:
 
 def run_ids() -> set[str]:
     """``run:<key>`` for every run setting of :data:`thesis_repro.learners.config.RUN_DEFAULTS`."""
-    from thesis_repro.learners.config import RUN_DEFAULTS
+    from thesis_repro.learners.config import RUN_DEFAULTS  # local: the learners package loads torch and SB3
 
     return {f"run:{k}" for k in RUN_DEFAULTS}
 
 
 def arm_ids() -> set[str]:
     """``arm:<block>.<key>`` for chapter 5's job defaults and the RBF-PD policy's fields."""
+    # local: the arm modules load cma's and the simulator's stack; only the setting ids need them
     from thesis_repro.arm.baselines import TARGET_DEFAULTS
     from thesis_repro.arm.curriculum import CURRICULUM_DEFAULTS
     from thesis_repro.arm.learn import SOURCE_DEFAULTS
@@ -195,20 +196,16 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
 
 def protocols_at(scale: str = "small") -> dict[str, list[str]]:
     """Training protocol -> the chapter 3-4 items (figure ids of scales.yaml with training seeds and test
-    rollouts) under it at ``scale``, each as ``"<id> (<seeds>×<rollouts>)"``, from the scale table alone
-    (``THESIS_REPRO_PROTOCOL`` is ignored).
+    rollouts) under it at ``scale``, each as ``"<id> (<seeds>×<rollouts>)"``, from the scale table.
 
     >>> "3.3 (1×10)" in protocols_at("small")["thesis"] or "3.3 (3×10)" in protocols_at("small")["thesis"]
     True
     """
-    from thesis_repro import scales
-
     out: dict[str, list[str]] = {}
-    with scales.under_protocol(""):  # the table's own word, not a generator's override
-        for fig in scales.figures():
-            s = scales.figure_settings(fig, scale)
-            if "train_seeds" in s and "test_rollouts" in s and not fig.startswith(("5.", "analysis-")):
-                out.setdefault(str(s["protocol"]), []).append(f"{fig} ({s['train_seeds']}×{s['test_rollouts']})")
+    for fig in scales.figures():
+        s = scales.figure_settings(fig, scale)
+        if "train_seeds" in s and "test_rollouts" in s and not fig.startswith(("5.", "analysis-")):
+            out.setdefault(str(s["protocol"]), []).append(f"{fig} ({s['train_seeds']}×{s['test_rollouts']})")
     return out
 
 
@@ -219,14 +216,11 @@ def items_with_seeds(seeds: int, scale: str = "small") -> str:
     >>> items_with_seeds(99)
     'no item'
     """
-    from thesis_repro import scales
-
     figs, tables = [], []
-    with scales.under_protocol(""):
-        for fig in scales.figures():
-            s = scales.figure_settings(fig, scale)
-            if "test_rollouts" in s and s.get("train_seeds") == seeds and not fig.startswith(("5.", "analysis-")):
-                (tables if fig.startswith("table-") else figs).append(fig.removeprefix("table-"))
+    for fig in scales.figures():
+        s = scales.figure_settings(fig, scale)
+        if "test_rollouts" in s and s.get("train_seeds") == seeds and not fig.startswith(("5.", "analysis-")):
+            (tables if fig.startswith("table-") else figs).append(fig.removeprefix("table-"))
 
     def words(kind: str, ids: list[str]) -> str:
         if not ids:
@@ -239,8 +233,8 @@ def items_with_seeds(seeds: int, scale: str = "small") -> str:
 
 
 def switch_summary(scale: str = "small") -> str:
-    """A section naming the chapter 3-4 items on each training protocol at ``scale`` (``small`` switches item by
-    item), each with its training seeds × test rollouts."""
+    """A section naming the chapter 3-4 items on each training protocol at ``scale``, each with its training
+    seeds × test rollouts."""
     lines = [
         f"## Which items train under which protocol at `{scale}`",
         "",

@@ -52,13 +52,14 @@ from thesis_repro.cache import (
     RunCache,
     entry_identity,
     find_entry,
-    platform_info,
     read_entry,
     sweep_tmp,
     write_manifest,
 )
-from thesis_repro.plan import Rates, job_rate, shipped_rates, work
+from thesis_repro.plan import Rates, job_rate, seed_count, shipped_rates, work
+from thesis_repro.plan import table as table  # re-exported: the run listing's table (the CLI, verify)
 from thesis_repro.plan import training_seed as job_seed  # the training seed of a job (an evaluation: its policy's)
+from thesis_repro.provenance import numerics_env, platform_info, same_platform
 from thesis_repro.validation import check_choice
 
 #: States of a job in :func:`rows`.
@@ -125,19 +126,6 @@ def rows(figure_id: str, scale: str, cache: RunCache | None = None, verify: bool
     :func:`job_state`."""
     cache = cache or RunCache()
     return [job_row(job, cache, verify) for job in figures.jobs(figure_id, scale)]
-
-
-def table(rows: Sequence[Mapping[str, str]], columns: Sequence[str] = ("kind", "label", "key", "state", "path")) -> str:
-    """Plain-text table of ``rows`` (what ``python -m thesis_repro runs`` prints).
-
-    >>> print(table([{"kind": "train", "label": "ppo__Hopper__s0", "key": "ab12", "state": "shipped", "path": "p"}]))
-    kind   label            key   state    path
-    train  ppo__Hopper__s0  ab12  shipped  p
-    """
-    widths = [max([len(c), *(len(str(r[c])) for r in rows)]) for c in columns]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)).rstrip()]
-    lines += ["  ".join(str(r[c]).ljust(w) for c, w in zip(columns, widths, strict=True)).rstrip() for r in rows]
-    return "\n".join(lines)
 
 
 def summary(jobs: Iterable[Job], cache: RunCache | None = None, verify: bool = False) -> str:
@@ -320,27 +308,6 @@ def current_keys(
     return keys
 
 
-#: Training seeds the reference runs are generated for ahead of the scale table (issue 22: 3 at ``small``; the
-#: generator's ``--seeds 0 1 2`` ships seeds 1-2 while ``small`` still counts 1).
-PENDING_SEEDS: tuple[int, ...] = (0, 1, 2)
-
-
-def pending_keys(scale: str, layer_root: str | Path | None = None) -> set[str]:
-    """Keys a shipped entry may have besides :func:`current_keys`: every figure's jobs under each training
-    protocol (runs regenerated for the thesis protocol land before an item switches to it) for the
-    :data:`PENDING_SEEDS` (evaluations bound to the entries of ``layer_root``, as in :func:`current_keys`), and
-    the protocol studies' runs (:mod:`thesis_repro.study`)."""
-    from thesis_repro.learners.config import PROTOCOLS
-    from thesis_repro.scales import under_protocol
-    from thesis_repro.study import study_jobs
-
-    keys = {j.key for j in study_jobs()}
-    for protocol in PROTOCOLS:
-        with under_protocol(protocol):
-            keys |= current_keys(scale, layer_root=layer_root, seeds=PENDING_SEEDS)
-    return keys
-
-
 def shipped_job(path: str | Path) -> Job:
     """The :class:`Job` a shipped (or cached) entry was made from, rebuilt from its ``config.json``;
     ``ValueError`` if it no longer hashes to the entry's key (e.g. after a ``CACHE_VERSION`` bump)."""
@@ -391,13 +358,16 @@ def shipped_seconds(path: str | Path) -> float:
         return math.nan
 
 
-def check_shipped(scale: str = "small", layer_root: str | Path | None = None) -> list[StaleRun]:
-    """Shipped entries whose key is no longer produced by any figure's current config at ``scale`` (stale).
+def check_shipped(
+    scale: str = "small", layer_root: str | Path | None = None, also: Iterable[str] = ()
+) -> list[StaleRun]:
+    """Shipped entries whose key is no longer produced by any figure's current config at ``scale`` (stale), nor
+    is one of ``also`` (the protocol studies' runs: :func:`thesis_repro.study.study_keys`).
 
     An empty list means every shipped run is still used; otherwise each :attr:`StaleRun.message` says how
     to regenerate.
     """
-    keys = current_keys(scale, layer_root=layer_root) | pending_keys(scale, layer_root)
+    keys = current_keys(scale, layer_root=layer_root) | set(also)
     stale = []
     for path in shipped_entries(layer_root):
         key = path.name.rsplit("__", 1)[1]
@@ -446,37 +416,6 @@ WEIGHTS_ATOL = 1e-6
 #: sample of the same training procedure: its training return and its deterministic policy's testing return
 #: must match the shipped run's within this relative tolerance.
 OUTCOME_RTOL = 0.05
-
-
-def same_platform(result_or_path: Result | str | Path) -> bool | None:
-    """Was this run made on a platform equal to this one (:func:`~thesis_repro.cache.platform_info`) and in the
-    numerics in effect here (:func:`thesis_repro.numerics`)? ``None`` if its provenance does not record a
-    platform (runs made before it was recorded)."""
-    path = Path(getattr(result_or_path, "path", result_or_path))
-    prov = json.loads((path / "provenance.json").read_text())
-    recorded = prov.get("platform")
-    if recorded is None:
-        return None
-    return recorded == json.loads(json.dumps(platform_info())) and numerics_env(path) == numerics_env(None)
-
-
-def numerics_env(result_or_path: Result | str | Path | None) -> dict[str, str]:
-    """The numerics variables that recompute an entry as it was made: its provenance's ``numerics`` (entries
-    made before they were recorded: native, ``THESIS_REPRO_NUMERICS=native``); ``None``: this process's.
-
-    >>> numerics_env(None)["MKL_CBWR"]
-    'COMPATIBLE'
-    """
-    import thesis_repro
-
-    if result_or_path is None:
-        rec: dict[str, Any] | None = thesis_repro.numerics()
-    else:
-        path = Path(getattr(result_or_path, "path", result_or_path))
-        rec = json.loads((path / "provenance.json").read_text()).get("numerics")
-    if not rec or not rec.get("MKL_CBWR"):
-        return {thesis_repro.NUMERICS_ENV: "native"}
-    return {thesis_repro.NUMERICS_ENV: "portable", **{k: str(rec[k]) for k in thesis_repro.PORTABLE_NUMERICS}}
 
 
 _RECOMPUTE = """
@@ -607,15 +546,6 @@ def job_algorithm(job: Job) -> str | None:
     """The learner a training job trains, or an evaluation evaluates (``None`` for other kinds)."""
     cfg = job.config.get("train", job.config)
     return cfg.get("algorithm") if isinstance(cfg, Mapping) else None
-
-
-def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, int]:
-    """The ``train_seeds`` override that makes ``figure_id`` plan every one of ``seeds`` (seeds past the scale's
-    own count are produced ahead of the scale table, e.g. seeds 1-2 while ``small`` shows 1); ``{}`` if none."""
-    if not seeds:
-        return {}
-    have = figures.settings(figure_id, scale).get("train_seeds")
-    return {"train_seeds": max(seeds) + 1} if have is not None and max(seeds) + 1 > int(have) else {}
 
 
 def plan(

@@ -15,9 +15,6 @@ ValueError: unknown scale 'huge'; valid scales are: 'smoke', 'small', 'full'
 from __future__ import annotations
 
 import copy
-import os
-from collections.abc import Iterator
-from contextlib import contextmanager
 from functools import cache
 from typing import Any
 
@@ -27,13 +24,6 @@ from thesis_repro import paths
 from thesis_repro.validation import check_choice
 
 SCALES: tuple[str, ...] = ("smoke", "small", "full")
-#: Training seeds a scale is being given item by item where its table still says fewer (issue 22: ``small`` ships
-#: 3 seeds of every chapter 3-4 run; while they were generated an item switched with ``protocol_overrides`` once
-#: all of its runs were shipped, and since 2026-11-27 the table says 3 everywhere, so nothing is behind).
-TARGET_TRAIN_SEEDS: dict[str, int] = {"small": 3}
-#: Environment variable that overrides every figure's ``protocol`` setting (the reference-run generator's
-#: ``PROTOCOL=thesis``).
-PROTOCOL_ENV = "THESIS_REPRO_PROTOCOL"
 
 
 @cache
@@ -61,30 +51,9 @@ def figures() -> list[str]:
     return sorted(f for f in _table()["figures"] if not f.startswith("_"))
 
 
-@contextmanager
-def under_protocol(protocol: str) -> Iterator[None]:
-    """Within the block every figure trains under ``protocol`` (:data:`PROTOCOL_ENV`); the variable is restored.
-
-    >>> with under_protocol("thesis"):
-    ...     figure_settings("3.3", "small")["protocol"]
-    'thesis'
-    """
-    saved = os.environ.get(PROTOCOL_ENV)
-    os.environ[PROTOCOL_ENV] = protocol
-    try:
-        yield
-    finally:
-        if saved is None:
-            os.environ.pop(PROTOCOL_ENV, None)
-        else:
-            os.environ[PROTOCOL_ENV] = saved
-
-
 def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]:
-    """Resolved settings of ``figure`` at ``scale``: scale defaults, then the figure's block, then its training
-    protocol's ``protocol_overrides``, then the block's own ``protocol_overrides`` for that protocol (an item
-    ahead of the others, e.g. ``{thesis: {train_seeds: 3}}`` while the scale's count was 1), then
-    ``overrides`` (the caller's word is last; ``THESIS_REPRO_PROTOCOL`` still picks the protocol).
+    """Resolved settings of ``figure`` at ``scale``: scale defaults, then the figure's block, then ``overrides``
+    (the caller's word is last).
 
     Overrides may only name keys that already exist (a typo is an error, not a silent new key).
     The result also carries ``figure`` and ``scale``.
@@ -98,25 +67,9 @@ def figure_settings(figure: str, scale: str, **overrides: Any) -> dict[str, Any]
         raise ValueError(f"scales.yaml: figure {figure!r} has no block for scale(s) {missing}")
     settings: dict[str, Any] = copy.deepcopy(table["defaults"][scale])
     settings.update(copy.deepcopy(entry[scale] or {}))
-    own_overrides = settings.pop("protocol_overrides", None) or {}
     for key in overrides:
         check_choice(key, list(settings), f"setting of figure {figure}")
-    if "protocol" in overrides:
-        settings["protocol"] = overrides["protocol"]
-    if os.environ.get(PROTOCOL_ENV):
-        from thesis_repro.learners.config import PROTOCOLS
-
-        settings["protocol"] = check_choice(os.environ[PROTOCOL_ENV], PROTOCOLS, f"{PROTOCOL_ENV} protocol")
-    protocol_overrides = (table.get("protocol_overrides") or {}).get(settings.get("protocol"), {}) or {}
-    for key, value in (protocol_overrides.get(scale) or {}).items():
-        if key in settings:
-            settings[key] = copy.deepcopy(value)
-    for key, value in (own_overrides.get(settings.get("protocol")) or {}).items():
-        check_choice(key, list(settings), f"protocol_overrides setting of figure {figure}")
-        settings[key] = copy.deepcopy(value)
-    for key, value in overrides.items():
-        if key != "protocol":
-            settings[key] = value
+    settings.update(overrides)
     settings["figure"] = figure
     settings["scale"] = scale
     return settings

@@ -35,6 +35,7 @@ neither the claims layer nor the figures (the claims layer imports it).
 from __future__ import annotations
 
 import argparse
+import multiprocessing as mp
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -238,7 +239,7 @@ def schedule_effects(returns: dict[tuple[str, Any], np.ndarray], spec: StudySpec
     >>> e.difference, e.n, e.within_spread
     (2.0, (2, 2), True)
     """
-    from scipy.stats import ttest_ind
+    from scipy.stats import ttest_ind  # local: slow to import, and the claims layer imports this module
 
     spec = spec or SPECS["lr-schedule"]
     first, second = spec.values
@@ -338,6 +339,7 @@ def produce(
     jobs: Sequence[Job], n_jobs: int = 1, ship: bool = False, commit: bool = False, spec: StudySpec | None = None
 ) -> None:
     """Train the jobs that are neither cached nor shipped, ``n_jobs`` at a time; export (and commit) each."""
+    # local: only the generator needs runs (which imports the figure layer); the claims layer imports this module
     from thesis_repro.backends import execute
     from thesis_repro.runs import _die_with_parent, export, git_commit, wall_seconds
 
@@ -363,8 +365,6 @@ def produce(
         for job in todo:
             land(job, cache.run(job))
         return
-    import multiprocessing as mp
-
     with ProcessPoolExecutor(
         max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent
     ) as pool:

@@ -32,7 +32,11 @@ from typing import Any
 
 import numpy as np
 
-from thesis_repro.arm.learn import CMAResult, cma_lockstep, evaluate_policies, learn_independent
+from thesis_repro.arm.cma import CMAResult, cma_lockstep
+from thesis_repro.arm.learn import SOURCE_DEFAULTS, arm_objective, evaluate_policies, learn_independent
+from thesis_repro.arm.policy import RBFPolicy
+from thesis_repro.arm.tasks import sample_tasks, simulate, validate_tasks
+from thesis_repro.arm.transfer import alternate, make_subspace
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.validation import check_choice
 
@@ -53,11 +57,9 @@ def closed_loop_simulate(
 
     Physics, costs and success are the simulator's (``tasks.simulate(..., controller=...)``).
     """
-    from thesis_repro.arm import tasks
-
     dummy = np.zeros((B, 3, 2))
     dummy[:, 1:] = 1.0
-    return tasks.simulate(family, task_params, dummy, config=config, controller=controller)
+    return simulate(family, task_params, dummy, config=config, controller=controller)
 
 
 class ClosedLoopPolicy:
@@ -133,8 +135,6 @@ def closed_loop_objective(
     family: str, tasks: np.ndarray, pol: ClosedLoopPolicy, *, shaped: bool = False, config: dict | None = None
 ) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """``f(theta (n, pop, n_params)) -> (fitness, task_cost, success)`` (n, pop), one simulator call."""
-    from thesis_repro.arm.tasks import validate_tasks
-
     tasks = validate_tasks(family, tasks)
     cfg = {**(config or {}), "shaped": bool(shaped)}
 
@@ -204,10 +204,6 @@ def learn_target(
     (``rounds × 2 × phase_generations`` generations of ``popsize``). Returns the curves (n, G), the
     final cost/success of the CMA-ES means and the total cost of learning (n,).
     """
-    from thesis_repro.arm.learn import arm_objective
-    from thesis_repro.arm.policy import RBFPolicy
-    from thesis_repro.arm.transfer import alternate, make_subspace
-
     check_choice(strategy, STRATEGIES, "strategy")
     n = len(targets)
     rng = np.random.default_rng(seed)
@@ -270,8 +266,6 @@ def target_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any]:
     run (or loaded) through the run cache. For competitors, the source tasks are re-learned with the
     competitor's policy class (:func:`learn_closed_loop_sources`, same tasks, same budget).
     """
-    from thesis_repro.arm.tasks import sample_tasks
-
     cfg = {**TARGET_DEFAULTS, **config}
     strategy = check_choice(cfg["strategy"], STRATEGIES, "strategy")
     src_cfg = cfg["source"]
@@ -318,9 +312,6 @@ def target_dependencies(config: Mapping[str, Any]) -> dict[str, Job]:
 
 def competitor_source_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any]:
     """Cached job: the source tasks of a source config, learned with a competitor's policy class."""
-    from thesis_repro.arm.learn import SOURCE_DEFAULTS
-    from thesis_repro.arm.tasks import sample_tasks
-
     cfg = {**SOURCE_DEFAULTS, **config}
     tasks = sample_tasks(cfg["family"], int(cfg["n_tasks"]), np.random.default_rng(cfg["seed"]))
     theta, res = learn_closed_loop_sources(

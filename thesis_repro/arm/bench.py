@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from thesis_repro.arm.learn import learn_independent
 from thesis_repro.arm.policy import RBFPolicy
 from thesis_repro.arm.tasks import ArmConfig, check_family, sample_tasks, simulate
 
@@ -45,7 +46,7 @@ def bench_arm(
     ``cma_popsize``, ``cma_generation_s`` (mean wall time of one ask/simulate/tell generation on one task)
     and the settings used.
     """
-    import cma
+    import cma  # local: the cma package takes seconds to import; only the benchmark's timing needs it
 
     check_family(family)
     if min(n_rollouts, loop_rollouts, cma_generations, repeats) < 1:
@@ -93,8 +94,6 @@ def solve_task(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
     with zero RBF weights and unit PD gains. Returns the final ``W``, learning curves, the recorded
     trajectory of the final mean policy (``ee``, ``ball``, ``taut``) and its ``cost``/``success``.
     """
-    from thesis_repro.arm.learn import learn_independent
-
     family = check_family(config["family"])
     task = np.asarray(config["task"], dtype=float)[None]
     pol = RBFPolicy(n_basis=int(config["n_basis"]))

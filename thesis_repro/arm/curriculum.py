@@ -23,7 +23,7 @@ thesis: 6000 + 4000 trials, line 1155):
 * ``NC`` (no curriculum): ``pretrain`` trials of MTL on BIC from the same random start, then ``bic`` trials
   of the same alternation on BIC (L extracted from its own factors, each task keeping its own s).
 
-``transfer: joint`` selects the kit's earlier procedure (kit-v1 of Fig 5.6, σ 0.05 then): every stage joint
+``transfer: joint`` selects the kit's earlier procedure (Fig 5.6 at σ 0.05): every stage joint
 CMA-ES on all four factors, carried from family to family including the task rows of U3.
 
 >>> CONDITIONS, TRANSFERS
@@ -36,8 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from thesis_repro.arm.learn import ALGO_VERSION
-from thesis_repro.arm.tasks import SIM_VERSION
+from thesis_repro.arm.learn import ALGO_VERSION, evaluate_policies, mtl_alternate, mtl_refine
+from thesis_repro.arm.policy import RBFPolicy
+from thesis_repro.arm.tasks import SIM_VERSION, sample_tasks
+from thesis_repro.arm.transfer import Tucker, hosvd
 from thesis_repro.validation import check_choice
 
 CONDITIONS: tuple[str, ...] = ("CL", "NC")
@@ -68,9 +70,6 @@ CURRICULUM_DEFAULTS: dict[str, Any] = {
 
 
 def _random_start(n_tasks: int, n_basis: int, ranks: tuple[int, int, int], scale: float, rng: np.random.Generator):
-    from thesis_repro.arm.policy import RBFPolicy
-    from thesis_repro.arm.transfer import hosvd
-
     W = np.tile(RBFPolicy(n_basis=n_basis).default_params(), (n_tasks, 1, 1))
     W[:, :n_basis] += scale * rng.normal(size=(n_tasks, n_basis, 2))
     D = n_basis + 2
@@ -86,10 +85,6 @@ def curriculum_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any
     rate of the multiplied-out BIC policies; with ``transfer: alternate`` also ``phases`` (G,), the phase
     (``"s"`` or ``"L"``) of every BIC generation.
     """
-    from thesis_repro.arm.learn import evaluate_policies, mtl_alternate, mtl_refine
-    from thesis_repro.arm.tasks import sample_tasks
-    from thesis_repro.arm.transfer import Tucker
-
     cfg = {**CURRICULUM_DEFAULTS, **config}
     condition = check_choice(cfg["condition"], CONDITIONS, "curriculum condition")
     transfer = check_choice(cfg["transfer"], TRANSFERS, "curriculum transfer")

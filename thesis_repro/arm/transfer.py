@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thesis_repro.arm.learn import CMAResult, cma_lockstep, default_popsize
+from thesis_repro.arm.cma import CMAResult, cma_lockstep, default_popsize
 from thesis_repro.validation import check_choice, check_nonneg
 
 STRATEGIES: tuple[str, ...] = ("tensor", "matrix")
@@ -53,13 +53,13 @@ class Tucker:
 
     def to_tensor(self) -> np.ndarray:
         """Multiply out Eq 5.10."""
-        from tensorly.tenalg import multi_mode_dot
+        from tensorly.tenalg import multi_mode_dot  # local: tensorly is slow to import (start-up time)
 
         return np.asarray(multi_mode_dot(self.core, self.factors))
 
     def latent(self) -> np.ndarray:
         """Task-agnostic latent skills ``L = G ×1 U1 ×2 U2``, shape (D, A, r3)."""
-        from tensorly.tenalg import multi_mode_dot
+        from tensorly.tenalg import multi_mode_dot  # local: tensorly is slow to import (start-up time)
 
         return np.asarray(multi_mode_dot(self.core, self.factors[:2], modes=[0, 1]))
 
@@ -71,7 +71,7 @@ def hosvd(X: np.ndarray, ranks: Sequence[int]) -> Tucker:
     >>> t.core.shape, [u.shape for u in t.factors]
     ((2, 2, 2), [(3, 2), (2, 2), (4, 2)])
     """
-    from tensorly import unfold
+    from tensorly import unfold  # local: tensorly is slow to import (start-up time)
     from tensorly.tenalg import multi_mode_dot
 
     X = np.asarray(X, dtype=float)

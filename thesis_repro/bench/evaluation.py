@@ -31,14 +31,14 @@ def _make(**_: Any) -> gym.Env:
 
 
 def _model() -> Any:
-    from stable_baselines3 import PPO
+    from stable_baselines3 import PPO  # local (as below): start-up time of the benchmark registry
 
     return PPO("MlpPolicy", _make(), policy_kwargs={"net_arch": [64, 64]}, seed=0, device="cpu")
 
 
 def raw_physics(seconds: float) -> float:
     """Steps/s of ``mujoco.mj_step`` × frame_skip on the env's own model (random controls)."""
-    import mujoco
+    import mujoco  # local: start-up time
 
     env = _make()
     env.reset(seed=0)
@@ -89,7 +89,7 @@ def predict_loop(model: Any, seconds: float) -> float:
 
 def batched(model: Any, n_envs: int, horizon: int) -> tuple[float, float]:
     """Steps/s of the batched evaluator (env construction included) and the mean episode length."""
-    from thesis_repro.evaluation import BatchedEvaluator, sb3_policy, test_seeds
+    from thesis_repro.evaluation import BatchedEvaluator, sb3_policy, test_seeds  # local: loads torch and SB3
 
     ev = BatchedEvaluator(sb3_policy(model), _make, n_envs=n_envs, max_episode_steps=horizon)
     t0 = _clock()
@@ -104,7 +104,7 @@ def bench_evaluation(seconds: float = 1.0, n_envs: int = 16, horizon: int = HORI
     The four measurements are interleaved over ``rounds`` (the machine is shared; load hits all of them
     alike) and the median of each is reported. (a) runs ``n_envs`` full episodes of ``horizon`` steps.
     """
-    import torch
+    import torch  # local: start-up time
 
     torch.set_num_threads(1)
     model = _model()

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job, Result, RunCache
@@ -162,8 +163,6 @@ class BenchmarkResult:
 
     def auc_frame(self) -> Any:
         """Tidy ``pandas.DataFrame`` of every noise test's AUC: columns seed, env, algo, test, auc, train_return."""
-        import pandas as pd
-
         rows = []
         for test, a in self.auc.items():
             for (i, j, k), v in np.ndenumerate(a):

@@ -17,7 +17,7 @@ for the reproduced cells the 95 % CI of the mean across training seeds (:func:`o
 >>> s = settings("table-3.4", "smoke")
 >>> learners(s), skipped(s)
 (['ppo', 'trpo', 'ddpg', 'sac'], [])
->>> skipped(settings("table-3.4", "small", protocol="kit-v1"))  # kit-v1's small could not afford them
+>>> skipped(settings("table-3.4", "small", skip_algos=["ddpg", "sac"]))  # a scale that cannot afford them
 ['ddpg', 'sac']
 >>> noisy_learners()
 {'obs': 'ppo-obsnoise', 'act': 'ppo-actnoise', 'env': 'ppo-envnoise', 'dom': 'ppo-mdl'}

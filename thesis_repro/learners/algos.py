@@ -18,7 +18,7 @@ from typing import Any
 import torch as th
 from stable_baselines3.common.utils import update_learning_rate
 
-from thesis_repro.learners.fast import FastDDPG
+from thesis_repro.learners.fast_offpolicy import FastDDPG
 
 
 class DDPGSplit(FastDDPG):

@@ -8,7 +8,7 @@ policy receives). ``delta`` (:data:`DELTAS`) is
 * ``gradient``: ``delta = epsilon * g``, §3.2.1's formula as written (δ_t = ε ∇_s ‖π_θ(s_t)‖): its length
   is ε·‖g‖, so the attack grows with the policy's sensitivity to its input;
 * ``rescaled``: ``delta = epsilon * g / ||g||``, the gradient rescaled to length ε (closer to §2.3.3's
-  "rescaled gradient"; the kit-v1 protocol's form, and the default when the setting is absent).
+  "rescaled gradient"; the default when the setting is absent).
 
 The perturbed observations are what PPO stores and learns from.
 

@@ -39,6 +39,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormali
 
 from thesis_repro.bench import target_line
 from thesis_repro.envs.registry import resolve_env
+from thesis_repro.learners import train as tr
 from thesis_repro.learners.config import train_config
 from thesis_repro.validation import check_positive
 
@@ -51,8 +52,6 @@ _clock = time.process_time
 def kit_model(algo: str, env: str, stock: bool = False, **overrides: Any) -> BaseAlgorithm:
     """The kit's model for ``train_config(algo, env, 0, ...)``; ``stock``: same settings, SB3's own ``train()``
     and rollout/exploration code, Gymnasium's env class, ``DummyVecEnv`` and ``VecNormalize`` (SB3 as is)."""
-    from thesis_repro.learners import train as tr
-
     cfg = train_config(algo, env, 0, 10**9, **overrides)
     if stock:  # Gymnasium's own registered env class, SB3's DummyVecEnv
         if cfg["perturbation"] != "none":

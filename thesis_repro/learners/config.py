@@ -60,12 +60,10 @@ IDENTITY = ("algorithm", "class", "env", "seed", "timesteps")
 #: (learning rate AND clip range x max(1 - t/T, 0), t = env steps before the iteration, T = the run's budget),
 #: or ``constant``.
 LR_SCHEDULES: tuple[str, ...] = ("linear", "constant")
-#: Training protocols. ``thesis``: every learner as the thesis ran it (issue 20: baselines-style annealed PPO,
-#: ...). ``kit-v1``: the kit's earlier protocol, under which the shipped `small` runs were trained until they
-#: are regenerated: it drops every setting in :data:`THESIS_PROTOCOL_KEYS`, which restores the earlier
-#: behaviour AND the earlier config (so the shipped runs keep their keys). The scale table picks one per scale.
-PROTOCOLS: tuple[str, ...] = ("thesis", "kit-v1")
-#: Settings the thesis protocol added (dotted paths into the resolved config), absent under ``kit-v1``.
+#: Training protocols: ``thesis``, every learner as the thesis ran it (issue 20: baselines-style annealed PPO,
+#: EPOpt ranking whole episodes, one domain per batch for MAML-DG / Reptile-DG, ARPL's δ as §3.2.1 writes it).
+PROTOCOLS: tuple[str, ...] = ("thesis",)
+#: Settings the thesis protocol sets (dotted paths into the resolved config); a config without them is of no protocol.
 THESIS_PROTOCOL_KEYS: tuple[str, ...] = (
     "lr_schedule",
     "sb3.epopt_rank",  # EPOpt ranks whole episodes by their full return (issue 20 item 2)
@@ -74,9 +72,9 @@ THESIS_PROTOCOL_KEYS: tuple[str, ...] = (
     "arpl.delta",  # ARPL's δ as §3.2.1 writes it (item 4)
 )
 #: What :class:`~thesis_repro.learners.multidomain.EPOpt` ranks (``sb3.epopt_rank``): complete episodes by their
-#: full return, or (absent: kit-v1) the fragments of the rollout buffer cut at its ends, by partial return.
+#: full return, or the fragments of the rollout buffer cut at its ends, by partial return (also when the key is absent).
 EPOPT_RANKS: tuple[str, ...] = ("episodes", "fragments")
-#: ARPL's perturbation (``arpl.delta``): §3.2.1's ε ∇_s‖π(s)‖, or (absent: kit-v1) the gradient rescaled to length ε.
+#: ARPL's perturbation (``arpl.delta``): §3.2.1's ε ∇_s‖π(s)‖, or (also when absent) the gradient rescaled to length ε.
 ARPL_DELTAS: tuple[str, ...] = ("gradient", "rescaled")
 
 
@@ -125,12 +123,11 @@ def hyperparams(algo: str) -> dict[str, Any]:
 
 
 def train_config(
-    algo: str, env: str, seed: int, timesteps: int, *, protocol: str = "kit-v1", **overrides: Any
+    algo: str, env: str, seed: int, timesteps: int, *, protocol: str = "thesis", **overrides: Any
 ) -> dict[str, Any]:
     """Full resolved, JSON-plain config of one training run (the input of the ``"train"`` job).
 
-    ``protocol`` (:data:`PROTOCOLS`) is ``"thesis"`` or ``"kit-v1"`` (drops :data:`THESIS_PROTOCOL_KEYS`);
-    figures pass their scale's ``protocol`` setting.
+    ``protocol`` is one of :data:`PROTOCOLS` (``"thesis"``, the only one); figures pass their scale's setting.
 
     ``overrides`` may name any top-level setting (``n_envs``, ``perturbation``, ``sigma``, ``c_a``, ``wind``,
     ``net_arch``, ``snapshot_every``, ``max_episode_steps``, ...), any key of the entry's ``sb3`` block
@@ -156,14 +153,7 @@ def train_config(
     cfg.update(entry)
     cfg.setdefault("sb3", {})
     optional = cfg.pop("optional_sb3", None) or {}
-    if check_choice(protocol, PROTOCOLS, "protocol") == "kit-v1":
-        for path in THESIS_PROTOCOL_KEYS:
-            *parents, leaf = path.split(".")
-            holder: Any = cfg
-            for part in parents:
-                holder = holder.get(part) if isinstance(holder, dict) else None
-            if isinstance(holder, dict):
-                holder.pop(leaf, None)
+    check_choice(protocol, PROTOCOLS, "protocol")
     top = [k for k in cfg if k not in IDENTITY and k != "sb3"]
     for key, value in overrides.items():
         if key in top:
@@ -258,7 +248,7 @@ def _validate(cfg: dict[str, Any]) -> None:
         if isinstance(w, bool) or not isinstance(w, int) or w < 0:
             raise ValueError(f"epopt_warm_start must be an integer >= 0 (iterations), got {w!r}")
         if sb3.get("epopt_warmup", 0) != 0:
-            raise ValueError("set epopt_warm_start (the thesis protocol's warm-up), not epopt_warmup (kit-v1's)")
+            raise ValueError("set epopt_warm_start (the thesis protocol's warm-up), not epopt_warmup (in batches)")
     if "domain_per_batch" in sb3:
         if not isinstance(sb3["domain_per_batch"], bool):
             raise ValueError(f"domain_per_batch must be true or false, got {sb3['domain_per_batch']!r}")

@@ -17,7 +17,7 @@ hold ONE domain Θ_i per env for the whole iteration (Alg 1/2; :class:`_MetaPPO`
   itself (no class here);
 * :class:`EPOpt`: PPO on the trajectories whose return is in the worst ε fraction (Rajeswaran et al. 2016):
   complete episodes by full return (:func:`complete_episode_mask`, the thesis protocol's ``epopt_rank:
-  episodes``) or batch fragments by partial return (:func:`epopt_mask`, kit-v1);
+  episodes``) or batch fragments by partial return (:func:`epopt_mask`, ``epopt_rank: fragments``);
 * :class:`SubPolicyAggregation` (Alg 3): one sub-policy per domain, each updated by PPO on its own column from
   θ_old; after every epoch (``aggregate_every_epoch``) the sub-policies are aggregated by ``aggregate``:
   ``params_avg`` (Eq 4.6), ``kl_avg`` (Eq 4.10/4.11) or ``kl_exact`` (the exact minimiser of Eq 4.7), value
@@ -371,8 +371,8 @@ class EPOpt(MultiDomainPPO):
     the iteration's batch by their full return (VecMonitor's, which includes the episode's steps of earlier
     batches) and trains on the steps in this batch of the worst ε of them; an episode still running at the
     batch's end is neither ranked nor kept (it is ranked in the batch where it ends). An iteration in which no
-    episode ended trains nothing. ``"fragments"`` (the kit-v1 protocol): the batch's fragments between episode
-    starts and the batch's ends, ranked by partial return (:func:`epopt_mask`).
+    episode ended trains nothing. ``"fragments"``: the batch's fragments between episode starts and the batch's
+    ends, ranked by partial return (:func:`epopt_mask`).
 
     Warm start: the first ``epopt_warm_start`` iterations (None: ``epopt_warmup``) train on the whole batch
     (ε = 1, i.e. PPO-MDL), as Rajeswaran et al. start with ε = 1.
@@ -414,7 +414,7 @@ class EPOpt(MultiDomainPPO):
         buf = self.rollout_buffer
         warm = self.epopt_warmup if self.epopt_warm_start is None else self.epopt_warm_start
         mask = None
-        extra: dict[str, Any] = {}  # (none under kit-v1: its records are unchanged)
+        extra: dict[str, Any] = {}  # (none for fragments: their records have no extra field)
         if self.epopt_rank == "episodes":
             extra["ranked_episodes"] = int(np.isfinite(self._episode_ends).sum())
             if self.iterations_done >= warm:
@@ -562,8 +562,8 @@ class _MetaPPO(MultiDomainPPO):
     _EpisodeDomain.hold_domain`, from the env wrappers' own seeded generators), restarts its episode in it and
     keeps Θ_i across its episode resets for all of domain i's batches of the iteration (MAML-DG: D_i and D'_i;
     D'_i continues D_i's episode stream). The restart is the reference MAML sampler's (each task's sampling
-    starts from resets in that task); the episode it cuts is never recorded as a training episode. False (the
-    kit-v1 protocol): each env draws a new domain at every episode start, so one batch spans several domains.
+    starts from resets in that task); the episode it cuts is never recorded as a training episode. False: each
+    env draws a new domain at every episode start, so one batch spans several domains.
     Without a per-episode domain wrapper (``dom`` perturbation or ``wind``) there is one domain and no restart.
     """
 

@@ -49,7 +49,8 @@ from thesis_repro.envs.vec import LeanVecEnv, LeanVecNormalize
 from thesis_repro.learners.algos import DDPGSplit
 from thesis_repro.learners.arpl import ARPLVecEnv
 from thesis_repro.learners.config import iteration_steps
-from thesis_repro.learners.fast import FastPPO, FastSAC, FastTRPO  # leaner, equivalent (tests/test_fast.py)
+from thesis_repro.learners.fast import FastPPO, FastTRPO  # leaner, equivalent (tests/test_fast.py)
+from thesis_repro.learners.fast_offpolicy import FastSAC
 from thesis_repro.learners.multidomain import CLASSES as MULTI_DOMAIN_CLASSES
 from thesis_repro.learners.policies import SCNPolicy
 from thesis_repro.learners.policy import save_policy
@@ -121,7 +122,7 @@ def _wrap(cfg: dict[str, Any], inner: VecEnv, vecnorm_path: Path | None) -> VecE
                 gamma=cfg["sb3"].get("gamma", 0.99),
             )
     if cfg.get("arpl") is not None:
-        arpl = cfg["arpl"]  # delta absent (kit-v1): the rescaled form those runs used
+        arpl = cfg["arpl"]  # delta absent: the rescaled form (ARPL_DELTAS)
         venv = ARPLVecEnv(venv, arpl["epsilon"], arpl["prob"], seed=cfg["seed"], delta=arpl.get("delta", "rescaled"))
     return venv
 

@@ -18,6 +18,7 @@ from typing import Any
 import torch as th
 
 from thesis_repro.bench import target_line
+from thesis_repro.learners.bench import TARGETS, _learn_chunk, interleaved, kit_model
 
 ALGOS: tuple[str, ...] = ("joint", "params-avg", "kl-avg", "kl-exact")
 
@@ -28,8 +29,6 @@ def _iteration_steps(model: Any) -> int:
 
 def bench_multidomain(env: str = "Hopper", rounds: int = 3, algos: tuple[str, ...] = ALGOS) -> dict[str, float]:
     """Steps/s of each multi-domain learner and of plain kit PPO on ``env``; prints one target line per learner."""
-    from thesis_repro.learners.bench import TARGETS, _learn_chunk, interleaved, kit_model
-
     threads = th.get_num_threads()
     th.set_num_threads(1)
     try:
