@@ -15,13 +15,13 @@ The package map, layers from the bottom up. A module imports only from its own l
 5. **evaluation**: ``evaluation``, ``bench.evaluation`` -- the chapter 3 testing protocol; may import every
    layer above this line.
 6. **figures**: ``figures`` -- each item's jobs and numbers, no verdicts; may import every layer below.
-7. **runs**: ``plan``, ``runs``, ``study``, ``budgets``, ``verify`` -- cost plans, the shipped runs and their
-   generator, the protocol studies, budgets, ``make verify``; may import figures and below.
+7. **runs**: ``plan``, ``runs``, ``study``, ``budgets`` -- cost plans, the shipped runs and their generator, the
+   protocol studies, budgets; may import figures and below.
 8. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed; may import runs (the
    studies) and below, never figures.
-9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``__main__``, ``bench.__main__``,
-   ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside the shipped learners and the
-   command lines; may import everything.
+9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``verify``, ``__main__``,
+   ``bench.__main__``, ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside the shipped
+   learners, ``make verify`` (it re-runs a claim's notebooks) and the command lines; may import everything.
 """
 
 import os
