@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 
 from thesis_repro import report
-from thesis_repro.claims import cli
+from thesis_repro.claims import cli, design
 from thesis_repro.claims import ledger as L
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import synthetic as S
@@ -33,6 +33,7 @@ pytestmark = pytest.mark.xdist_group("claims-seeds")
 COMPARATIVE = {
     # two learners (or strategies, conditions), Welch across seeds
     "better": "learner a vs learner b per row (AUC)",
+    "no_winner": "per learner, another learner above it on some task (task AUC, Welch)",
     "better_per_test": "PPO-MDL vs PPO per row, one group per test type",
     "groups_better": "each remedy / strategy vs PPO per row",
     "matching_noise": "each noise-trained learner vs PPO per row",
@@ -74,7 +75,7 @@ DECIDED = (0.97, 1.0, 1.03)
 AMBIGUOUS = (3.0, -2.0, 1.0)
 ONE_SEED = (1.0,)
 SCALE = "small"
-DECIDED_STATUSES = {report.REPRODUCES, report.PARTLY, report.DOES_NOT}
+DECIDED_STATUSES = {report.REPRODUCES, report.AT_LEAST_PARTLY, report.PARTLY, report.AT_MOST_PARTLY, report.DOES_NOT}
 
 
 def is_comparative(s: L.Spec) -> bool:
@@ -244,10 +245,11 @@ def test_the_page_prints_the_ci_next_to_the_statistic(capsys):
     c = row.groups["all"]["units"][0]["contrasts"][0]
     stat = L._stat_text(row.statistic)
     effect = f"{c['estimate']:+.3g} [{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]"
-    line = next(x for x in printed.splitlines() if "Entropy-regularised PPO usually" in x)
-    assert f"{stat}; effect in the claim's direction (> 0 supports it) [95 % CI across 3 training seeds]" in line
-    assert effect in line and "more contrast(s) in the units table" in line  # 20 rows: the first few, then the table
+    line = next(x for x in printed.splitlines() if "· 3.6-entropy ·" in x)  # one line: the key number, its CI
+    assert "ours: pooled effect" in line and "[" in line.split("ours: ")[1] and len(line) <= report.LINE
     (v,) = [v for v in vs if "Entropy-regularised" in v.claim]
+    assert f"{stat}; effect in the claim's direction (> 0 supports it) [95 % CI across 3 training seeds]" in v.evidence
+    assert "more contrast(s) in the units table" in v.evidence  # 20 rows: the first few, then the table
     assert effect in v.evidence and effect in v._repr_markdown_()
     saved = report.load("table-3.6", SCALE)
     assert any(effect in x.evidence for x in saved)
@@ -270,12 +272,14 @@ def test_ambiguous_three_seed_data_is_inconclusive(judged, cid):
 
 def test_each_comparative_rule_type_has_an_inconclusive_rule(judged):
     """Rule type = measure: at least one claim of every comparative measure is inconclusive on ambiguous data."""
+    rules = {cid: design.rule(L.spec(cid).rule, L.spec(cid).v2) for cid in judged["ambiguous"]}
     hit = {
-        L.spec(cid).rule["measure"]
+        rules[cid]["measure"]
         for cid, row in judged["ambiguous"].items()
-        if row.status == report.INCONCLUSIVE and "measure" in L.spec(cid).rule
+        if row.status == report.INCONCLUSIVE and "measure" in rules[cid]
     }
-    assert set(COMPARATIVE) <= hit
+    used = {r["measure"] for r in rules.values() if "measure" in r}  # v2 judges 3.4's winner by no_winner
+    assert set(COMPARATIVE) & used <= hit
 
 
 # ---------------------------------------------------------------- 1 seed: at most indicative

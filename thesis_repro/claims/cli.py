@@ -7,7 +7,8 @@ neither at that scale is reported as *not computed* (nothing is trained or evalu
 ship-claims``) refreshes the snapshot from this build's pages.
 
 >>> main(["--scale", "smoke", "--ids", "3.3-negative-correlation"])  # doctest: +ELLIPSIS
-not judged at this scale · 3.3-negative-correlation · l. 555 ...
+not ... · 3.3-negative-correlation · l. 555 negative correlation · thesis: ...
+distinct thesis claims: 1 not ...
 0
 """
 

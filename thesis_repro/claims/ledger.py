@@ -507,11 +507,12 @@ def _judge_frames(
         status = report.NOT_JUDGED
     primary = {g: {k: v for k, v in info.items() if k != "units"} for g, info in res.groups.items()}
     gsum = {g: {"verdict": info["verdict"], "level": LEVEL, "units": info["units"]} for g, info in res.groups.items()}
+    shares = {g: _share(info) for g, info in res.groups.items()}
     row = Row(
         s,
         status,
         res.n_seeds or v1.n_seeds,
-        v1.statistic,
+        shares if len(shares) > 1 else next(iter(shares.values())),
         gsum,
         note=v1.note,
         v1_status=v1.status,
@@ -530,6 +531,16 @@ def _judge_frames(
         row.diagnosis = diagnose(shim, meta, measured)
         row.sensitivity = [_sensitivity_dict(m) for m in measured]
     return row
+
+
+def _share(info: Mapping[str, Any]) -> dict[str, Any]:
+    """A group's yes-share statistic under v2 (the shape of :meth:`~thesis_repro.claims.stats.Judgement.statistic`):
+    CI-supported yes units, their interval ``[yes / n, (yes + undecided) / n]`` and the point estimates' share."""
+    k, und, n = info["k"], info["undecided"], info["n"]
+    if not n:
+        return {"value": None, "ci": [None, None], "k": 0, "n": 0}
+    point = sum(u.get("point") == "yes" for u in info["units"]) / n
+    return {"value": point, "ci": [k / n, (k + und) / n], "k": k, "undecided": und, "n": n}
 
 
 @dataclass
@@ -829,8 +840,9 @@ def ours_text(row: Row) -> str:
     else a fraction of the reference's value) and the units' count; or the count of yes units with the
     yes-share interval. ``''`` when the row has no v2 statistic.
 
-    >>> row = Row(Spec("x", "fig-3.3", "c", (555,), {}), "does not reproduce", primary={"pooled": {"estimate": -0.8,
-    ...     "ci": [-0.9, -0.7], "kind": "r", "sign": -1, "n_seeds": 3}, "k": 0, "n": 20})
+    >>> pooled = {"estimate": -1.0986, "ci": [-1.472, -0.8673], "kind": "r", "sign": -1, "n_seeds": 3}  # in z
+    >>> row = Row(Spec("x", "fig-3.3", "c", (555,), {}), "does not reproduce", primary={"pooled": pooled, "k": 0,
+    ...     "n": 20})
     >>> ours_text(row)
     'pooled r +0.80 [+0.70, +0.90], 0/20 units yes'
     """
