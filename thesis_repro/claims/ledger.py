@@ -880,13 +880,14 @@ def headline(row: Row, width: int = 160) -> str:
     s = row.spec
     where = f"l. {','.join(map(str, s.lines))} " if s.lines else ""
     short = s.v2.get("short") or " ".join(s.text.split()[:6])
-    bits = [row.status, s.id, f"{where}{short}"]
-    if s.v2.get("thesis_value"):
-        bits.append(f"thesis: {s.v2['thesis_value']}")
+    head = [row.status, s.id, f"{where}{short}"]
     ours = ours_text(row)
-    if ours:
-        bits.append(f"ours: {ours}")
-    line = " · ".join(bits)
+    tail = [f"ours: {ours}"] if ours else []
+    thesis = str(s.v2.get("thesis_value") or "")
+    room = width - len(" · ".join([*head, *tail])) - len(" · thesis: ")
+    if thesis and len(thesis) > room:  # too long for one line: the thesis's value gives way before ours
+        thesis = thesis[: room - 1] + "…" if room > 12 else ""
+    line = " · ".join([*head, *([f"thesis: {thesis}"] if thesis else []), *tail])
     return line if len(line) <= width else line[: width - 1] + "…"
 
 
@@ -1077,7 +1078,9 @@ def verdicts(page: str, scale: str) -> list[report.Verdict]:
         again = f" (judged on {s.page}; repeated here, counted once)" if s.page != page else ""
         claim = f"{tag}{s.text} ({where}){again}"
         evidence = f"v1 verdict: {row.v1_status or row.status}; {describe(row)}"
-        out.append(report.Verdict(page.removeprefix("fig-"), claim, row.status, evidence, headline(row, width=400)))
+        fig = page.removeprefix("fig-")
+        line = headline(row, width=report.LINE - len(f"[{fig}] "))  # the terminal's line is the page's first line
+        out.append(report.Verdict(fig, claim, row.status, evidence, line))
     return out
 
 
