@@ -30,7 +30,7 @@ pytestmark = pytest.mark.xdist_group("smoke")
 THESIS_TXT = Path(os.environ.get("THESIS_TXT", "/work/shared/thesis.txt"))
 PROGRESS = re.compile(r"it/s\]|s/it\]|\d%\|")
 STATUS_TITLE = re.compile(
-    r'<p class="admonition-title">(' + "|".join(re.escape(s.capitalize()) for s in report.STATUSES) + r"):"
+    r'<p class="admonition-title">(' + "|".join(re.escape(s.capitalize()) for s in report.STATUSES) + r")(:| ·)"
 )
 
 

@@ -209,7 +209,7 @@ def test_arpl_direction_increases_action_norm_and_has_norm_epsilon():
 
 
 def test_arpl_wrapper_attacks_the_configured_fraction():
-    cfg = tiny("ppo-arpl", arpl={"epsilon": 0.5, "prob": 1.0})
+    cfg = tiny("ppo-arpl", arpl={"epsilon": 0.5, "prob": 1.0, "delta": "rescaled"})  # length epsilon exactly
     venv = _wrap(cfg, make_train_venv(cfg), None)
     assert isinstance(venv, ARPLVecEnv)
     model = build_model(cfg, venv)

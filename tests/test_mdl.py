@@ -383,7 +383,8 @@ def test_kl_exact_is_never_worse_than_params_avg_on_eq_4_7():
 
 @pytest.mark.parametrize("algo", MULTI_DOMAIN)
 def test_every_multi_domain_learner_trains_resumes_and_loads_through_the_one_train_job(algo, tmp_path):
-    cfg = tiny(algo, timesteps=384, seed=1, checkpoint_every=64, **({"epsilon": 0.3} if algo == "ppo-epopt" else {}))
+    epopt = {"epsilon": 0.3, "epopt_warm_start": 0}  # no warm start: eps applies from the first iteration
+    cfg = tiny(algo, timesteps=384, seed=1, checkpoint_every=64, **(epopt if algo == "ppo-epopt" else {}))
     per_iter = 128 if algo == "ppo-maml-dg" else 64
     with pytest.raises(KeyboardInterrupt):
         train_job(cfg, tmp_path, callback=Interrupt(at=per_iter * 2 + 5))

@@ -95,7 +95,7 @@ def test_a_smoke_figure_run_is_quiet_and_leaves_no_litter(tmp_path):
     out = subprocess.run(cmd, cwd=notebooks.paths.ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     lines = [ln for ln in (out.stdout + "\n" + out.stderr).replace("\r", "\n").splitlines() if ln.strip()]
-    verdict = re.compile(r"\[4\.1\] [A-Z ]+ - ")
+    verdict = re.compile(r"\[4\.1\] [A-Z ]+ (- |· )")
     noise = [ln for ln in lines if re.search(r"warn|deprecat|TCP|Traceback|error", ln, re.I) and not verdict.match(ln)]
     assert not noise, noise
     stdout = out.stdout.strip().splitlines()

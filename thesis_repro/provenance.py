@@ -4,7 +4,7 @@ platform that decides a run's float rounding (:func:`platform_info`), and whethe
 ``import thesis_repro`` (:data:`thesis_repro.PORTABLE_NUMERICS`, before torch loads).
 
 >>> sorted(record(0.0, 1.0))[:3]
-['command', 'cwd', 'end']
+['claims_design', 'command', 'cwd']
 """
 
 from __future__ import annotations

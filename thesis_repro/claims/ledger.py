@@ -525,7 +525,9 @@ def _judge_frames(
     if with_null and scale != "smoke":
         row.calibration = calibration_of(s, scale, run, lv, mg, rules, rule2, compute=with_null is True)
         row.null_pass_rate = row.calibration.get("false_reproduces")
-    if status not in (report.REPRODUCES, report.NOT_JUDGED):
+    if status == report.INDICATIVE:  # one seed: no spread to report; v1's lean and its measured sensitivity
+        row.diagnosis, row.sensitivity = v1.diagnosis, v1.sensitivity
+    elif status not in (report.REPRODUCES, report.NOT_JUDGED):
         measured = [m for m in (study_result(n) for n in s.sensitivity) if m is not None]
         shim = {g: _Judged(info["units"], LEVEL) for g, info in res.groups.items()}
         row.diagnosis = diagnose(shim, meta, measured)
