@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -27,21 +28,7 @@ def test_the_frozen_design_holds():
 def test_a_changed_rule_without_a_new_version_is_caught(monkeypatch):
     reg = registry.registry()
     spec = next(s for s in registry.specs() if s.id == "3.3-negative-correlation")
-    changed = [
-        registry.Spec(
-            s.id,
-            s.page,
-            s.text,
-            s.lines,
-            s.rule,
-            s.beyond,
-            s.pages,
-            s.evidence,
-            s.sensitivity,
-            {**s.v2, "margin": 0.05} if s.id == spec.id else s.v2,
-        )
-        for s in registry.specs()
-    ]
+    changed = [dataclasses.replace(s, v2={**s.v2, "margin": 0.05}) if s.id == spec.id else s for s in registry.specs()]
     monkeypatch.setattr(registry, "specs", lambda: tuple(changed))
     assert design.check_frozen() == ["claim 3.3-negative-correlation: rule changed"]
     assert reg is registry.registry()
