@@ -85,6 +85,8 @@ class Verdict:
     #: one line (``label · id · l. N short claim · thesis: value · ours: value [CI]``): printed alone, the
     #: evidence folded below it in the book
     headline: str = ""
+    #: the confirmatory check's line (the same frozen rule on the fresh seeds alone), ``""`` before they exist
+    confirmatory: str = ""
 
     def __post_init__(self) -> None:
         check_choice(self.status, STATUSES, "verdict status")
@@ -93,14 +95,19 @@ class Verdict:
         if self.headline:
             label, _, rest = self.headline.partition(" · ")
             line = f"[{self.figure}] {label.upper()} · {rest}"
-            return line if len(line) <= LINE else line[: LINE - 1] + "…"
+            line = line if len(line) <= LINE else line[: LINE - 1] + "…"
+            if "DISAGREES" in self.confirmatory:  # the terminal adds a line only for a flagged confirmatory check
+                more = f"  {self.confirmatory}"
+                line += "\n" + (more if len(more) <= LINE else more[: LINE - 1] + "…")
+            return line
         tail = f": {self.evidence}" if self.evidence else ""
         return f"[{self.figure}] {self.status.upper()} - {self.claim}{tail}"
 
     def _repr_markdown_(self) -> str:
         if self.headline:
             label, _, rest = self.headline.partition(" · ")
-            body = f"{self.claim}\n\n<details><summary>evidence</summary>\n\n{self.evidence}\n\n</details>"
+            fresh = f"\n\n{self.confirmatory}" if self.confirmatory else ""
+            body = f"{self.claim}{fresh}\n\n<details><summary>evidence</summary>\n\n{self.evidence}\n\n</details>"
             return f"```{{admonition}} {label.capitalize()} · {rest}\n:class: {_STYLE[self.status]}\n{body}\n```\n"
         title = f"{self.status.capitalize()}: {self.claim}"
         body = self.evidence or ""

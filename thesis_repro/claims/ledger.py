@@ -26,7 +26,8 @@ import math
 import os
 import warnings
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -39,6 +40,15 @@ from thesis_repro import paths, report
 from thesis_repro.claims import calibration, design, snapshot
 from thesis_repro.claims import judge as J
 from thesis_repro.claims import measures as M
+from thesis_repro.claims.confirmatory import (
+    FIRST_FRESH,
+    FRESH_SEEDS,
+    Confirmation,
+    fresh_frames,
+    fresh_seeds,
+    fresh_summary,
+    seeds_in,
+)
 from thesis_repro.claims.registry import (  # noqa: F401 - parse_specs, reads, registry: re-exported for callers
     Spec,
     data_name,
@@ -221,11 +231,32 @@ def saved_blob(page: str, name: str, scale: str) -> dict[str, Any] | None:
 
 
 def load_page(page: str, scale: str) -> dict[str, Any] | None:
-    """The saved blob of ``page`` (:func:`saved_blob`, frames as DataFrames) or None."""
+    """The saved blob of ``page`` (:func:`saved_blob`, frames as DataFrames) or None; read once per
+    :func:`ledger` pass (:func:`_one_pass`)."""
+    if _PASS is not None and (page, scale) in _PASS:
+        return _PASS[(page, scale)]
     blob = saved_blob(page, data_path(page, scale).name, scale)
     if blob is not None:
         blob["frames"] = {k: pd.DataFrame(v) for k, v in blob["frames"].items()}
+    if _PASS is not None:
+        _PASS[(page, scale)] = blob
     return blob
+
+
+#: Within one :func:`ledger` pass: the pages read and the measures run so far (pages do not change inside a pass).
+_PASS: dict[Any, Any] | None = None
+
+
+@contextmanager
+def _one_pass() -> Iterator[None]:
+    """Read each page and run each claim's measure once while judging every claim (Holm's families re-read the
+    same pages); outside a pass every call reads afresh, as a notebook that just saved its numbers needs."""
+    global _PASS
+    outer, _PASS = _PASS, _PASS if _PASS is not None else {}
+    try:
+        yield
+    finally:
+        _PASS = outer
 
 
 def stale_pages(rows: Sequence[Row]) -> list[str]:
@@ -327,6 +358,7 @@ class Row:
     margin: float | None = None  # v2: the smallest effect of interest (margin units)
     primary: dict[str, Any] = field(default_factory=dict)  # v2's primary statistic (pooled effect or yes-share)
     calibration: dict[str, Any] = field(default_factory=dict)  # v2: false R / false D over null draws, power
+    confirmation: Confirmation | None = None  # the same frozen rule on the fresh seeds alone (None: not shipped yet)
 
     def as_dict(self) -> dict[str, Any]:
         s = self.spec
@@ -352,11 +384,12 @@ class Row:
             "margin_basis": s.v2.get("margin_basis", ""),
             "primary": self.primary,
             "calibration": self.calibration,
+            "confirmatory": None if self.confirmation is None else self.confirmation.as_dict(),
             "short": s.v2.get("short", ""),
             "claim12": s.v2.get("claim12", ""),
             "thesis_value": s.v2.get("thesis_value", ""),
             "ours": ours_text(self),
-            "headline": headline(self),
+            "headline": headline(self, width=1000),  # whole here; the terminal and pages cut at report.LINE
             "null_pass_rate": self.null_pass_rate,
             "note": self.note,
             "diagnosis": self.diagnosis,
@@ -396,9 +429,12 @@ def rule_text(s: Spec) -> str:
     return "; ".join(parts)
 
 
-def page_data(s: Spec, scale: str) -> tuple[dict[str, pd.DataFrame], dict[str, Any]] | None:
+def page_data(
+    s: Spec, scale: str, seeds: Sequence[int] | None = None
+) -> tuple[dict[str, pd.DataFrame], dict[str, Any]] | None:
     """The frames a claim's measure reads (``name`` for its own page, ``name@page`` for others) and meta
-    (``meta["stale_pages"]``: those of its pages written by other kit code)."""
+    (``meta["stale_pages"]``: those of its pages written by other kit code); with ``seeds``, only those training
+    seeds' rows (None when the pages do not hold them all: :func:`~thesis_repro.claims.confirmatory.fresh_frames`)."""
     frames: dict[str, pd.DataFrame] = {}
     meta: dict[str, Any] = {}
     found, stale, shipped, versions = False, [], [], []
@@ -416,6 +452,11 @@ def page_data(s: Spec, scale: str) -> tuple[dict[str, pd.DataFrame], dict[str, A
             if p == s.page or len(s.data_pages) == 1:
                 frames[k] = v
     extra = {"stale_pages": stale, "shipped_pages": shipped, "versions": versions}
+    if found and seeds is not None:
+        picked = fresh_frames(frames, seeds)
+        if picked is None:
+            return None
+        frames = picked
     return (frames, {**meta, **extra}) if found else None
 
 
@@ -460,6 +501,7 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
             shipped=shipped_pages(rows),
             v1_status=v1,
             level="each",
+            confirmation=_derived_confirmation(rows, status),
         )
     try:
         got = page_data(s, scale)
@@ -472,7 +514,32 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
     row = _judge_frames(s, scale, with_null, frames, meta)
     row.stale = list(meta["stale_pages"])
     row.shipped = list(meta["shipped_pages"])
+    row.confirmation = confirm(s, scale, row, frames, meta)
     return row
+
+
+def confirm(
+    s: Spec, scale: str, row: Row, frames: Mapping[str, pd.DataFrame], meta: dict[str, Any]
+) -> Confirmation | None:
+    """The claim's confirmatory verdict (:mod:`~thesis_repro.claims.confirmatory`): its frozen rule on the fresh
+    seeds alone, with Holm's family judged on them too; None when its pages do not hold the fresh seeds beside the
+    design seeds, or nothing is judged (smoke, a page-level verdict)."""
+    if scale == "smoke" or not row.level or min(seeds_in(frames), default=FIRST_FRESH) >= FIRST_FRESH:
+        return None
+    fresh = fresh_frames(frames)
+    if fresh is None:
+        return None
+    seeds = fresh_seeds(frames)
+    c = _judge_frames(s, scale, False, fresh, meta, seeds=seeds)
+    return Confirmation(c.status, ours_text(c), row.status, seeds)
+
+
+def _derived_confirmation(parts: Sequence[Row], primary: str) -> Confirmation | None:
+    """A derived claim's confirmatory verdict: its parts' combined, when every part has one."""
+    got = [r.confirmation for r in parts]
+    if not got or any(c is None for c in got):
+        return None
+    return Confirmation(combine_bounded([c.status for c in got if c]), "", primary)
 
 
 def _corrupt(s: Spec, scale: str, err: snapshot.CorruptSnapshot) -> Row:
@@ -481,10 +548,16 @@ def _corrupt(s: Spec, scale: str, err: snapshot.CorruptSnapshot) -> Row:
 
 
 def _judge_frames(
-    s: Spec, scale: str, with_null: bool | str, frames: dict[str, pd.DataFrame], meta: dict[str, Any]
+    s: Spec,
+    scale: str,
+    with_null: bool | str,
+    frames: Mapping[str, pd.DataFrame],
+    meta: dict[str, Any],
+    seeds: Sequence[int] | None = None,
 ) -> Row:
     """:func:`judge` of a claim with a measure, from its pages' saved ``frames`` and ``meta``: design v2's verdict
-    (:mod:`thesis_repro.claims.judge`), with design v1's beside it."""
+    (:mod:`thesis_repro.claims.judge`), with design v1's beside it; ``seeds``: the frames hold only these training
+    seeds' rows (the confirmatory check), and so does Holm's family (:func:`family_p`)."""
     v1 = _judge_v1_frames(s, scale, False, frames, meta)
     rule2, lv, mg = design.rule(s.rule, s.v2), design.level(s.v2), design.margin(s.v2)
     try:
@@ -499,7 +572,7 @@ def _judge_frames(
     if not run:
         return v1
     rules = {g: J.count_rule(rule_for(s, g, rule2)[0], lv, rule2) for g in run}
-    res = J.judge_v2(run, lv, mg, rules, family_p(s, scale) if lv == "pooled" else ())
+    res = J.judge_v2(run, lv, mg, rules, family_p(s, scale, seeds) if lv == "pooled" else ())
     status = res.status
     if not_run:  # a part the scale did not run may hold or not
         status = combine_bounded([status, report.INCONCLUSIVE])
@@ -553,25 +626,37 @@ class _Judged:
     level: float
 
 
-def family_p(s: Spec, scale: str) -> list[float]:
-    """The decisive p-values of the other pooled claims that read ``s``'s page data (Holm's family)."""
+def family_p(s: Spec, scale: str, seeds: Sequence[int] | None = None) -> list[float]:
+    """The decisive p-values of the other pooled claims that read ``s``'s page data (Holm's family), on ``seeds``
+    only when given."""
     out: list[float] = []
     for f in specs():
         if f.id == s.id or f.rule.get("derived") or "measure" not in f.rule or design.level(f.v2) != "pooled":
             continue
         if not set(f.data_pages) & set(s.data_pages):
             continue
-        got = page_data(f, scale)
-        if got is None:
-            continue
+        out += _decisive_ps(f, scale, None if seeds is None else tuple(seeds))
+    return out
+
+
+def _decisive_ps(f: Spec, scale: str, seeds: tuple[int, ...] | None) -> list[float]:
+    """Claim ``f``'s decisive p-value per group of units (memoised within a :func:`ledger` pass)."""
+    key = ("decisive", f.id, scale, seeds)
+    if _PASS is not None and key in _PASS:
+        return _PASS[key]
+    got = page_data(f, scale, seeds)
+    out: list[float] = []
+    if got is not None:
         rule2 = design.rule(f.rule, f.v2)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 groups = M.MEASURES[rule2["measure"]](got[0], rule2)
+            out = [J.decisive_p(pooled(us, design.margin(f.v2))) for us in groups.values() if us]
         except (M.NotRun, M.Inconclusive):
-            continue
-        out += [J.decisive_p(pooled(us, design.margin(f.v2))) for us in groups.values() if us]
+            out = []
+    if _PASS is not None:
+        _PASS[key] = out
     return out
 
 
@@ -823,13 +908,23 @@ def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any], sensitivities: 
 
 def ledger(scale: str, with_null: bool | str = CACHED) -> list[Row]:
     """Every registered claim judged at ``scale`` from saved numbers (thesis claims first, then beyond)."""
-    rows = [judge(s, scale, with_null) for s in specs()]
+    with _one_pass():
+        rows = [judge(s, scale, with_null) for s in specs()]
     return sorted(rows, key=lambda r: r.spec.beyond)
 
 
 def counts(rows: Sequence[Row], beyond: bool = False) -> Counter:
     """Status counts of distinct claims (each claim once, whichever pages repeat it)."""
     return Counter(r.status for r in rows if r.spec.beyond == beyond)
+
+
+def confirmatory_counts(rows: Sequence[Row]) -> Counter:
+    """Confirmatory verdict counts of the distinct thesis claims (``not yet judged``: fresh seeds not shipped)."""
+    return Counter(r.confirmation.status if r.confirmation else NOT_YET for r in rows if not r.spec.beyond)
+
+
+#: A claim's confirmatory count when its pages do not hold the fresh seeds yet.
+NOT_YET = "fresh seeds not yet shipped"
 
 
 # ---------------------------------------------------------------- output
@@ -1082,7 +1177,8 @@ def verdicts(page: str, scale: str) -> list[report.Verdict]:
         evidence = f"v1 verdict: {row.v1_status or row.status}; {describe(row)}"
         fig = page.removeprefix("fig-")
         line = headline(row, width=report.LINE - len(f"[{fig}] "))  # the terminal's line is the page's first line
-        out.append(report.Verdict(fig, claim, row.status, evidence, line))
+        fresh = row.confirmation.line() if row.confirmation else ""
+        out.append(report.Verdict(fig, claim, row.status, evidence, line, fresh))
     return out
 
 
@@ -1180,6 +1276,9 @@ def as_json(rows: Sequence[Row], scale: str = "") -> dict[str, Any]:
         "decision_rule": RULE_WORDS,
         "counts": dict(counts(rows)),
         "v1_counts": dict(Counter(r.v1_status or r.status for r in rows if not r.spec.beyond)),
+        "confirmatory_counts": dict(confirmatory_counts(rows)),
+        "confirmatory_seeds": f"{FIRST_FRESH} and above (judged once a claim's pages hold {list(FRESH_SEEDS)})",
+        "confirmatory_disagree": [r.spec.id for r in rows if r.confirmation and r.confirmation.disagrees],
         "beyond_counts": dict(counts(rows, beyond=True)),
         "stale_pages": stale_pages(rows),
         "shipped_pages": shipped_pages(rows),
@@ -1217,6 +1316,12 @@ def scoreboard(scale: str, rows: Sequence[Row] | None = None) -> str:
         + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(v1.items(), key=lambda kv: _order(kv[0])))
         + ".\n\n"
     )
+    thesis = [r.as_dict() for r in rows if not r.spec.beyond]
+    lead += (
+        f"**Fresh seeds.** {fresh_summary(thesis)} Counts on the fresh seeds alone: "
+        + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(confirmatory_counts(rows).items(), key=_fresh_order))
+        + " ({doc}`the confirmatory check <fresh-seeds>`).\n\n"
+    )
     for label, want in (("Do not reproduce", report.DOES_NOT), ("Reproduce", report.REPRODUCES)):
         hits = [r for r in rows if not r.spec.beyond and r.status == want]
         if hits:
@@ -1242,6 +1347,10 @@ def scoreboard(scale: str, rows: Sequence[Row] | None = None) -> str:
 
 def _order(status: str) -> int:
     return COUNTED.index(status) if status in COUNTED else len(COUNTED)
+
+
+def _fresh_order(kv: tuple[str, int]) -> tuple[int, int]:
+    return (_order(kv[0]), -kv[1])
 
 
 #: The v2 decision rule in words (the method page and ``claims --json``).

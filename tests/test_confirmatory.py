@@ -1,0 +1,96 @@
+"""Issue 46: every claim's primary verdict judges seeds 0-5, and beside it the confirmatory check judges the fresh
+seeds 3-5 alone with the same frozen rule; a confirmatory verdict that leans the other way is flagged in the
+ledger row, ``claims --json`` and the page's verdict line."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+import pytest
+
+from tests.test_claims_seeds import SCALE, effect_frames
+from thesis_repro import report
+from thesis_repro.claims import confirmatory as C
+from thesis_repro.claims import ledger as L
+
+pytestmark = pytest.mark.xdist_group("claims-seeds")
+
+#: Seeds 0-2 show the claimed effect clearly; seeds 3-5 the same, or its mirror image.
+AGREE = (0.97, 1.0, 1.03, 0.98, 1.01, 1.02)
+OPPOSE = (0.97, 1.0, 1.03, -0.98, -1.01, -1.02)
+PAGE = "fig-3.4"  # its claims are judged here, from its own frames only
+
+
+def _judge(tmp_path_factory, factors, name):
+    with pytest.MonkeyPatch.context() as mp:
+        for var in ("THESIS_REPRO_BUILD", "THESIS_REPRO_DATA", "THESIS_REPRO_REFERENCE"):
+            mp.setenv(var, str(tmp_path_factory.mktemp(f"{var.lower()}-{name}")))
+        L.save_page(PAGE, SCALE, effect_frames(factors)[PAGE], {"scale": SCALE})
+        with L._one_pass():
+            return {s.id: L.judge(s, SCALE, with_null=False) for s in L.specs() if s.page == PAGE}
+
+
+@pytest.fixture(scope="module")
+def rows(tmp_path_factory):
+    return {n: _judge(tmp_path_factory, f, n) for n, f in (("agree", AGREE), ("oppose", OPPOSE), ("design", AGREE[:3]))}
+
+
+def test_three_seeds_have_no_confirmatory_verdict(rows):
+    assert all(r.confirmation is None for r in rows["design"].values())
+    counts = L.as_json(list(rows["design"].values()), SCALE)["confirmatory_counts"]
+    assert set(counts) == {L.NOT_YET}
+
+
+@pytest.fixture(scope="module")
+def holding(rows):
+    """The page's claims that reproduce on six seeds with the effect in every seed."""
+    ids = [i for i, r in rows["agree"].items() if r.status == report.REPRODUCES]
+    assert ids, {i: r.status for i, r in rows["agree"].items()}
+    return ids
+
+
+def test_fresh_seeds_that_agree_confirm_the_primary_verdict(rows, holding):
+    for cid in holding:
+        row = rows["agree"][cid]
+        c = row.confirmation
+        assert row.n_seeds == 6 and c is not None and c.seeds == (3, 4, 5)
+        assert C.SIDE[c.status] == 1 and not c.disagrees
+        assert c.line().startswith(f"fresh seeds 3-5: {c.status}")
+
+
+def test_fresh_seeds_that_lean_the_other_way_are_flagged(rows, holding):
+    claim = holding[0]
+    row = rows["oppose"][claim]
+    c = row.confirmation
+    assert c is not None and C.SIDE[c.status] == -1  # the fresh seeds alone: the effect runs the other way
+    assert c.disagrees == (C.SIDE.get(row.status, 0) > 0) and ("DISAGREES" in c.line()) == c.disagrees
+    d = json.loads(json.dumps(L.as_json(list(rows["oppose"].values()), SCALE), allow_nan=False))
+    (js,) = [x for x in d["claims"] if x["id"] == claim]
+    assert js["confirmatory"]["verdict"] == c.status and js["confirmatory"]["seeds"] == [3, 4, 5]
+    assert js["confirmatory"]["disagrees"] == c.disagrees
+    assert (claim in d["confirmatory_disagree"]) == c.disagrees
+    assert sum(d["confirmatory_counts"].values()) == len(d["claims"])
+    assert C.did_not_hold(js) and f"`{claim}`" in C.fresh_summary(d["claims"]).split("did not hold up")[1]
+
+
+def test_the_confirmatory_check_reads_only_the_fresh_seeds():
+    frames = {"a": pd.DataFrame({"seed": [0, 1, 2, 3, 4, 5], "v": range(6)}), "b": pd.DataFrame({"v": [1]})}
+    got = C.fresh_frames(frames)
+    assert got["a"]["seed"].tolist() == [3, 4, 5] and got["b"].equals(frames["b"])
+    assert C.fresh_frames({"a": frames["a"][frames["a"]["seed"] != 4]}) is None
+
+
+@pytest.mark.parametrize(
+    ("primary", "fresh", "flag"),
+    [
+        (report.REPRODUCES, report.DOES_NOT, True),
+        (report.AT_LEAST_PARTLY, report.AT_MOST_PARTLY, True),
+        (report.DOES_NOT, report.AT_LEAST_PARTLY, True),
+        (report.REPRODUCES, report.INCONCLUSIVE, False),
+        (report.REPRODUCES, report.PARTLY, False),
+        (report.DOES_NOT, report.AT_MOST_PARTLY, False),
+    ],
+)
+def test_disagreement_is_a_lean_the_other_way(primary, fresh, flag):
+    assert C.disagrees(primary, fresh) is flag
