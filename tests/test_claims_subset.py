@@ -114,6 +114,10 @@ def test_table33_claims_filter_every_frame_and_3_3_i_has_no_check():
     assert row.subset["verdict"] == alone.status and row.subset["primary"] == alone.primary
     assert row.subset["runs_total"] - row.subset["runs"] == 5  # PPO seed 2 on each of the 5 tasks of `aucs`
     assert _judge("3.3-i-training-return", "table-3.3", ok).subset == {}
+    none = {k: v.assign(trained=v["method"] != "ppo-mdl") for k, v in ok.items()}  # no trained PPO-MDL run
+    sub = _judge("3.3-iii-no-clear-benefit", "table-3.3", none).subset
+    assert sub["verdict"] == report.NOT_COMPUTED and sub["units"] == 0 < sub["units_total"]
+    assert sub["note"] == "no unit remains: no trained run of ppo-mdl" and sub["note"] in sub["line"]
 
 
 def test_a_page_saved_before_the_column_degrades_to_not_available():

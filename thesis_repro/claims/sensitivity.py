@@ -83,6 +83,22 @@ def subset_frames(frames: Mapping[str, pd.DataFrame], subset: str) -> tuple[dict
     return out, len(kept), len(every)
 
 
+def lost_learners(frames: Mapping[str, pd.DataFrame], kept: Mapping[str, pd.DataFrame]) -> list[str]:
+    """Learners with rows in ``frames`` and none left in ``kept`` (the same keys, filtered), in order of appearance.
+
+    >>> f = pd.DataFrame({"method": ["a", "b", "b"]})
+    >>> lost_learners({"x": f}, {"x": f[f["method"] == "b"]})
+    ['a']
+    """
+    gone: dict[str, None] = {}
+    for k, f in frames.items():
+        col = next((c for c in LEARNER_COLUMNS if c in f.columns), None)
+        if col is not None and k in kept:
+            left = set(kept[k][col])
+            gone.update((str(a), None) for a in f[col] if a not in left)
+    return list(gone)
+
+
 def _groups(frames: Mapping[str, pd.DataFrame], rule: Mapping[str, Any]) -> dict[str, list[Any]]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -115,16 +131,18 @@ def check(
     except (M.NotRun, M.Inconclusive):
         units_total = 0
     out["units_total"] = units_total
+    gone = lost_learners(frames, sub)
+    left = f"no unit remains: no {subset} run of {', '.join(gone)}" if gone else "no unit remains on these runs"
     try:
         groups = _groups(sub, rule)
-    except M.NotRun as err:
-        return {**out, "verdict": report.NOT_RUN, "units": 0, "note": str(err)}
+    except M.NotRun as err:  # the scale ran the learner (the primary verdict has it), but none of its runs is kept
+        return {**out, "verdict": report.NOT_COMPUTED, "units": 0, "note": left if gone else str(err)}
     except M.Inconclusive as err:
         return {**out, "verdict": report.INCONCLUSIVE, "units": 0, "note": str(err)}
     run = {g: us for g, us in groups.items() if us}
     out["units"] = sum(len(us) for us in run.values())
     if not run:
-        return {**out, "verdict": report.NOT_COMPUTED, "note": "no unit remains on these runs"}
+        return {**out, "verdict": report.NOT_COMPUTED, "note": left}
     res = J.judge_v2(run, level, margin, {g: rule_of(g) for g in run}, family)
     status = res.status
     if len(run) < len(groups):  # a part with no unit left may hold or not
