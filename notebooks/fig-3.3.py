@@ -91,6 +91,9 @@ wide.round(3)
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?
+# The evidence of each claim judged here opens with its registered sensitivity check: the same rule on the runs
+# marked `trained` above only, with the runs and units that remain.
 
 # %%
-_ = claims.judge_page("fig-3.3", SCALE, {"points": ch3.seed_points(res)}, pages.claim_meta("3.3", settings))
+frames = budgets.mark_trained({"points": ch3.seed_points(res)}, trained)  # each run's `trained`, for the check
+_ = claims.judge_page("fig-3.3", SCALE, frames, pages.claim_meta("3.3", settings))

@@ -192,6 +192,37 @@ def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache |
     return pd.DataFrame(rows)
 
 
+#: Columns naming a row's learner in the per-seed frames pages save for the claims layer (Fig 3.3 / Table 3.3).
+LEARNER_COLUMNS: tuple[str, ...] = ("algo", "method")
+
+
+def mark_trained(frames: Mapping[str, pd.DataFrame], runs_table: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """``frames`` with a bool ``trained`` column on every frame that names its training run (a learner column of
+    :data:`LEARNER_COLUMNS`, ``env`` and ``seed``): True when :func:`table` (``runs_table``) calls that run
+    ``"trained"``; False when it is still learning, fell from its peak, or was not judged (a run listed several
+    times, e.g. at two budgets, counts as trained only if every listing does). Other frames are unchanged.
+
+    >>> runs_table = pd.DataFrame({"algo": ["ppo", "ppo"], "env": ["Hopper"] * 2, "seed": [0, 1],
+    ...                            "verdict": ["trained", "still learning"]})
+    >>> f = pd.DataFrame({"method": ["ppo"] * 3, "env": ["Hopper"] * 3, "seed": [0, 1, 2], "value": 1.0})
+    >>> mark_trained({"train": f, "other": pd.DataFrame({"x": [1]})}, runs_table)["train"]["trained"].tolist()
+    [True, False, False]
+    """
+    ok: dict[tuple[str, str, int], bool] = {}
+    for _, r in runs_table.iterrows():  # a run not trained yet has no verdict: not trained
+        key = (str(r["algo"]), str(r["env"]), int(r["seed"]))
+        ok[key] = ok.get(key, True) and r.get("verdict") == "trained"
+    out = {}
+    for name, frame in frames.items():
+        learner = next((c for c in LEARNER_COLUMNS if c in frame.columns), None)
+        if learner is None or not {"env", "seed"} <= set(frame.columns):
+            out[name] = frame
+            continue
+        keys = zip(frame[learner].astype(str), frame["env"].astype(str), frame["seed"].astype(int), strict=True)
+        out[name] = frame.assign(trained=[ok.get(k, False) for k in keys])
+    return out
+
+
 def retrain_cost(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache | None = None) -> pd.DataFrame:
     """What ``RETRAIN=1`` costs per figure: its training runs, how many are finished (cached or shipped) and
     the sum of their measured wall times in core-hours (one core per run; measured while other work shared

@@ -11,13 +11,16 @@ the figure registry. This module sits above all of them, so imports run one way:
     pages   -> figures, runs, budgets
 
 Every notebook calls ``pages.runs_summary(...)`` after its settings and ``pages.claim_meta(...)`` in its
-verdict cell.
+verdict cell; pages whose claims carry the trained-runs sensitivity check (Fig 3.3, Table 3.3) pass their frames
+through ``pages.claim_frames(...)``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from typing import Any
+
+import pandas as pd
 
 from thesis_repro import budgets, figures, runs
 
@@ -69,4 +72,11 @@ def claim_meta(figure_id: str, settings: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-__all__ = ["claim_meta", "runs_summary"]
+def claim_frames(figure_id: str, scale: str, frames: Mapping[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
+    """A page's per-seed frames for the claims layer, each row marked ``trained`` when :mod:`thesis_repro.budgets`
+    calls its training run trained (:func:`~thesis_repro.budgets.mark_trained`): the claims' registered
+    ``sensitivity_subset: trained`` check judges the same rule on those rows only."""
+    return budgets.mark_trained(frames, budgets.table(scale, [figures.get(figure_id).id]))
+
+
+__all__ = ["claim_frames", "claim_meta", "runs_summary"]

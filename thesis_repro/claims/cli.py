@@ -107,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
         print(ledger.headline(r, width=160))
         if args.verbose:
             print(f"    v1: {r.v1_status or r.status}; {ledger.describe(r)}")
+            if r.subset:
+                print(f"    {r.subset['line']}")
     c = ledger.counts(rows)
     print("distinct thesis claims: " + ", ".join(f"{v} {ledger.SHORT.get(k, k)}" for k, v in c.items()))
     b = ledger.counts(rows, beyond=True)

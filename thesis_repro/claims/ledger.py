@@ -40,6 +40,7 @@ from thesis_repro import paths, report
 from thesis_repro.claims import calibration, design, snapshot
 from thesis_repro.claims import judge as J
 from thesis_repro.claims import measures as M
+from thesis_repro.claims import sensitivity as subsets
 from thesis_repro.claims.confirmatory import (
     FIRST_FRESH,
     FRESH_SEEDS,
@@ -359,6 +360,7 @@ class Row:
     primary: dict[str, Any] = field(default_factory=dict)  # v2's primary statistic (pooled effect or yes-share)
     calibration: dict[str, Any] = field(default_factory=dict)  # v2: false R / false D over null draws, power
     confirmation: Confirmation | None = None  # the same frozen rule on the fresh seeds alone (None: not shipped yet)
+    subset: dict[str, Any] = field(default_factory=dict)  # the registered subset sensitivity check (subset_check)
 
     def as_dict(self) -> dict[str, Any]:
         s = self.spec
@@ -395,6 +397,7 @@ class Row:
             "diagnosis": self.diagnosis,
             "sensitivity_studies": list(s.sensitivity),
             "protocol_sensitivity": self.sensitivity,
+            "sensitivity": self.subset or None,
             "groups": self.groups,
             "stale_pages": self.stale,
             "shipped_pages": self.shipped,
@@ -572,7 +575,8 @@ def _judge_frames(
     if not run:
         return v1
     rules = {g: J.count_rule(rule_for(s, g, rule2)[0], lv, rule2) for g in run}
-    res = J.judge_v2(run, lv, mg, rules, family_p(s, scale, seeds) if lv == "pooled" else ())
+    family = family_p(s, scale, seeds) if lv == "pooled" else ()
+    res = J.judge_v2(run, lv, mg, rules, family)
     status = res.status
     if not_run:  # a part the scale did not run may hold or not
         status = combine_bounded([status, report.INCONCLUSIVE])
@@ -595,6 +599,8 @@ def _judge_frames(
         primary=primary if len(primary) > 1 else next(iter(primary.values())),
     )
     row.pooled_seeds = v1.pooled_seeds
+    if s.subset and seeds is None:  # the confirmatory check (seeds given) keeps only its verdict
+        row.subset = subset_check(s, frames, rule2, lv, mg, family, scale != "smoke")
     if with_null and scale != "smoke":
         row.calibration = calibration_of(s, scale, run, lv, mg, rules, rule2, compute=with_null is True)
         row.null_pass_rate = row.calibration.get("false_reproduces")
@@ -849,6 +855,25 @@ def _sensitivity_dict(m: Any) -> dict[str, Any]:
             for e in m.effects
         ],
     }
+
+
+def subset_check(
+    s: Spec,
+    frames: Mapping[str, pd.DataFrame],
+    rule2: Mapping[str, Any],
+    lv: str,
+    mg: float,
+    family: Sequence[float],
+    judged: bool = True,
+) -> dict[str, Any]:
+    """The claim's registered subset sensitivity check (:func:`thesis_repro.claims.sensitivity.check`: the same v2
+    rule, count rules and Holm family as its primary verdict, on the subset's rows), with ``ours`` (its number, as
+    :func:`ours_text`) and ``line`` (the one line its page folds under the verdict)."""
+    info = subsets.check(
+        s.subset, frames, rule2, lv, mg, lambda g: J.count_rule(rule_for(s, g, rule2)[0], lv, rule2), family, judged
+    )
+    ours = ours_text(Row(s, str(info["verdict"]), primary=info["primary"])) if info.get("primary") else ""
+    return {**info, "ours": ours, "line": subsets.text(info, ours)}
 
 
 def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]], versions: Sequence[str]) -> float:
@@ -1175,6 +1200,8 @@ def verdicts(page: str, scale: str) -> list[report.Verdict]:
         again = f" (judged on {s.page}; repeated here, counted once)" if s.page != page else ""
         claim = f"{tag}{s.text} ({where}){again}"
         evidence = f"v1 verdict: {row.v1_status or row.status}; {describe(row)}"
+        if row.subset:  # the registered sensitivity check: its own paragraph at the top of the folded evidence
+            evidence = f"{row.subset['line']}.\n\n{evidence}"
         fig = page.removeprefix("fig-")
         line = headline(row, width=report.LINE - len(f"[{fig}] "))  # the terminal's line is the page's first line
         fresh = row.confirmation.line() if row.confirmation else ""
@@ -1384,6 +1411,7 @@ def method(rows: Sequence[Row]) -> str:
         "\n\n## Method: rules fixed in advance, statistics across training seeds\n",
         RULE_WORDS + "\n",
         sensitivity_method(),
+        subsets.method_text(specs()),
         "| claim | level | margin | verdict | v1 | false R | false D | seeds for 80 % |",
         "|---|---|---|---|---|---|---|---|",
     ]

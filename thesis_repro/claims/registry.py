@@ -38,6 +38,9 @@ class Spec:
     sensitivity: tuple[str, ...] = ()
     #: the claim's design-v2 block (level, margin, wording, rule overrides): :mod:`thesis_repro.claims.design`
     v2: Mapping[str, Any] = field(default_factory=dict)
+    #: the registered subset sensitivity check (``sensitivity_subset``, :mod:`thesis_repro.claims.sensitivity`),
+    #: outside the rule's hash; ``""`` for none
+    subset: str = ""
 
     @property
     def data_pages(self) -> list[str]:
@@ -74,8 +77,23 @@ def _sensitivity_names(cid: str, c: Mapping[str, Any]) -> tuple[str, ...]:
     return tuple(names)
 
 
+def _subset_name(cid: str, c: Mapping[str, Any]) -> str:
+    """A claim's ``sensitivity_subset`` (``""`` for none): a registered subset, on the entry whose rule measures."""
+    if "sensitivity_subset" not in c:
+        return ""
+    from thesis_repro.claims.sensitivity import check_name
+
+    name = check_name(cid, c["sensitivity_subset"])
+    if "measure" not in (c.get("rule") or {}):
+        raise ValueError(
+            f"claims.yaml: claim {cid!r}: 'sensitivity_subset' goes with the entry whose rule has a measure"
+        )
+    return name
+
+
 def parse_specs(reg: Mapping[str, Any]) -> tuple[Spec, ...]:
-    """The claims of a loaded registry (:func:`registry`), validated: ids, one rule per id, sensitivity names."""
+    """The claims of a loaded registry (:func:`registry`), validated: ids, one rule per id, sensitivity names and
+    subsets."""
     out: dict[str, Spec] = {}
     repeats: dict[str, list[str]] = {}
     for page, entry in reg.items():
@@ -87,6 +105,7 @@ def parse_specs(reg: Mapping[str, Any]) -> tuple[Spec, ...]:
                 if c.get("context"):
                     continue
                 sens = _sensitivity_names(cid, c)
+                subset = _subset_name(cid, c)
                 if "rule" not in c:
                     repeats.setdefault(cid, []).append(page)
                     continue
@@ -94,7 +113,9 @@ def parse_specs(reg: Mapping[str, Any]) -> tuple[Spec, ...]:
                     raise ValueError(f"claims.yaml: claim {cid!r} has a rule on {out[cid].page} and on {page}")
                 lines = tuple(int(n) for n in c.get("lines", []))
                 v2 = dict(c.get("v2") or {})
-                out[cid] = Spec(cid, page, c["text"], lines, c["rule"], beyond, (), c.get("evidence", page), sens, v2)
+                out[cid] = Spec(
+                    cid, page, c["text"], lines, c["rule"], beyond, (), c.get("evidence", page), sens, v2, subset
+                )
     missing = sorted(set(repeats) - set(out))
     if missing:
         raise ValueError(f"claims.yaml: claims repeated but never given a rule: {missing}")
@@ -110,6 +131,7 @@ def parse_specs(reg: Mapping[str, Any]) -> tuple[Spec, ...]:
             s.evidence,
             s.sensitivity,
             s.v2,
+            s.subset,
         )
         for s in out.values()
     )
