@@ -333,7 +333,7 @@ def test_summaries_count_verdicts(monkeypatch, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("book-pages")  # no shared smoke folder: the other process
+@pytest.mark.xdist_group("book-pages")  # with the module mark, a group of its own: no shared smoke folder
 def test_a_failing_notebook_gets_an_error_page_and_fails_the_build(monkeypatch, tmp_path):
     def boom(nid, scale, **kwargs):
         raise RuntimeError("Traceback (most recent call last):\n  ...\nKeyError: 'sigmas'")
@@ -347,7 +347,7 @@ def test_a_failing_notebook_gets_an_error_page_and_fails_the_build(monkeypatch, 
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("book-pages")  # no shared smoke folder: the other process
+@pytest.mark.xdist_group("book-pages")  # with the module mark, a group of its own: no shared smoke folder
 def test_shipped_only_book_leaves_out_what_would_train_and_says_how_to_run_it(monkeypatch, tmp_path):
     # the test run cache and shipped layer are empty: Fig 3.3's training runs are all to compute
     monkeypatch.setattr(notebooks, "execute", lambda *a, **k: pytest.fail("a notebook that would train ran"))
