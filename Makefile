@@ -70,13 +70,14 @@ book: $(NEEDS)
 
 ## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale, in two
 ## processes (pytest -n 2: the smoke notebooks and the book share one, each module with a shared fixture stays in
-## one); lists the 15 slowest tests (CI has 90 min on 2 cores; keep the whole well under 30). Installs first what
-## the tests need (the venv, Ray's extra, chromium); no test installs anything
+## one; the longest work starts first, tests/conftest.py LONGEST_FIRST); lists the 40 slowest tests (budget: 10 min
+## on 2 cores). Installs first what the tests need (the venv, Ray's extra, chromium); no test installs anything
 test: $(STAMP) $(RAY_STAMP) $(CHROMIUM_STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
 	tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
 	export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build SB3_LOGDIR=$$tmp/sb3-log; \
-	$(BIN)/python -m pytest -n 2 --dist loadgroup -q -rfEs --durations=15 --doctest-modules tests thesis_repro \
+	$(BIN)/python -m pytest -n 2 --dist loadgroup --no-loadscope-reorder -q -rfEs --durations=40 \
+	  --doctest-modules tests thesis_repro \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 
 ## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] [UNTIL=22:40] :

@@ -28,3 +28,39 @@ def _default_sigint():
     signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
     signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+#: Work that takes minutes, longest first (`make test`'s --durations): `pytest -n 2 --dist loadgroup
+#: --no-loadscope-reorder` hands the two processes work in collection order, so these start at once instead of
+#: last (a long test started late is the run's tail). An xdist group is named as such, a test by its node id prefix.
+LONGEST_FIRST: tuple[str, ...] = (
+    "group:smoke",  # the smoke notebooks and the smoke book in Chromium (minutes)
+    "group:claims-seeds",  # every claim judged three times
+    "tests/test_claims_snapshot.py::test_the_snapshot_judges_every_claim_exactly_as_the_build_it_was_shipped_from",
+    "tests/test_shipped.py::test_cheapest_shipped_run_retrains_to_the_same_policy",
+    "tests/test_claims.py::test_null_calibration",
+    "group:ray",
+    "tests/test_faults.py::test_interrupting_a_real_figure_in_its_pool_is_one_line",
+    "tests/test_quiet.py::test_a_smoke_figure_run_is_quiet_and_leaves_no_litter",
+    "group:evaluation",
+    "tests/test_verify.py",
+)
+
+
+def _groups(item: pytest.Item) -> set[str]:
+    return {str(m.args[0] if m.args else m.kwargs.get("name", "default")) for m in item.iter_markers("xdist_group")}
+
+
+def _rank(item: pytest.Item) -> int:
+    groups = _groups(item)
+    for i, key in enumerate(LONGEST_FIRST):
+        if key.startswith("group:") and groups == {key[6:]}:
+            return i
+        if not key.startswith("group:") and item.nodeid.split("@")[0].startswith(key):
+            return i
+    return len(LONGEST_FIRST)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Run :data:`LONGEST_FIRST` first (stable: everything else keeps its order)."""
+    items.sort(key=_rank)

@@ -8,13 +8,19 @@ in one session folder shared with ``tests/test_notebooks.py`` (whichever runs fi
 from __future__ import annotations
 
 import atexit
+import base64
+import contextlib
 import functools
+import io
 import json
 import os
 import re
+import select
 import shutil
 import subprocess
 import tempfile
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import unquote, urlparse
 
@@ -76,25 +82,118 @@ def _browser_args(exe: str) -> list[str]:
     ]
 
 
-def run_browser(exe: str, *args: str, timeout: float = 90, attempts: int = 2) -> subprocess.CompletedProcess:
-    """Run headless Chromium; a crash or time-out is retried once, then fails with Chromium's own stderr."""
-    for attempt in range(attempts):
-        try:
-            out = subprocess.run([*_browser_args(exe), *args], capture_output=True, text=True, timeout=timeout)
-        except subprocess.TimeoutExpired as err:
-            problem = f"timed out after {timeout} s: {str(err.stderr or '')[-800:]}"
-        else:
-            if out.returncode == 0:
-                return out
-            problem = f"exit code {out.returncode}: {out.stderr[-800:]}"
-        if attempt == attempts - 1:
-            pytest.fail(f"chromium {' '.join(args)} failed: {problem}")
-    raise AssertionError("unreachable")  # pragma: no cover
+class Browser:
+    """One headless Chromium for many pages, driven over the DevTools protocol on a pipe (``--remote-debugging-pipe``:
+    commands in on fd 3, replies out on fd 4, each a JSON text ended by a NUL byte). A browser started per page
+    (``--dump-dom``) costs seconds of start-up each; the smoke book has dozens of pages."""
 
+    def __init__(self, exe: str, timeout: float = 90):
+        self.exe, self.timeout, self.proc, self.ids = exe, timeout, None, 0
 
-def dump_dom(exe: str, page: Path) -> str:
-    """The page's DOM after Chromium has loaded it and run its scripts."""
-    return run_browser(exe, "--dump-dom", page.as_uri()).stdout
+    def __enter__(self) -> Browser:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def start(self) -> None:
+        to_browser, self._cmd = os.pipe()
+        self._out, from_browser = os.pipe()
+
+        def fds() -> None:  # pragma: no cover - runs in the child before exec
+            cmd, out = os.dup(to_browser), os.dup(from_browser)  # either pipe end may itself be fd 3 or 4
+            os.dup2(cmd, 3)
+            os.dup2(out, 4)
+            os.set_inheritable(3, True)  # dup2 onto the same number keeps close-on-exec
+            os.set_inheritable(4, True)
+
+        self.proc = subprocess.Popen(
+            [*_browser_args(self.exe), "--remote-debugging-pipe", "about:blank"],
+            preexec_fn=fds,
+            close_fds=False,  # 3 and 4 (inheritable copies) must reach Chromium; Python's own fds are not inheritable
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        os.close(to_browser)
+        os.close(from_browser)
+        self._buf, self._session = b"", None
+        target = self.call("Target.createTarget", url="about:blank")["targetId"]
+        self._session = self.call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
+        self.call("Page.enable")
+
+    def close(self) -> None:
+        if self.proc is not None:
+            for fd in (self._cmd, self._out):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+            self.proc.kill()
+            self.proc.communicate()
+            self.proc = None
+
+    def _read(self, deadline: float) -> dict:
+        while b"\0" not in self._buf:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([self._out], [], [], left)[0]:
+                raise TimeoutError(f"no reply within {self.timeout} s")
+            chunk = os.read(self._out, 1 << 20)
+            if not chunk:
+                raise ConnectionError("chromium closed its DevTools pipe")
+            self._buf += chunk
+        msg, self._buf = self._buf.split(b"\0", 1)
+        return json.loads(msg)
+
+    def call(self, method: str, until: str | None = None, **params: object) -> dict:
+        """Send one command (to the page's session once attached); wait for its reply, and then for the event
+        ``until`` if given; returns the reply's result."""
+        self.ids += 1
+        msg: dict = {"id": self.ids, "method": method, "params": params}
+        if self._session:
+            msg["sessionId"] = self._session
+        os.write(self._cmd, json.dumps(msg).encode() + b"\0")
+        deadline, result, seen = time.monotonic() + self.timeout, None, until is None
+        while result is None or not seen:
+            reply = self._read(deadline)
+            if reply.get("id") == self.ids:
+                if "error" in reply:
+                    raise RuntimeError(f"{method}: {reply['error']}")
+                result = reply.get("result", {})
+            elif until is not None and reply.get("method") == until:
+                seen = True
+        return result
+
+    def _page(self, fn, page: Path, attempts: int = 2):
+        """``fn()`` on a loaded ``page``; a crash or time-out restarts Chromium once, then fails with its stderr."""
+        for attempt in range(attempts):
+            try:
+                if self.proc is None:
+                    self.start()
+                self.call("Page.navigate", until="Page.loadEventFired", url=page.as_uri())
+                return fn()
+            except (OSError, TimeoutError, ConnectionError, RuntimeError, ValueError) as err:
+                stderr = b""
+                if self.proc is not None:
+                    self.proc.kill()
+                    stderr = self.proc.communicate()[1] or b""
+                    self.proc = None
+                if attempt == attempts - 1:
+                    pytest.fail(f"chromium on {page.name} failed: {err}: {stderr.decode(errors='replace')[-800:]}")
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def dom(self, page: Path) -> str:
+        """The page's DOM after Chromium has loaded it and run its scripts (what ``--dump-dom`` prints)."""
+        js = "document.documentElement.outerHTML"
+        return self._page(
+            lambda: self.call("Runtime.evaluate", expression=js, returnByValue=True)["result"]["value"], page
+        )
+
+    def screenshot(self, page: Path, out: Path, width: int = 1280, height: int = 1600) -> None:
+        """A PNG of ``page`` in a ``width`` x ``height`` window (what ``--screenshot --window-size`` writes)."""
+        if self.proc is None:
+            self.start()
+        self.call("Emulation.setDeviceMetricsOverride", width=width, height=height, deviceScaleFactor=1, mobile=False)
+        data = self._page(lambda: self.call("Page.captureScreenshot", format="png")["data"], page)
+        out.write_bytes(base64.b64decode(data))
 
 
 def local_refs(html: str, attr: str) -> list[str]:
@@ -112,15 +211,29 @@ def local_refs(html: str, attr: str) -> list[str]:
     return out
 
 
+@dataclass
+class SmokeBook:
+    """The smoke book's HTML folder, what its build printed, and the notebooks that were not up to date before it."""
+
+    html: Path
+    printed: str
+    stale_before: list[str]
+
+
 @pytest.fixture(scope="module")
-def smoke_book(tmp_path_factory) -> Path:
-    """The smoke book, built from the session's shared smoke runs (executing only what is missing)."""
+def smoke_book(tmp_path_factory) -> SmokeBook:
+    """The smoke book, built once from the session's shared smoke runs (executing only what is missing); every
+    test that needs the built book or the executed smoke notebooks reads this one."""
     with pytest.MonkeyPatch.context() as mp:
         for k, v in shared_smoke_dirs(tmp_path_factory).items():
             mp.setenv(k, v)
+        stale = [n for n in notebooks.notebook_ids() if not notebooks.is_current(n, "smoke")]
         root = tmp_path_factory.mktemp("smoke-book")
-        index = book.build("smoke", root=root)
-    return index.parent
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed):
+            index = book.build("smoke", root=root)
+    print(printed.getvalue(), end="")
+    return SmokeBook(index.parent, printed.getvalue(), stale)
 
 
 # --- claims data and the builder's pure functions (fast) ---------------------------------------------
@@ -220,6 +333,7 @@ def test_summaries_count_verdicts(monkeypatch, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("book-pages")  # with the module mark, a group of its own: no shared smoke folder
 def test_a_failing_notebook_gets_an_error_page_and_fails_the_build(monkeypatch, tmp_path):
     def boom(nid, scale, **kwargs):
         raise RuntimeError("Traceback (most recent call last):\n  ...\nKeyError: 'sigmas'")
@@ -233,6 +347,7 @@ def test_a_failing_notebook_gets_an_error_page_and_fails_the_build(monkeypatch, 
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("book-pages")  # with the module mark, a group of its own: no shared smoke folder
 def test_shipped_only_book_leaves_out_what_would_train_and_says_how_to_run_it(monkeypatch, tmp_path):
     # the test run cache and shipped layer are empty: Fig 3.3's training runs are all to compute
     monkeypatch.setattr(notebooks, "execute", lambda *a, **k: pytest.fail("a notebook that would train ran"))
@@ -251,8 +366,11 @@ def test_shipped_only_book_leaves_out_what_would_train_and_says_how_to_run_it(mo
 
 @pytest.mark.slow
 def test_smoke_book_in_headless_chromium(smoke_book, tmp_path):
-    exe = chromium()
-    html_root = smoke_book
+    with Browser(chromium()) as browser:
+        check_book_in_browser(browser, smoke_book.html, tmp_path)
+
+
+def check_book_in_browser(browser: Browser, html_root: Path, tmp_path: Path) -> None:
     pages = sorted(html_root.glob("*.html")) + sorted((html_root / "executed").glob("*.html"))
     pages = [p for p in pages if p.name not in ("genindex.html", "search.html")]
     expected = {f"{notebooks.page_id(n)}.html" for n in notebooks.notebook_ids()}
@@ -264,7 +382,7 @@ def test_smoke_book_in_headless_chromium(smoke_book, tmp_path):
             if not (page.parent / redirect.group(1)).exists():
                 problems.append(f"{page.name}: redirects to a missing page {redirect.group(1)}")
             continue
-        dom = dump_dom(exe, page)
+        dom = browser.dom(page)
         if "</html>" not in dom:
             problems.append(f"{page.name}: no DOM dumped ({len(dom)} characters)")
             continue
@@ -286,21 +404,25 @@ def test_smoke_book_in_headless_chromium(smoke_book, tmp_path):
             if page.name.startswith("fig-") and not re.search(r'<img[^>]+src="[^"]*_images/[^"]+\.png"', dom):
                 problems.append(f"{page.name}: no figure image")
     assert not problems, f"{len(problems)} problem(s): " + "; ".join(problems[:30])
-    intro = dump_dom(exe, html_root / "intro.html")
+    intro = browser.dom(html_root / "intro.html")
     assert "Scoreboard at scale" in intro, intro[-2000:]
     for ch in sorted({notebooks.chapter(n) for n in notebooks.notebook_ids()}):
-        assert "Verdicts at scale" in dump_dom(exe, html_root / f"chapter-{ch}.html"), ch
+        assert "Verdicts at scale" in browser.dom(html_root / f"chapter-{ch}.html"), ch
     shot = tmp_path / "page.png"
-    run_browser(exe, f"--screenshot={shot}", "--window-size=1280,1600", (html_root / "intro.html").as_uri())
+    browser.screenshot(html_root / "intro.html", shot)
     assert shot.exists() and shot.stat().st_size > 20_000, "screenshot of intro.html is blank"  # a rendered page
 
 
 @pytest.mark.slow
-def test_executed_pages_are_cached(tmp_path, capsys):
-    """An unchanged notebook is not executed again: the second build executes nothing."""
+def test_executed_pages_are_cached(smoke_book, tmp_path_factory, tmp_path, monkeypatch, capsys):
+    """The book executes exactly the notebooks that are not up to date, and an unchanged notebook is not executed
+    again: a second build of the session's smoke book executes nothing (the smoke book's own build, reused)."""
+    n = len(notebooks.notebook_ids())
+    stale = len(smoke_book.stale_before)
+    assert f"({stale} notebook(s) executed, {n - stale} up to date" in smoke_book.printed
+    for k, v in shared_smoke_dirs(tmp_path_factory).items():
+        monkeypatch.setenv(k, v)
     nid = "5.3" if "5.3" in notebooks.notebook_ids() else notebooks.notebook_ids()[0]  # a cheap one
-    book.build("smoke", ids=[nid], root=tmp_path / "book1")
-    assert "1 notebook(s) executed, 0 up to date" in capsys.readouterr().out
     assert notebooks.is_current(nid, "smoke")
     before = json.loads(notebooks.executed_path(nid, "smoke").read_text())["metadata"]["thesis_repro"]
     book.build("smoke", ids=[nid], root=tmp_path / "book2")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -178,6 +179,89 @@ def test_interrupt_exits_cleanly_and_keeps_the_previous_outputs(toy, tmp_path, c
     assert outputs() == good
     assert leftovers() == []
     assert sorted(private_tmp.iterdir()) == [], "kernel connection or socket files left behind"
+
+
+def descendants(pid: int) -> list[int]:
+    """Live descendants of ``pid`` (Linux ``/proc``): a figure's kernel runs in a session of its own, and its
+    pool's workers in the kernel's."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[0] != "Z":
+            children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    found, todo = [], [pid]
+    while todo:
+        kids = children.get(todo.pop(), [])
+        found += kids
+        todo += kids
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+PROGRESS = re.compile(r"it/s\]|s/it\]|\d%\|")
+
+
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_interrupting_a_real_figure_in_its_pool_is_one_line(tmp_path, sig, code):
+    """Fig 3.3 at smoke scale with its training in a pool of 2 workers (the path of every figure at ``small``),
+    interrupted while the pool trains: the right code, the notebook's progress bars and then one line on its
+    own, no traceback nor asyncio's "Task exception was never retrieved ... BrokenProcessPool"; no kernel or
+    worker outlives the run."""
+    folder = tmp_path / "notebooks"
+    folder.mkdir()
+    text = paths.notebook("fig-3.3").read_text()
+    line = 'settings = figures.settings("3.3", SCALE)'
+    assert line in text
+    (folder / "fig-3.3.py").write_text(text.replace(line, line[:-1] + ", n_jobs=2)"))  # smoke runs in-process
+    driver, log = tmp_path / "driver.py", tmp_path / "stderr"
+    driver.write_text(DRIVER)
+    private_tmp = tmp_path / "tmp"
+    private_tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(private_tmp), "PYTHONUNBUFFERED": "1"}
+    with log.open("w") as err_file:
+        proc = subprocess.Popen(
+            [sys.executable, str(driver), str(folder), "figure", "3.3", "--scale", "smoke"],
+            env=env,
+            cwd=paths.ROOT,
+            stdout=subprocess.DEVNULL,
+            stderr=err_file,
+            text=True,
+        )
+    try:
+        deadline = time.time() + 300  # a kernel and two workers importing torch, on a busy machine
+        while len(descendants(proc.pid)) < 4 or "train (" not in log.read_text():  # kernel, 2 workers (+ tracker)
+            if proc.poll() is not None or time.time() > deadline:
+                pytest.fail(f"the figure's pool did not start: exit {proc.poll()}, stderr {log.read_text()[-2000:]}")
+            time.sleep(0.1)
+        family = descendants(proc.pid)
+        proc.send_signal(sig)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    err = log.read_text()
+    assert proc.returncode == code, err[-3000:]
+    assert err.endswith(f"\n{INTERRUPTED}\n"), err[-3000:]  # on a line of its own
+    lines = [ln for ln in err.replace("\r", "\n").splitlines() if ln.strip()]
+    assert lines[-1] == INTERRUPTED
+    assert [ln for ln in lines[:-1] if not PROGRESS.search(ln)] == [], err[-3000:]  # nothing but progress bars
+    deadline = time.time() + 30
+    while any(_alive(p) for p in family) and time.time() < deadline:
+        time.sleep(0.2)
+    survivors = [p for p in family if _alive(p)]
+    for p in survivors:
+        os.kill(p, signal.SIGKILL)
+    assert survivors == [], "a kernel or worker outlived the interrupted figure"
 
 
 def test_kernel_files_of_a_killed_run_are_removed_by_the_next_run(toy, tmp_path, monkeypatch):

@@ -3,6 +3,8 @@ line naming what would train and its cost, unless asked to train; local runs use
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from thesis_repro import figures, notebooks, paths, plan
@@ -51,3 +53,34 @@ def test_local_runs_used_over_shipped_ones_are_said(toy_training, tmp_path, monk
             if TOY[1].key in p.name:
                 raise AssertionError("only TOY[0] is local")
         plan.refuse_training("3.3", "small")
+
+
+def test_local_runs_used_over_shipped_ones_are_named_in_the_verdicts_evidence(toy_training, tmp_path, monkeypatch):
+    """The page's meta counts its runs read from the local run cache (those replacing a shipped copy too), and
+    every verdict judged from that page's numbers says how many in its evidence."""
+    from thesis_repro import pages, report
+    from thesis_repro.claims import ledger as L
+    from thesis_repro.claims import synthetic as S
+
+    monkeypatch.setitem(figures.FIGURES, "3.3", dataclasses.replace(figures.get("3.3"), grid=lambda s: list(TOY)))
+    settings = figures.settings("3.3", "small")
+    layer = tmp_path / "layer"
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
+    for job in TOY:
+        RunCache(layer, reference=False).run(job)  # both shipped
+    assert pages.local_runs("3.3", settings) is None
+    RunCache(paths.runs(), reference=False).run(TOY[0])  # one also local: it replaces the shipped copy
+    use = pages.local_runs("3.3", settings)
+    assert use == {"local": 1, "replacing_shipped": 1, "of": 2, "noun": "training runs"}
+
+    frames = S.frames_for("correlation", 3, 0)
+    text = "fig-3.3 used 1 of its 2 training runs from the local run cache, not the shipped layer (1 in place of a"
+    vs = L.judge_page("fig-3.3", "small", frames, {"local_runs": use}, display=False)
+    assert vs and all(text in v.evidence for v in vs if v.status != report.VISUAL)
+    row = L.judge(L.spec("3.3-negative-correlation"), "small", with_null=False)
+    assert row.local_runs == {"fig-3.3": use} and row.as_dict()["local_runs"] == {"fig-3.3": use}
+    assert L.judge(L.spec("3.3-not-valid-metric"), "small", with_null=False).local_runs == {"fig-3.3": use}
+    # no local run: nothing said, and the saved meta stays as before (the shipped snapshot's bytes do not change)
+    L.judge_page("fig-3.3", "small", frames, {}, display=False)
+    assert "local_runs" not in L.load_page("fig-3.3", "small")["meta"]
+    assert all("local run cache" not in v.evidence for v in L.verdicts("fig-3.3", "small"))

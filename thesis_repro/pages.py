@@ -23,6 +23,7 @@ from typing import Any
 import pandas as pd
 
 from thesis_repro import budgets, figures, runs
+from thesis_repro.cache import RunCache
 
 
 def runs_summary(figure_id: str, scale: str) -> str:
@@ -39,9 +40,33 @@ def runs_summary(figure_id: str, scale: str) -> str:
     return f"{fig.notebook_id} ({scale}): " + runs.summary(training or every)
 
 
+def local_runs(figure_id: str, settings: Mapping[str, Any], cache: RunCache | None = None) -> dict[str, Any] | None:
+    """How many of the figure's training runs (every job when it trains nothing; the runs that
+    :func:`runs_summary` counts) are read from the local run cache instead of the shipped layer, and how many
+    of those have a shipped copy they replace; ``None`` when none is local.
+
+    ``{"local": 2, "replacing_shipped": 1, "of": 35, "noun": "training runs"}``
+    """
+    fig = figures.get(figure_id)
+    every = fig.jobs(settings)
+    training = [j for j in every if j.kind in figures.TRAINING_KINDS]
+    cache = cache or RunCache()
+    local = [j for j in training or every if cache.state(j) == "cached"]
+    if not local:
+        return None
+    return {
+        "local": len(local),
+        "replacing_shipped": sum(cache.shipped(j) is not None for j in local),
+        "of": len(training or every),
+        "noun": "training runs" if training else "runs",
+    }
+
+
 def claim_meta(figure_id: str, settings: Mapping[str, Any]) -> dict[str, Any]:
-    """What a page hands the claims layer beside its numbers: scale, seeds, the budget sentence and how many
-    of its training runs are trained / still learning (:mod:`thesis_repro.budgets`: half vs final budget).
+    """What a page hands the claims layer beside its numbers: scale, seeds, the budget sentence, how many
+    of its training runs are trained / still learning (:mod:`thesis_repro.budgets`: half vs final budget) and,
+    when some come from the local run cache rather than the shipped layer, how many (:func:`local_runs`; the
+    verdicts' evidence names them).
 
     Chapter 5 counts its own ``seeds`` (a list); the thesis gives no seed count there, so the note names the
     kit's ``full`` count instead:
@@ -69,6 +94,9 @@ def claim_meta(figure_id: str, settings: Mapping[str, Any]) -> dict[str, Any]:
                 "runs": int(len(table)),
                 **{str(k): int(v) for k, v in table["verdict"].value_counts().items()},
             }
+    local = local_runs(figure_id, settings)
+    if local:
+        out["local_runs"] = local
     return out
 
 
@@ -79,4 +107,4 @@ def claim_frames(figure_id: str, scale: str, frames: Mapping[str, pd.DataFrame])
     return budgets.mark_trained(frames, budgets.table(scale, [figures.get(figure_id).id]))
 
 
-__all__ = ["claim_frames", "claim_meta", "runs_summary"]
+__all__ = ["claim_frames", "claim_meta", "local_runs", "runs_summary"]

@@ -15,7 +15,9 @@ import platform
 import shlex
 import subprocess
 import sys
+import time
 from datetime import UTC, datetime
+from functools import cache
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Protocol
@@ -40,7 +42,9 @@ PROVENANCE_PACKAGES: tuple[str, ...] = (
 )
 
 
+@cache
 def _versions() -> dict[str, str | None]:
+    """The :data:`PROVENANCE_PACKAGES`' versions (read once per process: the code it runs is what it imported)."""
     out: dict[str, str | None] = {"python": platform.python_version()}
     for name in PROVENANCE_PACKAGES:
         try:
@@ -58,6 +62,24 @@ def _git(*args: str) -> str | None:
     except (OSError, subprocess.SubprocessError):
         return None
     return proc.stdout.strip()
+
+
+#: Seconds a process reuses its reading of the repository's git state: a figure commits dozens of entries within
+#: seconds, and ``git status`` stats every tracked file (a third of a second each on a busy machine).
+GIT_STATE_SECONDS = 10.0
+_git_read: tuple[float, str | None, bool | None] | None = None
+
+
+def git_state() -> tuple[str | None, bool | None]:
+    """``(HEAD commit, whether tracked files differ from it)``, ``(None, None)`` outside a git checkout; read again
+    once :data:`GIT_STATE_SECONDS` have passed since this process last read it."""
+    global _git_read
+    now = time.monotonic()
+    if _git_read is None or now - _git_read[0] > GIT_STATE_SECONDS:
+        commit = _git("rev-parse", "HEAD")
+        status = _git("status", "--porcelain", "--untracked-files=no") if commit else None
+        _git_read = (now, commit, None if status is None else bool(status))
+    return _git_read[1], _git_read[2]
 
 
 #: CPU features that select different float kernels (MKL, ATen, NumPy dispatch); part of :func:`platform_info`.
@@ -113,14 +135,13 @@ def platform_info() -> dict[str, Any]:
 def record(start: float, end: float) -> dict[str, Any]:
     """Who/what/when made an entry: command line, git commit (+ dirty flag), package versions, host, times,
     and the :func:`platform_info` that decides its float rounding."""
-    commit = _git("rev-parse", "HEAD")
-    status = _git("status", "--porcelain", "--untracked-files=no") if commit else None
+    commit, dirty = git_state()
     return {
         "command": shlex.join(sys.argv),
         "cwd": os.getcwd(),
         "git_commit": commit,
-        "git_dirty": None if status is None else bool(status),
-        "packages": _versions(),
+        "git_dirty": dirty,
+        "packages": dict(_versions()),
         "hostname": platform.node(),
         "platform": platform_info(),
         "numerics": numerics(),

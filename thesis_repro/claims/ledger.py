@@ -352,6 +352,7 @@ class Row:
     sensitivity: list[dict[str, Any]] = field(default_factory=list)
     stale: list[str] = field(default_factory=list)  # pages whose saved numbers other kit code wrote
     shipped: list[str] = field(default_factory=list)  # pages whose numbers came from the shipped snapshot
+    local_runs: dict[str, dict[str, Any]] = field(default_factory=dict)  # page -> its runs from the local cache
     pooled_seeds: int = 0  # > 0: each unit's one value is a statistic of this many seeds' means (no replication)
     v1_status: str = ""  # the verdict of design v1 (the registry's `rule:` as first registered)
     v1_statistic: dict[str, Any] = field(default_factory=dict)
@@ -401,6 +402,7 @@ class Row:
             "groups": self.groups,
             "stale_pages": self.stale,
             "shipped_pages": self.shipped,
+            "local_runs": self.local_runs,
         }
 
 
@@ -440,7 +442,7 @@ def page_data(
     seeds' rows (None when the pages do not hold them all: :func:`~thesis_repro.claims.confirmatory.fresh_frames`)."""
     frames: dict[str, pd.DataFrame] = {}
     meta: dict[str, Any] = {}
-    found, stale, shipped, versions = False, [], [], []
+    found, stale, shipped, versions, local = False, [], [], [], {}
     for p in s.data_pages:
         blob = load_page(p, scale)
         if blob is None:
@@ -450,11 +452,13 @@ def page_data(
         meta = meta or blob["meta"]
         stale += [p] if blob["stale"] else []
         shipped += [p] if blob["shipped"] else []
+        if blob["meta"].get("local_runs"):
+            local[p] = blob["meta"]["local_runs"]
         for k, v in blob["frames"].items():
             frames[f"{k}@{p}"] = v
             if p == s.page or len(s.data_pages) == 1:
                 frames[k] = v
-    extra = {"stale_pages": stale, "shipped_pages": shipped, "versions": versions}
+    extra = {"stale_pages": stale, "shipped_pages": shipped, "versions": versions, "local_runs": local}
     if found and seeds is not None:
         picked = fresh_frames(frames, seeds)
         if picked is None:
@@ -502,6 +506,7 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
             note="derived from " + ", ".join(f"{x.spec.id}: {x.status}" for x in rows),
             stale=stale_pages(rows),
             shipped=shipped_pages(rows),
+            local_runs={p: u for x in rows for p, u in x.local_runs.items()},
             v1_status=v1,
             level="each",
             confirmation=_derived_confirmation(rows, status),
@@ -517,6 +522,7 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
     row = _judge_frames(s, scale, with_null, frames, meta)
     row.stale = list(meta["stale_pages"])
     row.shipped = list(meta["shipped_pages"])
+    row.local_runs = dict(meta["local_runs"])
     row.confirmation = confirm(s, scale, row, frames, meta)
     return row
 
@@ -1043,7 +1049,23 @@ def describe(row: Row) -> str:
         parts.append("why: " + row.diagnosis)
     if row.shipped:
         parts.append(f"numbers of {', '.join(row.shipped)} from the shipped claims snapshot (not computed here)")
+    parts.extend(local_runs_text(page, u) for page, u in sorted(row.local_runs.items()))
     return "; ".join(parts)
+
+
+def local_runs_text(page: str, use: Mapping[str, Any]) -> str:
+    """What a page's verdicts rest on when some of its runs came from the local run cache, not the shipped layer
+    (:func:`thesis_repro.pages.local_runs`).
+
+    >>> local_runs_text("fig-3.4", {"local": 2, "replacing_shipped": 1, "of": 35, "noun": "runs"})
+    'fig-3.4 used 2 of its 35 runs from the local run cache, not the shipped layer (1 in place of a shipped copy)'
+    """
+    replacing = int(use.get("replacing_shipped", 0))
+    copies = "a shipped copy" if replacing == 1 else "shipped copies"
+    return (
+        f"{page} used {use['local']} of its {use['of']} {use.get('noun', 'runs')} from the local run cache, not the "
+        f"shipped layer ({replacing} in place of {copies})"
+    )
 
 
 def _no_ci_words(pooled: int = 0) -> str:
