@@ -354,6 +354,8 @@ def enjoy(
     total, steps = 0.0, 0
     try:
         obs, _ = env.reset(seed=int(episode_seed))
+        if video:
+            _follow_camera(env)
         if video and lean:
             _lean_rendering(env)
         limit = max_steps or 1000
@@ -372,6 +374,19 @@ def enjoy(
     finally:
         env.close()
     return {"return": total, "length": steps, "video": None if video is None else str(video), "source": run.source}
+
+
+def _follow_camera(env: Any) -> None:
+    """Render from the model's ``track`` camera (it follows the body: Hopper, Walker2d, HalfCheetah) instead of
+    gymnasium's default free camera, which stays where the episode started; a model without one keeps it."""
+    import mujoco
+
+    renderer, model = getattr(env.unwrapped, "mujoco_renderer", None), getattr(env.unwrapped, "model", None)
+    if renderer is None or model is None or getattr(renderer, "camera_id", None) != -1:
+        return
+    track = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "track")
+    if track >= 0:
+        renderer.camera_id = track
 
 
 def _lean_rendering(env: Any) -> None:

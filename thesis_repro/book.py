@@ -261,9 +261,15 @@ def prepare_guide(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
             cell["outputs"] = clean_outputs(cell.get("outputs", []))
         cells.append(cell)
     cmd = f"python -m thesis_repro figure {notebooks.page_id(nid)} --scale {scale}"
-    at = next((i + 1 for i, c in enumerate(cells) if c["cell_type"] == "markdown"), 0)
-    cells.insert(at, md_cell(f"Executed at scale **`{scale}`** (`{cmd}`); a guide, not a thesis item: no verdict."))
-    return {**nb, "cells": cells}
+    line = md_cell(f"Executed at scale **`{scale}`** (`{cmd}`); a guide, not a thesis item: no verdict.")
+    first = next((i for i, c in enumerate(cells) if c["cell_type"] == "markdown"), None)
+    if first is None:
+        return {**nb, "cells": [line, *cells]}
+    head, _, rest = _text(cells[first]["source"]).lstrip().partition("\n")
+    if not head.startswith("# "):  # no title line: the scale first
+        return {**nb, "cells": [*cells[:first], line, *cells[first:]]}
+    intro = [md_cell(rest.strip())] if rest.strip() else []
+    return {**nb, "cells": [*cells[:first], {**cells[first], "source": head}, line, *intro, *cells[first + 1 :]]}
 
 
 def page_file(nid: str) -> str:
