@@ -302,8 +302,13 @@ def test_clips_that_cannot_be_rendered_are_one_line_on_the_page(tmp_path, monkey
         calls.append(kw["env"]["MUJOCO_GL"])
         return subprocess.CompletedProcess(cmd, 1, "", "Traceback ...\nerror: cannot initialize EGL\n")
 
-    monkeypatch.setenv("MUJOCO_GL", "egl")
+    (tmp_path / "chapter-3.md").write_text("# Chapter 3\n")
     monkeypatch.setattr(agent.subprocess, "run", failing)
+    section = agent.book_clips(tmp_path, "smoke")  # no basic learner trained at smoke: nothing to render
+    assert not calls and "not trained at scale smoke: `python -m thesis_repro train ppo" in section
+    monkeypatch.setenv("MUJOCO_GL", "egl")
+    monkeypatch.setattr(agent, "current_clips", lambda scale, cache=None: None)  # stale, and a run to render:
+    monkeypatch.setattr(agent.RunCache, "state", lambda self, job, verify=False: "shipped")
     (tmp_path / "chapter-3.md").write_text("# Chapter 3\n")
     section = agent.book_clips(tmp_path, "smoke")
     assert calls == ["egl", "osmesa"]  # EGL first, then the software fallback

@@ -577,11 +577,16 @@ def book_clips(root: Path, scale: str) -> str:
     """Put the clips of ``scale`` on the staged book's chapter-3 landing page (``root/chapter-3.md``): render them
     when missing or stale (``python -m thesis_repro clips`` in a subprocess, so that MuJoCo's GL stays out of
     the book's process: ``MUJOCO_GL`` as set, EGL by default, then OSMesa), copy them to ``root/clips`` and
-    append :func:`clips_section`; one line instead when rendering fails. Returns the section."""
+    append :func:`clips_section`; one line instead when rendering fails (a scale whose basic learners are not
+    trained gets their ``train`` commands, without a subprocess). Returns the section."""
     md = Path(root) / "chapter-3.md"
     if not md.exists():
         return ""
     doc, error = current_clips(scale), None
+    cache = RunCache()
+    jobs = [train_job(algo, CLIPS["task"], CLIPS["seed"], scale) for algo in CLIPS["learners"]]
+    if doc is None and all(cache.state(job) in ("missing", "partial") for job in jobs):
+        doc = make_clips(scale, cache=cache)  # no policy to render: no renderer, no subprocess
     if doc is None:
         tried = [os.environ.get("MUJOCO_GL", "egl")]
         if tried[0] == "egl":
