@@ -21,7 +21,7 @@ CHROMIUM_STAMP := $(VENV)/.installed-chromium
 NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
-.PHONY: venv test smoke book bench budgets lint clean-build figure-% table-% reference-runs seeds runs-% plan-% verify \
+.PHONY: venv test smoke book clips bench budgets lint clean-build figure-% table-% reference-runs seeds runs-% plan-% verify \
 	verify-all chromium ship-claims check-claims results
 
 venv: $(STAMP)
@@ -62,6 +62,11 @@ table-%: $(NEEDS)
 ## make smoke : every notebook at SCALE=smoke (seconds each)
 smoke: $(NEEDS)
 	$(BIN)/python -m thesis_repro figure all --scale smoke
+
+## make clips SCALE=small [FORCE=1] : render the chapter-3 landing page's clips (each basic learner's shipped
+## policy under a perturbation, offscreen: MUJOCO_GL=egl) into build/$(SCALE)/clips; the book renders them too
+clips: $(NEEDS)
+	$(BIN)/python -m thesis_repro clips --scale $(SCALE) $(if $(FORCE),--force)
 
 ## make book SCALE=small [FORCE=1] [SHIPPED_ONLY=1 : skip notebooks that would train] : execute the changed
 ## notebooks at SCALE, build build/$(SCALE)/book/_build/html

@@ -3,6 +3,7 @@ learners, the `score` / `train` / `enjoy` commands and their one-line errors, an
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -115,6 +116,7 @@ def test_score_command_from_sb3_zips(tiny_models, tmp_path, capsys):
         (["train", "ppo", "Hopper", "--seed", "-1"], "error: argument --seed: invalid value '-1'"),
         (["enjoy", "ppo", "Hopper", "--test", "wind"], "error: unknown test type 'wind'"),
         (["enjoy", "ppo", "Hopper", "--video", "out.avi"], "error: video must end in .mp4 or .gif"),
+        (["clips", "--scale", "big"], "error: unknown scale 'big'"),
     ],
 )
 def test_agent_commands_give_one_line_errors(argv, expected, capsys, monkeypatch):
@@ -193,3 +195,124 @@ def test_score_command_puts_a_zip_beside_the_shipped_learners(tmp_path, shipped,
     out = capsys.readouterr().out
     assert "testing AUC, 95 % CI of the mean across" in out and re.search(r"^ppo +\S", out, re.M), out
     assert png.stat().st_size > 0
+
+
+# ---------------------------------------------------------------- the guide page "Score your own agent"
+GUIDE = "guide-score-agent"
+
+
+def test_the_guide_page_is_a_book_page_the_claims_ledger_ignores(tmp_path):
+    import yaml
+
+    from thesis_repro import book, notebooks
+    from thesis_repro.claims import registry
+
+    assert GUIDE in notebooks.notebook_ids(guides=True) and GUIDE not in notebooks.notebook_ids()
+    assert notebooks.notebook_ids(guides=True)[-1] == GUIDE  # after every thesis page: it reads their runs
+    assert notebooks.check_notebook(GUIDE) == GUIDE and notebooks.page_id(GUIDE) == GUIDE
+    assert notebooks.source(GUIDE).name == f"{GUIDE}.py" and notebooks.chapter(GUIDE) == "guide"
+    assert notebooks.parameter_names(GUIDE) == ["SCALE", "TASK", "SEEDS", "TIMESTEPS"]
+    assert GUIDE not in book.claims() and not registry.page_claims(GUIDE)  # no thesis claim, no verdict
+    (tmp_path / "chapter-3.md").write_text("# Chapter 3\n")
+    (tmp_path / "kit.md").write_text("# Kit\n")
+    toc = yaml.safe_load(book.write_toc(["3.3", GUIDE], tmp_path).read_text())
+    files = [c["file"] for c in toc["chapters"]]
+    assert files == ["chapter-3", GUIDE, "kit"] and toc["chapters"][0]["sections"] == [{"file": "executed/fig-3.3"}]
+
+
+def test_a_guide_page_shows_its_code_and_no_thesis_block():
+    from thesis_repro import book
+
+    nb = {
+        "cells": [
+            {"cell_type": "markdown", "metadata": {}, "source": "# Score your own agent\nintro"},
+            {"cell_type": "code", "metadata": {"tags": ["parameters"]}, "source": "SCALE = 'small'", "outputs": []},
+            {"cell_type": "code", "metadata": {"tags": ["injected-parameters"]}, "source": "", "outputs": []},
+            {
+                "cell_type": "code",
+                "metadata": {},
+                "source": "print(scores)",
+                "outputs": [
+                    {"output_type": "stream", "name": "stderr", "text": "score: 50%|#####| 1/2\n"},
+                    {"output_type": "stream", "name": "stdout", "text": "your agent on X\n"},
+                ],
+            },
+        ],
+        "metadata": {},
+    }
+    page = book.prepare_guide(nb, GUIDE, "smoke")
+    text = json.dumps(page)
+    assert "parameters" not in text and "hide-input" not in text and "in the thesis" not in text
+    assert [c["source"][:20] for c in page["cells"][:3]] == ["# Score your own age", "Executed at scale **", "intro"]
+    assert page["cells"][-1]["outputs"] == [{"output_type": "stream", "name": "stdout", "text": "your agent on X\n"}]
+
+
+def test_guide_settings_and_their_bad_input():
+    g = agent.guide_settings("small", "Hopper")
+    assert g["gym_id"] == "Hopper-v5" and not g["compute_missing"] and "none trained" in g["note"]
+    assert agent.guide_settings("smoke", timesteps=128)["timesteps"] == 128
+    for call, expected in [
+        (lambda: agent.guide_settings("big"), "unknown scale 'big'"),
+        (lambda: agent.guide_settings("smoke", "Hoper"), "unknown env 'Hoper'"),
+        (lambda: agent.guide_settings("smoke", timesteps=0), "timesteps must be an integer >= 1"),
+    ]:
+        with pytest.raises(ValueError, match=expected) as err:
+            call()
+        assert "\n" not in str(err.value)
+
+
+# ---------------------------------------------------------------- the chapter-3 landing page's clips
+def test_clips_are_rendered_once_and_placed_on_the_chapter_3_page(tmp_path, capsys):
+    pytest.importorskip("imageio", reason="the [video] extra (make venv installs it)")
+    import imageio.v2 as imageio
+
+    task = agent.CLIPS["task"]
+    agent.train_run("ppo", task, 0, "smoke")  # seconds; the other basic learners stay untrained
+    assert main(["clips", "--scale", "smoke"]) == 0
+    out = capsys.readouterr().out
+    assert f"ppo on {task}" in out and "no clip: not trained (python -m thesis_repro train trpo" in out, out
+    doc = agent.current_clips("smoke")
+    assert doc is not None and [c["algo"] for c in doc["clips"]] == list(agent.CLIPS["learners"])
+    ppo = doc["clips"][0]
+    gif = agent.clips_dir("smoke") / ppo["file"]
+    frames = imageio.mimread(gif)
+    steps, every = agent.CLIP_STEPS["smoke"]
+    assert 1 <= len(frames) <= steps // every + 1 and frames[0].shape[:2] == (agent.CLIPS["size"],) * 2
+    assert 1 <= ppo["length"] <= steps and ppo["source"] in ("computed", "cached")
+    before = gif.stat().st_mtime_ns
+    assert agent.make_clips("smoke") == doc and gif.stat().st_mtime_ns == before  # up to date: not rendered again
+    root = tmp_path / "book"
+    root.mkdir()
+    (root / "chapter-3.md").write_text("# Chapter 3\n")
+    section = agent.book_clips(root, "smoke")
+    page = (root / "chapter-3.md").read_text()
+    assert page.endswith(section) and "](clips/ppo.gif)" in section and (root / "clips" / "ppo.gif").is_file()
+    assert re.search(r"return -?\d+, (over the first|episode ended after) \d+ steps", section), section
+    assert "not trained at scale smoke: `python -m thesis_repro train sac" in section
+    agent.train_run("sac", task, 0, "smoke")
+    assert agent.current_clips("smoke") is None  # a learner's run landed: the clips are stale
+
+
+def test_clips_that_cannot_be_rendered_are_one_line_on_the_page(tmp_path, monkeypatch):
+    import subprocess
+
+    calls = []
+
+    def failing(cmd, **kw):
+        calls.append(kw["env"]["MUJOCO_GL"])
+        return subprocess.CompletedProcess(cmd, 1, "", "Traceback ...\nerror: cannot initialize EGL\n")
+
+    (tmp_path / "chapter-3.md").write_text("# Chapter 3\n")
+    monkeypatch.setattr(agent.subprocess, "run", failing)
+    section = agent.book_clips(tmp_path, "smoke")  # no basic learner trained at smoke: nothing to render
+    assert not calls and "not trained at scale smoke: `python -m thesis_repro train ppo" in section
+    monkeypatch.setenv("MUJOCO_GL", "egl")
+    monkeypatch.setattr(agent, "current_clips", lambda scale, cache=None: None)  # stale, and a run to render:
+    monkeypatch.setattr(agent.RunCache, "state", lambda self, job, verify=False: "shipped")
+    (tmp_path / "chapter-3.md").write_text("# Chapter 3\n")
+    section = agent.book_clips(tmp_path, "smoke")
+    assert calls == ["egl", "osmesa"]  # EGL first, then the software fallback
+    lines = [ln for ln in section.splitlines() if ln.strip()]
+    assert len(lines) == 2 and lines[1].startswith("No clips in this build: rendering them failed"), lines
+    assert "MUJOCO_GL=egl: error: cannot initialize EGL; MUJOCO_GL=osmesa failed too" in lines[1]
+    assert "make clips SCALE=smoke" in lines[1]

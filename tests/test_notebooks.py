@@ -13,7 +13,7 @@ from thesis_repro import notebooks, paths
 #: notebooks' session folder runs in the same one, so they execute once.
 pytestmark = pytest.mark.xdist_group("smoke")
 
-IDS = notebooks.notebook_ids()
+IDS = notebooks.notebook_ids(guides=True)  # the guide pages too (no claims, no verdict)
 
 
 @pytest.mark.slow

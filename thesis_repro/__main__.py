@@ -340,10 +340,10 @@ def _command(args: argparse.Namespace) -> int:
     check_environment()
     if args.cmd == "list":
         print("scales:", ", ".join(scales.SCALES))
-        print("notebooks:", ", ".join(notebooks.notebook_ids()))
+        print("notebooks:", ", ".join(notebooks.notebook_ids(guides=True)))
     elif args.cmd == "figure":
         scales.check_scale(args.scale)
-        ids = notebooks.notebook_ids() if args.figure == "all" else [notebooks.check_notebook(args.figure)]
+        ids = notebooks.notebook_ids(guides=True) if args.figure == "all" else [notebooks.check_notebook(args.figure)]
         params = notebook_parameters(args.parameter, args.scale)
         for folder in (paths.runs(), paths.build(args.scale)):
             check_writable(folder)
@@ -393,7 +393,7 @@ def _command(args: argparse.Namespace) -> int:
 
 
 #: Subcommands for your own agent (:mod:`thesis_repro.agent`).
-AGENT_COMMANDS = ("score", "train", "enjoy")
+AGENT_COMMANDS = ("score", "train", "enjoy", "clips")
 
 
 def _agent_parsers(sub: Any) -> None:
@@ -420,6 +420,9 @@ def _agent_parsers(sub: Any) -> None:
     en.add_argument("--video", default=None, metavar="OUT.mp4", help="write the episode here (.mp4 or .gif)")
     en.add_argument("--episode-seed", type=nonneg_int, default=0, help="seed of the episode (default 0)")
     en.add_argument("--max-steps", type=positive_int, default=None, help="stop after this many steps (default 1000)")
+    cl = sub.add_parser("clips", help="render the chapter-3 landing page's clips (build/<scale>/clips)")
+    cl.add_argument("--scale", default="small", help="smoke | small | full (the policies of that scale)")
+    cl.add_argument("--force", action="store_true", help="render again even if they are up to date")
 
 
 def _agent_command(args: argparse.Namespace) -> int:
@@ -433,6 +436,16 @@ def _agent_command(args: argparse.Namespace) -> int:
         tr = res.get("train_return")
         ret = "" if tr is None else f", training return {float(np.mean(tr)):.1f}"
         print(f"{args.algo} on {args.task} (seed {args.seed}, scale {args.scale}): {res.source}{ret}\n{res.path}")
+    elif args.cmd == "clips":
+        doc = agent.make_clips(args.scale, force=args.force)
+        for c in doc["clips"]:
+            what = (
+                f"return {c['return']:.1f} in {c['length']} steps ({c['source']} run)"
+                if c.get("file")
+                else f"no clip: not trained ({c['missing']})"
+            )
+            print(f"{c['algo']} on {doc['task']} ({doc['test']}, σ {doc['sigma']}): {what}")
+        print(f"clips: {agent.clips_dir(args.scale)}")
     elif args.cmd == "enjoy":
         out = agent.enjoy(
             args.algo,

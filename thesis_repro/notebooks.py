@@ -4,6 +4,11 @@ Notebook ids: ``"3.3"`` for ``notebooks/fig-3.3.py``, ``"table-3.4"`` for ``note
 ``"analysis-4-kl"`` for ``notebooks/analysis-4-kl.py`` (an analysis page of chapter 4). The page id is the
 file stem (``fig-3.3``); it names the executed notebook, its figure files and its verdicts.
 
+A *guide* (``notebooks/guide-<name>.py``, id ``"guide-<name>"``) is a how-to page of the book, not a thesis
+item: it has no entry in ``data/thesis/claims.yaml``, writes no verdict, and the claims ledger never reads it.
+:func:`notebook_ids` lists the thesis pages; ``notebook_ids(guides=True)`` adds the guides after them (what
+the book and ``figure all`` execute).
+
 A run's terminal output is the notebook's progress bars (its stderr, written as they come), one line per
 verdict, and a final line naming the executed notebook and the figure files written. The kernel talks
 over IPC sockets in the temp folder (removed at shutdown) instead of unencrypted TCP.
@@ -57,12 +62,31 @@ from thesis_repro.validation import check_choice
 KINDS: tuple[str, ...] = ("fig", "table", "analysis")
 
 
+#: Prefix of a guide's id and file stem (``notebooks/guide-<name>.py``): a how-to page, not a thesis item.
+GUIDE = "guide-"
+
+
 def _kind(stem: str) -> str | None:
     return next((k for k in KINDS if stem.startswith(f"{k}-")), None)
 
 
-def notebook_ids() -> list[str]:
-    """Ids of every notebook, in book order (chapter; figures, tables, analysis pages; number)."""
+def is_guide(nid: str) -> bool:
+    """Whether ``nid`` is a guide page (no thesis claims, no verdict; listed among the book's guides).
+
+    >>> is_guide("guide-score-agent"), is_guide("3.3")
+    (True, False)
+    """
+    return nid.startswith(GUIDE)
+
+
+def guide_ids() -> list[str]:
+    """Ids of the guide pages (``notebooks/guide-*.py``), sorted."""
+    return sorted(p.stem for p in paths.NOTEBOOKS.glob(f"{GUIDE}*.py"))
+
+
+def notebook_ids(guides: bool = False) -> list[str]:
+    """Ids of every thesis notebook, in book order (chapter; figures, tables, analysis pages; number); with
+    ``guides`` the guide pages follow them."""
     ids = []
     for p in paths.NOTEBOOKS.glob("*.py"):
         kind = _kind(p.stem)
@@ -70,24 +94,34 @@ def notebook_ids() -> list[str]:
             ids.append(p.stem[4:])
         elif kind is not None:
             ids.append(p.stem)
-    return sorted(ids, key=sort_key)
+    return sorted(ids, key=sort_key) + (guide_ids() if guides else [])
 
 
 def page_id(nid: str) -> str:
-    """File stem of a notebook id: ``"fig-3.3"``, ``"table-3.4"``, ``"analysis-4-kl"``."""
-    return nid if _kind(nid) else f"fig-{nid}"
+    """File stem of a notebook id: ``"fig-3.3"``, ``"table-3.4"``, ``"analysis-4-kl"``, ``"guide-score-agent"``."""
+    return nid if _kind(nid) or is_guide(nid) else f"fig-{nid}"
+
+
+def source(nid: str) -> Path:
+    """The notebook's source file (jupytext percent ``.py``) in ``notebooks/``."""
+    page = page_id(nid)
+    return paths.NOTEBOOKS / f"{page}.py" if is_guide(page) else paths.notebook(page)
 
 
 def chapter(nid: str) -> str:
-    """Chapter number (as a string) of a notebook id."""
+    """Chapter number (as a string) of a notebook id; ``"guide"`` for a guide page."""
+    if is_guide(nid):
+        return "guide"
     stem = page_id(nid)
     rest = stem.split("-", 1)[1]
     return rest.split("-")[0].split(".")[0]
 
 
 def sort_key(nid: str) -> tuple:
-    """Book order: chapter, then figures before tables before analysis pages, then the number."""
+    """Book order: chapter, then figures before tables before analysis pages, then the number; guides last."""
     stem = page_id(nid)
+    if is_guide(stem):
+        return (sys.maxsize, len(KINDS), stem)
     kind = _kind(stem)
     rest = stem.split("-", 1)[1]
     parts = rest.replace("-", ".").split(".")
@@ -108,7 +142,7 @@ def check_notebook(nid: str) -> str:
     if not isinstance(nid, str):
         raise ValueError(f"figure id must be a string such as '3.3', got {nid!r}")
     nid = nid[4:] if nid.startswith("fig-") else nid
-    return check_choice(nid, notebook_ids(), "figure")
+    return check_choice(nid, notebook_ids(guides=True), "figure")
 
 
 def executed_path(nid: str, scale: str) -> Path:
@@ -140,7 +174,7 @@ def execution_key(
     nid = check_notebook(nid)
     mods = paths.all_modules() if modules is None else [paths.ROOT / m for m in modules]  # relative to the repo
     payload = {
-        "notebook": hashlib.sha256(paths.notebook(page_id(nid)).read_bytes()).hexdigest(),
+        "notebook": hashlib.sha256(source(nid).read_bytes()).hexdigest(),
         "scale": scale,
         "parameters": parameters or {},
         "retrain": os.environ.get("THESIS_REPRO_RETRAIN", ""),
@@ -323,7 +357,7 @@ def parameter_names(nid: str) -> list[str]:
     """
     import ast
 
-    text = paths.notebook(page_id(check_notebook(nid))).read_text()
+    text = source(check_notebook(nid)).read_text()
     parts = text.split('# %% tags=["parameters"]', 1)
     if len(parts) < 2:
         return []
@@ -427,7 +461,7 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
         raise ValueError(f"unknown parameter {unknown[0]!r} of notebook {page}; valid parameters are: {valid}")
     build_root = paths.build(scale).parent.absolute()  # absolute: the kernel runs in the repository
     clean_stale(build_root)
-    src = paths.notebook(page)
+    src = source(nid)
     out = executed_path(nid, scale)
     failed = failed_path(nid, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
