@@ -550,7 +550,7 @@ def _plan_command(args: argparse.Namespace) -> int:
 def _runs_command(args: argparse.Namespace) -> int:
     import json
 
-    from thesis_repro import figures, paths, runs, scales
+    from thesis_repro import figures, generator, paths, plan, runs, scales, shipped_checks
 
     scales.check_scale(args.scale)
     if args.cmd == "reference-runs":
@@ -563,14 +563,15 @@ def _runs_command(args: argparse.Namespace) -> int:
         for algo in args.algos or ():
             check_choice(algo, ALGORITHMS, "algorithm")
         only = {"algos": args.algos, "seeds": args.seeds}
-        until = runs.parse_until(args.until) if args.until is not None else None
-        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1, until=until, **only)
+        until = generator.parse_until(args.until) if args.until is not None else None
+        n_jobs = args.jobs or 1
+        generator.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=n_jobs, until=until, **only)
         return 0
     if args.check:
         from thesis_repro.study import study_jobs
 
-        stale = runs.check_shipped(args.scale, also={j.key for j in study_jobs()})
-        corrupt, local = runs.verify_shipped(), runs.verify_local()
+        stale = shipped_checks.check_shipped(args.scale, also={j.key for j in study_jobs()})
+        corrupt, local = shipped_checks.verify_shipped(), shipped_checks.verify_local()
         for s in stale:
             print(s.message)
         for path, err in corrupt.items():
@@ -591,7 +592,7 @@ def _runs_command(args: argparse.Namespace) -> int:
         train = [j for j in figures.jobs(fid, args.scale) if j.kind in figures.TRAINING_KINDS]
         line = runs.summary(train, verify=True) if train else "no training runs"
         print(f"{figures.get(fid).notebook_id} ({args.scale}): {line}")
-        print(runs.table(rows) + "\n")
+        print(plan.table(rows) + "\n")
     return 0
 
 

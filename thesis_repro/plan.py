@@ -134,6 +134,17 @@ def work(job: Job) -> float:
     return _timesteps(cfg)
 
 
+def cost(job: Job) -> float:
+    """Rough cost of a job for ordering: its env steps (``timesteps``), or CMA-ES evaluations, else 0."""
+    c = job.config
+    t = c.get("timesteps")
+    if isinstance(t, int | float):
+        return float(t)
+    if isinstance(t, Mapping):
+        return float(sum(v for v in t.values() if isinstance(v, int | float)))
+    return float(c.get("generations", 0) or 0) * float(c.get("popsize", 1) or 1)
+
+
 # ---------------------------------------------------------------- arithmetic (pure)
 def core_hours(units: float, rate: float) -> float:
     """CPU-core hours for ``units`` of work at ``rate`` units per CPU-second (``inf`` if the rate is unknown)."""
