@@ -46,6 +46,11 @@ def job_algorithm(job: Job) -> str | None:
     return cfg.get("algorithm") if isinstance(cfg, Mapping) else None
 
 
+#: How :func:`plan` orders several items and seeds (``reference-runs --order``, whose ``claims`` is ``item`` with the
+#: items ranked by :mod:`thesis_repro.order`).
+ORDERS: tuple[str, ...] = ("seed-first", "item")
+
+
 def plan(
     scale: str,
     figure_ids: Iterable[str] | None = None,
@@ -53,22 +58,33 @@ def plan(
     by_figure: bool = False,
     algos: Iterable[str] | None = None,
     seeds: Iterable[int] | None = None,
+    order: str = "seed-first",
+    item_seeds: Mapping[str, Iterable[int]] | None = None,
 ) -> list[Planned]:
     """The jobs of ``kinds`` of every figure (or ``figure_ids``) at ``scale``, deduplicated by key, cheapest
     first; with ``by_figure``, the first figure's jobs first (each figure's cheapest first), so that the
-    figures finish in the order given; with ``algos`` / ``seeds``, only the jobs of those learners / seeds.
-    Several ``seeds``: the first seed given of every figure first, then the other seeds figure by figure, each
-    figure's in the order given (``--seeds 0 1 2``: seed 0 everywhere; then seeds 1 and 2 of the first figure,
-    of the second, ...), so one resumable command completes seed 0, then one item's full seed count after
-    another (an item can show its 3 seeds without waiting for every other item's seed 1)."""
+    figures finish in the order given; with ``algos`` / ``seeds``, only the jobs of those learners / seeds
+    (``item_seeds``: per figure id, its own seeds instead, such as chapter 5's to 10 seeds).
+
+    Several ``seeds``, ``order="seed-first"``: the first seed given of every figure first, then the other seeds
+    figure by figure, each figure's in the order given (``--seeds 0 1 2``: seed 0 everywhere; then seeds 1 and 2
+    of the first figure, of the second, ...), so one resumable command completes seed 0, then one item's full
+    seed count after another. ``order="item"`` (implies ``by_figure``): item by item, every requested seed of a
+    figure (seed by seed, each seed's jobs cheapest first) before the next figure's, so that a page that reads
+    the new seeds only once all of them are shipped gets them as early as it can; a job two figures share
+    belongs to the first."""
+    check_choice(order, ORDERS, "generator order")
+    by_figure = by_figure or order == "item"
     kinds = set(kinds)
     keep = None if algos is None else set(algos)
-    seed_rank = None if seeds is None else {int(s): i for i, s in reversed(list(enumerate(seeds)))}
-    keep_seeds = None if seed_rank is None else set(seed_rank)
+    seeds = None if seeds is None else [int(s) for s in seeds]
+    seed_rank = {} if seeds is None else {s: i for i, s in reversed(list(enumerate(seeds)))}
     out: dict[str, Planned] = {}
     rank: dict[str, int] = {}
     for i, fid in enumerate(figure_ids or figures.ids()):
         notebook_id = figures.get(fid).notebook_id
+        wanted = item_seeds[fid] if item_seeds is not None and fid in item_seeds else seeds
+        keep_seeds = None if wanted is None else {int(s) for s in wanted}
         for job in figures.jobs(fid, scale, **seed_count(fid, scale, keep_seeds)):
             if job.kind not in kinds or (keep is not None and job_algorithm(job) not in keep):
                 continue
@@ -76,11 +92,13 @@ def plan(
                 out.setdefault(job.key, Planned(job)).figures.append(notebook_id)
                 rank.setdefault(job.key, i if by_figure else 0)
 
-    def order(p: Planned) -> tuple[Any, ...]:
-        r = 0 if seed_rank is None else seed_rank.get(training_seed(p.job), len(seed_rank))  # type: ignore[arg-type]
-        return (min(r, 1), rank[p.job.key], r, p.cost, p.job.kind, p.job.label, p.job.key)
+    def position(p: Planned) -> tuple[Any, ...]:
+        seed = training_seed(p.job) or 0
+        r = seed_rank.get(seed, len(seed_rank) + seed) if seeds is not None else 0  # an item's own seeds: after
+        first = () if order == "item" else (min(r, 1),)
+        return (*first, rank[p.job.key], r, p.cost, p.job.kind, p.job.label, p.job.key)
 
-    return sorted(out.values(), key=order)
+    return sorted(out.values(), key=position)
 
 
 def _bind_to_layer(planned: list[Planned], layer: Path, cache: RunCache, log: Callable[[str], None]) -> list[Planned]:
@@ -315,11 +333,14 @@ def generate(
     seeds: Iterable[int] | None = None,
     until: datetime | None = None,
     eta: Callable[[Job], float] | None = None,
+    order: str = "seed-first",
+    item_seeds: Mapping[str, Iterable[int]] | None = None,
 ) -> list[Exported]:
     """Produce the shipped reference runs of ``scale`` (``make reference-runs``).
 
-    Collects the jobs of ``kinds`` of every figure (deduplicated, cheapest first; with ``figure_ids``, figure
-    by figure in that order), skips those already
+    Collects the jobs of ``kinds`` of every figure (:func:`plan`: deduplicated, cheapest first; with ``figure_ids``,
+    figure by figure in that order; ``order="item"``: every requested seed of an item before the next item;
+    ``item_seeds``: an item's own seeds), skips those already
     shipped with a verified entry, runs the rest through the local cache ``n_jobs`` at a time (an
     interrupted run resumes from its workdir checkpoint on the next call), exports each finished one into
     the layer and, with ``commit``, commits it as it lands; every ``heartbeat`` seconds without one landing it
@@ -342,12 +363,14 @@ def generate(
     pinned_kinds = tuple(k for k in kinds if registry.pinned(k))
     if pinned_kinds and len(pinned_kinds) < len(kinds):  # training and evaluation in one command: they follow
         kinds = tuple(k for k in kinds if k not in pinned_kinds)
-        followers = _Followers(plan(scale, figure_ids, pinned_kinds, algos=algos, seeds=seeds), layer, cache)
+        only = {"algos": algos, "seeds": seeds, "order": order, "item_seeds": item_seeds}
+        followers = _Followers(plan(scale, figure_ids, pinned_kinds, **only), layer, cache)
     else:
         followers = None
     pinned = any(registry.pinned(k) for k in kinds)
     cache = cache or RunCache(reference=layer if pinned else False)  # evaluations load the shipped policies
-    planned = plan(scale, figure_ids, kinds, by_figure=figure_ids is not None, algos=algos, seeds=seeds)
+    by_figure = figure_ids is not None
+    planned = plan(scale, figure_ids, kinds, by_figure, algos, seeds, order, item_seeds)
     if pinned:
         planned = _bind_to_layer(planned, layer, cache, log)
     todo, shipped = [], 0
@@ -417,10 +440,11 @@ def generate(
                     futures[fut] = p
                     pending.add(fut)
 
-            order = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
+            how = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
+            how = "item by item, every seed of an item before the next" if order == "item" else how
             t0, landed = time.time(), 0  # the pool's jobs landed so far (``done`` also holds the evaluations)
             try:  # from here on, Ctrl-C ends the workers (outside it, leaving the pool would wait for every run)
-                log(f"running {len(todo)} jobs, {n_jobs} at a time ({order})")
+                log(f"running {len(todo)} jobs, {n_jobs} at a time ({how})")
                 submit()
                 follow_shipped()  # while the workers train
                 while pending:
