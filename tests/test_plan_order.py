@@ -154,3 +154,22 @@ def test_a_bad_order_is_one_error_line(capsys):
         generator.plan("smoke", order="claims")
     assert main(["plan", "order", "--scale", "small"]) == 2
     assert capsys.readouterr().err.startswith("error: plan order needs --seeds")
+
+
+def test_seeds_past_chapter_5_s_list_are_planned_without_changing_the_scale():
+    """`--seeds 3 4 5` plans chapter 5's CMA-ES seeds too (they list `seeds`, not a `train_seeds` count), while the
+    scale's own list stays: a fresh clone's page never trains seeds that are not shipped."""
+    from thesis_repro import plan
+
+    assert figures.settings("5.3", "small")["seeds"] == [0, 1, 2]
+    assert plan.seed_count("5.3", "small", {3, 4, 5}) == {"seeds": [0, 1, 2, 3, 4, 5]}
+    assert plan.seed_count("5.3", "small", {0, 2}) == {}
+    jobs = plan.seed_jobs("5.3", "small", [3, 4, 5])
+    assert sorted(plan.training_seed(j) for j in jobs) == [3, 4, 5]
+    assert {plan.training_seed(j) for j in figures.jobs("5.3", "small")} == {0, 1, 2}
+    per_seed = len(plan.seed_jobs("5.4", "small", [0]))
+    assert len(plan.seed_jobs("5.4", "small", range(3, 10))) == 7 * per_seed > 0
+    planned = generator.plan("small", ["5.3"], kinds=["arm-solve"], seeds=[4, 3], order="item")
+    assert [p.job.config["seed"] for p in planned] == [4, 3]
+    p = plan.plan_figure("5.6", "small", rates=plan.Rates({"arm": 1.0}, {}), seeds=[3, 4, 5, 6, 7, 8, 9])
+    assert p.n_other == 7 * len(plan.seed_jobs("5.6", "small", [0])) and p.core_hours > 0

@@ -411,12 +411,24 @@ def training_seed(job: Job) -> int | None:
     return None
 
 
-def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, int]:
-    """The ``train_seeds`` override that makes ``figure_id`` plan every one of ``seeds`` (seeds past the scale's
-    own count: the generator's ``--seeds`` may plan them); ``{}`` if none."""
+def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, Any]:
+    """The override that makes ``figure_id`` plan every one of ``seeds`` past the scale's own seeds (the generator's
+    and the plan's ``--seeds`` may plan them; the scale table itself never changes, so a page trains none of them
+    until they are shipped): a larger ``train_seeds`` count, or for chapter 5's CMA-ES items, which list their
+    ``seeds``, the list with the new ones added; ``{}`` if none is needed.
+
+    >>> seed_count("3.3", "small", {3, 4, 5}), seed_count("5.6", "small", {4})
+    ({'train_seeds': 6}, {'seeds': [0, 1, 2, 4]})
+    >>> seed_count("5.6", "small", {1, 2})
+    {}
+    """
     if not seeds:
         return {}
-    have = figures.settings(figure_id, scale).get("train_seeds")
+    settings = figures.settings(figure_id, scale)
+    listed = settings.get("seeds")
+    if isinstance(listed, list):  # chapter 5 (its settings carry the scale's train_seeds too, unused)
+        return {"seeds": sorted(set(listed) | set(seeds))} if not set(seeds) <= set(listed) else {}
+    have = settings.get("train_seeds")
     return {"train_seeds": max(seeds) + 1} if have is not None and max(seeds) + 1 > int(have) else {}
 
 
