@@ -270,7 +270,8 @@ def shipped_rates(
     whatever else it ran) over the entries of ``<root>/train`` (default: the shipped layer). Families without a
     shipped run keep ``base``'s rate (default :func:`load_rates`). For an ETA of ``make reference-runs JOBS=2`` on
     a machine like the one that made them, not a benchmark: the pace of one family spans a factor ~3-5. With
-    ``by_env``, also one rate per family and task under the key ``"<family>:<env>"`` (:func:`rate_key`).
+    ``by_env``, also one rate per family and task under the key ``"<family>:<env>"`` (:func:`rate_key`), and one per
+    chapter-5 arm kind (``"arm:arm-target"``: its work per wall second, ``provenance.json``'s ``wall_seconds``).
 
     With ``machine`` (this machine's :func:`~thesis_repro.cache.platform_info`), a rate that at least
     :data:`MIN_LOCAL_RUNS` runs made on that platform give is their median alone: one CPU kept half another's pace
@@ -286,16 +287,19 @@ def shipped_rates(
     here = json.loads(json.dumps(machine)) if machine is not None else None
     paces: dict[str, list[float]] = {}
     local: dict[str, list[float]] = {}
-    for entry in sorted(folder.glob("*")) if folder.is_dir() else []:
+    arm = sorted(folder.parent.glob("arm-*/*")) if by_env else []  # chapter 5: work per wall second, by kind
+    for entry in [*(sorted(folder.glob("*")) if folder.is_dir() else []), *arm]:
         try:
             cfg = json.loads((entry / "config.json").read_text())["config"]
             prov = json.loads((entry / "provenance.json").read_text())
-            pace = float(prov["measured"]["steps_per_s"])
-        except (OSError, ValueError, KeyError, TypeError):
+            job = Job(entry.parent.name, cfg)
+            trains = job.kind in TRAINING_KINDS
+            pace = float(prov["measured"]["steps_per_s"] if trains else work(job) / prov["wall_seconds"])
+        except (OSError, ValueError, KeyError, TypeError, ZeroDivisionError):
             continue
         if pace > 0:
-            job = Job("train", cfg)
-            for key in (family(job), rate_key(job)) if by_env else (family(job),):
+            keys = (family(job), rate_key(job)) if trains and by_env else (family(job),) if trains else (rate_key(job),)
+            for key in keys:
                 paces.setdefault(key, []).append(pace)
                 if here is not None and prov.get("platform") == here:
                     local.setdefault(key, []).append(pace)
@@ -310,11 +314,14 @@ def shipped_rates(
 
 
 def rate_key(job: Job) -> str:
-    """The key of a training job's per-task rate in :func:`shipped_rates` (``by_env=True``).
+    """The key of a job's own rate in :func:`shipped_rates` (``by_env=True``): a training job's per task, a chapter-5
+    arm job's per kind (their units of work differ by kind).
 
-    >>> rate_key(Job("train", {"algorithm": "sac", "class": "SAC", "env": "Hopper"}))
-    'sac:Hopper'
+    >>> rate_key(Job("train", {"algorithm": "sac", "class": "SAC", "env": "Hopper"})), rate_key(Job("arm-solve", {}))
+    ('sac:Hopper', 'arm:arm-solve')
     """
+    if job.kind not in TRAINING_KINDS:
+        return f"{family(job)}:{job.kind}"
     return f"{family(job)}:{job.config.get('env')}"
 
 
@@ -326,7 +333,7 @@ def job_rate(job: Job, rates: Rates) -> float:
     >>> job_rate(sac, Rates({"sac": 500.0}, {})), job_rate(sac, Rates({"sac": 500.0, "sac:Hopper": 200.0}, {}))
     (500.0, 200.0)
     """
-    return (job.kind in TRAINING_KINDS and rates.rate(rate_key(job))) or rates.rate(family(job))
+    return rates.rate(rate_key(job)) or rates.rate(family(job))
 
 
 # ---------------------------------------------------------------- plans
