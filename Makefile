@@ -88,13 +88,14 @@ test: $(STAMP) $(RAY_STAMP) $(CHROMIUM_STAMP)
 ## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] [UNTIL=22:40] :
 ## train every figure's training runs (cheapest first, resumable: re-run after an interruption) and ship them in
 ## data/reference; COMMIT=1 commits each as it lands; several SEEDS: the first one of every figure, then the others
-## figure by figure; KINDS="train evaluate" also ships each evaluation as soon as the run it loads has landed; UNTIL=HH:MM starts only jobs expected to end by then (a session's end: a run cut
+## figure by figure (ORDER=item: every seed of an item before the next; ORDER=claims: item by item, ranked by claims
+## settled per core-hour, chapter 5 to 10 seeds: `make plan-order`); KINDS="train evaluate" also ships each evaluation as soon as the run it loads has landed; UNTIL=HH:MM starts only jobs expected to end by then (a session's end: a run cut
 ## off there restarts on a new machine)
 reference-runs: $(STAMP)
 	nice -n 10 $(BIN)/python -m thesis_repro reference-runs --scale $(SCALE) $(if $(FIGURES),--figures $(FIGURES)) \
 	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS)) \
 	  $(if $(ALGOS),--algos $(ALGOS)) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(KINDS),--kind $(KINDS)) \
-	  $(if $(UNTIL),--until $(UNTIL))
+	  $(if $(UNTIL),--until $(UNTIL)) $(if $(ORDER),--order $(ORDER))
 
 ## make seeds UNTIL=HH:MM : issue 22's regeneration, the one command a session starts in the background (nohup ... &):
 ## seeds 0-2 of every chapter 3-4 item under the thesis protocol, trained and evaluated, committed as they land, two
@@ -143,10 +144,11 @@ runs-%: $(STAMP)
 budgets: $(STAMP)
 	$(BIN)/python -m thesis_repro budgets --scale $(SCALE)
 
-## make plan-3.3 SCALE=full [CORES=64] [MISSING=1 : only what is neither cached nor shipped] : cost before running (jobs, env steps, throughput, core-hours, wall time);
-## make plan-all SCALE=full : every figure and the book
+## make plan-3.3 SCALE=full [CORES=64] [MISSING=1 : only what is neither cached nor shipped] [SEEDS="3 4 5"] : cost before running (jobs, env steps, throughput, core-hours, wall time);
+## make plan-all SCALE=full : every figure and the book; make plan-order SCALE=small SEEDS="3 4 5" : the generator's order (claims settled per core-hour)
 plan-%: $(STAMP)
-	$(BIN)/python -m thesis_repro plan $* --scale $(SCALE) $(if $(CORES),--cores $(CORES)) $(if $(MISSING),--missing)
+	$(BIN)/python -m thesis_repro plan $* --scale $(SCALE) $(if $(CORES),--cores $(CORES)) $(if $(MISSING),--missing) \
+	  $(if $(SEEDS),--seeds $(SEEDS))
 
 ## make bench : throughput benchmarks (batched evaluation, PPO training, ...), printed as ratios
 bench: $(STAMP)

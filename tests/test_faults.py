@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from thesis_repro import figures, notebooks, paths, runs
+from thesis_repro import backends, figures, notebooks, paths, runs, shipped_checks
 from thesis_repro.__main__ import INTERRUPTED, main
 from thesis_repro.cache import Job, RunCache
 
@@ -331,7 +331,7 @@ def test_a_ctrl_c_while_workers_spawn_is_deferred_not_lost():
     used to vanish (it was ignored) and leave the generator waiting on its runs (CI after stop 34); now it is raised
     by the window's end at the latest."""
     with pytest.raises(KeyboardInterrupt):
-        with runs._sigint_held():
+        with backends.sigint_held():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.05)
         time.sleep(5)  # not reached
@@ -539,7 +539,7 @@ def test_runs_check_catches_a_corrupt_local_entry(square_figure, capsys):
     out = capsys.readouterr().out
     assert f"corrupt local run {entry}: files differ from the manifest: result.json" in out
     assert "1 local runs" in out and "1 corrupt" in out
-    assert runs.verify_local() == {entry: "files differ from the manifest: result.json"}
+    assert shipped_checks.verify_local() == {entry: "files differ from the manifest: result.json"}
 
 
 def test_runs_listing_shows_corrupt_local_and_shipped_entries(square_figure, capsys, monkeypatch, tmp_path):

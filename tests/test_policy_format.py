@@ -66,14 +66,14 @@ def test_a_planted_pickle_payload_is_refused_with_one_line(tmp_path):
 
 
 def test_the_cli_refuses_a_planted_payload_with_one_error_line(tmp_path):
-    """Through ``runs.max_abs_diff`` (what ``verify`` and the retrain check call) in a fresh process."""
+    """Through ``retrain_check.max_abs_diff`` (what ``verify`` and the retrain check call) in a fresh process."""
     _saved(tmp_path / "a")
     _saved(tmp_path / "b")
     marker = tmp_path / "payload-ran"
     th.save({"state_dict": _Payload(marker)}, tmp_path / "b" / "policy.pth")
     code = (
-        "import sys; from thesis_repro import runs; from thesis_repro.__main__ import _guarded\n"
-        "sys.exit(_guarded(lambda: runs.max_abs_diff(sys.argv[1], sys.argv[2])))"
+        "import sys; from thesis_repro import retrain_check; from thesis_repro.__main__ import _guarded\n"
+        "sys.exit(_guarded(lambda: retrain_check.max_abs_diff(sys.argv[1], sys.argv[2])))"
     )
     done = subprocess.run(
         [sys.executable, "-c", code, str(tmp_path / "a"), str(tmp_path / "b")], capture_output=True, text=True

@@ -147,11 +147,11 @@ def test_small_has_3_seeds_10_rollouts_and_every_learner():
 
 def test_the_generator_can_take_one_seed_first():
     """`--seeds 0` plans seed 0 only; `--seeds 0 1 2` plans the three seeds, seed by seed."""
-    from thesis_repro import runs
+    from thesis_repro import generator
 
-    planned = runs.plan("small", ["3.3"], seeds=[0], algos=["ppo"])
+    planned = generator.plan("small", ["3.3"], seeds=[0], algos=["ppo"])
     assert {p.job.config["seed"] for p in planned} == {0} and {p.job.config["algorithm"] for p in planned} == {"ppo"}
-    every = runs.plan("small", ["3.3"], seeds=[0, 1, 2], algos=["ppo"])
+    every = generator.plan("small", ["3.3"], seeds=[0, 1, 2], algos=["ppo"])
     assert len(every) == 3 * len(planned)
     assert [p.job.config["seed"] for p in every] == sorted(p.job.config["seed"] for p in every)
 
@@ -179,12 +179,12 @@ def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
 
 def test_a_seed_past_the_scales_count_is_stale():
     """`check_shipped` counts a scale's own seeds (and the protocol studies' runs) as current, no seed beyond."""
-    from thesis_repro import runs
+    from thesis_repro import generator, shipped_checks
 
-    within = runs.plan("small", ["table-3.6"], seeds=[2], algos=["ppo-16"])
-    beyond = runs.plan("small", ["table-3.6"], seeds=[5], algos=["ppo-16"])
+    within = generator.plan("small", ["table-3.6"], seeds=[2], algos=["ppo-16"])
+    beyond = generator.plan("small", ["table-3.6"], seeds=[5], algos=["ppo-16"])
     assert within and beyond
-    current = runs.current_keys("small", figure_ids=["table-3.6"])
+    current = shipped_checks.current_keys("small", figure_ids=["table-3.6"])
     assert {p.job.key for p in within} <= current
     assert not {p.job.key for p in beyond} & current
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import figures, paths, runs
+from thesis_repro import figures, generator, paths, plan, provenance, retrain_check, runs, shipped_checks
 from thesis_repro import jobs as registry
 from thesis_repro.__main__ import main
 from thesis_repro.cache import CorruptEntryWarning, Job, RunCache, read_entry
@@ -68,13 +68,13 @@ def test_generator_end_to_end(fake_figures, tmp_path):
     layer, lines = fake_figures, []
     (tmp_path / "interrupt").write_text("")  # the shared run (20 steps) will be interrupted once
     with pytest.raises(KeyboardInterrupt):
-        runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append)
+        generator.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append)
     assert "3 toy-train jobs, 0 already shipped, 3 to produce (60 env steps" in lines[0]
     assert [p.name.split("__")[0] for p in runs.shipped_entries(layer)] == ["a"]  # cheapest first, shipped
     assert RunCache().state(Job("toy-train", _cfg("b", 20, interrupt=str(tmp_path / "interrupt")))) == "partial"
 
     lines.clear()
-    done = runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append)
+    done = generator.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append)
     assert "1 already shipped, 2 to produce" in lines[0]
     assert [e.path.name.split("__")[0] for e in done] == ["b", "c"]
     assert [p.name.split("__")[0] for p in runs.shipped_entries(layer)] == ["a", "b", "c"]
@@ -86,7 +86,7 @@ def test_generator_end_to_end(fake_figures, tmp_path):
     assert not {"out/model.zip", "out/replay_buffer.pkl"} & files
     assert set(done[0].dropped) == {"out/model.zip", "out/replay_buffer.pkl"}
     read_entry(entry)  # fresh manifest verifies
-    assert runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append) == []
+    assert generator.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append) == []
 
 
 def test_generator_until_starts_only_jobs_that_end_in_time(fake_figures, monkeypatch):
@@ -95,14 +95,14 @@ def test_generator_until_starts_only_jobs_that_end_in_time(fake_figures, monkeyp
     layer, lines = fake_figures, []
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
     need = {"a": 10.0, "b": 500.0, "c": 5.0}  # seconds each job is expected to take: b with the margin does not fit
-    assert runs.DEADLINE_MARGIN * 500.0 > 600.0
+    assert generator.DEADLINE_MARGIN * 500.0 > 600.0
     eta = lambda job: need[job.config["algorithm"]]  # noqa: E731
     until = datetime.now() + timedelta(seconds=600)
-    done = runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append, until=until, eta=eta)
+    done = generator.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append, until=until, eta=eta)
     assert [e.path.name.split("__")[0] for e in done] == ["a", "c"]  # cheapest first, b skipped
     assert any("1 longer job(s) wait; starting c__Toy__s0" in line for line in lines)
     assert "1 job(s) left, none expected to end in time" in lines[-1]
-    done = runs.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append)  # no deadline: the rest
+    done = generator.generate("smoke", kinds=["toy-train"], layer_root=layer, log=lines.append)  # no deadline: the rest
     assert [e.path.name.split("__")[0] for e in done] == ["b"]
 
 
@@ -113,17 +113,17 @@ def test_eta_counts_the_work_left_past_a_checkpoint(monkeypatch, tmp_path):
     job = Job("train", {"algorithm": "ppo", "env": "Hopper", "seed": 0, "timesteps": 1_000_000})
     rates = Rates({"ppo": 1000.0}, {})
     cache = RunCache(tmp_path / "runs", reference=False)
-    assert runs.eta_seconds(job, cache, rates) == pytest.approx(1000.0)
+    assert generator.eta_seconds(job, cache, rates) == pytest.approx(1000.0)
     monkeypatch.setattr(train, "checkpoint_steps", lambda workdir: 600_000)  # a resumed run: 400k steps left
-    assert runs.eta_seconds(job, cache, rates) == pytest.approx(400.0)
-    assert runs.eta_seconds(job, cache, Rates({}, {})) == float("inf")  # no rate: never fits a deadline
+    assert generator.eta_seconds(job, cache, rates) == pytest.approx(400.0)
+    assert generator.eta_seconds(job, cache, Rates({}, {})) == float("inf")  # no rate: never fits a deadline
 
 
 def test_until_is_a_clock_time():
-    assert runs.parse_until("23:59", now=datetime(2026, 1, 1, 23, 0)) == datetime(2026, 1, 1, 23, 59)
-    assert runs.parse_until("00:10", now=datetime(2026, 1, 1, 23, 0)) == datetime(2026, 1, 2, 0, 10)
+    assert generator.parse_until("23:59", now=datetime(2026, 1, 1, 23, 0)) == datetime(2026, 1, 1, 23, 59)
+    assert generator.parse_until("00:10", now=datetime(2026, 1, 1, 23, 0)) == datetime(2026, 1, 2, 0, 10)
     with pytest.raises(ValueError, match=r"--until takes a clock time HH:MM \(such as 22:40\), got '25:00'"):
-        runs.parse_until("25:00")
+        generator.parse_until("25:00")
     assert main(["reference-runs", "--scale", "smoke", "--until", "late", "--figures", "9.9"]) == 2
 
 
@@ -133,7 +133,8 @@ def test_generator_commits_each_run(fake_figures, tmp_path, monkeypatch):
     for args in (["init", "-q"], ["config", "user.email", "t@t"], ["config", "user.name", "t"]):
         subprocess.run(["git", "-C", str(repo), *args], check=True)
     monkeypatch.setattr(paths, "ROOT", repo)
-    done = runs.generate("smoke", ["9.2"], ["toy-train"], commit=True, layer_root=repo / "data" / "reference", log=str)
+    layer = repo / "data" / "reference"
+    done = generator.generate("smoke", ["9.2"], ["toy-train"], commit=True, layer_root=layer, log=str)
     log = subprocess.run(["git", "-C", str(repo), "log", "--format=%s"], capture_output=True, text=True).stdout
     subjects = log.splitlines()[::-1]
     assert len(subjects) == 2 and subjects[0].startswith("reference run: a__Toy__s0 (toy-train, key ")
@@ -143,14 +144,14 @@ def test_generator_commits_each_run(fake_figures, tmp_path, monkeypatch):
 
 
 def test_plan_dedupes_and_orders_by_cost(fake_figures):
-    plan = runs.plan("smoke", kinds=["toy-train"])
+    plan = generator.plan("smoke", kinds=["toy-train"])
     assert [p.job.config["algorithm"] for p in plan] == ["a", "b", "c"]
     assert [p.cost for p in plan] == [10.0, 20.0, 30.0]
     assert plan[1].figures == ["fig-9.1", "fig-9.2"]
-    by_figure = runs.plan("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True)
+    by_figure = generator.plan("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True)
     assert [p.job.config["algorithm"] for p in by_figure] == ["b", "c", "a"]  # 9.1's runs first, then 9.2's
     with pytest.raises(ValueError, match="valid job kinds are"):
-        runs.generate("smoke", kinds=["trian"], log=str)
+        generator.generate("smoke", kinds=["trian"], log=str)
 
 
 def test_plan_of_several_seeds_completes_seed_0_then_item_by_item(monkeypatch):
@@ -164,10 +165,10 @@ def test_plan_of_several_seeds_completes_seed_0_then_item_by_item(monkeypatch):
     }
     for fid, grid in grids.items():
         figures.register(fid, f"toy figure {fid}", kinds=["toy-train"], settings_id="_example")(grid)
-    order = runs.plan("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True, seeds=[0, 1, 2])
+    order = generator.plan("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True, seeds=[0, 1, 2])
     labels = [f"{p.job.config['algorithm']}{p.job.config['seed']}" for p in order]
     assert labels == ["a0", "c0", "b0", "a1", "c1", "a2", "c2", "b1", "b2"]
-    order = runs.plan("smoke", kinds=["toy-train"], seeds=[2, 0])
+    order = generator.plan("smoke", kinds=["toy-train"], seeds=[2, 0])
     assert [f"{p.job.config['algorithm']}{p.job.config['seed']}" for p in order] == ["a2", "b2", "c2", "a0", "b0", "c0"]
 
 
@@ -185,7 +186,7 @@ def test_rows_states_summary_and_runs_json(fake_figures, tmp_path):
         "x1": "cached",
     }
     assert rows["c__Toy__s0"]["path"].endswith(f"toy-train/c__Toy__s0__{jobs[0].key}")
-    assert "c__Toy__s0" in runs.table(list(rows.values())).splitlines()[1]
+    assert "c__Toy__s0" in plan.table(list(rows.values())).splitlines()[1]
     training = [j for j in jobs if j.kind in figures.TRAINING_KINDS]
     assert runs.summary(training, cache) == "2 training runs: 1 shipped, 0 cached, 1 to compute"
     path = runs.record("9.1", "smoke", cache)
@@ -199,16 +200,16 @@ def test_check_shipped_reports_stale_runs_with_the_fix(fake_figures, tmp_path):
     layer = fake_figures
     maker = RunCache(tmp_path / "maker", reference=False)
     runs.export(maker.run(Job("toy-train", _cfg("a", 10))), layer)
-    assert runs.check_shipped("smoke", layer) == []
+    assert shipped_checks.check_shipped("smoke", layer) == []
     old = runs.export(maker.run(Job("toy-train", _cfg("a", 11))), layer)  # a config no figure makes any more
-    stale = runs.check_shipped("smoke", layer)
+    stale = shipped_checks.check_shipped("smoke", layer)
     assert [s.path for s in stale] == [old.path]
     assert "make reference-runs SCALE=smoke" in stale[0].message and "git rm -r" in stale[0].message
 
 
 def test_shipped_job_and_cheapest_shipped(fake_figures, tmp_path, monkeypatch):
     layer = fake_figures
-    assert runs.cheapest_shipped("toy-train", layer) is None
+    assert shipped_checks.cheapest_shipped("toy-train", layer) is None
     maker = RunCache(tmp_path / "maker", reference=False)
     for job in (Job("toy-train", _cfg("c", 30)), Job("toy-train", _cfg("a", 10))):
         runs.export(maker.run(job), layer)
@@ -219,30 +220,30 @@ def test_shipped_job_and_cheapest_shipped(fake_figures, tmp_path, monkeypatch):
         algo = json.loads((entry / "config.json").read_text())["config"]["algorithm"]
         prov.update(platform={"machine": "x86_64"}, measured={"wall_time": walls[algo], "resumed_from": 0})
         prov_path.write_text(json.dumps(prov))
-    assert runs.cheapest_shipped("toy-train", layer) == Job("toy-train", _cfg("c", 30))
+    assert shipped_checks.cheapest_shipped("toy-train", layer) == Job("toy-train", _cfg("c", 30))
     c_entry = next(e for e in runs.shipped_entries(layer) if '"c"' in (e / "config.json").read_text())
     prov = json.loads((c_entry / "provenance.json").read_text())
     prov["measured"]["resumed_from"] = 4096  # an interrupted run is no conclusive retrain target
     (c_entry / "provenance.json").write_text(json.dumps(prov))
-    assert runs.cheapest_shipped("toy-train", layer) == Job("toy-train", _cfg("a", 10))
+    assert shipped_checks.cheapest_shipped("toy-train", layer) == Job("toy-train", _cfg("a", 10))
     for entry in runs.shipped_entries(layer):  # no platform or measured time anywhere: the env steps decide
         (entry / "provenance.json").write_text("{}")
-    cheapest = runs.cheapest_shipped("toy-train", layer)
+    cheapest = shipped_checks.cheapest_shipped("toy-train", layer)
     assert cheapest == Job("toy-train", _cfg("a", 10))
     fresh = RunCache(tmp_path / "fresh", reference=False).run(cheapest)  # the retrain-and-compare check
     assert fresh.source == "computed" and (fresh.out / "policy.txt").read_text() == "w=0"
     monkeypatch.setattr("thesis_repro.cache.CACHE_VERSION", 99)  # keys changed: the shipped run is unusable
     with pytest.raises(ValueError, match="no longer hashes to its key.*make reference-runs"):
-        runs.cheapest_shipped("toy-train", layer)
+        shipped_checks.cheapest_shipped("toy-train", layer)
 
 
 def test_verify_shipped_and_cache_refuse_a_corrupt_file(fake_figures, tmp_path):
     layer = fake_figures
     job = Job("toy-train", _cfg("a", 10))
     ex = runs.export(RunCache(tmp_path / "maker", reference=False).run(job), layer)
-    assert runs.verify_shipped(layer) == {}
+    assert shipped_checks.verify_shipped(layer) == {}
     (ex.path / "out" / "policy.txt").write_text("w=666")
-    assert "out/policy.txt" in runs.verify_shipped(layer)[ex.path]
+    assert "out/policy.txt" in shipped_checks.verify_shipped(layer)[ex.path]
     with pytest.warns(CorruptEntryWarning, match="corrupt shipped run"):
         res = RunCache(reference=layer).run(job)
     assert res.source == "computed" and (res.out / "policy.txt").read_text() == "w=0"
@@ -264,9 +265,9 @@ def test_export_of_a_real_training_run_keeps_what_evaluation_needs(tmp_path):
     obs = np.zeros((3, load_policy(local).obs_dim))
     np.testing.assert_array_equal(load_policy(shipped)(obs), load_policy(local)(obs))
     assert snapshots(shipped) == snapshots(local) != []
-    assert runs.max_abs_diff(local, shipped) == 0.0
+    assert retrain_check.max_abs_diff(local, shipped) == 0.0
     other = RunCache(reference=False).run(Job("train", {**cfg, "seed": 1}))
-    assert runs.max_abs_diff(local, other) > 0.0
+    assert retrain_check.max_abs_diff(local, other) > 0.0
     (tmp_path / "bare" / "out").mkdir(parents=True)
     (tmp_path / "bare" / "config.json").write_text(json.dumps({"kind": "train"}))
     with pytest.raises(ValueError, match="lacks out/policy.pth"):
@@ -280,22 +281,22 @@ def test_retrain_comparison_is_bit_exact_on_the_same_platform_else_by_outcome(tm
     entry.mkdir(parents=True)
     prov = entry / "provenance.json"
     prov.write_text(json.dumps({"wall_seconds": 1.0}))
-    assert runs.same_platform(entry) is None  # runs made before the platform was recorded
+    assert provenance.same_platform(entry) is None  # runs made before the platform was recorded
     import thesis_repro
 
     prov.write_text(json.dumps({"platform": platform_info(), "numerics": thesis_repro.numerics()}))
-    assert runs.same_platform(entry) is True
+    assert provenance.same_platform(entry) is True
     # same CPU, other numerics: a run made before the numerics were pinned (native MKL dispatch)
     prov.write_text(json.dumps({"platform": platform_info()}))
-    assert runs.same_platform(entry) is False
+    assert provenance.same_platform(entry) is False
     prov.write_text(json.dumps({"platform": {**platform_info(), "torch_cpu_capability": "NO AVX"}}))
-    assert runs.same_platform(entry) is False
+    assert provenance.same_platform(entry) is False
     # same platform: only weights count; elsewhere both returns within OUTCOME_RTOL of the larger one
-    assert runs.retrain_verdict("r", True, 0.0, (1.0, 2.0), None).ok
-    assert not runs.retrain_verdict("r", True, 2e-6, (990.0, 990.0), (1000.0, 1000.0)).ok
-    edge = 1000.0 * (1 - runs.OUTCOME_RTOL)
-    assert runs.retrain_verdict("r", False, 0.4, (1000.0, edge + 1e-6), (1000.0, 1000.0)).ok
-    bad = runs.retrain_verdict("r", False, 0.4, (1000.0, 1000.0), (1000.0, edge - 1.0))
+    assert retrain_check.retrain_verdict("r", True, 0.0, (1.0, 2.0), None).ok
+    assert not retrain_check.retrain_verdict("r", True, 2e-6, (990.0, 990.0), (1000.0, 1000.0)).ok
+    edge = 1000.0 * (1 - retrain_check.OUTCOME_RTOL)
+    assert retrain_check.retrain_verdict("r", False, 0.4, (1000.0, edge + 1e-6), (1000.0, 1000.0)).ok
+    bad = retrain_check.retrain_verdict("r", False, 0.4, (1000.0, 1000.0), (1000.0, edge - 1.0))
     assert not bad.ok and "testing return 1000.00 shipped vs 949.00 retrained: NOT within 5%" in bad.message
 
 
@@ -314,10 +315,10 @@ def test_generator_progress_line_reads_the_newest_checkpoint(tmp_path):
     work = cache.workdir(job)
     for steps in (100_000, 200_704):
         (work / f"ckpt-{steps:012d}").mkdir(parents=True)
-    line = runs.progress_line([job, fresh], cache, 125.0)
+    line = generator.progress_line([job, fresh], cache, 125.0)
     assert line.startswith("  ... 2 min: training ")
     assert f"{job.label} 200,704/300,000 steps; {fresh.label} 0/10 steps" in line
-    line = runs.progress_line([job], cache, 125.0, eta=lambda j: 1500.0)  # the generator's estimate of what is left
+    line = generator.progress_line([job], cache, 125.0, eta=lambda j: 1500.0)  # the generator's estimate of the rest
     assert f"{job.label} 200,704/300,000 steps, ~25 min left (newest checkpoints)" in line
 
 
@@ -338,8 +339,8 @@ def test_runs_command(fake_figures, capsys):
 
 def test_plan_produces_seeds_past_the_scale_s_own_count():
     """`--seeds 1` plans seed 1 even where the scale shows one seed (seeds land ahead of the scale table)."""
-    seed0 = runs.plan("smoke", ["3.3"], seeds=[0])
-    seed1 = runs.plan("smoke", ["3.3"], seeds=[1])
+    seed0 = generator.plan("smoke", ["3.3"], seeds=[0])
+    seed1 = generator.plan("smoke", ["3.3"], seeds=[1])
     assert figures.settings("3.3", "smoke")["train_seeds"] == 1
-    assert len(seed1) == len(seed0) > 0 and {runs.job_seed(p.job) for p in seed1} == {1}
+    assert len(seed1) == len(seed0) > 0 and {plan.training_seed(p.job) for p in seed1} == {1}
     assert {p.job.config["env"] for p in seed1} == {p.job.config["env"] for p in seed0}

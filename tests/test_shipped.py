@@ -10,7 +10,7 @@ import json
 
 import pytest
 
-from thesis_repro import paths, report, runs
+from thesis_repro import paths, plan, provenance, report, retrain_check, runs, shipped_checks
 from thesis_repro.cache import RunCache
 from thesis_repro.claims import ledger, snapshot
 
@@ -23,11 +23,12 @@ def test_every_shipped_run_is_current_and_intact():
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
     from thesis_repro.study import study_jobs
 
-    stale = runs.check_shipped("small", LAYER, also={j.key for j in study_jobs()})  # the studies' runs are current
+    # the studies' runs are current
+    stale = shipped_checks.check_shipped("small", LAYER, also={j.key for j in study_jobs()})
     assert not stale, "\n".join(s.message for s in stale)
-    assert runs.verify_shipped(LAYER) == {}
+    assert shipped_checks.verify_shipped(LAYER) == {}
     for entry in entries:  # rebuilt from its own config.json, each hashes to its folder's key
-        job = runs.shipped_job(entry)
+        job = shipped_checks.shipped_job(entry)
         assert (entry / "provenance.json").exists() and (entry / "manifest.json").exists(), entry
         assert not any(p.name.endswith((".zip", ".pkl")) for p in entry.rglob("*")), f"{entry}: optimiser/SB3 state"
         assert json.loads((entry / "config.json").read_text())["key"] == job.key
@@ -46,19 +47,19 @@ def test_shipped_layer_is_compact():
 
 
 def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
-    job = runs.cheapest_shipped("train", LAYER)
+    job = shipped_checks.cheapest_shipped("train", LAYER)
     if job is None:
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
-    assert runs.cost(job) <= 250_000, f"cheapest shipped run {job.label} costs {runs.cost(job):,.0f} steps"
+    assert plan.cost(job) <= 250_000, f"cheapest shipped run {job.label} costs {plan.cost(job):,.0f} steps"
     shipped = RunCache(tmp_path / "unused", reference=LAYER).load(job)
     assert shipped is not None and shipped.source == "shipped"
     # in the numerics the shipped run was made in (its provenance says native MKL dispatch or portable)
-    fresh = runs.recompute(job, tmp_path / "runs", shipped)
-    # bit-identical where the shipped run was made on this platform; elsewhere the same outcome (runs.OUTCOME_RTOL)
-    check = runs.compare_retrain(shipped, fresh)
+    fresh = retrain_check.recompute(job, tmp_path / "runs", shipped)
+    # bit-identical where the shipped run was made on this platform; elsewhere the same outcome (OUTCOME_RTOL)
+    check = retrain_check.compare_retrain(shipped, fresh)
     print(check.message)
     assert check.ok, check.message
-    if runs.same_platform(shipped):
+    if provenance.same_platform(shipped):
         assert fresh["train_return"] == pytest.approx(shipped["train_return"], rel=1e-6, abs=1e-6)
 
 

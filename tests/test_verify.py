@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import backends, figures, runs, verify
+from thesis_repro import backends, figures, generator, retrain_check, runs, shipped_checks, verify
 from thesis_repro import jobs as registry
 from thesis_repro.__main__ import main
 from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry, save_arrays, write_manifest
@@ -73,7 +73,7 @@ def toy_figure(monkeypatch):
 
 def _generate(layer: Path, kind: str) -> tuple[list[runs.Exported], list[str]]:
     lines: list[str] = []
-    out = runs.generate("smoke", ["_verify"], kinds=[kind], layer_root=layer, log=lines.append)
+    out = generator.generate("smoke", ["_verify"], kinds=[kind], layer_root=layer, log=lines.append)
     return out, lines
 
 
@@ -129,7 +129,7 @@ def test_the_generator_ships_evaluations_keyed_by_the_shipped_policy(toy_figure,
     # a fresh clone loads them (same key: the shipped policy's identity), nothing is re-evaluated
     clone = RunCache(tmp_path / "clone", reference=layer)
     assert all(clone.run(_eval_job(t)).source == "shipped" for t in TRAINS)
-    assert runs.check_shipped("smoke", layer) == []  # shipped evaluations count under their bound keys
+    assert shipped_checks.check_shipped("smoke", layer) == []  # shipped evaluations count under their bound keys
 
 
 def test_export_requires_an_evaluations_values(tmp_path):
@@ -181,7 +181,7 @@ def test_a_consistent_edit_is_caught_by_verify_entry_and_verify_figure(layer, ca
     """Issue 43's edit: one evaluation's returns x1.045 and its manifest rehashed; every manifest check passes."""
     target = _evaluations(layer)[1]
     _rewrite(target, lambda r: r * 1.045)
-    assert runs.verify_shipped(layer) == {}  # the manifest is consistent: only recomputing catches it
+    assert shipped_checks.verify_shipped(layer) == {}  # the manifest is consistent: only recomputing catches it
     assert main(["verify", "--scale", "smoke", "--entry", _key(target)[:8]]) == 1
     out = capsys.readouterr().out
     assert "1 shipped entry to recompute" in out and "0/1 match; 1 MISMATCH" in out
@@ -280,7 +280,7 @@ def test_compare_rules():
     assert verify.compare(nan, nan, same=True).verdict == "identical"
     check = verify.compare(a, near, same=False, entry="e")
     assert check.row()["shipped"] == "150.00" and check.row()["|diff|"] == "11"
-    assert verify.VERIFY_RTOL == runs.OUTCOME_RTOL
+    assert verify.VERIFY_RTOL == retrain_check.OUTCOME_RTOL
 
 
 def test_arm_kinds_compare_their_summaries_across_platforms():
@@ -317,7 +317,7 @@ def test_evaluations_follow_their_policy_in_one_command(toy_figure, tmp_path, mo
     land with its last training run), keyed as the two-step generator keys them; a rerun produces nothing."""
     layer = tmp_path / "reference"
     lines: list[str] = []
-    out = runs.generate(
+    out = generator.generate(
         "smoke", ["_verify"], ["test-verify-policy", "test-verify-eval"], layer_root=layer, log=lines.append
     )
     assert [e.path.parent.name for e in out] == [
@@ -330,13 +330,13 @@ def test_evaluations_follow_their_policy_in_one_command(toy_figure, tmp_path, mo
     assert sorted(p.name for p in _evaluations(layer)) == sorted(
         e.path.name for e in _generate(two_step, "test-verify-eval")[0]
     )
-    again = runs.generate("smoke", ["_verify"], ["test-verify-policy", "test-verify-eval"], layer_root=layer, log=str)
+    kinds = ["test-verify-policy", "test-verify-eval"]
+    again = generator.generate("smoke", ["_verify"], kinds, layer_root=layer, log=str)
     assert again == []
     # two at a time: the [i/n] tags count the training jobs alone, the evaluations that follow them are untagged
     pooled: list[str] = []
-    kinds = ["test-verify-policy", "test-verify-eval"]
-    monkeypatch.setattr(runs, "execute", _pool_execute)
-    runs.generate("smoke", ["_verify"], kinds, layer_root=tmp_path / "pooled", n_jobs=2, log=pooled.append)
+    monkeypatch.setattr(generator, "execute", _pool_execute)
+    generator.generate("smoke", ["_verify"], kinds, layer_root=tmp_path / "pooled", n_jobs=2, log=pooled.append)
     assert sorted(line.split()[0] for line in pooled if line.startswith("[") and "follows" not in line) == [
         "[1/3]",
         "[2/3]",

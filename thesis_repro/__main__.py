@@ -174,6 +174,13 @@ def _main(argv: list[str]) -> int:
         "--jobs", type=positive_int, default=None, help="runs trained at once, >= 1 (default 1; 2 on two idle cores)"
     )
     ref.add_argument(
+        "--order",
+        default="seed-first",
+        help="seed-first (default): the first seed of every item first, then item by item; item: item by item in "
+        "the order of --figures, every requested seed of an item before the next; claims: item by item, the items "
+        "ranked by claims settled per core-hour (`plan order`; needs --seeds; chapter 5 to 10 seeds)",
+    )
+    ref.add_argument(
         "--until",
         default=None,
         metavar="HH:MM",
@@ -194,7 +201,13 @@ def _main(argv: list[str]) -> int:
     )
     bud.add_argument("--algos", nargs="+", default=None, help="with --spread: only these learners (default: all)")
     plan_p = sub.add_parser("plan", help="cost before running: jobs, env steps, throughput, core-hours, wall time")
-    plan_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all' (+ the book)")
+    plan_p.add_argument(
+        "figure",
+        nargs="?",
+        default="all",
+        help="figure id such as 3.3, 'all' (+ the book), or 'order' (the generator's order for --seeds: claims "
+        "settled per core-hour)",
+    )
     plan_p.add_argument("--scale", default="full", help="smoke | small | full")
     plan_p.add_argument(
         "--cores", type=positive_int, default=None, help="cores for the wall time, >= 1 (default: this machine's)"
@@ -208,9 +221,9 @@ def _main(argv: list[str]) -> int:
     plan_p.add_argument(
         "--rates",
         choices=["bench", "shipped"],
-        default="bench",
-        help="bench: make bench's measured rates (else documented defaults); shipped: the pace the shipped runs kept "
-        "(on this CPU where it made enough of them)",
+        default=None,
+        help="bench (default; `plan order`: shipped): make bench's measured rates (else documented defaults); "
+        "shipped: the pace the shipped runs kept (on this CPU where it made enough of them)",
     )
     ver = sub.add_parser("verify", help="recompute a random sample of shipped evaluations and compare (make verify)")
     ver.add_argument("--scale", default="small", help="smoke | small | full")
@@ -538,13 +551,22 @@ def _plan_command(args: argparse.Namespace) -> int:
     from thesis_repro import plan, scales
 
     scales.check_scale(args.scale)
-    if args.rates == "shipped":
+    if args.figure == "order" and (args.envs or args.algos):
+        raise ValueError("plan order ranks whole items; --envs/--algos choose a subset of one figure")
+    if args.figure == "order" and not args.seeds:
+        raise ValueError("plan order needs --seeds: the seeds to add, such as --seeds 3 4 5")
+    if (args.rates or ("shipped" if args.figure == "order" else "bench")) == "shipped":
         from thesis_repro.cache import platform_info
 
         rates = plan.shipped_rates(by_env=True, machine=platform_info())
     else:
         rates = plan.load_rates()
     print(plan.rates_note(rates))
+    if args.figure == "order":
+        from thesis_repro import order
+
+        print(order.report(_order_plan(args.scale, args.seeds, rates, args.missing)))
+        return 0
     subset = {k: v for k, v in (("envs", args.envs), ("algos", args.algos)) if v is not None}
     if args.figure != "all":
         p = plan.plan_figure(args.figure, args.scale, args.cores, rates, args.missing, args.seeds, **subset)
@@ -560,30 +582,57 @@ def _plan_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _order_plan(
+    scale: str, seeds: list[int], rates: Any, missing: bool = False, figure_ids: list[str] | None = None
+) -> Any:
+    """The generator's order (:func:`thesis_repro.order.confirmatory_plan`) from the claims ledger at ``scale``
+    (judged from saved numbers, calibration from the caches and the shipped snapshot)."""
+    from thesis_repro import order
+    from thesis_repro.claims import ledger, registry
+
+    rows = ledger.ledger(scale)
+    claims = order.claims_from({**r.as_dict(), "pages": sorted(registry.pages_read(r.spec))} for r in rows)
+    return order.confirmatory_plan(scale, seeds, claims, rates, missing, figure_ids)
+
+
 def _runs_command(args: argparse.Namespace) -> int:
     import json
 
-    from thesis_repro import figures, paths, runs, scales
+    from thesis_repro import figures, generator, paths, plan, runs, scales, shipped_checks
 
     scales.check_scale(args.scale)
     if args.cmd == "reference-runs":
-        for folder in (paths.runs(), paths.reference()):
-            check_writable(folder)
-        kinds = args.kind or figures.TRAINING_KINDS
         from thesis_repro.learners.config import ALGORITHMS
         from thesis_repro.validation import check_choice
 
+        check_choice(args.order, (*generator.ORDERS, "claims"), "order")
+        for folder in (paths.runs(), paths.reference()):
+            check_writable(folder)
+        kinds = args.kind or figures.TRAINING_KINDS
         for algo in args.algos or ():
             check_choice(algo, ALGORITHMS, "algorithm")
-        only = {"algos": args.algos, "seeds": args.seeds}
-        until = runs.parse_until(args.until) if args.until is not None else None
-        runs.generate(args.scale, args.figures, kinds, commit=args.commit, n_jobs=args.jobs or 1, until=until, **only)
+        only: dict[str, Any] = {"algos": args.algos, "seeds": args.seeds, "order": args.order}
+        until = generator.parse_until(args.until) if args.until is not None else None
+        figure_ids = args.figures
+        if args.order == "claims":
+            from thesis_repro import order
+            from thesis_repro.provenance import platform_info
+
+            if not args.seeds:
+                raise ValueError("--order claims needs --seeds: the seeds to add, such as --seeds 3 4 5")
+            rates = plan.shipped_rates(by_env=True, machine=platform_info())
+            ranked = _order_plan(args.scale, args.seeds, rates, missing=True, figure_ids=args.figures)
+            print(order.report(ranked), flush=True)
+            figure_ids = order.item_order(ranked)
+            only.update(order="item", item_seeds={f: order.item_seeds(f, args.seeds) for f in figure_ids})
+        n_jobs = args.jobs or 1
+        generator.generate(args.scale, figure_ids, kinds, commit=args.commit, n_jobs=n_jobs, until=until, **only)
         return 0
     if args.check:
         from thesis_repro.study import study_jobs
 
-        stale = runs.check_shipped(args.scale, also={j.key for j in study_jobs()})
-        corrupt, local = runs.verify_shipped(), runs.verify_local()
+        stale = shipped_checks.check_shipped(args.scale, also={j.key for j in study_jobs()})
+        corrupt, local = shipped_checks.verify_shipped(), shipped_checks.verify_local()
         for s in stale:
             print(s.message)
         for path, err in corrupt.items():
@@ -604,7 +653,7 @@ def _runs_command(args: argparse.Namespace) -> int:
         train = [j for j in figures.jobs(fid, args.scale) if j.kind in figures.TRAINING_KINDS]
         line = runs.summary(train, verify=True) if train else "no training runs"
         print(f"{figures.get(fid).notebook_id} ({args.scale}): {line}")
-        print(runs.table(rows) + "\n")
+        print(plan.table(rows) + "\n")
     return 0
 
 

@@ -624,7 +624,7 @@ def failed_page(nid: str, scale: str, error: str) -> dict[str, Any]:
     page = notebooks.page_id(nid)
     body = (
         f"```{{admonition}} Execution failed at scale {scale}\n:class: error\n"
-        f"`{error}`\n\nThe failed notebook, with its traceback: `{notebooks.shown(notebooks.failed_path(nid, scale))}` "
+        f"`{error}`\n\nThe failed notebook, with its traceback: `{paths.shown(notebooks.failed_path(nid, scale))}` "
         f"(`python -m thesis_repro figure {page} --scale {scale}` runs it again).\n```\n"
     )
     return _page([md_cell(f"# {title(page)}"), thesis_cell(page, scale), md_cell(body)])

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import figures, paths, reference, runs
+from thesis_repro import figures, generator, paths, reference, runs
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.figures.ch3 import training_return_at
 from thesis_repro.learners.config import ALGORITHMS, IDENTITY, PROTOCOLS, THESIS_PROTOCOL_KEYS, train_config
@@ -148,8 +148,8 @@ def _curve(result: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 
 def training_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
     """The deduplicated ``train`` jobs of the figures (all by default) at ``scale``, figure by figure
-    (:func:`thesis_repro.runs.plan`, the reference-run generator's own list)."""
-    return [p.job for p in runs.plan(scale, figure_ids, kinds=("train",), by_figure=True)]
+    (:func:`thesis_repro.generator.plan`, the reference-run generator's own list)."""
+    return [p.job for p in generator.plan(scale, figure_ids, kinds=("train",), by_figure=True)]
 
 
 def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache | None = None) -> pd.DataFrame:

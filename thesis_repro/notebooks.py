@@ -337,16 +337,8 @@ class NotebookError(RuntimeError):
     def __init__(self, page: str, ename: str, evalue: str, failed: Path | None = None):
         self.page, self.ename, self.evalue, self.failed = page, ename, evalue, failed
         msg = " ".join(str(evalue).split()) or "(no message)"
-        where = f" (its traceback: {shown(failed)})" if failed is not None else ""
+        where = f" (its traceback: {paths.shown(failed)})" if failed is not None else ""
         super().__init__(f"notebook {page} failed: {ename}: {msg}{where}")
-
-
-def shown(path: Path) -> str:
-    """``path`` as shown to a user: relative to the repository if inside it, else absolute."""
-    try:
-        return str(path.resolve().relative_to(paths.ROOT))
-    except ValueError:
-        return str(path)
 
 
 def parameter_names(nid: str) -> list[str]:

@@ -26,6 +26,18 @@ PUBLIC_DATA: Path = ROOT / "data" / "public"
 BOOK: Path = ROOT / "book"
 
 
+def shown(path: str | Path) -> str:
+    """``path`` as shown to a user: relative to the repository if inside it, else whole.
+
+    >>> shown(ROOT / "data" / "reference")
+    'data/reference'
+    """
+    try:
+        return str(Path(path).resolve().relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
 def runs() -> Path:
     """Root of the content-addressed run cache (``data/runs`` unless ``THESIS_REPRO_DATA`` is set)."""
     return Path(os.environ.get("THESIS_REPRO_DATA", ROOT / "data" / "runs"))

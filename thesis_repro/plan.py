@@ -134,6 +134,17 @@ def work(job: Job) -> float:
     return _timesteps(cfg)
 
 
+def cost(job: Job) -> float:
+    """Rough cost of a job for ordering: its env steps (``timesteps``), or CMA-ES evaluations, else 0."""
+    c = job.config
+    t = c.get("timesteps")
+    if isinstance(t, int | float):
+        return float(t)
+    if isinstance(t, Mapping):
+        return float(sum(v for v in t.values() if isinstance(v, int | float)))
+    return float(c.get("generations", 0) or 0) * float(c.get("popsize", 1) or 1)
+
+
 # ---------------------------------------------------------------- arithmetic (pure)
 def core_hours(units: float, rate: float) -> float:
     """CPU-core hours for ``units`` of work at ``rate`` units per CPU-second (``inf`` if the rate is unknown)."""
@@ -259,7 +270,8 @@ def shipped_rates(
     whatever else it ran) over the entries of ``<root>/train`` (default: the shipped layer). Families without a
     shipped run keep ``base``'s rate (default :func:`load_rates`). For an ETA of ``make reference-runs JOBS=2`` on
     a machine like the one that made them, not a benchmark: the pace of one family spans a factor ~3-5. With
-    ``by_env``, also one rate per family and task under the key ``"<family>:<env>"`` (:func:`rate_key`).
+    ``by_env``, also one rate per family and task under the key ``"<family>:<env>"`` (:func:`rate_key`), and one per
+    chapter-5 arm kind (``"arm:arm-target"``: its work per wall second, ``provenance.json``'s ``wall_seconds``).
 
     With ``machine`` (this machine's :func:`~thesis_repro.cache.platform_info`), a rate that at least
     :data:`MIN_LOCAL_RUNS` runs made on that platform give is their median alone: one CPU kept half another's pace
@@ -275,16 +287,19 @@ def shipped_rates(
     here = json.loads(json.dumps(machine)) if machine is not None else None
     paces: dict[str, list[float]] = {}
     local: dict[str, list[float]] = {}
-    for entry in sorted(folder.glob("*")) if folder.is_dir() else []:
+    arm = sorted(folder.parent.glob("arm-*/*")) if by_env else []  # chapter 5: work per wall second, by kind
+    for entry in [*(sorted(folder.glob("*")) if folder.is_dir() else []), *arm]:
         try:
             cfg = json.loads((entry / "config.json").read_text())["config"]
             prov = json.loads((entry / "provenance.json").read_text())
-            pace = float(prov["measured"]["steps_per_s"])
-        except (OSError, ValueError, KeyError, TypeError):
+            job = Job(entry.parent.name, cfg)
+            trains = job.kind in TRAINING_KINDS
+            pace = float(prov["measured"]["steps_per_s"] if trains else work(job) / prov["wall_seconds"])
+        except (OSError, ValueError, KeyError, TypeError, ZeroDivisionError):
             continue
         if pace > 0:
-            job = Job("train", cfg)
-            for key in (family(job), rate_key(job)) if by_env else (family(job),):
+            keys = (family(job), rate_key(job)) if trains and by_env else (family(job),) if trains else (rate_key(job),)
+            for key in keys:
                 paces.setdefault(key, []).append(pace)
                 if here is not None and prov.get("platform") == here:
                     local.setdefault(key, []).append(pace)
@@ -299,11 +314,14 @@ def shipped_rates(
 
 
 def rate_key(job: Job) -> str:
-    """The key of a training job's per-task rate in :func:`shipped_rates` (``by_env=True``).
+    """The key of a job's own rate in :func:`shipped_rates` (``by_env=True``): a training job's per task, a chapter-5
+    arm job's per kind (their units of work differ by kind).
 
-    >>> rate_key(Job("train", {"algorithm": "sac", "class": "SAC", "env": "Hopper"}))
-    'sac:Hopper'
+    >>> rate_key(Job("train", {"algorithm": "sac", "class": "SAC", "env": "Hopper"})), rate_key(Job("arm-solve", {}))
+    ('sac:Hopper', 'arm:arm-solve')
     """
+    if job.kind not in TRAINING_KINDS:
+        return f"{family(job)}:{job.kind}"
     return f"{family(job)}:{job.config.get('env')}"
 
 
@@ -315,7 +333,7 @@ def job_rate(job: Job, rates: Rates) -> float:
     >>> job_rate(sac, Rates({"sac": 500.0}, {})), job_rate(sac, Rates({"sac": 500.0, "sac:Hopper": 200.0}, {}))
     (500.0, 200.0)
     """
-    return (job.kind in TRAINING_KINDS and rates.rate(rate_key(job))) or rates.rate(family(job))
+    return rates.rate(rate_key(job)) or rates.rate(family(job))
 
 
 # ---------------------------------------------------------------- plans
@@ -400,12 +418,24 @@ def training_seed(job: Job) -> int | None:
     return None
 
 
-def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, int]:
-    """The ``train_seeds`` override that makes ``figure_id`` plan every one of ``seeds`` (seeds past the scale's
-    own count: the generator's ``--seeds`` may plan them); ``{}`` if none."""
+def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, Any]:
+    """The override that makes ``figure_id`` plan every one of ``seeds`` past the scale's own seeds (the generator's
+    and the plan's ``--seeds`` may plan them; the scale table itself never changes, so a page trains none of them
+    until they are shipped): a larger ``train_seeds`` count, or for chapter 5's CMA-ES items, which list their
+    ``seeds``, the list with the new ones added; ``{}`` if none is needed.
+
+    >>> seed_count("3.3", "small", {3, 4, 5}), seed_count("5.6", "small", {4})
+    ({'train_seeds': 6}, {'seeds': [0, 1, 2, 4]})
+    >>> seed_count("5.6", "small", {1, 2})
+    {}
+    """
     if not seeds:
         return {}
-    have = figures.settings(figure_id, scale).get("train_seeds")
+    settings = figures.settings(figure_id, scale)
+    listed = settings.get("seeds")
+    if isinstance(listed, list):  # chapter 5 (its settings carry the scale's train_seeds too, unused)
+        return {"seeds": sorted(set(listed) | set(seeds))} if not set(seeds) <= set(listed) else {}
+    have = settings.get("train_seeds")
     return {"train_seeds": max(seeds) + 1} if have is not None and max(seeds) + 1 > int(have) else {}
 
 

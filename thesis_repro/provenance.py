@@ -91,7 +91,7 @@ def platform_info() -> dict[str, Any]:
 
     Training is deterministic on one platform, but MKL, PyTorch (ATen) and NumPy pick different SIMD
     kernels on different CPUs, and RL amplifies the last-bit differences; so a run is bit-reproducible
-    only where this dict is equal (:func:`thesis_repro.runs.compare_retrain`).
+    only where this dict is equal (:func:`thesis_repro.retrain_check.compare_retrain`).
 
     >>> sorted(platform_info())
     ['cpu', 'isa', 'machine', 'numpy_simd', 'torch_cpu_capability', 'vendor']

@@ -22,7 +22,7 @@ then the pages' saved numbers recomputed from them and compared with the shipped
 
 It prints a table (entry, shipped value, recomputed value, largest |diff| of any value, verdict) and exits 1 on
 a mismatch. With ``--train`` it also retrains the cheapest shipped training run of the scale from scratch (into
-the temporary cache) and checks it with :func:`thesis_repro.runs.compare_retrain`, saying whether the shipped
+the temporary cache) and checks it with :func:`thesis_repro.retrain_check.compare_retrain`, saying whether the shipped
 run was resumed after an interruption and whether that resume was exact.
 
 >>> compare({"r": np.array([[1.0, 2.0]])}, {"r": np.array([[1.0, 2.0]])}, same=True).verdict
@@ -55,7 +55,7 @@ import numpy as np
 
 import thesis_repro
 from thesis_repro import jobs as registry
-from thesis_repro import paths, runs, scales
+from thesis_repro import paths, plan, retrain_check, runs, scales, shipped_checks
 from thesis_repro.cache import Result, RunCache, find_entry, read_entry
 from thesis_repro.validation import check_choice
 
@@ -72,9 +72,9 @@ VERIFIABLE: tuple[str, ...] = KINDS + ARM_KINDS
 #: policy's torch forward pass round differently on another CPU (other MKL/oneDNN/ATen SIMD kernels, other float
 #: reduction orders), and a 1,000-step locomotion rollout amplifies those last bits until single rollouts are other
 #: samples (a fall or not); means over the rollouts move far less. 5 % is the kit's cross-platform rule for a
-#: retrained run's returns too (:data:`thesis_repro.runs.OUTCOME_RTOL`). On the platform that made the entry the
-#: rule is bit-identity: the kit claims evaluation is deterministic there.
-VERIFY_RTOL = runs.OUTCOME_RTOL
+#: retrained run's returns too (:data:`thesis_repro.retrain_check.OUTCOME_RTOL`). On the platform that made the entry
+#: the rule is bit-identity: the kit claims evaluation is deterministic there.
+VERIFY_RTOL = retrain_check.OUTCOME_RTOL
 #: Default sample size (``make verify N=...``).
 DEFAULT_N = 20
 #: Commit and time at which exact resume landed (58d06f8): a training run resumed in a session that started
@@ -208,7 +208,7 @@ def shipped_of_scale(scale: str, layer: Path, kinds: Iterable[str] = KINDS) -> t
     entries = [p for p in runs.shipped_entries(layer) if p.parent.name in kinds]
     if not entries:
         return [], []
-    keys = runs.current_keys(scale, kinds, layer_root=layer)
+    keys = shipped_checks.current_keys(scale, kinds, layer_root=layer)
     ours = [p for p in entries if p.name.rsplit("__", 1)[1] in keys]
     return ours, [p for p in entries if p not in ours]
 
@@ -221,7 +221,7 @@ def shipped_of_figures(
     kinds, figure_ids = tuple(VERIFIABLE if kinds is None else kinds), list(figure_ids)
     if not figure_ids:
         return []
-    keys = runs.current_keys(scale, kinds, figure_ids=figure_ids, layer_root=layer)
+    keys = shipped_checks.current_keys(scale, kinds, figure_ids=figure_ids, layer_root=layer)
     return [p for p in runs.shipped_entries(layer) if p.parent.name in kinds and p.name.rsplit("__", 1)[1] in keys]
 
 
@@ -336,7 +336,7 @@ def _name(path: Path) -> str:
 # ---------------------------------------------------------------- recomputing
 def numerics_env(path: Path) -> dict[str, str]:
     """Environment variables that recompute entry ``path`` in the float numerics it was made in
-    (``runs.numerics_env``: MKL's branch and ATen's CPU capability as its provenance records them), so that
+    (``provenance.numerics_env``: MKL's branch and ATen's CPU capability as its provenance records them), so that
     the same machine gives the same bits; ``{}`` (this process's settings) where the kit does not record them."""
     fn = getattr(runs, "numerics_env", None)
     return dict(fn(path)) if fn is not None else {}
@@ -362,7 +362,8 @@ def _worker(spec_file: str) -> None:
     for i, path in spec["entries"]:
         t0 = time.time()
         try:
-            fresh = cache.compute(runs.shipped_job(path))  # compute, never load: the shipped entry is in the layer
+            # compute, never load: the shipped entry is in the layer
+            fresh = cache.compute(shipped_checks.shipped_job(path))
             out[path] = str(fresh)
             said = "recomputed"
         except Exception as err:  # noqa: BLE001 - a recomputation that fails is a failed check, shown in the table
@@ -451,7 +452,7 @@ def check_entry(path: Path, fresh: Path | str) -> Check:
 
 def missing_dependencies(path: Path, layer: Path) -> list[str]:
     """Names of the dependencies (``policy``) of shipped entry ``path`` that ``layer`` does not hold."""
-    job = runs.shipped_job(path)
+    job = shipped_checks.shipped_job(path)
     return [n for n, dep in registry.dependencies(job.kind, job.config).items() if find_entry(layer, dep) is None]
 
 
@@ -483,22 +484,22 @@ def resume_note(result: Result) -> str:
 
 def retrain_check(scale: str, layer: Path, root: Path, log: Callable[[str], None] = print) -> bool:
     """Retrain the cheapest shipped training run of ``scale`` into a cache at ``root`` and compare it with the
-    shipped one (:func:`thesis_repro.runs.compare_retrain`); ``True`` if it passes (or there is none)."""
+    shipped one (:func:`thesis_repro.retrain_check.compare_retrain`); ``True`` if it passes (or there is none)."""
     from thesis_repro import figures
 
-    keys = runs.current_keys(scale, figures.TRAINING_KINDS, layer_root=layer)
-    job = runs.cheapest_shipped("train", layer, keys=keys)
+    keys = shipped_checks.current_keys(scale, figures.TRAINING_KINDS, layer_root=layer)
+    job = shipped_checks.cheapest_shipped("train", layer, keys=keys)
     if job is None:
         log(f"--train: no shipped training run at scale {scale}; nothing to retrain")
         return True
     where = find_entry(layer, job)
     values, config = read_entry(where)
     shipped = Result(where, values, config, source="shipped")
-    log(f"--train: retraining the cheapest shipped training run, {job.label} ({runs.cost(job):,.0f} steps) ...")
+    log(f"--train: retraining the cheapest shipped training run, {job.label} ({plan.cost(job):,.0f} steps) ...")
     t0 = time.time()
     recompute = getattr(runs, "recompute", None)  # in the numerics the shipped run was made in, where recorded
     fresh = recompute(job, root, shipped) if recompute is not None else RunCache(root, reference=False).run(job)
-    check = runs.compare_retrain(shipped, fresh)
+    check = retrain_check.compare_retrain(shipped, fresh)
     log(f"--train: {check.message} ({time.time() - t0:.0f} s)")
     log(f"--train: {resume_note(shipped)}")
     log(f"--train: {'ok' if check.ok else 'MISMATCH'}")
@@ -546,7 +547,7 @@ def _check_all(chosen: Sequence[Path], layer: Path, root: Path) -> dict[Path, Ch
 
 def _report(checks: Mapping[Path, Check], log: Callable[[str], None]) -> bool:
     log("")
-    log(runs.table([c.row() for c in checks.values()], ("entry", "shipped", "recomputed", "|diff|", "verdict")))
+    log(plan.table([c.row() for c in checks.values()], ("entry", "shipped", "recomputed", "|diff|", "verdict")))
     bad = sum(not c.ok for c in checks.values())
     log(f"\n{len(checks) - bad}/{len(checks)} match" + (f"; {bad} MISMATCH" if bad else ""))
     return not bad
@@ -561,23 +562,23 @@ RULE = (
 
 def _retrain_entry(path: Path, root: Path, log: Callable[[str], None]) -> bool:
     """``--entry`` of a training run: retrain it and require the same weights bit for bit (numerics pinned),
-    else :func:`thesis_repro.runs.compare_retrain`'s rule."""
+    else :func:`thesis_repro.retrain_check.compare_retrain`'s rule."""
     values, config = read_entry(path)
     shipped = Result(path, values, config, source="shipped")
-    job = runs.shipped_job(path)
-    cost = runs.shipped_seconds(path)
+    job = shipped_checks.shipped_job(path)
+    cost = shipped_checks.shipped_seconds(path)
     log(
-        f"verify --entry: retraining {job.label} ({runs.cost(job):,.0f} steps"
+        f"verify --entry: retraining {job.label} ({plan.cost(job):,.0f} steps"
         + (f", {cost / 60:.0f} min when made)" if cost == cost else ")")
     )
-    fresh = runs.recompute(job, root, shipped)
+    fresh = retrain_check.recompute(job, root, shipped)
     if pinned(path):
-        diff = runs.max_abs_diff(shipped, fresh)
+        diff = retrain_check.max_abs_diff(shipped, fresh)
         check = compare(values, read_entry(fresh.path)[0], True, entry=_name(path))
         ok = diff == 0.0 and check.ok
         log(f"weights: max |diff| {diff:.3g}; values: {check.verdict}")
     else:
-        retrain = runs.compare_retrain(shipped, fresh)
+        retrain = retrain_check.compare_retrain(shipped, fresh)
         ok = retrain.ok
         log(retrain.message)
     log("ok" if ok else "MISMATCH")

@@ -163,10 +163,17 @@ def reads(page: str) -> set[str]:
     True
     """
 
-    def of(s: Spec) -> set[str]:
-        r = s.rule
-        if r.get("derived"):
-            return set().union(*(of(spec(i)) for i in r["derived"]))
-        return {s.page} if "page_verdict" in r else set(s.data_pages)
+    return set().union(set(), *(pages_read(s) for s in page_claims(page))) - {page}
 
-    return set().union(set(), *(of(s) for s in page_claims(page))) - {page}
+
+def pages_read(s: Spec) -> set[str]:
+    """The pages whose saved numbers claim ``s`` is judged on: its data pages, a derived claim's claims' pages, a
+    page-verdict claim's own page.
+
+    >>> sorted(pages_read(spec("6-contribution-4")))
+    ['fig-4.1', 'fig-4.3', 'fig-4.4']
+    """
+    r = s.rule
+    if r.get("derived"):
+        return set().union(*(pages_read(spec(i)) for i in r["derived"]))
+    return {s.page} if "page_verdict" in r else set(s.data_pages)
