@@ -177,16 +177,22 @@ def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
     )
 
 
-def test_a_seed_past_the_scales_count_is_stale():
-    """`check_shipped` counts a scale's own seeds (and the protocol studies' runs) as current, no seed beyond."""
+def test_a_seed_past_the_confirmatory_target_is_stale(tmp_path):
+    """The scale's own seeds are current; the confirmatory replication's (3-5 here) are current for
+    `check_shipped` before the scale table counts them; a seed past that target is stale."""
     from thesis_repro import generator, shipped_checks
 
     within = generator.plan("small", ["table-3.6"], seeds=[2], algos=["ppo-16"])
-    beyond = generator.plan("small", ["table-3.6"], seeds=[5], algos=["ppo-16"])
-    assert within and beyond
+    fresh = generator.plan("small", ["table-3.6"], seeds=[5], algos=["ppo-16"])
+    beyond = generator.plan("small", ["table-3.6"], seeds=[6], algos=["ppo-16"])
+    assert within and fresh and beyond
     current = shipped_checks.current_keys("small", figure_ids=["table-3.6"])
     assert {p.job.key for p in within} <= current
-    assert not {p.job.key for p in beyond} & current
+    assert not {p.job.key for p in fresh} & current
+    for p in (*fresh, *beyond):  # entry folders named as `export` names them (a folder no job binds to)
+        (tmp_path / "entries" / f"{p.job.label}__{p.job.key}").mkdir(parents=True)
+    stale = {s.key for s in shipped_checks.check_shipped("small", tmp_path)}
+    assert stale == {p.job.key for p in beyond}
 
 
 def test_book_names_exactly_the_items_with_three_seeds():

@@ -418,6 +418,22 @@ def training_seed(job: Job) -> int | None:
     return None
 
 
+#: The confirmatory replication (issue 46) makes chapters 3-4 to this many training seeds...
+CONFIRMATORY_SEEDS = 6
+#: ... and chapter 5's CMA-ES items to this many (they cost minutes per seed).
+CH5_TARGET_SEEDS = 10
+
+
+def target_seeds(figure_id: str) -> int:
+    """The training seeds the confirmatory replication makes ``figure_id`` to (:data:`CONFIRMATORY_SEEDS`, or
+    :data:`CH5_TARGET_SEEDS` for chapter 5).
+
+    >>> target_seeds("table-3.3"), target_seeds("5.4")
+    (6, 10)
+    """
+    return CH5_TARGET_SEEDS if figure_id.removeprefix("table-").startswith("5.") else CONFIRMATORY_SEEDS
+
+
 def seed_count(figure_id: str, scale: str, seeds: set[int] | None) -> dict[str, Any]:
     """The override that makes ``figure_id`` plan every one of ``seeds`` past the scale's own seeds (the generator's
     and the plan's ``--seeds`` may plan them; the scale table itself never changes, so a page trains none of them

@@ -20,7 +20,7 @@ from thesis_repro import figures, paths
 from thesis_repro import jobs as registry
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.paths import shown
-from thesis_repro.plan import cost, seed_count
+from thesis_repro.plan import cost, seed_count, target_seeds
 from thesis_repro.runs import corrupt, local_entries, shipped_entries
 
 
@@ -122,12 +122,16 @@ def check_shipped(
     scale: str = "small", layer_root: str | Path | None = None, also: Iterable[str] = ()
 ) -> list[StaleRun]:
     """Shipped entries whose key is no longer produced by any figure's current config at ``scale`` (stale), nor
-    is one of ``also`` (the protocol studies' runs: :func:`thesis_repro.study.study_keys`).
+    is one of ``also`` (the protocol studies' runs: :func:`thesis_repro.study.study_keys`). The confirmatory
+    replication's seeds past the scale's own count, up to each item's target (:func:`~thesis_repro.plan.target_seeds`),
+    are current: they are shipped before the scale table counts them, and a page reads them once all are shipped.
 
     An empty list means every shipped run is still used; otherwise each :attr:`StaleRun.message` says how
     to regenerate.
     """
     keys = current_keys(scale, layer_root=layer_root) | set(also)
+    for fid in figures.ids():
+        keys |= current_keys(scale, figure_ids=[fid], layer_root=layer_root, seeds=range(target_seeds(fid)))
     stale = []
     for path in shipped_entries(layer_root):
         key = path.name.rsplit("__", 1)[1]
