@@ -165,9 +165,10 @@ def clean_outputs(outputs: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
-    """The page's verdicts first, one line per claim (label · claim · thesis · ours with its CI), or None when
-    the page saved none; each verdict's evidence stays at the end of the page."""
-    lines = [f"- {_escape_md(v.headline)}" for v in report.load(page, scale) if v.headline]
+    """The page's verdicts first, one line per claim (label · claim · thesis · ours with its CI; a verdict saved
+    without that line: its status and claim), or None when the page saved none; each verdict's evidence stays at
+    the end of the page."""
+    lines = [f"- {_escape_md(v.headline or f'{v.status} · {v.claim}')}" for v in report.load(page, scale)]
     if not lines:
         return None
     head = "**Verdicts** (claims design v2; each one's evidence is at the end of the page):\n\n"
@@ -176,6 +177,41 @@ def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
 
 def _escape_md(text: str) -> str:
     return text.replace("*", "\\*").replace("_", "\\_")
+
+
+#: Chapters whose pages say in one line whether the thesis reports its curves' values (chapter 4: plots only).
+CURVE_CHAPTERS: tuple[str, ...] = ("4",)
+
+
+def thesis_values(page: str) -> list[Path]:
+    """The thesis's transcribed values for ``page`` in ``data/thesis/`` (``fig-4.3`` -> ``fig4_3*.csv``).
+
+    >>> thesis_values("fig-4.3"), [p.name for p in thesis_values("fig-3.3")]
+    ([], ['fig3_3c.csv'])
+    """
+    kind, _, rest = page.partition("-")
+    return sorted(paths.THESIS_DATA.glob(f"{kind}{rest.replace('.', '_')}*.csv"))
+
+
+def thesis_values_line(page: str) -> str | None:
+    """For a page of :data:`CURVE_CHAPTERS`, one line: the thesis's values shown beside ours (which file), or that
+    the thesis reports none; None for other chapters.
+
+    >>> thesis_values_line("fig-4.3")
+    '**Thesis values:** none; the thesis shows Figure 4.3 as a plot with no numbers, so the curves are ours alone.'
+    >>> thesis_values_line("fig-3.3") is None, "kit's own" in thesis_values_line("analysis-4-kl")
+    (True, True)
+    """
+    if notebooks.chapter(page) not in CURVE_CHAPTERS:
+        return None
+    files = thesis_values(page)
+    if files:
+        names = ", ".join(f"`data/thesis/{f.name}`" for f in files)
+        return f"**Thesis values:** {names}, shown beside ours and labelled *thesis*."
+    if not page.startswith("fig-"):
+        return "**Thesis values:** none; this analysis is the kit's own, with no figure of the thesis behind it."
+    plot = f"the thesis shows {title(page)} as a plot with no numbers"
+    return f"**Thesis values:** none; {plot}, so the curves are ours alone."
 
 
 def thesis_cell(page: str, scale: str) -> dict[str, Any]:
@@ -193,6 +229,8 @@ def thesis_cell(page: str, scale: str) -> dict[str, Any]:
         for c in entry.get("claims", []):
             where = ", ".join(str(n) for n in c["lines"])
             lines.append(f"- **Claim** (thesis, line {where}): “{plain_math(c['text'])}”")
+        if values := thesis_values_line(page):
+            lines.append(f"\n{values}")
         lines.append("```\n")
     cmd = f"make {page if not page.startswith('fig-') else 'figure-' + page[4:]} SCALE={scale}"
     if page.startswith("analysis-"):
