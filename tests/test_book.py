@@ -428,6 +428,14 @@ def test_summaries_count_verdicts(monkeypatch, tmp_path):
     assert "e\\|1" in table and "**reproduces**" in table and "**does not reproduce**" in table
 
 
+def test_chapter_table_shows_each_verdict_s_one_line_not_its_evidence():
+    line = "reproduces · 3.3-x · l. 555 claim · thesis: r -0.43 · ours: r +0.79 [+0.50, +0.92]"
+    v = report.Verdict("3.3", "claim", report.REPRODUCES, "long evidence " * 50, headline=line)
+    report.report("fig-3.3", "small", [v], display=False)
+    table = book.chapter_summary("3", ["3.3"], "small")
+    assert "l. 555 claim · thesis: r -0.43 · ours: r +0.79 [+0.50, +0.92]" in table and "long evidence" not in table
+
+
 def test_protocol_page_opens_with_its_deviations_and_folds_the_rest():
     md = protocol.render()
     deviations = [r for r in protocol.rows() if r["status"] == "deviation"]

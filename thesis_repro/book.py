@@ -292,8 +292,9 @@ def _escape(text: str) -> str:
 
 
 def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[str, str] | None = None) -> str:
-    """Markdown table of the verdicts of a chapter's pages at ``scale`` (pages without one are listed too,
-    with ``notes[page]`` as the reason, else "not in this build")."""
+    """Markdown table of the verdicts of a chapter's pages at ``scale``, each with its one line (its evidence when it
+    has none; the full evidence is on its page); pages without one are listed too, with ``notes[page]`` as the
+    reason, else "not in this build"."""
     pages = [notebooks.page_id(n) for n in executed if notebooks.chapter(n) == chapter]
     known = [p for p in claims() if p.split("-", 1)[1].split("-")[0].split(".")[0] == chapter]
     rows = ["| page | claim | verdict | evidence |", "|---|---|---|---|"]
@@ -302,8 +303,9 @@ def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[s
         link = f"{{doc}}`{title(page)} <executed/{page}>`"
         if not verdicts:
             rows.append(f"| {link} | (no verdict written) | {NO_VERDICT} | |")
-        for v in verdicts:
-            rows.append(f"| {link} | {_escape(v.claim)} | **{v.status}** | {_escape(v.evidence)} |")
+        for v in verdicts:  # the verdict's one line (thesis · ours with its CI); its full evidence is on the page
+            shown = v.headline.partition(" · ")[2] if v.headline else v.evidence
+            rows.append(f"| {link} | {_escape(v.claim)} | **{v.status}** | {_escape(shown)} |")
     missing = [p for p in known if p not in pages]
     for page in missing:
         why = _escape((notes or {}).get(page, "not in this build"))
