@@ -22,7 +22,7 @@ NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
 .PHONY: venv test smoke book clips bench budgets lint clean-build figure-% table-% reference-runs seeds runs-% plan-% verify \
-	verify-all chromium ship-claims check-claims results
+	verify-all chromium check-book ship-claims check-claims results
 
 venv: $(STAMP)
 
@@ -50,6 +50,13 @@ $(CHROMIUM_STAMP): $(STAMP)
 	  echo "installing chromium (Debian's package) for the browser test ..."; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
 	touch $(CHROMIUM_STAMP)
+
+## make check-book SCALE=small : after `make book SCALE=small`, open every page of that book in headless Chromium and
+## check it as `make test` checks the smoke book: links and images, no table or figure wider than the text column,
+## small figures click-to-enlarge, each page's first verdict within its first 1,400 px (tests/test_book.py)
+check-book: $(CHROMIUM_STAMP)
+	THESIS_REPRO_BOOK_HTML=$${THESIS_REPRO_BUILD:-$(CURDIR)/build}/$(SCALE)/book/_build/html \
+	  $(BIN)/python -m pytest -q -p no:cacheprovider tests/test_book.py -k headless_chromium
 
 ## make figure-3.3 SCALE=small [TRAIN=1] : execute notebooks/fig-3.3.py at SCALE, write build/$(SCALE)/; a figure
 ## whose training runs are neither shipped nor cached refuses (naming their cost) unless TRAIN=1 (or RETRAIN=1)

@@ -3,6 +3,12 @@
 The browser part needs Debian's ``chromium``, which the bootstrap installs (``make chromium``, a step of
 ``make test``); without it the test skips with the reason. The smoke runs and executed notebooks live
 in one session folder shared with ``tests/test_notebooks.py`` (whichever runs first executes them).
+
+Every page is also measured in the browser (:data:`LAYOUT_JS`, judged by :func:`layout_problems`): no table or
+image may overflow the text column (a wide table scrolls inside it), a figure shown at under half its drawn size
+must be click-to-enlarge, and a page's first verdict must start within the first :data:`FIRST_SCREEN` px.
+To check a book you built (``make book SCALE=small``) instead of the smoke book: ``make check-book SCALE=small``,
+i.e. ``THESIS_REPRO_BOOK_HTML=build/small/book/_build/html pytest tests/test_book.py -k chromium``.
 """
 
 from __future__ import annotations
@@ -22,12 +28,13 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from urllib.parse import unquote, urlparse
 
 import pytest
 import yaml
 
-from thesis_repro import book, figures, notebooks, paths, report
+from thesis_repro import book, figures, notebooks, paths, protocol, report
 
 #: `make test` runs pytest in two processes (`-n 2 --dist loadgroup`): every test that shares the smoke
 #: notebooks' session folder runs in the same one, so they execute once.
@@ -35,6 +42,8 @@ pytestmark = pytest.mark.xdist_group("smoke")
 
 THESIS_TXT = Path(os.environ.get("THESIS_TXT", "/work/shared/thesis.txt"))
 PROGRESS = re.compile(r"it/s\]|s/it\]|\d%\|")
+#: A built book's html folder to check instead of building the smoke book (``make check-book SCALE=small``).
+BOOK_HTML = "THESIS_REPRO_BOOK_HTML"
 STATUS_TITLE = re.compile(
     r'<p class="admonition-title">(' + "|".join(re.escape(s.capitalize()) for s in report.STATUSES) + r")(:| ·)"
 )
@@ -187,6 +196,24 @@ class Browser:
             lambda: self.call("Runtime.evaluate", expression=js, returnByValue=True)["result"]["value"], page
         )
 
+    def dom_and_layout(self, page: Path) -> tuple[str, dict[str, Any] | None]:
+        """The page's DOM (as :meth:`dom`), then :data:`LAYOUT_JS`'s numbers, in a :data:`WINDOW` window (the
+        script opens every fold of this loaded copy only; the book is not touched)."""
+        if self.proc is None:
+            self.start()
+        w, h = WINDOW
+        self.call("Emulation.setDeviceMetricsOverride", width=w, height=h, deviceScaleFactor=1, mobile=False)
+        script = LAYOUT_JS.replace("VERDICT_TITLE", json.dumps(VERDICT_TITLE))
+        read = "(function () { const p = document.getElementById('tr-layout'); return p ? p.textContent : null; })()"
+
+        def both() -> tuple[str, dict[str, Any] | None]:
+            dom = self.call("Runtime.evaluate", expression="document.documentElement.outerHTML", returnByValue=True)
+            self.call("Runtime.evaluate", expression=script)
+            got = self.call("Runtime.evaluate", expression=read, returnByValue=True)["result"].get("value")
+            return dom["result"]["value"], json.loads(got) if got else None
+
+        return self._page(both, page)
+
     def screenshot(self, page: Path, out: Path, width: int = 1280, height: int = 1600) -> None:
         """A PNG of ``page`` in a ``width`` x ``height`` window (what ``--screenshot --window-size`` writes)."""
         if self.proc is None:
@@ -211,6 +238,189 @@ def local_refs(html: str, attr: str) -> list[str]:
     return out
 
 
+# --- layout: what a reader sees at a laptop's width -----------------------------------------------------
+
+#: The window the layout is measured in (a laptop screen) and how far down a page's first verdict may start.
+WINDOW = (1280, 900)
+FIRST_SCREEN = 1400
+#: A figure shown at under this fraction of the width it was drawn at is too small to read unless it enlarges.
+MIN_SHOWN = 0.5
+#: Titles that open a verdict: a claim's admonition, the page's verdict list, a chapter's or the book's summary.
+VERDICT_TITLE = (
+    r"^((" + "|".join(re.escape(s.capitalize()) for s in report.STATUSES) + r")( ·|:)"
+    r"|Verdicts\b|Verdicts at scale|Scoreboard at scale)"
+)
+
+#: Measures the page in Chromium once it has loaded and appends the numbers as JSON in ``<pre id="tr-layout">``:
+#: the text column (the article's content box), the first verdict's top (before any fold is opened), then, with
+#: every ``<details>`` fold open, each shown table and image (its box, the box of the element that clips or
+#: scrolls it and that one's overflow, an image's drawn size and whether it is a link) and the page's width.
+LAYOUT_JS = r"""
+(function () {
+  function box(el) {
+    const r = el.getBoundingClientRect();
+    return {left: r.left + scrollX, right: r.right + scrollX, top: r.top + scrollY, bottom: r.bottom + scrollY};
+  }
+  function measure() {
+    const article = document.querySelector('article.bd-article') || document.querySelector('main') || document.body;
+    const cs = getComputedStyle(article), a = box(article);
+    const column = {left: a.left + parseFloat(cs.paddingLeft), right: a.right - parseFloat(cs.paddingRight)};
+    const title = new RegExp(VERDICT_TITLE);
+    let first = null;
+    article.querySelectorAll('.admonition-title, p > strong:first-child, h1, h2').forEach(function (el) {
+      if (el.getClientRects().length && title.test(el.textContent.trim())) {
+        const y = box(el).top;
+        if (first === null || y < first) first = y;
+      }
+    });
+    article.querySelectorAll('details').forEach(function (d) { d.open = true; });
+    const items = [];
+    article.querySelectorAll('table, img').forEach(function (el) {
+      if (!el.getClientRects().length) return;  // not shown
+      let clip = null, kind = null;
+      for (let c = el; c && c !== article; c = c.parentElement) {
+        const o = getComputedStyle(c).overflowX;
+        if (o !== 'visible') { clip = c; kind = o; break; }
+      }
+      const cell = el.querySelector('th, td');
+      const item = {kind: el.tagName.toLowerCase(), box: box(el), width: el.scrollWidth,
+        name: (el.getAttribute('src') || (cell ? cell.textContent : '')).trim().slice(-48),
+        clip: clip ? box(clip) : null, clipKind: kind, clipsItself: clip === el};
+      if (el.tagName === 'IMG') {
+        item.natural = [el.naturalWidth, el.naturalHeight];
+        item.linked = !!el.closest('a[href]');
+      }
+      items.push(item);
+    });
+    const out = document.createElement('pre');
+    out.id = 'tr-layout';
+    out.textContent = JSON.stringify({window: [innerWidth, innerHeight], column: column, items: items,
+      firstVerdict: first, pageWidth: document.documentElement.scrollWidth});
+    document.body.appendChild(out);
+  }
+  if (document.readyState === 'complete') measure(); else addEventListener('load', measure);
+})();
+"""
+
+
+def measure_layout(browser: Browser, page: Path) -> dict[str, Any]:
+    """:data:`LAYOUT_JS`'s numbers for ``page``, loaded at :data:`WINDOW` (:meth:`Browser.dom_and_layout`)."""
+    dom, layout = browser.dom_and_layout(page)
+    assert layout is not None, f"{page.name}: the layout script wrote nothing ({len(dom)} characters of DOM)"
+    return layout
+
+
+def layout_problems(m: dict[str, Any], page: str, verdict: bool = True) -> list[str]:
+    """What a reader would find wrong in ``page``'s layout ``m`` (:func:`measure_layout`): a table or image that
+    runs past the text column, or is cut off by a box that does not scroll; a figure shown at under
+    :data:`MIN_SHOWN` of its drawn width that is not click-to-enlarge; the page wider than the window; and, when
+    the page has verdicts (``verdict``), none, or the first starting below :data:`FIRST_SCREEN` px.
+
+    >>> col = {"left": 0, "right": 100}
+    >>> wide = {"kind": "table", "name": "a", "box": {"left": 0, "right": 150}, "clip": None, "clipKind": None}
+    >>> layout_problems({"column": col, "items": [wide], "firstVerdict": 10, "pageWidth": 100}, "p")
+    ['p: table a overflows its column by 50 px']
+    >>> scrolls = {**wide, "clip": {"left": 0, "right": 100}, "clipKind": "auto"}
+    >>> layout_problems({"column": col, "items": [scrolls], "firstVerdict": 2000, "pageWidth": 100}, "p")
+    ['p: first verdict at y = 2000 px, below the first 1400 px']
+    """
+    out = []
+    col = m["column"]
+    for it in m["items"]:
+        what = f"{it['kind']} {it['name']}".rstrip()
+        visible = it["box"]
+        if it["clip"] is not None:
+            if it["clipKind"] in ("hidden", "clip") and it["box"]["right"] > it["clip"]["right"] + 1:
+                out.append(f"{page}: {what} is cut off by {it['box']['right'] - it['clip']['right']:.0f} px")
+            visible = it["clip"]  # what shows of the item: its scrolling (or clipping) box
+        over = max(visible["right"] - col["right"], col["left"] - visible["left"])
+        if over > 1:
+            out.append(f"{page}: {what} overflows its column by {over:.0f} px")
+        if it["kind"] == "img" and it.get("natural") and it["natural"][0] > 0:
+            shown = (it["box"]["right"] - it["box"]["left"]) / it["natural"][0]
+            if shown < MIN_SHOWN and not it.get("linked"):
+                out.append(f"{page}: {what} is shown at {shown:.0%} of its size and is not click-to-enlarge")
+    if m.get("window") and m["pageWidth"] > m["window"][0] + 1:
+        out.append(f"{page}: the page is {m['pageWidth']} px wide, wider than the {m['window'][0]} px window")
+    if verdict:
+        if m["firstVerdict"] is None:
+            out.append(f"{page}: no verdict found")
+        elif m["firstVerdict"] > FIRST_SCREEN:
+            out.append(f"{page}: first verdict at y = {m['firstVerdict']:.0f} px, below the first {FIRST_SCREEN} px")
+    return out
+
+
+def has_verdicts(page: Path) -> bool:
+    """Whether a book page shows verdicts: the landing page, a chapter page and a notebook's page."""
+    return page.name == "intro.html" or page.name.startswith("chapter-") or page.parent.name == "executed"
+
+
+_FIXTURE = """<!DOCTYPE html><html><head><style>body {{ margin: 0; }} article {{ width: 400px; padding: 0 20px; }}
+.scroll {{ overflow-x: auto; }} .hide {{ overflow: hidden; }}</style></head><body><article class="bd-article">
+<table style="width: 600px"><tr><td>too wide</td></tr></table>
+<div class="scroll"><table style="width: 900px"><tr><td>scrolls</td></tr></table></div>
+<div class="hide"><table style="width: 700px"><tr><td>cut off</td></tr></table></div>
+<img src="{strip}" style="max-width: 100%"><a href="{strip}"><img src="{strip}" style="max-width: 100%"></a>
+<img src="{small}"><div style="height: {gap}px"></div>
+<div class="admonition"><p class="admonition-title">Reproduces · x · l. 1 claim</p></div>
+<details><table style="width: 500px"><tr><td>folded</td></tr></table></details>
+</article></body></html>"""
+
+
+def _png(path: Path, width: int, height: int) -> Path:
+    """A plain PNG of ``width`` × ``height`` (matplotlib: already a dependency of the kit)."""
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(width / 100, height / 100), dpi=100)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+@pytest.mark.slow
+def test_layout_checker_finds_overflow_small_figures_and_a_late_verdict(tmp_path):
+    """The checker itself, on a tiny page: each fault is found once, and a table that scrolls inside a box, a
+    linked figure and a figure at its own size pass."""
+    exe = chromium()
+    strip, small = _png(tmp_path / "strip.png", 2000, 200), _png(tmp_path / "small.png", 300, 100)
+    page = tmp_path / "page.html"
+    page.write_text(_FIXTURE.format(strip=strip.name, small=small.name, gap=2000))
+    with Browser(exe) as browser:
+        found = layout_problems(measure_layout(browser, page), "page")
+    # the column: 400 px of content from x = 20 (the article's padding)
+    assert found[:4] == [
+        "page: table too wide overflows its column by 200 px",
+        "page: table cut off is cut off by 300 px",
+        "page: img strip.png is shown at 20% of its size and is not click-to-enlarge",
+        "page: table folded overflows its column by 100 px",
+    ], found
+    assert len(found) == 5 and re.fullmatch(r"page: first verdict at y = \d+ px, below the first 1400 px", found[4])
+    page.write_text(_FIXTURE.format(strip=strip.name, small=small.name, gap=100))
+    with Browser(exe) as browser:
+        assert not any("verdict" in p for p in layout_problems(measure_layout(browser, page), "page"))
+
+
+def given_book() -> Path | None:
+    """The html folder of a built book named by ``$THESIS_REPRO_BOOK_HTML`` (None when unset); a folder that is
+    not one fails the test with one line."""
+    given = os.environ.get(BOOK_HTML)
+    if not given:
+        return None
+    if not (Path(given) / "intro.html").is_file():
+        pytest.fail(f"error: {BOOK_HTML}={given} is not a built book's html folder (make book SCALE=small builds one)")
+    return Path(given)
+
+
+def test_a_wrong_book_folder_is_one_error_line(monkeypatch, tmp_path):
+    monkeypatch.setenv(BOOK_HTML, str(tmp_path))
+    with pytest.raises(pytest.fail.Exception, match=r"^error: THESIS_REPRO_BOOK_HTML=\S+ is not a built book's html"):
+        given_book()
+    (tmp_path / "intro.html").write_text("<html></html>")
+    assert given_book() == tmp_path
+    monkeypatch.delenv(BOOK_HTML)
+    assert given_book() is None
+
+
 @dataclass
 class SmokeBook:
     """The smoke book's HTML folder, what its build printed, and the notebooks that were not up to date before it."""
@@ -223,7 +433,10 @@ class SmokeBook:
 @pytest.fixture(scope="module")
 def smoke_book(tmp_path_factory) -> SmokeBook:
     """The smoke book, built once from the session's shared smoke runs (executing only what is missing); every
-    test that needs the built book or the executed smoke notebooks reads this one."""
+    test that needs the built book or the executed smoke notebooks reads this one. Or the built book at
+    ``$THESIS_REPRO_BOOK_HTML`` (its ``_build/html`` folder: ``make check-book SCALE=small``)."""
+    if given := given_book():
+        return SmokeBook(given, "", [])
     with pytest.MonkeyPatch.context() as mp:
         for k, v in shared_smoke_dirs(tmp_path_factory).items():
             mp.setenv(k, v)
@@ -332,6 +545,39 @@ def test_summaries_count_verdicts(monkeypatch, tmp_path):
     assert "e\\|1" in table and "**reproduces**" in table and "**does not reproduce**" in table
 
 
+def test_chapter_table_shows_each_verdict_s_one_line_not_its_evidence():
+    line = "reproduces · 3.3-x · l. 555 claim · thesis: r -0.43 · ours: r +0.79 [+0.50, +0.92]"
+    v = report.Verdict("3.3", "claim", report.REPRODUCES, "long evidence " * 50, headline=line)
+    report.report("fig-3.3", "small", [v], display=False)
+    table = book.chapter_summary("3", ["3.3"], "small")
+    assert "l. 555 claim · thesis: r -0.43 · ours: r +0.79 [+0.50, +0.92]" in table and "long evidence" not in table
+
+
+def test_protocol_page_opens_with_its_deviations_and_folds_the_rest():
+    md = protocol.render()
+    deviations = [r for r in protocol.rows() if r["status"] == "deviation"]
+    head, _, rest = md.partition(f"## {protocol.ALL_HEADING}")
+    assert f"## {protocol.DEVIATIONS_HEADING}" in head and rest, "the deviations, then every row"
+    first_table = head.split(f"## {protocol.DEVIATIONS_HEADING}", 1)[1]
+    assert f"The {len(deviations)} settings" in first_table
+    assert first_table.count("\n| ") == len(deviations) + 1  # the header and one row per deviation
+    assert all(protocol._cell(r["item"]) in first_table for r in deviations)
+    groups = {r["group"] for r in protocol.rows()}
+    assert rest.count("<details>") == rest.count("</details>") == len(groups)  # every group folded
+    assert not re.search(r"\n\| Item \|", head), "no full table before the deviations"
+
+
+def test_chapter_4_pages_say_whether_the_thesis_reports_curve_values():
+    for nid in notebooks.notebook_ids():
+        page = notebooks.page_id(nid)
+        cell = book.thesis_cell(page, "small")["source"]
+        if notebooks.chapter(nid) == "4":
+            assert cell.count("**Thesis values:**") == 1, page
+            assert "none" in cell or "data/thesis/" in cell, page
+        else:
+            assert "**Thesis values:**" not in cell, page
+
+
 @pytest.mark.slow
 @pytest.mark.xdist_group("book-pages")  # with the module mark, a group of its own: no shared smoke folder
 def test_a_failing_notebook_gets_an_error_page_and_fails_the_build(monkeypatch, tmp_path):
@@ -366,6 +612,8 @@ def test_shipped_only_book_leaves_out_what_would_train_and_says_how_to_run_it(mo
 
 @pytest.mark.slow
 def test_smoke_book_in_headless_chromium(smoke_book, tmp_path):
+    """Every page of the book loads, links and shows what it should, and its layout passes :func:`layout_problems`
+    at a laptop's width."""
     with Browser(chromium()) as browser:
         check_book_in_browser(browser, smoke_book.html, tmp_path)
 
@@ -382,10 +630,12 @@ def check_book_in_browser(browser: Browser, html_root: Path, tmp_path: Path) -> 
             if not (page.parent / redirect.group(1)).exists():
                 problems.append(f"{page.name}: redirects to a missing page {redirect.group(1)}")
             continue
-        dom = browser.dom(page)
-        if "</html>" not in dom:
-            problems.append(f"{page.name}: no DOM dumped ({len(dom)} characters)")
+        dom, layout = browser.dom_and_layout(page)
+        if "</html>" not in dom or layout is None:
+            problems.append(f"{page.name}: no DOM or layout dumped ({len(dom)} characters)")
             continue
+        where = f"{page.parent.name}/{page.name}" if page.parent != html_root else page.name
+        problems += layout_problems(layout, where, verdict=has_verdicts(page))
         for src in local_refs(dom, "src"):
             if not (page.parent / src).resolve().exists():
                 problems.append(f"{page.name}: broken image/script {src}")
@@ -417,6 +667,8 @@ def check_book_in_browser(browser: Browser, html_root: Path, tmp_path: Path) -> 
 def test_executed_pages_are_cached(smoke_book, tmp_path_factory, tmp_path, monkeypatch, capsys):
     """The book executes exactly the notebooks that are not up to date, and an unchanged notebook is not executed
     again: a second build of the session's smoke book executes nothing (the smoke book's own build, reused)."""
+    if given_book():
+        pytest.skip(f"{BOOK_HTML} names a built book: nothing is built here")
     n = len(notebooks.notebook_ids())
     stale = len(smoke_book.stale_before)
     assert f"({stale} notebook(s) executed, {n - stale} up to date" in smoke_book.printed

@@ -168,12 +168,13 @@ def clean_outputs(outputs: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
-    """The page's verdicts first, one line per claim (label · claim · thesis · ours with its CI), or None when
-    the page saved none; each verdict's evidence stays at the end of the page."""
+    """The page's verdicts first, one line per claim (label · claim · thesis · ours with its CI; a verdict saved
+    without that line: its status and claim), each with its confirmatory line under it when the fresh seeds are
+    judged, or None when the page saved none; each verdict's evidence stays at the end of the page."""
     lines = [
-        f"- {_escape_md(v.headline)}" + (f"\n  - *{_escape_md(v.confirmatory)}*" if v.confirmatory else "")
+        f"- {_escape_md(v.headline or f'{v.status} · {v.claim}')}"
+        + (f"\n  - *{_escape_md(v.confirmatory)}*" if v.confirmatory else "")
         for v in report.load(page, scale)
-        if v.headline
     ]
     if not lines:
         return None
@@ -183,6 +184,41 @@ def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
 
 def _escape_md(text: str) -> str:
     return text.replace("*", "\\*").replace("_", "\\_")
+
+
+#: Chapters whose pages say in one line whether the thesis reports its curves' values (chapter 4: plots only).
+CURVE_CHAPTERS: tuple[str, ...] = ("4",)
+
+
+def thesis_values(page: str) -> list[Path]:
+    """The thesis's transcribed values for ``page`` in ``data/thesis/`` (``fig-4.3`` -> ``fig4_3*.csv``).
+
+    >>> thesis_values("fig-4.3"), [p.name for p in thesis_values("fig-3.3")]
+    ([], ['fig3_3c.csv'])
+    """
+    kind, _, rest = page.partition("-")
+    return sorted(paths.THESIS_DATA.glob(f"{kind}{rest.replace('.', '_')}*.csv"))
+
+
+def thesis_values_line(page: str) -> str | None:
+    """For a page of :data:`CURVE_CHAPTERS`, one line: the thesis's values shown beside ours (which file), or that
+    the thesis reports none; None for other chapters.
+
+    >>> thesis_values_line("fig-4.3")
+    '**Thesis values:** none; the thesis shows Figure 4.3 as a plot with no numbers, so the curves are ours alone.'
+    >>> thesis_values_line("fig-3.3") is None, "kit's own" in thesis_values_line("analysis-4-kl")
+    (True, True)
+    """
+    if notebooks.chapter(page) not in CURVE_CHAPTERS:
+        return None
+    files = thesis_values(page)
+    if files:
+        names = ", ".join(f"`data/thesis/{f.name}`" for f in files)
+        return f"**Thesis values:** {names}, shown beside ours and labelled *thesis*."
+    if not page.startswith("fig-"):
+        return "**Thesis values:** none; this analysis is the kit's own, with no figure of the thesis behind it."
+    plot = f"the thesis shows {title(page)} as a plot with no numbers"
+    return f"**Thesis values:** none; {plot}, so the curves are ours alone."
 
 
 def thesis_cell(page: str, scale: str) -> dict[str, Any]:
@@ -200,6 +236,8 @@ def thesis_cell(page: str, scale: str) -> dict[str, Any]:
         for c in entry.get("claims", []):
             where = ", ".join(str(n) for n in c["lines"])
             lines.append(f"- **Claim** (thesis, line {where}): “{plain_math(c['text'])}”")
+        if values := thesis_values_line(page):
+            lines.append(f"\n{values}")
         lines.append("```\n")
     cmd = f"make {page if not page.startswith('fig-') else 'figure-' + page[4:]} SCALE={scale}"
     if page.startswith("analysis-"):
@@ -296,8 +334,9 @@ def _escape(text: str) -> str:
 
 
 def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[str, str] | None = None) -> str:
-    """Markdown table of the verdicts of a chapter's pages at ``scale`` (pages without one are listed too,
-    with ``notes[page]`` as the reason, else "not in this build")."""
+    """Markdown table of the verdicts of a chapter's pages at ``scale``, each with its one line (its evidence when it
+    has none; the full evidence is on its page); pages without one are listed too, with ``notes[page]`` as the
+    reason, else "not in this build"."""
     pages = [notebooks.page_id(n) for n in executed if notebooks.chapter(n) == chapter]
     known = [p for p in claims() if p.split("-", 1)[1].split("-")[0].split(".")[0] == chapter]
     rows = ["| page | claim | verdict | evidence |", "|---|---|---|---|"]
@@ -306,8 +345,9 @@ def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[s
         link = f"{{doc}}`{title(page)} <executed/{page}>`"
         if not verdicts:
             rows.append(f"| {link} | (no verdict written) | {NO_VERDICT} | |")
-        for v in verdicts:
-            rows.append(f"| {link} | {_escape(v.claim)} | **{v.status}** | {_escape(v.evidence)} |")
+        for v in verdicts:  # the verdict's one line (thesis · ours with its CI); its full evidence is on the page
+            shown = v.headline.partition(" · ")[2] if v.headline else v.evidence
+            rows.append(f"| {link} | {_escape(v.claim)} | **{v.status}** | {_escape(shown)} |")
     missing = [p for p in known if p not in pages]
     for page in missing:
         why = _escape((notes or {}).get(page, "not in this build"))

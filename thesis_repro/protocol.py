@@ -25,6 +25,7 @@ False
 from __future__ import annotations
 
 import dataclasses
+import html
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from fnmatch import fnmatchcase
@@ -159,15 +160,26 @@ def counts(table: Sequence[Mapping[str, Any]] | None = None) -> Counter:
     return Counter(r["status"] for r in (table or rows()))
 
 
+def _row(cells: Iterable[Any]) -> str:
+    return "| " + " | ".join(_cell(c) for c in cells) + " |"
+
+
+#: The page's two sections: the deviations first, then every row (folded, one block per group).
+DEVIATIONS_HEADING = "Deviations from the thesis"
+ALL_HEADING = "Every setting, thesis beside kit"
+
+
 def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
-    """The page as Markdown: a summary, then one table per group (item, thesis, kit, status, why).
+    """The page as Markdown: a summary, the deviations (group, item, thesis, kit, why), then every row, one folded
+    table per group (item, thesis, kit, status, why).
 
     >>> md = render([{"group": "G", "item": "a|b", "thesis": "t", "kit": "k", "status": "match"}])
-    >>> "a\\\\|b" in md and "1 rows: 1 match, 0 stated choice, 0 deviation" in md
+    >>> "a\\\\|b" in md and "1 rows: 1 match, 0 stated choice, 0 deviation" in md and "No deviation" in md
     True
     """
     table = list(table or rows())
     n = counts(table)
+    deviations = [r for r in table if r["status"] == "deviation"]
     lines = [
         f"# {TITLE}",
         "",
@@ -180,17 +192,37 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
         "",
         f"{len(table)} rows: " + ", ".join(f"{n[s]} {s}" for s in STATUSES) + ".",
         "",
+        f"## {DEVIATIONS_HEADING}",
+        "",
     ]
+    if deviations:
+        lines += [
+            f"The {len(deviations)} settings where the kit departs from the thesis, each with its reason:",
+            "",
+            "| Group | Item | Thesis | Kit | Why |",
+            "|---|---|---|---|---|",
+            *(_row([r["group"], r["item"], r["thesis"], r["kit"], r.get("reason", "")]) for r in deviations),
+            "",
+        ]
+    else:
+        lines += ["No deviation: the kit does what the thesis writes, or chooses where the thesis is silent.", ""]
+    lines += [f"## {ALL_HEADING}", "", "All rows, one folded table per group (click a group to open it).", ""]
     groups: dict[str, list[Mapping[str, Any]]] = {}
     for r in table:
         groups.setdefault(r["group"], []).append(r)
     for group, members in groups.items():
-        lines += [f"## {group}", "", "| Item | Thesis | Kit | Status | Why |", "|---|---|---|---|---|"]
+        k = Counter(r["status"] for r in members)
+        tally = ", ".join(f"{k[s]} {s}" for s in STATUSES if k[s])
+        lines += [
+            f"<details><summary><strong>{html.escape(group)}</strong> ({len(members)} rows: {tally})</summary>",
+            "",
+            "| Item | Thesis | Kit | Status | Why |",
+            "|---|---|---|---|---|",
+        ]
         for r in members:
             status = f"**{r['status']}**" if r["status"] == "deviation" else r["status"]
-            cells = [r["item"], r["thesis"], r["kit"], status, r.get("reason", "")]
-            lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
-        lines.append("")
+            lines.append(_row([r["item"], r["thesis"], r["kit"], status, r.get("reason", "")]))
+        lines += ["", "</details>", ""]
     return "\n".join(lines)
 
 
