@@ -115,3 +115,15 @@ def test_compact_command_keeps_numbers_and_identity(tmp_path: Path) -> None:
     (victim / "arrays.npz").write_bytes(bytes(data))
     with pytest.raises(ValueError, match="arrays.npz"):
         read_entry(victim)
+
+
+def test_runs_compact_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
+    from thesis_repro.__main__ import main
+
+    entry = _shipped_train(1)[0]
+    shutil.copytree(entry, tmp_path / "train" / entry.name)
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path))
+    assert main(["runs", "--compact"]) == 0
+    assert "1 shipped training runs compacted" in capsys.readouterr().out
+    assert is_compact(tmp_path / "train" / entry.name / "arrays.npz")
+    assert main(["runs", "--compact"]) == 0 and "0 shipped training runs compacted" in capsys.readouterr().out
