@@ -166,6 +166,7 @@ def test_each_module_imports_alone_in_a_fresh_process():
     assert loaded["thesis_repro.cache"] <= {
         "thesis_repro",
         "thesis_repro.cache",
+        "thesis_repro.compact",
         "thesis_repro.jobs",
         "thesis_repro.paths",
         "thesis_repro.provenance",
