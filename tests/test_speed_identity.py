@@ -54,7 +54,7 @@ LEARNERS = [
 ]
 CASES = [("thesis", *case) for case in LEARNERS]
 IDS = [f"{c[1]}-{c[0]}" for c in CASES]
-_SKIP = {"train_return", "wall_time", "steps_per_s", "resumed_from", "snapshots"}
+_SKIP = {"train_return", "wall_time", "steps_per_s", "resumed_from", "snapshots", "cpu_time", "steps_per_cpu_s"}
 #: Curves compared within a tolerance, not bit for bit: solver diagnostics whose last bits depend on the CPU's kernels.
 DIAGNOSTICS = frozenset({"curve_cg_residual", "curve_eq47", "curve_eq47_params_avg", "curve_kl"})
 DIAGNOSTIC_RTOL = 1e-4

@@ -161,6 +161,11 @@ def _main(argv: list[str]) -> int:
     runs_p.add_argument(
         "--check", action="store_true", help="report stale or corrupt shipped runs and corrupt local runs instead"
     )
+    runs_p.add_argument(
+        "--compact",
+        action="store_true",
+        help="rewrite the shipped training runs' arrays.npz in the compact lossless layout (same numbers, bit for bit)",
+    )
     ref = sub.add_parser("reference-runs", help="train the figures' training runs and ship them in data/reference")
     ref.add_argument("--scale", default="small", help="smoke | small | full")
     ref.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
@@ -627,6 +632,12 @@ def _runs_command(args: argparse.Namespace) -> int:
             only.update(order="item", item_seeds={f: order.item_seeds(f, args.seeds) for f in figure_ids})
         n_jobs = args.jobs or 1
         generator.generate(args.scale, figure_ids, kinds, commit=args.commit, n_jobs=n_jobs, until=until, **only)
+        return 0
+    if args.compact:
+        check_writable(paths.reference())
+        done = runs.compact_shipped()
+        before, after = sum(b for b, _ in done.values()), sum(a for _, a in done.values())
+        print(f"{len(done)} shipped training runs compacted: arrays {before / 1e6:.2f} MB -> {after / 1e6:.2f} MB")
         return 0
     if args.check:
         from thesis_repro.study import study_jobs

@@ -64,6 +64,7 @@ import numpy as np
 
 from thesis_repro import jobs as registry
 from thesis_repro import paths
+from thesis_repro.compact import read_arrays
 from thesis_repro.provenance import platform_info as platform_info  # re-exported: callers read it from the cache
 from thesis_repro.provenance import record
 
@@ -75,7 +76,7 @@ SOURCES: tuple[str, ...] = ("computed", "cached", "shipped")
 #: Result values that are measurements of the computation, not its outcome (they differ between identical
 #: runs): moved from ``result.json`` to ``provenance.json["measured"]``. A job may also return them (and any
 #: other measurement) in a ``"provenance"`` dict. Read them with :meth:`Result.measured`.
-VOLATILE: tuple[str, ...] = ("wall_time", "steps_per_s", "resumed_from")
+VOLATILE: tuple[str, ...] = ("wall_time", "steps_per_s", "resumed_from", "cpu_time", "steps_per_cpu_s")
 #: Artefacts that stay in the local cache and are never shipped (glob patterns on any file or folder name
 #: under ``out/``): full SB3 models and VecNormalize pickles, replay buffers, resumable checkpoints,
 #: optimiser dumps. They are not part of an entry's :func:`entry_identity` either.
@@ -370,9 +371,8 @@ def read_entry(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     check_manifest(path)
     config = json.loads((path / "config.json").read_text())
     values: dict[str, Any] = json.loads((path / "result.json").read_text())
-    if (path / "arrays.npz").exists():
-        with np.load(path / "arrays.npz", allow_pickle=False) as npz:
-            values.update({k: npz[k] for k in npz.files})
+    if (path / "arrays.npz").exists():  # plain .npz or the compact layout (thesis_repro.compact), checked on read
+        values.update(read_arrays(path / "arrays.npz"))
     return values, config
 
 

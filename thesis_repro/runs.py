@@ -29,8 +29,20 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from thesis_repro import figures, paths
-from thesis_repro.cache import UNSHIPPED, Job, Result, RunCache, read_entry, sweep_tmp, write_manifest
+from thesis_repro.cache import (
+    UNSHIPPED,
+    Job,
+    Result,
+    RunCache,
+    entry_identity,
+    read_entry,
+    sweep_tmp,
+    write_manifest,
+)
+from thesis_repro.compact import is_compact, read_arrays, write_compact
 from thesis_repro.paths import shown
 
 #: States of a job in :func:`rows`.
@@ -200,6 +212,53 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
         shutil.rmtree(dest)
     os.replace(tmp, dest)
     return Exported(dest, _size(dest), tuple(sorted(dropped)))
+
+
+def compact_entry(entry: str | Path) -> tuple[int, int] | None:
+    """Rewrite the ``arrays.npz`` of committed entry ``entry`` in the compact layout (:mod:`thesis_repro.compact`:
+    the same arrays, bit for bit) and its manifest, keeping the entry's :func:`entry_identity` (the evaluations
+    pinned to it keep their keys). Works on a copy that must verify before it replaces the entry. Returns the
+    file's bytes ``(before, after)``; ``None`` if there is nothing to do (no arrays, or compact already).
+    """
+    entry = Path(entry)
+    arrays_file = entry / "arrays.npz"
+    if not arrays_file.exists() or is_compact(arrays_file):
+        return None
+    values, _ = read_entry(entry)  # verified against the manifest before anything is rewritten
+    arrays = read_arrays(arrays_file)
+    identity = entry_identity(entry)
+    sweep_tmp(entry.parent)
+    tmp = entry.parent / f".tmp-compact-{entry.name}-{os.getpid()}"
+    old = entry.parent / f".tmp-old-{entry.name}-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    shutil.copytree(entry, tmp)
+    write_compact(tmp / "arrays.npz", arrays)
+    write_manifest(tmp, identity)
+    back, _ = read_entry(tmp)
+    if set(back) != set(values) or any(
+        isinstance(v, np.ndarray) and (back[k].dtype != v.dtype or back[k].tobytes() != v.tobytes())
+        for k, v in values.items()
+    ):
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise ValueError(f"{entry}: the compact copy does not read back the same arrays")  # pragma: no cover
+    before, after = arrays_file.stat().st_size, (tmp / "arrays.npz").stat().st_size
+    os.replace(entry, old)
+    os.replace(tmp, entry)
+    shutil.rmtree(old, ignore_errors=True)
+    return before, after
+
+
+def compact_shipped(layer_root: str | Path | None = None, kind: str = "train") -> dict[Path, tuple[int, int]]:
+    """:func:`compact_entry` on every shipped entry of ``kind`` not compact yet (``runs --compact``; rerun it after
+    new runs land). Returns ``{entry: (bytes before, bytes after)}`` of the entries rewritten."""
+    layer = Path(layer_root) if layer_root is not None else paths.reference()
+    done = {}
+    for entry in entries(layer):
+        if entry.parent.name == kind:
+            sizes = compact_entry(entry)
+            if sizes is not None:
+                done[entry] = sizes
+    return done
 
 
 def entries(root: str | Path) -> list[Path]:

@@ -24,6 +24,7 @@ from thesis_repro.validation import check_choice
 BENCHMARKS: dict[str, str] = {
     "evaluation": "thesis_repro.bench.evaluation:bench_evaluation",  # chapter 3: batched evaluator vs predict/raw
     "training": "thesis_repro.learners.bench:bench_training",  # chapter 3: PPO training throughput
+    "generator-path": "thesis_repro.learners.bench:bench_generator_path",  # SAC/DDPG: the training job's extras
     "multidomain": "thesis_repro.mdl.bench:bench_multidomain",  # chapter 4: multi-domain iteration vs PPO
     "arm": "thesis_repro.arm.bench:bench_arm",  # chapter 5: vectorised arm simulator
 }

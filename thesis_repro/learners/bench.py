@@ -23,12 +23,15 @@ True
 
 from __future__ import annotations
 
+import tempfile
 import time
 import types
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import torch as th
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -145,6 +148,72 @@ def bench_training(
                 f"{r['kit']:,.0f} vs {r['stock']:,.0f} steps/s",
                 r["kit"] / r["stock"],
                 TARGETS[algo],
+            )
+        return out
+    finally:
+        th.set_num_threads(threads)
+
+
+def _fill_replay(model: BaseAlgorithm, n: int) -> None:
+    """Fill ``model``'s replay buffer up to ``n`` rows by repeating the rows it holds (the speed of sampling
+    from a large buffer depends on its size, not on its values)."""
+    buf = model.replay_buffer  # type: ignore[attr-defined]
+    k = buf.pos
+    for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
+        a = getattr(buf, name)
+        a[k:n] = np.resize(a[:k], (n - k, *a.shape[1:]))
+    buf.pos = n
+
+
+def bench_generator_path(
+    env: str = "Hopper", rounds: int = 3, chunk: int = 500, algos: tuple[str, ...] = ("sac", "ddpg")
+) -> dict[str, float]:
+    """What the generator's path costs beyond ``make bench``'s, in steps per CPU-second measured alternately in
+    one process (see :func:`interleaved`): per learner, the bench's model (100k buffer, nearly empty) against the
+    shipped config's 1M buffer filled to 900k rows, without and with the training job's bookkeeping callback
+    (episodes, checkpoint and snapshot checks). Ratios near 1: the generator's training path is the bench's."""
+    check_positive(chunk, "chunk")
+    threads = th.get_num_threads()
+    th.set_num_threads(1)
+    out: dict[str, float] = {}
+    try:
+        for algo in algos:
+
+            def make(buffer_size: int, filled: int, book: bool, algo: str = algo) -> Callable[[], int]:
+                model = kit_model(algo, env, learning_starts=100, buffer_size=buffer_size)
+                model.set_logger(Logger(None, []))
+                model.learn(2000, reset_num_timesteps=False)
+                if filled:
+                    _fill_replay(model, filled)
+                callback = None
+                if book:
+                    cfg = train_config(algo, env, 0, 10**9, learning_starts=100, buffer_size=buffer_size)
+                    cfg["checkpoint_every"] = 0
+                    state = {"episodes": [], "iterations": [], "last_snapshot": None, "last_checkpoint": 0}
+                    callback = tr._Bookkeeper(cfg, Path(tempfile.mkdtemp()), state)
+
+                def run() -> int:
+                    before = model.num_timesteps
+                    model.learn(chunk, reset_num_timesteps=False, callback=callback)
+                    return model.num_timesteps - before
+
+                return run
+
+            r = interleaved(
+                {
+                    "bench": make(100_000, 0, False),
+                    "1M": make(1_000_000, 900_000, False),
+                    "job": make(1_000_000, 900_000, True),
+                },
+                rounds,
+            )
+            out[f"{algo} bench steps/s"] = r["bench"]
+            out[f"{algo} 1M-buffer ratio"] = r["1M"] / r["bench"]
+            out[f"{algo} training-job ratio"] = r["job"] / r["bench"]
+            print(
+                f"  {algo.upper()} {env}: bench path {r['bench']:,.0f} steps/CPU-s; 1M buffer filled to 900k "
+                f"{r['1M'] / r['bench']:.3f}x; + the training job's bookkeeping {r['job'] / r['bench']:.3f}x",
+                flush=True,
             )
         return out
     finally:

@@ -411,7 +411,8 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
     ``curve_length`` (means over the last 100 episodes), and for on-policy learners one ``curve_<stat>`` per
     per-iteration statistic (``curve_entropy``; the multi-domain learners' own, e.g. ``curve_eq47``,
     ``curve_kl`` (points × domains), ``curve_kept_fraction``); ``timesteps_done``, ``resumed_from``,
-    ``snapshots`` (steps), ``wall_time`` (seconds over all sessions) and ``steps_per_s`` (this session).
+    ``snapshots`` (steps), ``wall_time`` (seconds over all sessions), ``steps_per_s`` (this session, per wall
+    second), ``cpu_time`` and ``steps_per_cpu_s`` (this session's CPU seconds, and steps per CPU-second).
     """
     th.set_num_threads(1)
     cfg = config
@@ -456,13 +457,13 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
             venv.policy = model.policy
     book = _Bookkeeper(cfg, workdir, state, live)
     remaining = int(cfg["timesteps"]) - int(model.num_timesteps)
-    t0 = time.time()
+    t0, c0 = time.time(), time.process_time()
     if remaining > 0:
         cbs = [book] + ([callback] if callback is not None else [])
         model.learn(total_timesteps=remaining, callback=CallbackList(cbs), reset_num_timesteps=not ckpts)
     else:
         book.init_callback(model)
-    elapsed = time.time() - t0
+    elapsed, cpu = time.time() - t0, time.process_time() - c0
     done = int(model.num_timesteps)
     book.log_iteration()
     if cfg["snapshot_every"] > 0 and state["last_snapshot"] != done:
@@ -490,4 +491,6 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
         "snapshots": sorted(int(p.name.split("_")[1]) for p in snaps.glob("step_*")) if snaps.exists() else [],
         "wall_time": float(state["wall_time_before"] + elapsed),
         "steps_per_s": float((done - resumed_from) / elapsed) if elapsed > 0 and done > resumed_from else None,
+        "cpu_time": float(cpu),  # this session's CPU seconds: the pace per CPU-second, as make bench measures it
+        "steps_per_cpu_s": float((done - resumed_from) / cpu) if cpu > 0 and done > resumed_from else None,
     }
