@@ -21,7 +21,7 @@ CHROMIUM_STAMP := $(VENV)/.installed-chromium
 NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
-.PHONY: venv test smoke book clips bench budgets lint clean-build figure-% table-% reference-runs seeds runs-% plan-% verify \
+.PHONY: venv test smoke book clips bench budgets lint clean-build figure-% table-% reference-runs seeds confirmatory runs-% plan-% verify \
 	verify-all chromium check-book ship-claims check-claims results
 
 venv: $(STAMP)
@@ -111,6 +111,15 @@ SEED_ORDER := table-3.3 4.4 4.7 4.2 3.4 table-3.6 table-3.4 3.3 3.7 table-3.5 3.
 seeds:
 	$(MAKE) reference-runs SCALE=small SEEDS="0 1 2" KINDS="train evaluate" COMMIT=1 JOBS=2 \
 	  FIGURES="$(SEED_ORDER)" $(if $(UNTIL),UNTIL=$(UNTIL))
+
+## make confirmatory UNTIL=HH:MM : issue 46's one resumable command, started niced in the background (nohup ... &):
+## seeds 3-5 of every chapter-3 item and the chapter-4 items 6 seeds can settle, chapter 5's CMA-ES items to seed 9,
+## trained, evaluated and committed as they land, item by item in the order of claims settled per core-hour
+## (`make plan-order SCALE=small SEEDS="3 4 5"`); UNTIL = the session's end
+confirmatory:
+	$(MAKE) reference-runs SCALE=small SEEDS="3 4 5" COMMIT=1 JOBS=2 ORDER=claims \
+	  KINDS="train evaluate arm-solve arm-source arm-competitor-source arm-target arm-curriculum" \
+	  $(if $(UNTIL),UNTIL=$(UNTIL))
 
 ## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] [FIGURE=3.3 | ENTRY=<key> |
 ## CLAIM=<id>] : recompute a seeded random sample of N shipped evaluations on this machine (temporary cache) and
