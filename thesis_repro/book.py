@@ -249,9 +249,9 @@ def thesis_cell(page: str, scale: str) -> dict[str, Any]:
     return md_cell("\n".join(lines))
 
 
-def prepare_page(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
-    """A reader's copy of an executed notebook (see the module docstring)."""
-    page = notebooks.page_id(nid)
+def reader_cells(nb: dict[str, Any], hide_input: bool) -> list[dict[str, Any]]:
+    """An executed notebook's cells as a reader sees them: parameters cells dropped, outputs cleaned
+    (:func:`clean_outputs`), and with ``hide_input`` the code folded away."""
     cells = []
     for cell in nb["cells"]:
         tags = cell.get("metadata", {}).get("tags", [])
@@ -260,10 +260,16 @@ def prepare_page(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
         cell = dict(cell)
         if cell["cell_type"] == "code":
             cell["outputs"] = clean_outputs(cell.get("outputs", []))
-            meta = dict(cell.get("metadata", {}))
-            meta["tags"] = [*tags, "hide-input"] if "hide-input" not in tags else tags
-            cell["metadata"] = meta
+            if hide_input and "hide-input" not in tags:
+                cell["metadata"] = {**cell.get("metadata", {}), "tags": [*tags, "hide-input"]}
         cells.append(cell)
+    return cells
+
+
+def prepare_page(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
+    """A reader's copy of an executed notebook (see the module docstring)."""
+    page = notebooks.page_id(nid)
+    cells = reader_cells(nb, hide_input=True)
     first = next((i for i, c in enumerate(cells) if c["cell_type"] == "markdown"), None)
     if first is not None and _text(cells[first]["source"]).lstrip().startswith("# "):
         head, _, rest = _text(cells[first]["source"]).lstrip().partition("\n")
@@ -293,15 +299,7 @@ def prepare_page(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
 def prepare_guide(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
     """A reader's copy of an executed guide notebook: parameters cells dropped, outputs cleaned, the code shown
     (a guide teaches the calls), and under its title the scale it ran at; no thesis claims, no verdict."""
-    cells = []
-    for cell in nb["cells"]:
-        tags = cell.get("metadata", {}).get("tags", [])
-        if "parameters" in tags or "injected-parameters" in tags:
-            continue
-        cell = dict(cell)
-        if cell["cell_type"] == "code":
-            cell["outputs"] = clean_outputs(cell.get("outputs", []))
-        cells.append(cell)
+    cells = reader_cells(nb, hide_input=False)
     cmd = f"python -m thesis_repro figure {notebooks.page_id(nid)} --scale {scale}"
     line = md_cell(f"Executed at scale **`{scale}`** (`{cmd}`); a guide, not a thesis item: no verdict.")
     first = next((i for i, c in enumerate(cells) if c["cell_type"] == "markdown"), None)
