@@ -66,6 +66,7 @@ from thesis_repro.envs.wrappers import _EpisodeDomain
 from thesis_repro.learners.config import AGGREGATES, EPOPT_RANKS, META_UPDATES
 from thesis_repro.learners.fast import FastPPO, RolloutTensors, _ManualActorCritic, ppo_epochs, rollout_tensors
 from thesis_repro.mdl import aggregate as agg
+from thesis_repro.mdl import exact
 from thesis_repro.validation import check_choice, check_nonneg
 
 
@@ -494,7 +495,7 @@ class SubPolicyAggregation(MultiDomainPPO):
                 line_search=self.line_search,
                 cg_rtol=self.cg_rtol,
             )
-        return agg.kl_exact(
+        return exact.kl_exact(
             view,
             thetas,
             states,

@@ -7,7 +7,7 @@ F(θ) = Σ_i E_s KL(π_θi ‖ π_θ) (:func:`~thesis_repro.mdl.aggregate.eq47_o
 * ``params_avg`` — Eq 4.6;
 * ``kl_avg`` — Eq 4.11 by CG with the kit's damping (0.1 on the mean Fisher);
 * ``eq4.10`` — the undamped closed form Eq 4.10 (dense solve on tiny nets, long CG otherwise);
-* ``kl_exact`` — Newton-CG on the true Eq 4.7 (:func:`~thesis_repro.mdl.aggregate.kl_exact`).
+* ``kl_exact`` — Newton-CG on the true Eq 4.7 (:func:`~thesis_repro.mdl.exact.kl_exact`).
 
 The reference optimum θ* is found independently by SciPy's L-BFGS-B on F from params_avg.
 Sub-policies come from a common θ_old in one of two ways: ``"perturb"`` (θ_i = θ_old + δ·ε_i, for the
@@ -34,6 +34,7 @@ import torch
 from scipy.optimize import minimize
 
 from thesis_repro.mdl import aggregate as agg
+from thesis_repro.mdl import exact
 from thesis_repro.report import Verdict, status
 from thesis_repro.validation import check_choice, check_positive
 
@@ -130,13 +131,13 @@ def make_problems(groups: Sequence[dict]) -> list[Problem]:
 
 
 def reference_optimum(problem: Problem, iters: int = 100, maxiter: int = 100) -> torch.Tensor:
-    """θ*: a tight local minimiser of Eq 4.7 — :func:`~thesis_repro.mdl.aggregate.kl_exact` run to
+    """θ*: a tight local minimiser of Eq 4.7 — :func:`~thesis_repro.mdl.exact.kl_exact` run to
     convergence (``iters`` iterations, CG to 1e-8, damping 1e-8), then polished by SciPy's L-BFGS-B (``maxiter``).
 
     (``tests/test_aggregate.py`` checks independently that L-BFGS-B from params_avg reaches the same value.)
     """
     view, states = problem.view, problem.states
-    x0 = agg.kl_exact(view, problem.thetas, states, iters=iters, cg_iters=100, cg_rtol=1e-8, damping=1e-8)
+    x0 = exact.kl_exact(view, problem.thetas, states, iters=iters, cg_iters=100, cg_rtol=1e-8, damping=1e-8)
     with torch.no_grad():
         targets = [view.dist(t, states) for t in problem.thetas]
 
@@ -172,7 +173,7 @@ def aggregates(
         "params_avg": agg.params_avg(th),  # type: ignore[dict-item]
         "kl_avg": agg.kl_avg(view, th, s, cg_iters=cg_iters, damping=damping),
         "eq4.10": eq410,
-        "kl_exact": agg.kl_exact(view, th, s, iters=exact_iters),
+        "kl_exact": exact.kl_exact(view, th, s, iters=exact_iters),
     }
 
 
@@ -228,7 +229,7 @@ def linear_gaussian(seed: int = 0, *, n_domains: int = 4, n_states: int = 256, s
     p = make_problem(
         seed, obs_dim=3, act_dim=2, hidden=(), n_domains=n_domains, n_states=n_states, kind="perturb", spread=spread
     )
-    closed = agg.linear_gaussian_optima(p.view, p.thetas, p.states)
+    closed = exact.linear_gaussian_optima(p.view, p.thetas, p.states)
     aggs = {"closed form (Eq 4.7)": closed["eq47"], "closed form (Eq 4.10)": closed["eq410"]}
     aggs.update(aggregates(p, exact_iters=30))
     avg = p.view.params(aggs["params_avg"])
@@ -324,7 +325,7 @@ def damping_sweep(
     for lam in dampings:
         for name, theta in (
             ("kl_avg", agg.kl_avg(view, th, s, cg_iters=cg_iters, damping=lam)),
-            ("kl_exact", agg.kl_exact(view, th, s, damping=lam)),
+            ("kl_exact", exact.kl_exact(view, th, s, damping=lam)),
         ):
             rows.append(
                 {
