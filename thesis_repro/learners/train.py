@@ -51,7 +51,8 @@ from thesis_repro.learners.arpl import ARPLVecEnv
 from thesis_repro.learners.config import iteration_steps
 from thesis_repro.learners.fast import FastPPO, FastTRPO  # leaner, equivalent (tests/test_fast.py)
 from thesis_repro.learners.fast_offpolicy import FastSAC
-from thesis_repro.learners.multidomain import CLASSES as MULTI_DOMAIN_CLASSES
+from thesis_repro.learners.meta import MAMLDG, ReptileDG
+from thesis_repro.learners.multidomain import EPOpt, SubPolicyAggregation
 from thesis_repro.learners.policies import SCNPolicy
 from thesis_repro.learners.policy import save_policy
 from thesis_repro.learners.resume import ResumeMismatch, capture, global_rng_state, restore, set_global_rng_state
@@ -63,7 +64,10 @@ ALGORITHM_CLASSES: dict[str, type[BaseAlgorithm]] = {
     "TRPO": FastTRPO,  # sb3_contrib's TRPO with the closed-form rollout forward
     "SAC": FastSAC,
     "DDPG": DDPGSplit,
-    **MULTI_DOMAIN_CLASSES,
+    "EPOpt": EPOpt,
+    "MAMLDG": MAMLDG,
+    "ReptileDG": ReptileDG,
+    "SubPolicyAggregation": SubPolicyAggregation,
 }
 
 
