@@ -3,10 +3,10 @@
 The package map, layers from the bottom up. A module imports only from its own layer and the layers below it
 (``tests/test_layers.py`` reads this list and enforces it; ``tests/test_imports.py`` forbids import circles):
 
-1. **core**: ``thesis_repro``, ``paths``, ``validation``, ``provenance``, ``scales``, ``reference``, ``report``,
-   ``jobs``, ``bench`` -- locations, checks, where and in which numerics an entry was made, the scale table, the
-   thesis's numbers, the verdict words, the job registry and the timing helpers; they import the standard
-   library, third-party packages and each other only.
+1. **core**: ``thesis_repro``, ``paths``, ``validation``, ``provenance``, ``scales``, ``thesis_numbers``,
+   ``report``, ``jobs``, ``bench`` -- locations, checks, where and in which numerics an entry was made, the scale
+   table, the thesis's numbers, the verdict words, the job registry and the timing helpers; they import the
+   standard library, third-party packages and each other only.
 2. **store and backends**: ``cache``, ``backends`` -- the run cache and where jobs run; may import core (a job
    function is resolved by name through ``jobs``, never imported).
 3. **envs**: ``envs`` -- the MuJoCo tasks and their perturbations; may import core.

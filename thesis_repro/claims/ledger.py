@@ -112,7 +112,7 @@ THESIS_TABLES: dict[str, tuple[str, ...]] = {
 def thesis_data(page: str = "") -> dict[str, pd.DataFrame]:
     """The thesis's Tables 3.3-3.7 as one-pseudo-seed frames (its means), for thesis-tied thresholds; AUCs of
     the page's own table (:data:`THESIS_TABLES`; all four tables otherwise)."""
-    from thesis_repro import reference
+    from thesis_repro import thesis_numbers as reference
 
     names = THESIS_TABLES.get(page, ("table3_4", "table3_5", "table3_6", "table3_7"))
     frames = [reference.load(n) for n in names]
@@ -579,7 +579,7 @@ def thesis_effects(s: Spec, rule2: Mapping[str, Any]) -> dict[str, float]:
     """Per unit label, the thesis's own effect in margin units (for power): Fig 3.3c's r per cell for the
     correlation measures, else the claim's measure on the thesis's tables (:func:`thesis_data`); ``{}`` when
     the thesis reports no number the measure can read."""
-    from thesis_repro import reference
+    from thesis_repro import thesis_numbers as reference
 
     m = rule2.get("measure")
     if m in ("correlation", "mean_selection"):
