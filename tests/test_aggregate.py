@@ -378,7 +378,7 @@ def test_analysis_linear_gaussian_table_and_slopes():
 def test_analysis_verdict_statuses():
     import pandas as pd
 
-    from thesis_repro import report
+    from thesis_repro.claims import analysis_4_kl, report
     from thesis_repro.mdl import kl_analysis as ka
 
     lin = pd.DataFrame(
@@ -398,11 +398,11 @@ def test_analysis_verdict_statuses():
             index=list(ka.AGGREGATES),
         )
 
-    got = [v.status for v in ka.verdict(summary(0.0), lin, "small")]
+    got = [v.status for v in analysis_4_kl.verdicts(summary(0.0), lin, "small")]
     assert got == [report.DOES_NOT, report.DOES_NOT, report.REPRODUCES]
-    assert ka.verdict(summary(0.5), lin, "small")[0].status == report.PARTLY
-    assert ka.verdict(summary(1.0), lin, "small")[0].status == report.REPRODUCES
-    assert {v.status for v in ka.verdict(summary(1.0), lin, "smoke")} == {report.NOT_JUDGED}
+    assert analysis_4_kl.verdicts(summary(0.5), lin, "small")[0].status == report.PARTLY
+    assert analysis_4_kl.verdicts(summary(1.0), lin, "small")[0].status == report.REPRODUCES
+    assert {v.status for v in analysis_4_kl.verdicts(summary(1.0), lin, "smoke")} == {report.NOT_JUDGED}
     bad = lin.copy()
     bad.loc["kl_exact", "eq47"] = 1.5  # did not reach the closed form
-    assert ka.verdict(summary(0.0), bad, "small")[2].status == report.DOES_NOT
+    assert analysis_4_kl.verdicts(summary(0.0), bad, "small")[2].status == report.DOES_NOT

@@ -21,7 +21,8 @@ from urllib.parse import unquote, urlparse
 import pytest
 import yaml
 
-from thesis_repro import book, figures, notebooks, paths, report
+from thesis_repro import book, figures, notebooks, paths
+from thesis_repro.claims import report
 
 #: `make test` runs pytest in two processes (`-n 2 --dist loadgroup`): every test that shares the smoke
 #: notebooks' session folder runs in the same one, so they execute once.

@@ -10,9 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import report
 from thesis_repro.claims import calibration as C
-from thesis_repro.claims import design, registry
+from thesis_repro.claims import design, registry, report
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import stats as S
 from thesis_repro.claims.judge import count_rule, judge_v2

@@ -26,7 +26,7 @@ FIGURES = sorted((ROOT / "figures").glob("*.py"))
 CLAIMS = sorted((ROOT / "claims").rglob("*.py"))
 #: What imports the figure registry, so the figure layer must not import it (issue 21: imports run one way).
 ABOVE_FIGURES = ("thesis_repro.runs", "thesis_repro.budgets", "thesis_repro.claims", "thesis_repro.pages")
-#: What builds a verdict (thesis_repro.report); a figure module may still use its status labels (NOT_RUN).
+#: What builds a verdict (thesis_repro.claims.report); a figure module imports none of it (NOT_RUN is scales').
 JUDGING = {"Verdict", "status", "decide"}
 
 
@@ -151,7 +151,7 @@ def test_figure_modules_neither_import_the_claims_layer_nor_judge(path):
         if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name) and n.value.id == "report"
         if n.attr in JUDGING
     ]
-    judging += [m for m in imported(path) if m in {f"thesis_repro.report.{j}" for j in JUDGING}]
+    judging += [m for m in imported(path) if m in {f"thesis_repro.claims.report.{j}" for j in JUDGING}]
     assert not judging, f"{path.name} builds verdicts ({sorted(set(judging))}): judging belongs in thesis_repro.claims"
 
 

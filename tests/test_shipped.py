@@ -10,9 +10,9 @@ import json
 
 import pytest
 
-from thesis_repro import paths, report, runs
+from thesis_repro import paths, runs
 from thesis_repro.cache import RunCache
-from thesis_repro.claims import ledger, snapshot
+from thesis_repro.claims import ledger, report, snapshot
 
 LAYER = paths.ROOT / "data" / "reference"
 

@@ -162,7 +162,8 @@ def test_auc_change_is_scale_free_per_task():
 
 
 # ================================================================ the chapter-3 items (figures.ch3_tables / ch3_curves)
-from thesis_repro import figures, paths, report  # noqa: E402
+from thesis_repro import figures, paths  # noqa: E402
+from thesis_repro.claims import report  # noqa: E402
 from thesis_repro.figures import ch3_curves as C  # noqa: E402
 from thesis_repro.figures import ch3_tables as F  # noqa: E402
 

@@ -35,8 +35,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import paths, report
-from thesis_repro.claims import calibration, design, snapshot
+from thesis_repro import paths
+from thesis_repro.claims import calibration, design, report, snapshot
 from thesis_repro.claims import judge as J
 from thesis_repro.claims import measures as M
 from thesis_repro.claims.registry import (  # noqa: F401 - parse_specs, reads, registry: re-exported for callers

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 from scipy import stats as st
 
-from thesis_repro.report import (
+from thesis_repro.claims.report import (
     AT_LEAST_PARTLY,
     AT_MOST_PARTLY,
     DOES_NOT,

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import report, thesis_numbers
+from thesis_repro import scales, thesis_numbers
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job, Result
 from thesis_repro.envs.registry import short_name
@@ -285,14 +285,14 @@ class Comparison:
                     text.loc[(env, test), (m, "reproduced")] = tables.pm_text(o["mean"], o["std"])
                     mask.loc[(env, test), (m, "reproduced")] = bool(o["bold"])
                 else:
-                    text.loc[(env, test), (m, "reproduced")] = report.NOT_RUN
+                    text.loc[(env, test), (m, "reproduced")] = scales.NOT_RUN
         return text, mask
 
     def style(self, caption: str = "") -> Any:
         """The table as a pandas ``Styler`` (bold cells in bold; unrun cells greyed) for the notebook/book."""
         text, mask = self.text()
         css = np.where(mask.to_numpy(), "font-weight: bold", "")
-        css = np.where(text.to_numpy() == report.NOT_RUN, "color: #888; font-style: italic", css)
+        css = np.where(text.to_numpy() == scales.NOT_RUN, "color: #888; font-style: italic", css)
         return (
             text.style.apply(lambda _: pd.DataFrame(css, index=text.index, columns=text.columns), axis=None)
             .set_caption(caption)
@@ -488,7 +488,7 @@ def table33_text(ours: tuple[pd.DataFrame, pd.DataFrame]) -> tuple[pd.DataFrame,
         w = w.reindex(columns=pd.MultiIndex.from_product([sigmas, ["thesis", "reproduced"]], names=w.columns.names))
         for ts in sigmas:  # a cell the thesis has but we lack is "not run"; one the thesis lacks stays empty
             missing = w[(ts, "thesis")].notna() & w[(ts, "reproduced")].isna()
-            w.loc[missing, (ts, "reproduced")] = report.NOT_RUN
+            w.loc[missing, (ts, "reproduced")] = scales.NOT_RUN
         out.append(w.fillna(""))
     return out[0], out[1]
 
