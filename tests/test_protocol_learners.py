@@ -14,7 +14,7 @@ from thesis_repro.learners import meta, train_config, train_job
 from thesis_repro.learners import multidomain as md
 from thesis_repro.learners import train as lt
 from thesis_repro.learners.arpl import ARPLVecEnv, arpl_perturbation
-from thesis_repro.learners.policy import read_state_dict
+from thesis_repro.learners.policy_file import read_state_dict
 
 th.set_num_threads(1)
 

@@ -388,7 +388,7 @@ def verify_local(root: str | Path | None = None) -> dict[Path, str]:
 
 
 def _policy_arrays(result_or_path: Result | str | Path) -> dict[str, np.ndarray]:
-    from thesis_repro.learners.policy import read_state_dict  # local: keep the listing importable without torch
+    from thesis_repro.learners.policy_file import read_state_dict  # local: keep the listing importable without torch
 
     folder = Path(getattr(result_or_path, "out", result_or_path))
     if not (folder / "policy.pth").exists() and (folder / "out" / "policy.pth").exists():
