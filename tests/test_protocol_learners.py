@@ -268,7 +268,7 @@ def test_maml_outer_update_with_cached_gradient_objects_is_bit_identical(monkeyp
         calls.append(recorder is not None and manual is not None)  # the update passed its caches ...
         return real(policy, data, **kw)  # ... which are dropped: fresh objects for every gradient
 
-    monkeypatch.setattr(md, "post_adaptation_gradient", fresh)
+    monkeypatch.setattr(meta, "post_adaptation_gradient", fresh)
     rebuilt, draw_rebuilt = _two_outer_updates(per_batch)
     assert calls and all(calls)
     assert th.equal(cached, rebuilt) and draw == draw_rebuilt
