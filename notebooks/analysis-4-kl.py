@@ -42,8 +42,9 @@ import pandas as pd
 import torch
 
 from thesis_repro import paths
+from thesis_repro.claims import analysis_4_kl
+from thesis_repro.claims.report import report
 from thesis_repro.mdl import kl_analysis as ka
-from thesis_repro.report import report
 from thesis_repro.scales import figure_settings
 
 torch.set_num_threads(1)
@@ -201,5 +202,5 @@ print(
 # above, and whether the true Eq 4.7 can be lowered at all (kl_exact). At smoke scale nothing is judged.
 
 # %%
-verdicts = ka.verdict(summary, linear, SCALE)
+verdicts = analysis_4_kl.verdicts(summary, linear, SCALE)
 _ = report("analysis-4-kl", SCALE, verdicts)

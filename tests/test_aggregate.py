@@ -12,6 +12,7 @@ from scipy.optimize import minimize
 from torch.distributions import Normal, kl_divergence
 
 from thesis_repro.mdl import aggregate as agg
+from thesis_repro.mdl import exact
 
 torch.set_num_threads(1)  # tiny ops: threads only add contention on the shared 2-core machine
 
@@ -74,7 +75,7 @@ def test_eq47_terms_are_kl_from_each_subpolicy_to_the_aggregate():
 def test_closed_form_eq47_optimum_matches_numerical_argmin():
     """Derivation check: plain-average mean, moment-matched σ² = mean_i[σ_i² + E_s(μ_i − μ̄)²]."""
     view, states, thetas = _linear()
-    closed = agg.linear_gaussian_optima(view, thetas, states)["eq47"]
+    closed = exact.linear_gaussian_optima(view, thetas, states)["eq47"]
     x, fmin = _scipy_argmin(view, thetas, states, agg.params_avg(thetas))
     np.testing.assert_allclose(closed.numpy(), x.numpy(), atol=1e-5)
     assert agg.eq47_objective(view, closed, thetas, states) <= fmin + 1e-9
@@ -90,7 +91,7 @@ def test_closed_form_eq47_optimum_matches_numerical_argmin():
 def test_closed_form_eq410_is_the_precision_weighted_average():
     """Undamped Eq 4.10 on a linear-Gaussian policy = the 1/σ_i²-weighted average of the mean parameters."""
     view, states, thetas = _linear()
-    closed = agg.linear_gaussian_optima(view, thetas, states)["eq410"]
+    closed = exact.linear_gaussian_optima(view, thetas, states)["eq410"]
     dense = agg.kl_avg_dense(view, thetas, states, damping=0.0)
     assert torch.allclose(dense, closed, atol=1e-9)
     cg = agg.kl_avg(view, thetas, states, cg_iters=200, damping=0.0, cg_rtol=1e-12)
@@ -101,14 +102,14 @@ def test_closed_form_eq410_is_the_precision_weighted_average():
     expect = (prec * torch.stack([q["mean_net.0.weight"][0, 0] for q in p])).sum() / prec.sum()
     assert float(view.params(closed)["mean_net.0.weight"][0, 0]) == pytest.approx(float(expect), rel=1e-12)
     # ... which is NOT the Eq 4.7 optimum: its Eq 4.7 value is higher than the exact one's
-    exact = agg.linear_gaussian_optima(view, thetas, states)["eq47"]
-    assert agg.eq47_objective(view, closed, thetas, states) > agg.eq47_objective(view, exact, thetas, states) + 0.1
+    optimum = exact.linear_gaussian_optima(view, thetas, states)["eq47"]
+    assert agg.eq47_objective(view, closed, thetas, states) > agg.eq47_objective(view, optimum, thetas, states) + 0.1
 
 
 def test_aggregate_fisher_is_the_hessian_at_the_eq47_optimum():
     """Gauss-Newton claim: at the Eq 4.7 optimum, ∇²(F/N) = I(θ) of the aggregate (linear-Gaussian case)."""
     view, states, thetas = _linear(n=3, obs=2, act=2)
-    opt = agg.linear_gaussian_optima(view, thetas, states)["eq47"]
+    opt = exact.linear_gaussian_optima(view, thetas, states)["eq47"]
     n = len(thetas)
 
     def f(t):
@@ -127,9 +128,9 @@ def test_kl_exact_reaches_the_closed_form_optimum(dtype):
     if dtype == torch.float32:
         view.module.float()
         states, thetas = states.float(), [t.float() for t in thetas]
-    opt = agg.linear_gaussian_optima(view, thetas, states)["eq47"]
+    opt = exact.linear_gaussian_optima(view, thetas, states)["eq47"]
     info: dict = {}
-    got = agg.kl_exact(view, thetas, states, iters=30, cg_iters=50, damping=0.0, info=info)
+    got = exact.kl_exact(view, thetas, states, iters=30, cg_iters=50, damping=0.0, info=info)
     assert got.dtype == dtype
     assert torch.allclose(got, opt, atol=1e-6 if dtype == torch.float64 else 1e-4)
     f_opt = agg.eq47_objective(view, opt, thetas, states)
@@ -141,7 +142,7 @@ def test_kl_exact_beats_params_avg_and_kl_avg_on_random_mlps():
     for seed in range(4):
         view, states, thetas = _mlp(seed)
         info: dict = {}
-        ex = agg.kl_exact(view, thetas, states, iters=30, info=info)
+        ex = exact.kl_exact(view, thetas, states, iters=30, info=info)
         f_ex = agg.eq47_objective(view, ex, thetas, states)
         f_pa = agg.eq47_objective(view, agg.params_avg(thetas), thetas, states)
         f_ka = agg.eq47_objective(view, agg.kl_avg(view, thetas, states, cg_iters=50, damping=0.1), thetas, states)
@@ -159,7 +160,7 @@ def test_kl_exact_is_close_to_an_independent_local_minimum():
     view, states, thetas = _mlp(0, scale=0.1, hidden=(4,), n_states=64)
     view.module.double()
     states, thetas = states.double(), [t.double() for t in thetas]
-    ex = agg.kl_exact(view, thetas, states, iters=100, cg_iters=50, cg_rtol=1e-6, damping=1e-6)
+    ex = exact.kl_exact(view, thetas, states, iters=100, cg_iters=50, cg_rtol=1e-6, damping=1e-6)
     _, fmin = _scipy_argmin(view, thetas, states, agg.params_avg(thetas))
     f_pa = agg.eq47_objective(view, agg.params_avg(thetas), thetas, states)
     f_ex = agg.eq47_objective(view, ex, thetas, states)
@@ -170,27 +171,27 @@ def test_kl_exact_fixed_points_and_zero_iterations():
     view, states, thetas = _mlp(1)
     same = [thetas[0].clone() for _ in range(3)]
     info: dict = {}
-    out = agg.kl_exact(view, same, states, info=info)
+    out = exact.kl_exact(view, same, states, info=info)
     assert torch.allclose(out, thetas[0], atol=1e-6) and info["objective"][-1] < 1e-10
-    assert torch.equal(agg.kl_exact(view, thetas, states, iters=0), agg.params_avg(thetas))
+    assert torch.equal(exact.kl_exact(view, thetas, states, iters=0), agg.params_avg(thetas))
 
 
 def test_kl_exact_bad_arguments():
     view, states, thetas = _mlp(0)
     with pytest.raises(ValueError, match="at least one sub-policy"):
-        agg.kl_exact(view, [], states)
+        exact.kl_exact(view, [], states)
     with pytest.raises(ValueError, match="iters must be >= 0"):
-        agg.kl_exact(view, thetas, states, iters=-1)
+        exact.kl_exact(view, thetas, states, iters=-1)
     with pytest.raises(ValueError, match="cg_iters must be >= 1"):
-        agg.kl_exact(view, thetas, states, cg_iters=0)
+        exact.kl_exact(view, thetas, states, cg_iters=0)
     with pytest.raises(ValueError, match="damping"):
-        agg.kl_exact(view, thetas, states, damping=-1.0)
+        exact.kl_exact(view, thetas, states, damping=-1.0)
     with pytest.raises(ValueError, match="cg_rtol"):
-        agg.kl_exact(view, thetas, states, cg_rtol=float("nan"))
+        exact.kl_exact(view, thetas, states, cg_rtol=float("nan"))
     with pytest.raises(ValueError, match="shape"):
-        agg.kl_exact(view, [torch.zeros(3)], states)
+        exact.kl_exact(view, [torch.zeros(3)], states)
     with pytest.raises(ValueError, match="log_std"):
-        agg.linear_gaussian_optima(agg.PolicyView(view.module, ["mean_net.0.weight"]), thetas, states)
+        exact.linear_gaussian_optima(agg.PolicyView(view.module, ["mean_net.0.weight"]), thetas, states)
 
 
 # ------------------------------------------------------------------ closed-form batched Fisher products
@@ -279,7 +280,7 @@ def test_kl_avg_and_kl_exact_are_unchanged_by_the_closed_form():
     assert view.mlp is not None and slow.mlp is None
     for fn in (
         lambda v: agg.kl_avg(v, thetas, states, cg_iters=10, damping=0.1),
-        lambda v: agg.kl_exact(v, thetas, states, iters=5, damping=0.1),  # well-conditioned: CG is stable
+        lambda v: exact.kl_exact(v, thetas, states, iters=5, damping=0.1),  # well-conditioned: CG is stable
     ):
         assert torch.allclose(fn(view), fn(slow), rtol=1e-9, atol=1e-10)
 
@@ -288,14 +289,14 @@ def test_kl_exact_stops_when_the_objective_no_longer_moves():
     """ftol: a step that lowers F by <= ftol·F ends the iterations (float32 rounding, not progress)."""
     view, states, thetas = _mlp(0)
     loose, strict = {}, {}
-    agg.kl_exact(view, thetas, states, iters=30, ftol=1e-2, info=loose)
-    agg.kl_exact(view, thetas, states, iters=30, ftol=0.0, info=strict)
+    exact.kl_exact(view, thetas, states, iters=30, ftol=1e-2, info=loose)
+    exact.kl_exact(view, thetas, states, iters=30, ftol=0.0, info=strict)
     assert loose["iters"] < strict["iters"]
     f = loose["objective"]
     assert all(a - b > 1e-2 * a for a, b in zip(f[:-2], f[1:-1], strict=True))  # every step but the last moved F
     assert strict["objective"][-1] <= f[-1] <= f[0]
     with pytest.raises(ValueError, match="ftol"):
-        agg.kl_exact(view, thetas, states, ftol=-1.0)
+        exact.kl_exact(view, thetas, states, ftol=-1.0)
 
 
 # ------------------------------------------------------------------------ relative CG tolerance
@@ -377,7 +378,7 @@ def test_analysis_linear_gaussian_table_and_slopes():
 def test_analysis_verdict_statuses():
     import pandas as pd
 
-    from thesis_repro import report
+    from thesis_repro.claims import analysis_4_kl, report
     from thesis_repro.mdl import kl_analysis as ka
 
     lin = pd.DataFrame(
@@ -397,11 +398,11 @@ def test_analysis_verdict_statuses():
             index=list(ka.AGGREGATES),
         )
 
-    got = [v.status for v in ka.verdict(summary(0.0), lin, "small")]
+    got = [v.status for v in analysis_4_kl.verdicts(summary(0.0), lin, "small")]
     assert got == [report.DOES_NOT, report.DOES_NOT, report.REPRODUCES]
-    assert ka.verdict(summary(0.5), lin, "small")[0].status == report.PARTLY
-    assert ka.verdict(summary(1.0), lin, "small")[0].status == report.REPRODUCES
-    assert {v.status for v in ka.verdict(summary(1.0), lin, "smoke")} == {report.NOT_JUDGED}
+    assert analysis_4_kl.verdicts(summary(0.5), lin, "small")[0].status == report.PARTLY
+    assert analysis_4_kl.verdicts(summary(1.0), lin, "small")[0].status == report.REPRODUCES
+    assert {v.status for v in analysis_4_kl.verdicts(summary(1.0), lin, "smoke")} == {report.NOT_JUDGED}
     bad = lin.copy()
     bad.loc["kl_exact", "eq47"] = 1.5  # did not reach the closed form
-    assert ka.verdict(summary(0.0), bad, "small")[2].status == report.DOES_NOT
+    assert analysis_4_kl.verdicts(summary(0.0), bad, "small")[2].status == report.DOES_NOT

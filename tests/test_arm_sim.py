@@ -378,7 +378,7 @@ def test_bench_arm_reports_ratio_and_cma_generation():
 
 
 def test_solve_task_job_returns_a_recorded_rollout(tmp_path):
-    from thesis_repro.arm.bench import solve_task
+    from thesis_repro.arm.learn import solve_task
 
     cfg = {
         "family": "bic",

@@ -34,7 +34,8 @@ from urllib.parse import unquote, urlparse
 import pytest
 import yaml
 
-from thesis_repro import book, figures, notebooks, paths, protocol, report
+from thesis_repro import book, figures, notebooks, paths, protocol
+from thesis_repro.claims import report
 
 #: `make test` runs pytest in two processes (`-n 2 --dist loadgroup`): every test that shares the smoke
 #: notebooks' session folder runs in the same one, so they execute once.

@@ -12,9 +12,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import paths, report
+from thesis_repro import paths
 from thesis_repro.claims import ledger as L
 from thesis_repro.claims import measures as M
+from thesis_repro.claims import report
 from thesis_repro.claims import synthetic as S
 from thesis_repro.claims.stats import Contrast, CountRule, Unit, null_pass_rate
 

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pkgutil
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import report
 from thesis_repro.claims import calibration as C
-from thesis_repro.claims import design, registry
+from thesis_repro.claims import design, registry, report
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import stats as S
 from thesis_repro.claims.judge import count_rule, judge_v2
@@ -32,6 +32,13 @@ def test_a_changed_rule_without_a_new_version_is_caught(monkeypatch):
     monkeypatch.setattr(registry, "specs", lambda: tuple(changed))
     assert design.check_frozen() == ["claim 3.3-negative-correlation: rule changed"]
     assert reg is registry.registry()
+
+
+def test_the_engine_hash_covers_every_measures_module():
+    """A measure in a module the hash does not read could change without breaking the freeze."""
+    hashed = {m.__name__ for m in design.ENGINE_MODULES}
+    assert {f"{M.__name__}.{m.name}" for m in pkgutil.iter_modules(M.__path__)} == hashed
+    assert {fn.__module__ for fn in M.MEASURES.values()} <= hashed
 
 
 def test_wording_may_change_but_judging_code_may_not():

@@ -20,8 +20,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import report
-from thesis_repro.claims import cli, design
+from thesis_repro.claims import cli, design, report
 from thesis_repro.claims import ledger as L
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import synthetic as S

@@ -10,9 +10,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import report, study
+from thesis_repro import study
 from thesis_repro.cache import RunCache
 from thesis_repro.claims import ledger as L
+from thesis_repro.claims import report
 from thesis_repro.claims import synthetic as S
 
 #: The study's result as measured (README / `python -m thesis_repro.study lr-schedule --summary`).

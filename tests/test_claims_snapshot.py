@@ -8,8 +8,7 @@ import json
 
 import pytest
 
-from thesis_repro import report
-from thesis_repro.claims import cli, snapshot
+from thesis_repro.claims import cli, report, snapshot
 from thesis_repro.claims import ledger as L
 from thesis_repro.claims import synthetic as S
 

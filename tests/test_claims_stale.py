@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from thesis_repro import paths, report
-from thesis_repro.claims import cli
+from thesis_repro import paths
+from thesis_repro.claims import cli, report
 from thesis_repro.claims import ledger as L
 from thesis_repro.claims import synthetic as S
 

@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import budgets, report
-from thesis_repro.claims import cli, design, registry
+from thesis_repro import budgets
+from thesis_repro.claims import cli, design, registry, report
 from thesis_repro.claims import ledger as L
 from thesis_repro.claims import synthetic as S
 

@@ -10,9 +10,9 @@ import pandas as pd
 import pytest
 
 from tests.test_claims_seeds import SCALE, effect_frames
-from thesis_repro import report
 from thesis_repro.claims import confirmatory as C
 from thesis_repro.claims import ledger as L
+from thesis_repro.claims import report
 
 pytestmark = pytest.mark.xdist_group("claims-seeds")
 

@@ -18,7 +18,8 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from thesis_repro.envs import make_env
-from thesis_repro.learners.fast import FastPPO, _ManualActorCritic, ppo_epochs, rollout_tensors
+from thesis_repro.learners.fast import FastPPO, ppo_epochs, rollout_tensors
+from thesis_repro.learners.kernels import _ManualActorCritic
 from thesis_repro.learners.policies import SCNPolicy
 
 ATOL = 1e-5
@@ -283,7 +284,7 @@ def test_fast_collect_rollouts_equals_sb3(policy):
 
 
 def test_fused_adam_step_is_optimizer_step_bit_for_bit():
-    from thesis_repro.learners.fast import _FusedAdamStep
+    from thesis_repro.learners.kernels import _FusedAdamStep
 
     def make(fused=True):
         th.manual_seed(0)

@@ -34,7 +34,8 @@ MARKER = ""
 import time
 from pathlib import Path
 
-from thesis_repro import paths, report
+from thesis_repro import paths
+from thesis_repro.claims import report
 
 out = paths.figures(SCALE) / "fig-9.1.png"
 out.parent.mkdir(parents=True, exist_ok=True)

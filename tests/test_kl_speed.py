@@ -1,7 +1,7 @@
 """The shortcuts of the kl-avg / kl-exact / multi-domain speed-ups compute the same bits as the code they replace.
 
 Whole tiny runs are checked against recorded digests by ``tests/test_speed_identity.py``; these tests pin the
-pieces: the graph-free Eq 4.7 value of :func:`~thesis_repro.mdl.aggregate.kl_exact`'s line search, the
+pieces: the graph-free Eq 4.7 value of :func:`~thesis_repro.mdl.exact.kl_exact`'s line search, the
 per-target KLs of :func:`~thesis_repro.mdl.aggregate.eq47_kls` (π_θ's forward pass once), and the sequential
 learners' one-env domain views (``LeanVecNormalize``, as the training env).
 """

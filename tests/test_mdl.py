@@ -166,7 +166,13 @@ def test_sb3_view_selects_actor_parameters():
 
 from tests.interrupt import Interrupt  # noqa: E402
 from thesis_repro.envs import make_env  # noqa: E402
-from thesis_repro.learners import MULTI_DOMAIN, load_policy, train_config, train_job  # noqa: E402
+from thesis_repro.learners import (  # noqa: E402
+    MULTI_DOMAIN,
+    load_policy,
+    meta,  # noqa: E402
+    train_config,
+    train_job,
+)
 from thesis_repro.learners import multidomain as md  # noqa: E402
 from thesis_repro.learners import train as lt  # noqa: E402
 from thesis_repro.learners.fast import FastPPO, rollout_tensors  # noqa: E402
@@ -226,14 +232,14 @@ def test_reptile_meta_gradient_is_pi_minus_adapted():
     before = {k: v.clone() for k, v in m.state_dict().items()}
     adapted = {k: v + torch.randn_like(v) for k, v in before.items()}
     opt = torch.optim.SGD(m.parameters(), lr=0.25)
-    md.reptile_meta_step(m, adapted, opt)
+    meta.reptile_meta_step(m, adapted, opt)
     for name, p in m.named_parameters():
         assert torch.allclose(p.grad, before[name] - adapted[name])
         assert torch.allclose(p, before[name] + 0.25 * (adapted[name] - before[name]))
     # Adam's first step moves every coordinate by ~lr towards pi'
     m2 = torch.nn.Linear(3, 2)
     b2 = {k: v.clone() for k, v in m2.state_dict().items()}
-    md.reptile_meta_step(m2, {k: v + 1.0 for k, v in b2.items()}, torch.optim.Adam(m2.parameters(), lr=1e-3))
+    meta.reptile_meta_step(m2, {k: v + 1.0 for k, v in b2.items()}, torch.optim.Adam(m2.parameters(), lr=1e-3))
     for name, p in m2.named_parameters():
         assert torch.allclose(p - b2[name], torch.full_like(p, 1e-3), atol=1e-6)
 
@@ -242,11 +248,11 @@ def test_fomaml_meta_step_uses_mean_of_given_gradients():
     m = torch.nn.Linear(2, 1)
     before = {k: v.clone() for k, v in m.state_dict().items()}
     grads = [{k: torch.full_like(v, float(i)) for k, v in before.items()} for i in (1, 2, 3)]
-    md.fomaml_meta_step(m, grads, torch.optim.SGD(m.parameters(), lr=1.0))
+    meta.fomaml_meta_step(m, grads, torch.optim.SGD(m.parameters(), lr=1.0))
     for name, p in m.named_parameters():
         assert torch.allclose(p, before[name] - 2.0)
     with pytest.raises(ValueError, match="at least one"):
-        md.fomaml_meta_step(m, [], torch.optim.SGD(m.parameters(), lr=1.0))
+        meta.fomaml_meta_step(m, [], torch.optim.SGD(m.parameters(), lr=1.0))
 
 
 def test_maml_gradient_is_taken_at_adapted_parameters_on_fresh_data():

@@ -14,7 +14,7 @@ import torch as th
 from stable_baselines3.common.policies import ActorCriticPolicy
 
 from thesis_repro.learners.policies import SCNPolicy
-from thesis_repro.learners.policy import UnsafePolicyFile, build_policy, load_policy, read_state_dict, save_policy
+from thesis_repro.learners.policy_file import UnsafePolicyFile, build_policy, load_policy, read_state_dict, save_policy
 
 
 def _saved(folder: Path, cls: type = ActorCriticPolicy) -> ActorCriticPolicy:

@@ -10,11 +10,11 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
 from tests.interrupt import Interrupt
+from thesis_repro.learners import meta, train_config, train_job
 from thesis_repro.learners import multidomain as md
 from thesis_repro.learners import train as lt
-from thesis_repro.learners import train_config, train_job
 from thesis_repro.learners.arpl import ARPLVecEnv, arpl_perturbation
-from thesis_repro.learners.policy import read_state_dict
+from thesis_repro.learners.policy_file import read_state_dict
 
 th.set_num_threads(1)
 
@@ -262,13 +262,13 @@ def test_maml_outer_update_with_cached_gradient_objects_is_bit_identical(monkeyp
     """The PPO outer update builds each sub-policy's gradient recorder and closed-form path once per update;
     rebuilding them for every gradient (the earlier code) gives the same parameters, bit for bit."""
     cached, draw = _two_outer_updates(per_batch)
-    real, calls = md.post_adaptation_gradient, []
+    real, calls = meta.post_adaptation_gradient, []
 
     def fresh(policy, data, recorder=None, manual=None, **kw):
         calls.append(recorder is not None and manual is not None)  # the update passed its caches ...
         return real(policy, data, **kw)  # ... which are dropped: fresh objects for every gradient
 
-    monkeypatch.setattr(md, "post_adaptation_gradient", fresh)
+    monkeypatch.setattr(meta, "post_adaptation_gradient", fresh)
     rebuilt, draw_rebuilt = _two_outer_updates(per_batch)
     assert calls and all(calls)
     assert th.equal(cached, rebuilt) and draw == draw_rebuilt

@@ -9,7 +9,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from thesis_repro import paths, reference
+from thesis_repro import paths, thesis_numbers
 
 AUC_METHODS = {
     "table3_4": ["ppo", "trpo", "ddpg", "sac"],
@@ -21,16 +21,16 @@ THESIS_TXT = Path(os.environ.get("THESIS_TXT", "/work/shared/thesis.txt"))
 
 
 def _value(name: str, env: str, test: str, method: str) -> tuple[float, float]:
-    row = reference.thesis_table(name, env=env, test=test, method=method)
+    row = thesis_numbers.thesis_table(name, env=env, test=test, method=method)
     assert len(row) == 1
     return row["mean"].item(), row["std"].item()
 
 
 def test_every_table_has_a_csv_and_loads_with_source_thesis():
     on_disk = {p.stem for p in paths.THESIS_DATA.glob("*.csv")}
-    assert on_disk == set(reference.TABLES)
-    for name, columns in reference.TABLES.items():
-        frame = reference.load(name)
+    assert on_disk == set(thesis_numbers.TABLES)
+    for name, columns in thesis_numbers.TABLES.items():
+        frame = thesis_numbers.load(name)
         assert list(frame.columns[: len(columns)]) == list(columns)
         assert (frame["source"] == "thesis").all()
         assert not frame.drop(columns=[c for c in ["note"] if c in frame]).isna().any().any()
@@ -38,17 +38,17 @@ def test_every_table_has_a_csv_and_loads_with_source_thesis():
 
 @pytest.mark.parametrize("name,methods", AUC_METHODS.items())
 def test_auc_tables_are_complete_env_test_method_grids(name, methods):
-    frame = reference.load(name)
+    frame = thesis_numbers.load(name)
     assert len(frame) == 5 * 4 * len(methods)
-    assert list(frame["env"].unique()) == list(reference.ENVS)
-    assert list(frame["test"].unique()) == list(reference.TESTS)
+    assert list(frame["env"].unique()) == list(thesis_numbers.ENVS)
+    assert list(frame["test"].unique()) == list(thesis_numbers.TESTS)
     assert list(frame["method"].unique()) == methods
     assert not frame.duplicated(["env", "test", "method"]).any()
     assert (frame["std"] >= 0).all() and (frame["mean"] > 0).all()
 
 
 def test_fig3_3c_shape_and_spot_values():
-    frame = reference.load("fig3_3c").set_index(["env", "test"])["value"]
+    frame = thesis_numbers.load("fig3_3c").set_index(["env", "test"])["value"]
     assert len(frame) == 20 and frame.between(-1, 1).all()
     assert frame["Walker2d", "obs"] == -0.760
     assert frame["HalfCheetah", "obs"] == -0.946
@@ -59,7 +59,7 @@ def test_fig3_3c_shape_and_spot_values():
 
 def test_ppo_column_identical_across_tables_3_4_to_3_7_and_mdl_in_3_5_and_3_7():
     def column(name: str, method: str) -> pd.DataFrame:
-        frame = reference.thesis_table(name, method=method)
+        frame = thesis_numbers.thesis_table(name, method=method)
         return frame[["env", "test", "mean", "std"]].reset_index(drop=True)
 
     for name in ["table3_5", "table3_6", "table3_7"]:
@@ -80,7 +80,7 @@ def test_spot_values_including_rows_with_misplaced_labels_in_the_text():
 
 
 def test_table3_3_shapes_values_and_the_claims_of_section_3_3_3():
-    a = reference.load("table3_3a")
+    a = thesis_numbers.load("table3_3a")
     assert len(a) == 5
     deterministic = a.loc[a["train_condition"] == "deterministic", "mean"].item()
     assert deterministic == 3128.6
@@ -88,7 +88,7 @@ def test_table3_3_shapes_values_and_the_claims_of_section_3_3_3():
     # (i) training return is lower when adding noise, except environmental noise
     assert (noisy[["obs", "act", "mdl"]] < deterministic).all() and noisy["env"] > deterministic
 
-    b = reference.load("table3_3b")
+    b = thesis_numbers.load("table3_3b")
     assert len(b) == 4 * 3 * 2
     assert not b.duplicated(["noise_type", "sigma_te", "train_sigma"]).any()
     ret = b.set_index(["noise_type", "sigma_te", "train_sigma"])["mean"]
@@ -100,39 +100,39 @@ def test_table3_3_shapes_values_and_the_claims_of_section_3_3_3():
 
 
 def test_chapter4_and_5_settings():
-    conditions = reference.load("chapter4_conditions")
+    conditions = thesis_numbers.load("chapter4_conditions")
     panels = conditions[conditions["figure"] == "4.1"].set_index("panel")
     assert list(panels.index) == ["a", "b", "c", "d"]
     assert panels.loc["d", ["action_penalty", "wind_low", "wind_high"]].tolist() == [1.0, -2.5, 2.5]
     assert (conditions["wind_low"] == -conditions["wind_high"]).all()
 
-    ch4 = reference.load("chapter4_settings").set_index(["parameter", "condition"])["value"]
+    ch4 = thesis_numbers.load("chapter4_settings").set_index(["parameter", "condition"])["value"]
     per_domain = ch4["batch_size_per_domain", "kl_avg"] * ch4["n_domains_per_iteration", "kl_avg"]
     assert ch4["batch_size", "joint"] == per_domain == ch4["timesteps_per_iteration", "all"]
-    ch5 = reference.load("chapter5_settings").set_index(["parameter", "condition"])["value"]
+    ch5 = thesis_numbers.load("chapter5_settings").set_index(["parameter", "condition"])["value"]
     assert ch5["pretraining_trials", "curriculum"] == 6000 and ch5["bic_trials", "curriculum"] == 4000
     assert ch5["n_transfer_experiments", "all"] == ch5["n_task_categories", "all"] ** 2
 
 
 def test_unknown_names_and_filters_raise_clear_errors():
     with pytest.raises(ValueError, match="valid thesis tables are: .*'table3_4'"):
-        reference.load("table9_9")
+        thesis_numbers.load("table9_9")
     with pytest.raises(ValueError, match="valid envs are: .*'InvertedPendulum'"):
-        reference.thesis_table("table3_4", env="Pendulum")
+        thesis_numbers.thesis_table("table3_4", env="Pendulum")
     with pytest.raises(ValueError, match="valid methods are: .*'sac'"):
-        reference.thesis_table("table3_4", method="ppo-mdl")
+        thesis_numbers.thesis_table("table3_4", method="ppo-mdl")
     with pytest.raises(ValueError, match="no 'method' column"):
-        reference.thesis_table("fig3_3c", method="ppo")
+        thesis_numbers.thesis_table("fig3_3c", method="ppo")
 
 
 def test_load_rejects_a_csv_with_missing_columns_or_values(tmp_path, monkeypatch):
     monkeypatch.setattr(paths, "THESIS_DATA", tmp_path)
     (tmp_path / "fig3_3c.csv").write_text("env,test\nHopper,obs\n")
     with pytest.raises(ValueError, match="lacks columns \\['value'\\]"):
-        reference.load("fig3_3c")
+        thesis_numbers.load("fig3_3c")
     (tmp_path / "fig3_3c.csv").write_text("env,test,value\nHopper,obs,\n")
     with pytest.raises(ValueError, match="missing values"):
-        reference.load("fig3_3c")
+        thesis_numbers.load("fig3_3c")
 
 
 @pytest.mark.skipif(not THESIS_TXT.exists(), reason="thesis plain text not available")
@@ -147,5 +147,5 @@ def test_csvs_match_a_fresh_transcription_of_the_thesis_text():
         fresh[f"table{number.replace('.', '_')}"] = transcribe.auc_table(lines, number)
     for name, rows in fresh.items():
         expected = pd.DataFrame(rows).astype({c: float for c in ["mean", "std", "value"] if c in rows[0]})
-        got = reference.load(name).drop(columns="source")
+        got = thesis_numbers.load(name).drop(columns="source")
         pd.testing.assert_frame_equal(got, expected, check_dtype=False)

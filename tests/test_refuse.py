@@ -58,8 +58,9 @@ def test_local_runs_used_over_shipped_ones_are_said(toy_training, tmp_path, monk
 def test_local_runs_used_over_shipped_ones_are_named_in_the_verdicts_evidence(toy_training, tmp_path, monkeypatch):
     """The page's meta counts its runs read from the local run cache (those replacing a shipped copy too), and
     every verdict judged from that page's numbers says how many in its evidence."""
-    from thesis_repro import pages, report
+    from thesis_repro import pages
     from thesis_repro.claims import ledger as L
+    from thesis_repro.claims import report
     from thesis_repro.claims import synthetic as S
 
     monkeypatch.setitem(figures.FIGURES, "3.3", dataclasses.replace(figures.get("3.3"), grid=lambda s: list(TOY)))

@@ -10,7 +10,7 @@ import torch as th
 
 from tests.interrupt import Interrupt
 from thesis_repro.learners import train_config, train_job
-from thesis_repro.learners.policy import read_state_dict
+from thesis_repro.learners.policy_file import read_state_dict
 from thesis_repro.learners.resume import ResumeMismatch, capture, restore
 
 OFF = {"learning_starts": 40, "buffer_size": 2000, "train_freq": 16, "gradient_steps": 2, "batch_size": 32}

@@ -9,8 +9,8 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 
-from thesis_repro.learners.fast import _ones_like_steps
 from thesis_repro.learners.fast_offpolicy import FastSAC, _Numbers, _polyak, _polyak_factor, _replay_sample
+from thesis_repro.learners.kernels import _ones_like_steps
 
 
 def _values(seed: int, shape=(257, 9)) -> th.Tensor:

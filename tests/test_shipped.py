@@ -10,9 +10,9 @@ import json
 
 import pytest
 
-from thesis_repro import paths, plan, provenance, report, retrain_check, runs, shipped_checks
+from thesis_repro import paths, plan, provenance, retrain_check, runs, shipped_checks
 from thesis_repro.cache import RunCache
-from thesis_repro.claims import ledger, snapshot
+from thesis_repro.claims import ledger, report, snapshot
 
 LAYER = paths.ROOT / "data" / "reference"
 

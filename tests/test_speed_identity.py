@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from thesis_repro.learners import train_config, train_job
-from thesis_repro.learners.policy import read_state_dict
+from thesis_repro.learners.policy_file import read_state_dict
 
 FIXTURE = Path(__file__).parent / "data" / "speed_identity.json"
 OFF = {"learning_starts": 40, "buffer_size": 2000, "train_freq": 16, "gradient_steps": 2, "batch_size": 32}

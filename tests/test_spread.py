@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import budgets, paths, reference
+from thesis_repro import budgets, paths, thesis_numbers
 from thesis_repro.__main__ import main
 from thesis_repro.learners import train_config
 from thesis_repro.study import lr_schedule_jobs
@@ -50,7 +50,7 @@ def test_one_seed_has_no_sd_and_a_missing_value_stays_missing():
     assert out.loc["Walker2d", "n"] == 1 and out.loc["Walker2d", "final_mean"] == 3000.0
     assert np.isnan(out.loc["Walker2d", "final_sd"]) and np.isnan(out.loc["Walker2d", "at_sd"])
     assert np.isnan(out.loc["Hopper", "at_mean"]) and out.loc["Hopper", "final_mean"] == 2100.0  # not the mean of one
-    text = budgets.render_spread(budgets.aggregate_seeds(frame), at=AT, published=reference.published())
+    text = budgets.render_spread(budgets.aggregate_seeds(frame), at=AT, published=thesis_numbers.published())
     assert (
         "| ppo | Walker2d | thesis | 0 | 1M | 3,000 (1 seed) | 2,500 (1 seed) | 2,288 ± 572 (CleanRL, v4, 1M) |" in text
     )
@@ -76,7 +76,7 @@ def test_unknown_protocol_is_a_one_line_error_naming_the_valid_ones(capsys):
 
 
 def test_published_loader_returns_cleanrl_ppo_rows():
-    table = reference.published()
+    table = thesis_numbers.published()
     assert set(table["kind"]) == {"published"}
     clean = table[table["source"] == "CleanRL"].set_index("env")
     assert set(clean["algo"]) == {"ppo"} and set(clean["steps"]) == {1_000_000} and set(clean["env_version"]) == {"v4"}
@@ -158,7 +158,7 @@ def test_book_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
     header, rows = lines[:2], lines[2:]
     assert rows, "the spread block has no rows"
     per_run = budgets.seed_runs("small", protocol=PROTOCOL, at=AT, cache=budgets.shipped_cache())
-    published = reference.published()
+    published = thesis_numbers.published()
     empty = budgets.aggregate_seeds(per_run.iloc[:0])
     assert header == budgets.render_spread(empty, at=AT, published=published).splitlines()
     labels = per_run["timesteps"].map(budgets.steps_label)

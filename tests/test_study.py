@@ -11,9 +11,8 @@ import pytest
 import torch as th
 
 from thesis_repro import study
-from thesis_repro.learners import multidomain as md
+from thesis_repro.learners import meta, train_config
 from thesis_repro.learners import train as lt
-from thesis_repro.learners import train_config
 
 th.set_num_threads(1)
 
@@ -36,7 +35,7 @@ def test_the_interpolating_outer_step_moves_pi_by_eps_t_towards_the_adapted_poli
     π + ε_t(π' − π) exactly."""
     model = _model(512, meta_step_size=eps)
     seen = []
-    orig = md.reptile_interpolate
+    orig = meta.reptile_interpolate
 
     def spy(module, adapted, e):
         before = th.cat([p.detach().flatten() for p in module.parameters()]).clone()
@@ -44,11 +43,11 @@ def test_the_interpolating_outer_step_moves_pi_by_eps_t_towards_the_adapted_poli
         orig(module, adapted, e)
         seen.append((e, before, target, th.cat([p.detach().flatten() for p in module.parameters()]).clone()))
 
-    md.reptile_interpolate = spy
+    meta.reptile_interpolate = spy
     try:
         model.learn(512)
     finally:
-        md.reptile_interpolate = orig
+        meta.reptile_interpolate = orig
     assert [e for e, *_ in seen] == pytest.approx([eps, 0.75 * eps, 0.5 * eps, 0.25 * eps])
     for e, before, target, after in seen:
         assert th.allclose(after, before + e * (target - before), atol=1e-6)

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from thesis_repro import reference
+from thesis_repro import thesis_numbers
 from thesis_repro.evaluation import tables as T
 
 RNG = np.random.default_rng(0)
@@ -20,7 +20,7 @@ def samples(env: str, test: str, method: str, values) -> pd.DataFrame:
 
 # ---------------------------------------------------------------- settings read from the thesis data
 def test_significance_level_and_n_come_from_the_thesis_settings():
-    settings = reference.load("chapter3_settings").set_index("parameter")
+    settings = thesis_numbers.load("chapter3_settings").set_index("parameter")
     assert T.significance_level() == float(settings.loc["welch_p_value", "value"]) == 0.05
     assert T.thesis_n() == int(settings.loc["n_train_seeds", "value"]) * int(settings.loc["n_test_seeds", "value"])
     assert "647" in settings.loc["welch_p_value", "ref"]  # the caption sentence is cited by line
@@ -100,13 +100,13 @@ def test_bold_on_samples_matches_per_pair_scipy_tests():
 
 
 def test_thesis_bolding_derived_with_n_240():
-    t = T.bold(reference.load("table3_4"), n=T.thesis_n())
+    t = T.bold(thesis_numbers.load("table3_4"), n=T.thesis_n())
     row = t[(t.env == "Walker2d") & (t.test == "dom")].set_index("method")["bold"]
     # SAC 2779.8 ± 443.8 best; TRPO 2648.4 ± 417.5: p ~ 9e-4 < 0.05 -> not bold
     assert row.to_dict() == {"ppo": False, "trpo": False, "ddpg": False, "sac": True}
     assert T.welch_p_from_stats(2779.8, 443.8, 240, 2648.4, 417.5, 240) < 0.05
     with pytest.raises(ValueError, match="pass n="):
-        T.bold(reference.load("table3_4"))
+        T.bold(thesis_numbers.load("table3_4"))
 
 
 def test_bold_agreement_counts():
@@ -127,7 +127,7 @@ def test_bold_agreement_counts():
 
 
 def test_bold_agreement_with_itself_is_total():
-    t = T.bold(reference.load("table3_6"), n=T.thesis_n())
+    t = T.bold(thesis_numbers.load("table3_6"), n=T.thesis_n())
     a = T.bold_agreement(t, t)
     assert a["same"] == a["cells"] == 120 and a["best_same"] == a["rows"] == 20
 
@@ -155,14 +155,15 @@ def test_auc_change_relative_to_baseline_and_to_the_row_max():
 
 
 def test_auc_change_is_scale_free_per_task():
-    t = reference.load("table3_5")
+    t = thesis_numbers.load("table3_5")
     scaled = t.assign(mean=np.where(t.env == "InvertedDoublePendulum", t["mean"] * 10, t["mean"]))
     a, b = T.auc_change(t, "ppo"), T.auc_change(scaled, "ppo")
     assert np.allclose(a.change, b.change)
 
 
 # ================================================================ the chapter-3 items (figures.ch3_tables / ch3_curves)
-from thesis_repro import figures, paths, report  # noqa: E402
+from thesis_repro import figures, paths  # noqa: E402
+from thesis_repro.claims import report  # noqa: E402
 from thesis_repro.figures import ch3_curves as C  # noqa: E402
 from thesis_repro.figures import ch3_tables as F  # noqa: E402
 
@@ -305,7 +306,7 @@ def test_table33_cells_and_its_sigma_grid(monkeypatch):
 def test_bars_derived_from_the_thesis_tables_by_hand():
     s = F.settings("3.5", "full")
     b = C.bars("3.5", F.thesis_cells(), s)
-    th = reference.load("table3_5").pivot_table(index=["env", "test"], columns="method", values="mean")
+    th = thesis_numbers.load("table3_5").pivot_table(index=["env", "test"], columns="method", values="mean")
     obs = th.xs("obs", level="test")
     expect = ((obs["ppo-mdl"] - obs["ppo"]) / obs["ppo"]).mean()
     got = b.query("source == 'thesis' and method == 'ppo-mdl' and test == 'obs'").change.item()

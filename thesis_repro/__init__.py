@@ -3,10 +3,10 @@
 The package map, layers from the bottom up. A module imports only from its own layer and the layers below it
 (``tests/test_layers.py`` reads this list and enforces it; ``tests/test_imports.py`` forbids import circles):
 
-1. **core**: ``thesis_repro``, ``paths``, ``validation``, ``provenance``, ``scales``, ``reference``, ``report``,
+1. **core**: ``thesis_repro``, ``paths``, ``validation``, ``provenance``, ``scales``, ``thesis_numbers``,
    ``jobs``, ``bench`` -- locations, checks, where and in which numerics an entry was made, the scale table, the
-   thesis's numbers, the verdict words, the job registry and the timing helpers; they import the standard
-   library, third-party packages and each other only.
+   thesis's numbers, the job registry and the timing helpers; they import the standard library, third-party
+   packages and each other only.
 2. **store and backends**: ``cache``, ``backends`` -- the run cache and where jobs run; may import core (a job
    function is resolved by name through ``jobs``, never imported).
 3. **envs**: ``envs`` -- the MuJoCo tasks and their perturbations; may import core.
@@ -19,8 +19,8 @@ The package map, layers from the bottom up. A module imports only from its own l
    ``budgets`` -- cost plans, where the runs are and their export into the shipped layer, the shipped layer's
    checks, a retrain against a shipped run, the reference-run generator and the order it makes items in (claims
    settled per core-hour), the protocol studies, budgets; may import figures and below.
-8. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed; may import runs (the
-   studies) and below, never figures.
+8. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed, in the verdict words
+   of ``claims.report``; may import runs (the studies) and below, never figures.
 9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``verify``, ``__main__``,
    ``bench.__main__``, ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside the shipped
    learners, ``make verify`` (it re-runs a claim's notebooks) and the command lines; may import everything.

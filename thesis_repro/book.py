@@ -46,7 +46,8 @@ from typing import Any
 
 import yaml
 
-from thesis_repro import notebooks, paths, protocol, report
+from thesis_repro import notebooks, paths, protocol
+from thesis_repro.claims import report
 from thesis_repro.scales import check_scale
 
 #: Lines of a stream output that are progress or log, not content (tqdm bars, file logs, verdict echo).

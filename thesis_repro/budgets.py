@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import figures, generator, paths, reference, runs
+from thesis_repro import figures, generator, paths, runs, thesis_numbers
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.figures.ch3 import training_return_at
 from thesis_repro.learners.config import ALGORITHMS, IDENTITY, PROTOCOLS, THESIS_PROTOCOL_KEYS, train_config
@@ -55,7 +55,7 @@ def thesis_training_returns() -> dict[tuple[str, str], float]:
     >>> thesis_training_returns()[("ppo", "Walker2d")]
     3128.6
     """
-    table = reference.load("table3_3a")
+    table = thesis_numbers.load("table3_3a")
     return {(TABLE_3_3A_ALGOS[r.noise_type], "Walker2d"): float(r["mean"]) for _, r in table.iterrows()}
 
 
@@ -427,7 +427,7 @@ def spread(runs: pd.DataFrame) -> pd.DataFrame:
     setting. The lr-schedule study's runs are rows of their own (1M steps; ``setting="lr_schedule=constant"``
     for its constant arm)."""
     frame = aggregate_seeds(runs)
-    envs = list(reference.ENVS)
+    envs = list(thesis_numbers.ENVS)
     order = frame.assign(
         _a=frame["algorithm"].map(lambda a: ALGORITHMS.index(a) if a in ALGORITHMS else len(ALGORITHMS)),
         _e=frame["env"].map(lambda e: envs.index(e) if e in envs else len(envs)),
@@ -458,11 +458,11 @@ def _mean_sd(mean: float, sd: float, n: int) -> str:
 
 
 def published_cell(algorithm: str, env: str, table: pd.DataFrame, steps: Iterable[int] | None = None) -> str:
-    """The published results (:func:`thesis_repro.reference.published`) of learner ``algorithm`` on ``env``:
+    """The published results (:func:`thesis_repro.thesis_numbers.published`) of learner ``algorithm`` on ``env``:
     ``mean ± std (source, env version, steps)``, ``; ``-joined, ``""`` if none. With ``steps``, only results
     published at one of those step counts (a number is set beside ours at equal steps only).
 
-    >>> table = reference.published()
+    >>> table = thesis_numbers.published()
     >>> published_cell("ppo", "Hopper", table)
     '2,383 ± 272 (CleanRL, v4, 1M)'
     >>> published_cell("sac", "Walker2d", table), published_cell("ppo-16", "Hopper", table)
@@ -484,8 +484,8 @@ def render_spread(frame: pd.DataFrame, at: int | None = None, published: pd.Data
     """:func:`spread` as a markdown table: learner (with its ``[setting]``), task, protocol, seeds, steps, final
     training return mean ± sd, with ``at`` the return at ``at`` steps, and the published results of the same
     learner on the task (:func:`published_cell`; ``published`` defaults to
-    :func:`thesis_repro.reference.published`). ``(1 seed)`` marks a row without spread, ``-`` a missing value."""
-    published = reference.published() if published is None else published
+    :func:`thesis_repro.thesis_numbers.published`). ``(1 seed)`` marks a row without spread, ``-`` a missing value."""
+    published = thesis_numbers.published() if published is None else published
     head = ["learner", "task", "protocol", "seeds", "steps", "final return, mean ± sd"]
     if at is not None:
         head.append(f"at {steps_label(at)} (last {AT_WINDOW} episodes), mean ± sd")

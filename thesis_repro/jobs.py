@@ -259,5 +259,5 @@ register(
     resources=_ONE,
 )
 register("arm-curriculum", "thesis_repro.arm.curriculum:curriculum_job", resources=_ONE)
-register("arm-solve", "thesis_repro.arm.bench:solve_task", resources=_ONE)
+register("arm-solve", "thesis_repro.arm.learn:solve_task", resources=_ONE)
 register("square", "thesis_repro.cache:_square", lambda c: f"x{c['x']}")  # toy job of doctests and tests

@@ -53,8 +53,9 @@ from typing import Any
 
 from jupyter_client import AsyncKernelManager
 
-from thesis_repro import paths, report
+from thesis_repro import paths
 from thesis_repro.cache import pid_alive
+from thesis_repro.claims import report
 from thesis_repro.scales import check_scale
 from thesis_repro.validation import check_choice
 

@@ -21,7 +21,7 @@ from thesis_repro.shipped_checks import shipped_job
 
 
 def _policy_arrays(result_or_path: Result | str | Path) -> dict[str, np.ndarray]:
-    from thesis_repro.learners.policy import read_state_dict  # local: keep the listing importable without torch
+    from thesis_repro.learners.policy_file import read_state_dict  # local: keep the listing importable without torch
 
     folder = Path(getattr(result_or_path, "out", result_or_path))
     if not (folder / "policy.pth").exists() and (folder / "out" / "policy.pth").exists():

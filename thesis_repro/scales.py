@@ -24,6 +24,8 @@ from thesis_repro import paths
 from thesis_repro.validation import check_choice
 
 SCALES: tuple[str, ...] = ("smoke", "small", "full")
+#: What a table cell, and a verdict, says of an item a scale cannot afford (e.g. an off-policy row at small).
+NOT_RUN = "not run at this scale"
 
 
 @cache

@@ -25,6 +25,9 @@ a mismatch. With ``--train`` it also retrains the cheapest shipped training run 
 the temporary cache) and checks it with :func:`thesis_repro.retrain_check.compare_retrain`, saying whether the shipped
 run was resumed after an interruption and whether that resume was exact.
 
+One file on purpose (over 600 lines): it is one command, and each of its parts (which entries, recomputing them
+in a worker, comparing the values, the report) serves only that command.
+
 >>> compare({"r": np.array([[1.0, 2.0]])}, {"r": np.array([[1.0, 2.0]])}, same=True).verdict
 'identical'
 >>> compare({"r": np.array([[100.0, 200.0]])}, {"r": np.array([[120.0, 182.0]])}, same=False).verdict

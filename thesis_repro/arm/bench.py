@@ -1,9 +1,9 @@
-"""Simulator benchmark and a single-task CMA-ES solver (a cached job, used by fig-5.3).
+"""Simulator benchmark of chapter 5's arm (``make bench``'s ``arm`` line): vectorised vs looped rollouts.
 
 :func:`bench_arm` times population rollouts of the vectorised simulator against a per-policy Python
 loop over the same simulator (ratio measured in one run), and the wall time of one CMA-ES generation
 (``cma.CMAEvolutionStrategy`` ask → one batched ``simulate`` → tell) at the CMA default population for
-the ``D·A`` policy parameters. :func:`solve_task` is ``fn(config, workdir)`` for the run cache.
+the ``D·A`` policy parameters.
 
 >>> r = bench_arm(n_rollouts=64, loop_rollouts=4, cma_generations=2)
 >>> sorted(k for k in r if k.endswith("per_s")), r["speedup"] > 1
@@ -13,12 +13,10 @@ the ``D·A`` policy parameters. :func:`solve_task` is ``fn(config, workdir)`` fo
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from thesis_repro.arm.learn import learn_independent
 from thesis_repro.arm.policy import RBFPolicy
 from thesis_repro.arm.tasks import ArmConfig, check_family, sample_tasks, simulate
 
@@ -83,41 +81,4 @@ def bench_arm(
         "cma_popsize": int(es.popsize),
         "cma_n_params": pol.n_params,
         "cma_generation_s": gen,
-    }
-
-
-def solve_task(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
-    """Run-cache job: CMA-ES (``thesis_repro.arm.learn.learn_independent``) on ONE task, then a recorded rollout.
-
-    ``config``: ``family``, ``task`` (list of task parameters), ``n_basis``, ``generations``, ``sigma``,
-    ``popsize`` (``None`` = CMA default), ``shaped`` (bool), ``seed``. The search starts from the policy
-    with zero RBF weights and unit PD gains. Returns the final ``W``, learning curves, the recorded
-    trajectory of the final mean policy (``ee``, ``ball``, ``taut``) and its ``cost``/``success``.
-    """
-    family = check_family(config["family"])
-    task = np.asarray(config["task"], dtype=float)[None]
-    pol = RBFPolicy(n_basis=int(config["n_basis"]))
-    W0 = pol.default_params()[None]
-    W, res = learn_independent(
-        family,
-        task,
-        W0,
-        generations=int(config["generations"]),
-        sigma=float(config["sigma"]),
-        popsize=config.get("popsize"),
-        shaped=bool(config["shaped"]),
-        seed=int(config["seed"]),
-    )
-    r = simulate(family, task, W, record=True)
-    return {
-        "W": W[0],
-        "curve": res.curve[0],
-        "success_curve": res.success[0],
-        "popsize": int(res.popsize),
-        "ee": r.ee[0],
-        "ball": r.ball[0] if r.ball is not None else np.zeros((0, 2)),
-        "taut": r.taut[0],
-        "hit_step": int(r.hit_step[0]),
-        "cost": float(r.task_cost[0]),
-        "success": bool(r.success[0]),
     }

@@ -17,12 +17,15 @@ refinement". We have no demonstrations, so the automatic equivalent used here is
 3. constructive MTL refinement: CMA-ES on the flat vector of (G, U1, U2, U3) for all source tasks at
    once, cost = mean shaped cost + ``l1 * |U3|_1 + l2 * (|G|² + |U1|² + |U2|²)``; a task keeps its
    refined policy only if that is not worse than its stage-1 policy.
+
+Two run-cache jobs: :func:`source_job` (the source tasks) and :func:`solve_task` (one task alone, Fig 5.3).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -366,3 +369,40 @@ def source_job(config: dict[str, Any], workdir: Any = None) -> dict[str, Any]:
     final = evaluate_policies(family, tasks, W, cfg["arm"])
     out.update(W=W, success=final["success"], cost=final["cost"], success_rate=float(final["success"].mean()))
     return out
+
+
+def solve_task(config: dict[str, Any], workdir: Path) -> dict[str, Any]:
+    """Run-cache job: CMA-ES (``thesis_repro.arm.learn.learn_independent``) on ONE task, then a recorded rollout.
+
+    ``config``: ``family``, ``task`` (list of task parameters), ``n_basis``, ``generations``, ``sigma``,
+    ``popsize`` (``None`` = CMA default), ``shaped`` (bool), ``seed``. The search starts from the policy
+    with zero RBF weights and unit PD gains. Returns the final ``W``, learning curves, the recorded
+    trajectory of the final mean policy (``ee``, ``ball``, ``taut``) and its ``cost``/``success``.
+    """
+    family = check_family(config["family"])
+    task = np.asarray(config["task"], dtype=float)[None]
+    pol = RBFPolicy(n_basis=int(config["n_basis"]))
+    W0 = pol.default_params()[None]
+    W, res = learn_independent(
+        family,
+        task,
+        W0,
+        generations=int(config["generations"]),
+        sigma=float(config["sigma"]),
+        popsize=config.get("popsize"),
+        shaped=bool(config["shaped"]),
+        seed=int(config["seed"]),
+    )
+    r = simulate(family, task, W, record=True)
+    return {
+        "W": W[0],
+        "curve": res.curve[0],
+        "success_curve": res.success[0],
+        "popsize": int(res.popsize),
+        "ee": r.ee[0],
+        "ball": r.ball[0] if r.ball is not None else np.zeros((0, 2)),
+        "taut": r.taut[0],
+        "hit_step": int(r.hit_step[0]),
+        "cost": float(r.task_cost[0]),
+        "success": bool(r.success[0]),
+    }

@@ -4,6 +4,9 @@ A benchmark is a zero-argument function named by ``"package.module:function"`` i
 It may print its own lines and returns a dict of measured values (printed as ``name.key = value``) or
 ``None``. Entries whose module is not importable yet are reported as missing, never as failures.
 To add yours, add one line to :data:`BENCHMARKS` (small edit) or call :func:`register` at import time.
+Each benchmark lives beside what it measures, so a ``bench`` module is always a throughput benchmark:
+``learners/bench.py`` (training), ``mdl/bench.py`` (multi-domain learners), ``arm/bench.py`` (the arm simulator)
+and ``bench/evaluation.py`` (the evaluator); this package only registers and runs them.
 
 >>> run(["nope"])  # doctest: +ELLIPSIS
 Traceback (most recent call last):

@@ -29,8 +29,8 @@ import numpy as np
 
 from thesis_repro.claims import stats as S
 from thesis_repro.claims.judge import judge_v2
+from thesis_repro.claims.report import DOES_NOT, REPRODUCES
 from thesis_repro.claims.stats import Contrast, CountRule, Unit
-from thesis_repro.report import DOES_NOT, REPRODUCES
 
 #: Draws per calibration direction (Monte-Carlo SE of a 5 % rate: 0.007).
 DRAWS = 1000

@@ -26,7 +26,7 @@ from typing import Any
 
 import pandas as pd
 
-from thesis_repro import report
+from thesis_repro.claims import report
 
 #: The first seed generated after design v2 was frozen: the confirmatory check judges seeds from here on alone.
 FIRST_FRESH = 3

@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from thesis_repro.claims import stats as S
+from thesis_repro.claims.report import DOES_NOT, INCONCLUSIVE, INDICATIVE, REPRODUCES
 from thesis_repro.claims.stats import CountRule, Pooled, Unit
-from thesis_repro.report import DOES_NOT, INCONCLUSIVE, INDICATIVE, REPRODUCES
 
 
 @dataclass

@@ -36,8 +36,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import paths, report
-from thesis_repro.claims import calibration, design, snapshot
+from thesis_repro import paths
+from thesis_repro.claims import calibration, design, report, snapshot
 from thesis_repro.claims import judge as J
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import sensitivity as subsets
@@ -123,13 +123,13 @@ THESIS_TABLES: dict[str, tuple[str, ...]] = {
 def thesis_data(page: str = "") -> dict[str, pd.DataFrame]:
     """The thesis's Tables 3.3-3.7 as one-pseudo-seed frames (its means), for thesis-tied thresholds; AUCs of
     the page's own table (:data:`THESIS_TABLES`; all four tables otherwise)."""
-    from thesis_repro import reference
+    from thesis_repro import thesis_numbers
 
     names = THESIS_TABLES.get(page, ("table3_4", "table3_5", "table3_6", "table3_7"))
-    frames = [reference.load(n) for n in names]
+    frames = [thesis_numbers.load(n) for n in names]
     t = pd.concat(frames).drop_duplicates(subset=["env", "test", "method"])
     aucs = t.assign(seed=0, value=t["mean"])[["env", "test", "method", "seed", "value"]]
-    b = reference.load("table3_3b")
+    b = thesis_numbers.load("table3_3b")
     method = [("ppo" if s == 0 else M.NOISY[n]) for n, s in zip(b["noise_type"], b["train_sigma"], strict=True)]
     ret = pd.DataFrame(
         {
@@ -141,7 +141,7 @@ def thesis_data(page: str = "") -> dict[str, pd.DataFrame]:
             "return": b["mean"],
         }
     )
-    a = reference.load("table3_3a")
+    a = thesis_numbers.load("table3_3a")
     names = {"none": "ppo", "obs": M.NOISY["obs"], "act": M.NOISY["act"], "env": M.NOISY["env"], "mdl": "ppo-mdl"}
     train = pd.DataFrame(
         {"env": "Walker2d", "method": [names[n] for n in a["noise_type"]], "seed": 0, "value": a["mean"]}
@@ -412,7 +412,7 @@ def rule_text(s: Spec) -> str:
     if r.get("visual"):
         return "not judged: the sentence is about what the figure looks like (the frames are shown on the page)"
     if "page_verdict" in r:
-        return "the analysis page's own rule (thesis_repro.mdl.kl_analysis.verdict: share of synthetic problems)"
+        return "the analysis page's own rule (thesis_repro.claims.analysis_4_kl.verdicts: share of synthetic problems)"
     if r.get("derived"):
         return f"derived: reproduces iff every one of {', '.join(r['derived'])} reproduces (statuses combined)"
     parts = [f"statistic: {r.get('statistic', '')}", f"units: {r.get('units', '')}"]
@@ -676,11 +676,11 @@ def thesis_effects(s: Spec, rule2: Mapping[str, Any]) -> dict[str, float]:
     """Per unit label, the thesis's own effect in margin units (for power): Fig 3.3c's r per cell for the
     correlation measures, else the claim's measure on the thesis's tables (:func:`thesis_data`); ``{}`` when
     the thesis reports no number the measure can read."""
-    from thesis_repro import reference
+    from thesis_repro import thesis_numbers
 
     m = rule2.get("measure")
     if m in ("correlation", "mean_selection"):
-        t = reference.load("fig3_3c")
+        t = thesis_numbers.load("fig3_3c")
         return {f"{e}/{x}": -float(v) for e, x, v in zip(t["env"], t["test"], t["value"], strict=True)}
     try:
         with warnings.catch_warnings():
@@ -1213,7 +1213,7 @@ def units_table(row: Row) -> pd.DataFrame:
 
 
 def verdicts(page: str, scale: str) -> list[report.Verdict]:
-    """A page's claims as :class:`~thesis_repro.report.Verdict` (repeats say where they are judged)."""
+    """A page's claims as :class:`~thesis_repro.claims.report.Verdict` (repeats say where they are judged)."""
     out = []
     for s in page_claims(page):
         row = judge(s, scale)

@@ -23,9 +23,9 @@ from typing import Any
 
 import pandas as pd
 
-from thesis_repro import report
 from thesis_repro.claims import judge as J
 from thesis_repro.claims import measures as M
+from thesis_repro.claims import report
 from thesis_repro.claims.stats import CountRule, combine_bounded
 
 #: Registered subsets: the saved bool column each keeps, and what its rows are (the words a reader sees).

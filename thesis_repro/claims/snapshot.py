@@ -30,8 +30,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from thesis_repro import paths, report
-from thesis_repro.claims import registry
+from thesis_repro import paths
+from thesis_repro.claims import registry, report
 
 #: The code-stamp keys of a saved file, kept in the index (not in the data file) so that a refresh after a code
 #: change whose numbers did not change leaves the data file byte-identical.

@@ -45,7 +45,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from thesis_repro import reference
+from thesis_repro import thesis_numbers
 from thesis_repro.validation import check_choice
 
 #: Columns that identify one row of a chapter-3 table (a testing condition).
@@ -58,7 +58,7 @@ CI_LEVEL: float = 0.95
 
 @cache
 def _settings() -> dict[str, float]:
-    frame = reference.load("chapter3_settings")
+    frame = thesis_numbers.load("chapter3_settings")
     rows = frame[frame["condition"] == "all"]
     return {r.parameter: float(r.value) for r in rows.itertuples()}
 
@@ -200,7 +200,7 @@ def bold(table: pd.DataFrame, alpha: float | None = None, n: int | None = None) 
 
     ``n`` fills a missing ``n`` column (e.g. :func:`thesis_n` for the thesis's CSVs).
 
-    >>> t = reference.thesis_table("table3_4", env="Walker2d", test="obs")
+    >>> t = thesis_numbers.thesis_table("table3_4", env="Walker2d", test="obs")
     >>> bold(t, n=thesis_n()).query("bold").method.tolist()
     ['sac']
     """
@@ -219,7 +219,7 @@ def bold(table: pd.DataFrame, alpha: float | None = None, n: int | None = None) 
 def best(table: pd.DataFrame) -> pd.DataFrame:
     """The method with the highest mean in each row: columns ``env, test, method``.
 
-    >>> best(reference.thesis_table("table3_4", env="Hopper")).method.tolist()
+    >>> best(thesis_numbers.thesis_table("table3_4", env="Hopper")).method.tolist()
     ['trpo', 'sac', 'sac', 'ppo']
     """
     ok = table.dropna(subset=["mean"])

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import reference
+from thesis_repro import thesis_numbers
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job, Result
 from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
@@ -325,11 +325,11 @@ def seed_points(res: BenchmarkResult) -> pd.DataFrame:
 
 def correlation_wide(ours: pd.DataFrame) -> pd.DataFrame:
     """Fig 3.3(c) as ``env × (source, test)``: the thesis's coefficients beside ours (tasks run here)."""
-    thesis = reference.load("fig3_3c")
-    envs = [e for e in reference.ENVS if e in set(ours.env)]
+    thesis = thesis_numbers.load("fig3_3c")
+    envs = [e for e in thesis_numbers.ENVS if e in set(ours.env)]
     table = pd.concat([thesis.assign(source="thesis"), ours.assign(source="reproduced")])
     wide = table.pivot_table(index="env", columns=["source", "test"], values="value", dropna=False)
-    cols = pd.MultiIndex.from_product([["thesis", "reproduced"], list(reference.TESTS)])
+    cols = pd.MultiIndex.from_product([["thesis", "reproduced"], list(thesis_numbers.TESTS)])
     return wide.reindex(index=envs, columns=cols)
 
 

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import reference, report
+from thesis_repro import scales, thesis_numbers
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job, Result
 from thesis_repro.envs.registry import short_name
@@ -91,7 +91,7 @@ def noisy_learners() -> dict[str, str]:
     """Test type -> the learner trained with that perturbation at σ_tr > 0 (Table 3.5's columns, read from
     ``hyperparams.yaml``): the noisy-training partner of each test in Table 3.3."""
     out = {}
-    for algo in reference.load("table3_5")["method"].unique():
+    for algo in thesis_numbers.load("table3_5")["method"].unique():
         hp = hyperparams(algo)
         if hp["perturbation"] != "none" and hp["sigma"] > 0:
             out[hp["perturbation"]] = algo
@@ -242,7 +242,7 @@ def thesis_cells(name: str | None = None) -> pd.DataFrame:
     """The thesis's AUC cells (``n`` = :func:`~thesis_repro.evaluation.tables.thesis_n`): one table, or all of
     Tables 3.4-3.7 (PPO and PPO-MDL appear in several, with identical numbers)."""
     names = [name] if name else list(THESIS_TABLES.values())
-    frames = [reference.load(check_choice(n, list(THESIS_TABLES.values()), "thesis AUC table")) for n in names]
+    frames = [thesis_numbers.load(check_choice(n, list(THESIS_TABLES.values()), "thesis AUC table")) for n in names]
     t = pd.concat(frames).drop_duplicates(subset=[*ROW, "method"])
     return t[[*ROW, "method", "mean", "std"]].assign(n=tables.thesis_n()).reset_index(drop=True)
 
@@ -285,14 +285,14 @@ class Comparison:
                     text.loc[(env, test), (m, "reproduced")] = tables.pm_text(o["mean"], o["std"])
                     mask.loc[(env, test), (m, "reproduced")] = bool(o["bold"])
                 else:
-                    text.loc[(env, test), (m, "reproduced")] = report.NOT_RUN
+                    text.loc[(env, test), (m, "reproduced")] = scales.NOT_RUN
         return text, mask
 
     def style(self, caption: str = "") -> Any:
         """The table as a pandas ``Styler`` (bold cells in bold; unrun cells greyed) for the notebook/book."""
         text, mask = self.text()
         css = np.where(mask.to_numpy(), "font-weight: bold", "")
-        css = np.where(text.to_numpy() == report.NOT_RUN, "color: #888; font-style: italic", css)
+        css = np.where(text.to_numpy() == scales.NOT_RUN, "color: #888; font-style: italic", css)
         return (
             text.style.apply(lambda _: pd.DataFrame(css, index=text.index, columns=text.columns), axis=None)
             .set_caption(caption)
@@ -406,14 +406,14 @@ def _label(v: Any) -> str:
 
 
 def _row_order(column: str) -> dict[str, int]:
-    values = reference.ENVS if column == "env" else reference.TESTS
+    values = thesis_numbers.ENVS if column == "env" else thesis_numbers.TESTS
     return {v: i for i, v in enumerate(values)}
 
 
 # ---------------------------------------------------------------- Table 3.3: Walker2d PPO, noisy training
 def _test_sigmas() -> list[float]:
     """σ_te of Table 3.3(b) (``chapter3_settings.csv``)."""
-    s = reference.load("chapter3_settings")
+    s = thesis_numbers.load("chapter3_settings")
     return sorted(float(v) for v in s[s["parameter"] == "test_sigma"]["value"])
 
 
@@ -439,7 +439,7 @@ def table33(res: Results, settings: Mapping[str, Any]) -> tuple[pd.DataFrame, pd
     missing = [s for s in sig_te if not np.isclose(grid, s).any()]
     if missing:
         raise ValueError(f"Table 3.3 tests at σ_te {sig_te}; the σ grid {grid} lacks {missing} (set sigmas)")
-    a_label = dict(zip(reference.TESTS, reference.load("table3_3a")["noise_type"].iloc[1:], strict=True))
+    a_label = dict(zip(thesis_numbers.TESTS, thesis_numbers.load("table3_3a")["noise_type"].iloc[1:], strict=True))
     rows_a, rows_b = [], []
     ep = res.episodes[res.episodes["env"] == env]
     det = "ppo"
@@ -467,8 +467,8 @@ def table33(res: Results, settings: Mapping[str, Any]) -> tuple[pd.DataFrame, pd
 
 def thesis33() -> tuple[pd.DataFrame, pd.DataFrame]:
     """The thesis's Table 3.3 (a, b) as cells with ``n`` = :func:`~thesis_repro.evaluation.tables.thesis_n`."""
-    a = reference.load("table3_3a")[["noise_type", "train_sigma", "mean", "std"]].assign(n=tables.thesis_n())
-    b = reference.load("table3_3b")[["noise_type", "sigma_te", "train_sigma", "mean", "std"]].assign(
+    a = thesis_numbers.load("table3_3a")[["noise_type", "train_sigma", "mean", "std"]].assign(n=tables.thesis_n())
+    b = thesis_numbers.load("table3_3b")[["noise_type", "sigma_te", "train_sigma", "mean", "std"]].assign(
         n=tables.thesis_n()
     )
     return a, b
@@ -488,7 +488,7 @@ def table33_text(ours: tuple[pd.DataFrame, pd.DataFrame]) -> tuple[pd.DataFrame,
         w = w.reindex(columns=pd.MultiIndex.from_product([sigmas, ["thesis", "reproduced"]], names=w.columns.names))
         for ts in sigmas:  # a cell the thesis has but we lack is "not run"; one the thesis lacks stays empty
             missing = w[(ts, "thesis")].notna() & w[(ts, "reproduced")].isna()
-            w.loc[missing, (ts, "reproduced")] = report.NOT_RUN
+            w.loc[missing, (ts, "reproduced")] = scales.NOT_RUN
         out.append(w.fillna(""))
     return out[0], out[1]
 

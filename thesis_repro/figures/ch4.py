@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import reference
+from thesis_repro import thesis_numbers
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job
 from thesis_repro.envs import make_env
@@ -47,7 +47,7 @@ def conditions(figure: str, panels: Sequence[str] | None = None) -> list[dict[st
 
     ``panels`` keeps only those panels (ignored for single-panel figures); ``None`` keeps all.
     """
-    rows = reference.load("chapter4_conditions")
+    rows = thesis_numbers.load("chapter4_conditions")
     rows = rows[rows["figure"] == figure]
     if rows.empty:
         raise ValueError(f"no chapter-4 conditions for figure {figure!r}")

@@ -20,7 +20,7 @@ from thesis_repro.learners.config import (
     n_iterations,
     train_config,
 )
-from thesis_repro.learners.policy import Policy, load_policy, snapshots
+from thesis_repro.learners.policy_file import Policy, load_policy, snapshots
 from thesis_repro.learners.train import env_seed, train_job
 
 __all__ = [

@@ -39,7 +39,7 @@ CLASSES: tuple[str, ...] = (*ON_POLICY, "DDPG", "SAC")
 MULTI_DOMAIN_CLASSES: tuple[str, ...] = ("EPOpt", "MAMLDG", "ReptileDG", "SubPolicyAggregation")
 #: Aggregation steps of :class:`~thesis_repro.learners.multidomain.SubPolicyAggregation` (``mdl.aggregate``).
 AGGREGATES: tuple[str, ...] = ("params_avg", "kl_avg", "kl_exact")
-#: Outer updates of :class:`~thesis_repro.learners.multidomain.MAMLDG`: one Adam step per iteration (Alg 1 read
+#: Outer updates of :class:`~thesis_repro.learners.meta.MAMLDG`: one Adam step per iteration (Alg 1 read
 #: literally) or PPO's epochs x minibatches on the post-adaptation data (the kit's default).
 META_UPDATES: tuple[str, ...] = ("step", "ppo")
 POLICIES: tuple[str, ...] = ("mlp", "scn")

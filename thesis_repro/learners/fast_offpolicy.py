@@ -1,10 +1,10 @@
 """Leaner, equivalent training updates for SB3's SAC and DDPG (the TD3 family): same algorithm, less overhead.
 
 The off-policy half of the kit's lean learners (the on-policy half, PPO and TRPO, is
-:mod:`thesis_repro.learners.fast`, whose fused Adam step both share). Closed-form forward and backward passes of the
-kit's MLP actors and Q-networks (:class:`_Net`), replay sampling without SB3's per-call overhead and lean
-exploration; ``tests/test_fast.py`` proves equivalence with SB3's ``SAC``/``DDPG`` and
-``tests/test_speed_identity.py`` pins the numbers bit for bit.
+:mod:`thesis_repro.learners.fast`; both use the fused Adam step of :mod:`thesis_repro.learners.kernels`).
+Closed-form forward and backward passes of the kit's MLP actors and Q-networks (:class:`_Net`), replay sampling
+without SB3's per-call overhead and lean exploration; ``tests/test_fast.py`` proves equivalence with SB3's
+``SAC``/``DDPG`` and ``tests/test_speed_identity.py`` pins the numbers bit for bit.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.utils import obs_as_tensor
 from torch import nn
 
-from thesis_repro.learners.fast import _LOG_SQRT_2PI, _FusedAdamStep
+from thesis_repro.learners.kernels import _LOG_SQRT_2PI, _FusedAdamStep
 
 _ACTS = {nn.ReLU: "relu", nn.Tanh: "tanh"}
 _tanh_backward = th.ops.aten.tanh_backward

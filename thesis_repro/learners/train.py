@@ -51,9 +51,10 @@ from thesis_repro.learners.arpl import ARPLVecEnv
 from thesis_repro.learners.config import iteration_steps
 from thesis_repro.learners.fast import FastPPO, FastTRPO  # leaner, equivalent (tests/test_fast.py)
 from thesis_repro.learners.fast_offpolicy import FastSAC
-from thesis_repro.learners.multidomain import CLASSES as MULTI_DOMAIN_CLASSES
+from thesis_repro.learners.meta import MAMLDG, ReptileDG
+from thesis_repro.learners.multidomain import EPOpt, SubPolicyAggregation
 from thesis_repro.learners.policies import SCNPolicy
-from thesis_repro.learners.policy import save_policy
+from thesis_repro.learners.policy_file import save_policy
 from thesis_repro.learners.resume import ResumeMismatch, capture, global_rng_state, restore, set_global_rng_state
 
 RETURN_WINDOW = 100  # training episodes averaged into train_return and the curve
@@ -63,7 +64,10 @@ ALGORITHM_CLASSES: dict[str, type[BaseAlgorithm]] = {
     "TRPO": FastTRPO,  # sb3_contrib's TRPO with the closed-form rollout forward
     "SAC": FastSAC,
     "DDPG": DDPGSplit,
-    **MULTI_DOMAIN_CLASSES,
+    "EPOpt": EPOpt,
+    "MAMLDG": MAMLDG,
+    "ReptileDG": ReptileDG,
+    "SubPolicyAggregation": SubPolicyAggregation,
 }
 
 
@@ -201,7 +205,7 @@ def checkpoint_steps(workdir: str | Path) -> int:
 
 
 def save_artifacts(model: BaseAlgorithm, folder: Path, cfg: dict[str, Any], full: bool) -> None:
-    """Write ``policy.pth`` (tensors only: :func:`~thesis_repro.learners.policy.save_policy`) + ``obs_norm.npz`` +
+    """Write ``policy.pth`` (tensors only: :func:`~thesis_repro.learners.policy_file.save_policy`) + ``obs_norm.npz`` +
     ``learner.json`` (and if full the local resume state ``model.zip``/``vecnormalize.pkl``: pickles, never shipped)."""
     folder.mkdir(parents=True, exist_ok=True)
     spec = save_policy(model.policy, folder)

@@ -15,10 +15,10 @@ from thesis_repro.mdl.aggregate import (
     fisher_vector_product,
     kl_avg,
     kl_avg_dense,
-    kl_exact,
     mean_kl,
     params_avg,
 )
+from thesis_repro.mdl.exact import kl_exact
 
 __all__ = [
     "FisherProducts",

@@ -7,7 +7,7 @@ F(θ) = Σ_i E_s KL(π_θi ‖ π_θ) (:func:`~thesis_repro.mdl.aggregate.eq47_o
 * ``params_avg`` — Eq 4.6;
 * ``kl_avg`` — Eq 4.11 by CG with the kit's damping (0.1 on the mean Fisher);
 * ``eq4.10`` — the undamped closed form Eq 4.10 (dense solve on tiny nets, long CG otherwise);
-* ``kl_exact`` — Newton-CG on the true Eq 4.7 (:func:`~thesis_repro.mdl.aggregate.kl_exact`).
+* ``kl_exact`` — Newton-CG on the true Eq 4.7 (:func:`~thesis_repro.mdl.exact.kl_exact`).
 
 The reference optimum θ* is found independently by SciPy's L-BFGS-B on F from params_avg.
 Sub-policies come from a common θ_old in one of two ways: ``"perturb"`` (θ_i = θ_old + δ·ε_i, for the
@@ -34,13 +34,11 @@ import torch
 from scipy.optimize import minimize
 
 from thesis_repro.mdl import aggregate as agg
-from thesis_repro.report import Verdict, status
+from thesis_repro.mdl import exact
 from thesis_repro.validation import check_choice, check_positive
 
 KINDS: tuple[str, ...] = ("perturb", "update")
 AGGREGATES: tuple[str, ...] = ("params_avg", "kl_avg", "eq4.10", "kl_exact")
-#: Page id used for the verdicts (``build/<scale>/figures/analysis-4-kl.verdicts.json``).
-PAGE = "analysis-4-kl"
 
 
 @dataclass
@@ -130,13 +128,13 @@ def make_problems(groups: Sequence[dict]) -> list[Problem]:
 
 
 def reference_optimum(problem: Problem, iters: int = 100, maxiter: int = 100) -> torch.Tensor:
-    """θ*: a tight local minimiser of Eq 4.7 — :func:`~thesis_repro.mdl.aggregate.kl_exact` run to
+    """θ*: a tight local minimiser of Eq 4.7 — :func:`~thesis_repro.mdl.exact.kl_exact` run to
     convergence (``iters`` iterations, CG to 1e-8, damping 1e-8), then polished by SciPy's L-BFGS-B (``maxiter``).
 
     (``tests/test_aggregate.py`` checks independently that L-BFGS-B from params_avg reaches the same value.)
     """
     view, states = problem.view, problem.states
-    x0 = agg.kl_exact(view, problem.thetas, states, iters=iters, cg_iters=100, cg_rtol=1e-8, damping=1e-8)
+    x0 = exact.kl_exact(view, problem.thetas, states, iters=iters, cg_iters=100, cg_rtol=1e-8, damping=1e-8)
     with torch.no_grad():
         targets = [view.dist(t, states) for t in problem.thetas]
 
@@ -172,7 +170,7 @@ def aggregates(
         "params_avg": agg.params_avg(th),  # type: ignore[dict-item]
         "kl_avg": agg.kl_avg(view, th, s, cg_iters=cg_iters, damping=damping),
         "eq4.10": eq410,
-        "kl_exact": agg.kl_exact(view, th, s, iters=exact_iters),
+        "kl_exact": exact.kl_exact(view, th, s, iters=exact_iters),
     }
 
 
@@ -228,7 +226,7 @@ def linear_gaussian(seed: int = 0, *, n_domains: int = 4, n_states: int = 256, s
     p = make_problem(
         seed, obs_dim=3, act_dim=2, hidden=(), n_domains=n_domains, n_states=n_states, kind="perturb", spread=spread
     )
-    closed = agg.linear_gaussian_optima(p.view, p.thetas, p.states)
+    closed = exact.linear_gaussian_optima(p.view, p.thetas, p.states)
     aggs = {"closed form (Eq 4.7)": closed["eq47"], "closed form (Eq 4.10)": closed["eq410"]}
     aggs.update(aggregates(p, exact_iters=30))
     avg = p.view.params(aggs["params_avg"])
@@ -324,7 +322,7 @@ def damping_sweep(
     for lam in dampings:
         for name, theta in (
             ("kl_avg", agg.kl_avg(view, th, s, cg_iters=cg_iters, damping=lam)),
-            ("kl_exact", agg.kl_exact(view, th, s, damping=lam)),
+            ("kl_exact", exact.kl_exact(view, th, s, damping=lam)),
         ):
             rows.append(
                 {
@@ -373,48 +371,6 @@ def fisher_spectrum(problem: Problem) -> dict[str, float]:
     return {"min_eig": lo, "max_eig": hi, "condition": hi / max(lo, 1e-300)}
 
 
-def verdict(summary: pd.DataFrame, linear: pd.DataFrame, scale: str) -> list[Verdict]:
-    """Verdicts of the page from :func:`summarise` (MLP problems) and :func:`linear_gaussian` tables.
-
-    Claim judged: the thesis's premise that Eq 4.10/4.11 moves the aggregate closer, in the KL of Eq 4.7,
-    to the sub-policies than Eq 4.6 does (REPRODUCES if kl_avg beats params_avg on ≥ 75 % of problems,
-    PARTLY if on ≥ 25 %); and, for the exact minimiser, whether Eq 4.7 CAN be lowered below params_avg.
-    """
-    lin = linear["eq47"]
-    rows = []
-    for name, label in (("kl_avg", "Eq 4.11 as the kit runs it (λ = 0.1)"), ("eq4.10", "undamped Eq 4.10")):
-        frac = float(summary.loc[name, "beats_params_avg"])
-        holds = frac >= 0.75
-        st = status(holds, scale, partly=frac >= 0.25)
-        rows.append(
-            Verdict(
-                PAGE,
-                f"{label} aggregates closer to the sub-policies (lower Eq 4.7) than parameter averaging",
-                st,
-                f"reproduced: lower Eq 4.7 than params_avg on {frac:.0%} of {int(summary.loc[name, 'problems'])} "
-                f"MLP problems (median Eq 4.7 {summary.loc[name, 'median_eq47_vs_avg']:.4g}x params_avg's, median "
-                f"distance to the optimum {summary.loc[name, 'median_dist_ratio']:.2g}x params_avg's); "
-                f"linear-Gaussian: Eq 4.7 = {lin['eq4.10']:.4g} (Eq 4.10) vs {lin['params_avg']:.4g} "
-                f"(params_avg) vs {lin['closed form (Eq 4.7)']:.4g} (optimum); thesis: claimed, not measured",
-            )
-        )
-    frac = float(summary.loc["kl_exact", "beats_params_avg"])
-    ok = frac == 1.0 and abs(lin["kl_exact"] - lin["closed form (Eq 4.7)"]) <= 1e-6 * max(1.0, abs(lin["kl_exact"]))
-    rows.append(
-        Verdict(
-            PAGE,
-            "Eq 4.7 itself (minimised exactly, kl_exact) does lower the KL to the sub-policies below params_avg",
-            status(ok, scale),
-            f"reproduced: kl_exact below params_avg on {frac:.0%} of problems (median Eq 4.7 "
-            f"{summary.loc['kl_exact', 'median_eq47_vs_avg']:.4g}x params_avg's), median excess over the optimum "
-            f"{summary.loc['kl_exact', 'median_excess']:.2g} vs {summary.loc['params_avg', 'median_excess']:.2g} "
-            f"(params_avg); reaches the linear-Gaussian closed form (Eq 4.7 {lin['kl_exact']:.6g} vs "
-            f"{lin['closed form (Eq 4.7)']:.6g})",
-        )
-    )
-    return rows
-
-
 __all__ = [
     "AGGREGATES",
     "Problem",
@@ -430,5 +386,4 @@ __all__ = [
     "reference_optimum",
     "spread_scaling",
     "summarise",
-    "verdict",
 ]

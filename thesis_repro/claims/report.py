@@ -1,4 +1,4 @@
-"""Verdicts: one wording for "does the thesis's claim reproduce at this scale?", for every figure and table.
+"""Verdicts: one wording for "does the thesis's claim reproduce at this scale?", and how a page prints and saves them.
 
 The claims layer (:func:`thesis_repro.claims.judge_page`, the last call of every figure and table
 notebook) judges a page's numbers into :class:`Verdict` objects and hands them to ``report(figure, scale,
@@ -27,12 +27,12 @@ from pathlib import Path
 from typing import Any
 
 from thesis_repro import paths
+from thesis_repro.scales import NOT_RUN  # the words a figure's table uses too
 from thesis_repro.validation import check_choice
 
 REPRODUCES = "reproduces"
 PARTLY = "partly reproduces"
 DOES_NOT = "does not reproduce"
-NOT_RUN = "not run at this scale"  # the scale cannot afford this item (e.g. an off-policy row at small)
 NOT_JUDGED = "not judged at this scale"  # smoke: numbers only exercise the plumbing
 INCONCLUSIVE = "inconclusive"  # the CI across training seeds spans two outcomes
 INDICATIVE = "indicative"  # one training seed: no CI, the point estimate only leans one way

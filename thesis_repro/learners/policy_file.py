@@ -1,4 +1,4 @@
-"""Deterministic batch policies loaded from a training run's artefacts (what the evaluator calls).
+"""A trained policy's file (tensors only) and the deterministic batch policy the evaluator loads from it.
 
 A policy is stored as tensors only, never as a pickle: ``policy.pth`` is a plain state dict (``torch.save`` of
 ``{name: tensor}``, read back with ``torch.load(weights_only=True)``), and ``learner.json`` beside it holds the

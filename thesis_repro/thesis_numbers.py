@@ -1,9 +1,13 @@
-"""The thesis's own numbers, transcribed into tidy CSVs under ``data/thesis/`` (see its README.md).
+"""Numbers the kit did not compute: the thesis's own, transcribed under ``data/thesis/``, and published baselines.
+
+The thesis's tables and settings are tidy CSVs under ``data/thesis/`` (see its README.md; :func:`load`,
+:func:`thesis_table`); other projects' published results are ``data/public/baselines.csv`` (:func:`published`).
+(``data/reference/`` is something else: the kit's own shipped runs.)
 
 Every frame carries ``source="thesis"`` so notebooks can concatenate it with ``source="reproduced"`` rows.
 
->>> from thesis_repro import reference
->>> reference.thesis_table("table3_4", env="Walker2d", test="obs", method="sac")[["mean", "std"]].values.tolist()
+>>> from thesis_repro import thesis_numbers
+>>> thesis_numbers.thesis_table("table3_4", env="Walker2d", test="obs", method="sac")[["mean", "std"]].values.tolist()
 [[1565.4, 544.9]]
 """
 
