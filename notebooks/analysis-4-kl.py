@@ -42,8 +42,7 @@ import pandas as pd
 import torch
 
 from thesis_repro import paths
-from thesis_repro.claims import analysis_4_kl
-from thesis_repro.claims.report import report
+from thesis_repro.claims import analysis_4_kl, judge_page
 from thesis_repro.mdl import kl_analysis as ka
 from thesis_repro.scales import figure_settings
 
@@ -202,5 +201,5 @@ print(
 # above, and whether the true Eq 4.7 can be lowered at all (kl_exact). At smoke scale nothing is judged.
 
 # %%
-verdicts = analysis_4_kl.verdicts(summary, linear, SCALE)
-_ = report("analysis-4-kl", SCALE, verdicts)
+frames = {"summary": summary.reset_index(), "linear": linear.reset_index()}
+_ = judge_page("analysis-4-kl", SCALE, frames, page_rule=analysis_4_kl.verdicts(summary, linear, SCALE))

@@ -28,9 +28,9 @@ def built(tmp_path, monkeypatch):
         monkeypatch.setenv(var, str(tmp_path / var.lower()))
     for name in snapshot.files():
         page = snapshot.page_of(name)
-        if name.endswith(".verdicts.json"):
+        if name.endswith(".rule.json"):
             n = max(int(s.rule["page_verdict"]) for s in L.specs() if s.page == page and "page_verdict" in s.rule)
-            report.report(page, SCALE, [report.Verdict(page, "c", report.REPRODUCES, "e")] * (n + 1), display=False)
+            report.save_rule(page, SCALE, [report.Verdict(page, "c", report.REPRODUCES, "e")] * (n + 1))
         else:
             # every measure's frames; chapter 5's arm curves ("cast_bic") replace the generic ones of that name
             measures = sorted(_measures(page), key=lambda m: (m == "cast_bic", m))
@@ -120,7 +120,7 @@ def test_a_corrupt_shipped_file_is_never_judged(built, capsys):
     assert L.judge(L.spec("4.1-harder-settings"), SCALE, with_null=False).status != report.NOT_COMPUTED
 
     page = next(s for s in L.specs() if "page_verdict" in s.rule).page
-    (snapshot.folder(SCALE) / f"{page}.verdicts.json.gz").unlink()  # a missing file is unreadable, not absent
+    (snapshot.folder(SCALE) / f"{page}.rule.json.gz").unlink()  # a missing file is unreadable, not absent
     row = L.judge(next(s for s in L.specs() if "page_verdict" in s.rule), SCALE, with_null=False)
     assert row.status == report.NOT_COMPUTED and "unreadable" in row.note
 

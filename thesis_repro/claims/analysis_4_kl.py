@@ -2,7 +2,8 @@
 
 The page (``notebooks/analysis-4-kl.py``) computes its numbers with :mod:`thesis_repro.mdl.kl_analysis`; this
 module judges them. Its claims are the registry's ``page_verdict`` entries of ``analysis-4-kl``: the ledger reads
-these verdicts from ``build/<scale>/figures/analysis-4-kl.verdicts.json`` in this order.
+these verdicts, in this order, from ``build/<scale>/figures/analysis-4-kl.rule.json``, which the page's
+``judge_page(..., page_rule=verdicts(...))`` saves before it judges and prints them as every page does.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import pandas as pd
 
 from thesis_repro.claims.report import Verdict, status
 
-#: Page id used for the verdicts (``build/<scale>/figures/analysis-4-kl.verdicts.json``).
+#: Page id of the verdicts (``build/<scale>/figures/analysis-4-kl.rule.json``).
 PAGE = "analysis-4-kl"
 
 

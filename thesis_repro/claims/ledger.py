@@ -476,7 +476,7 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
         return Row(s, report.VISUAL, note="the claim is about the gait's look; the page shows the key frames")
     if "page_verdict" in r:
         try:
-            blob = saved_blob(s.page, report.verdicts_path(s.page, scale).name, scale) or {"verdicts": []}
+            blob = saved_blob(s.page, report.rule_path(s.page, scale).name, scale) or {"verdicts": []}
         except snapshot.CorruptSnapshot as err:
             return _corrupt(s, scale, err)
         saved = [report.Verdict(**v) for v in blob["verdicts"]]
@@ -1238,10 +1238,15 @@ def judge_page(
     meta: Mapping[str, Any] | None = None,
     kit_checks: Sequence[report.Verdict] = (),
     display: bool = True,
+    page_rule: Sequence[report.Verdict] = (),
 ) -> list[report.Verdict]:
     """A notebook's last call: save its per-seed numbers, print / display its claims' verdicts (each with
-    its units table) and the kit-made checks (outside the scoreboard); writes ``<page>.verdicts.json``."""
+    its units table) and the kit-made checks (outside the scoreboard); writes ``<page>.verdicts.json``.
+    ``page_rule``: the verdicts of the page's own rule (``analysis-4-kl``), saved first for its ``page_verdict``
+    claims (:func:`~thesis_repro.claims.report.rule_path`)."""
     save_page(page, scale, frames, {"scale": scale, **dict(meta or {})})
+    if page_rule:
+        report.save_rule(page, scale, page_rule)
     vs = verdicts(page, scale)
     report.report(page, scale, vs, display=display)
     if display:

@@ -138,6 +138,26 @@ def verdicts_path(figure: str, scale: str) -> Path:
     return paths.figures(scale) / f"{figure}.verdicts.json"
 
 
+def rule_path(page: str, scale: str) -> Path:
+    """``build/<scale>/figures/<page>.rule.json``: the verdicts of a page's own rule (``analysis-4-kl``'s), which
+    its ``page_verdict`` claims read; the page's judged verdicts go to :func:`verdicts_path`, as every page's."""
+    return paths.figures(scale) / f"{page}.rule.json"
+
+
+def save_rule(page: str, scale: str, verdicts: Sequence[Verdict]) -> Path:
+    """Save the verdicts of a page's own rule (:func:`rule_path`) without printing them; returns the path."""
+    return _write(rule_path(page, scale), page, scale, verdicts)
+
+
+def _write(out: Path, figure: str, scale: str, verdicts: Sequence[Verdict]) -> Path:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp")
+    blob = {"figure": figure, "scale": scale, **stamp(figure), "verdicts": [asdict(v) for v in verdicts]}
+    tmp.write_text(json.dumps(blob, indent=1))
+    tmp.replace(out)
+    return out
+
+
 def report(figure: str, scale: str, verdicts: Sequence[Verdict], display: bool = True) -> Path:
     """Print, display (in a notebook) and save the verdicts of one figure run; returns the JSON path."""
     for v in verdicts:
@@ -153,13 +173,7 @@ def report(figure: str, scale: str, verdicts: Sequence[Verdict], display: bool =
                     show(Markdown(v._repr_markdown_()))
         except ImportError:  # pragma: no cover - IPython ships with the kit
             pass
-    out = verdicts_path(figure, scale)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp")
-    blob = {"figure": figure, "scale": scale, **stamp(figure), "verdicts": [asdict(v) for v in verdicts]}
-    tmp.write_text(json.dumps(blob, indent=1))
-    tmp.replace(out)
-    return out
+    return _write(verdicts_path(figure, scale), figure, scale, verdicts)
 
 
 def load(figure: str, scale: str) -> list[Verdict]:

@@ -2,7 +2,7 @@
 fresh clone before its book.
 
 The ledger judges the per-seed numbers a page saves when its notebook runs (``build/<scale>/figures/``:
-``<page>.data.json``, and ``<page>.verdicts.json`` for a page-verdict claim). A fresh clone has none until
+``<page>.data.json``, and ``<page>.rule.json`` for a page-verdict claim). A fresh clone has none until
 ``make book`` ran (about ten minutes at ``small``), so :func:`ship` (``make ship-claims SCALE=small``, after
 the book) copies the files the ledger reads into ``data/reference/claims/<scale>/`` (under
 :func:`~thesis_repro.paths.reference`):
@@ -17,7 +17,7 @@ The ledger reads a page's own build file first and falls back to the snapshot wh
 a stale one (:func:`thesis_repro.claims.ledger.saved_blob`); ``THESIS_REPRO_RETRAIN=1`` ignores the snapshot,
 as it ignores the shipped runs. Nothing here is typed in: every shipped number was saved by a page.
 
->>> "fig-3.3.data.json" in files() and "analysis-4-kl.verdicts.json" in files()
+>>> "fig-3.3.data.json" in files() and "analysis-4-kl.rule.json" in files()
 True
 """
 
@@ -51,7 +51,7 @@ def folder(scale: str) -> Path:
 def page_of(name: str) -> str:
     """The page of a saved file's name: ``fig-4.1.data.json`` -> ``fig-4.1``.
 
-    >>> page_of("fig-4.1.data.json"), page_of("analysis-4-kl.verdicts.json")
+    >>> page_of("fig-4.1.data.json"), page_of("analysis-4-kl.rule.json")
     ('fig-4.1', 'analysis-4-kl')
     """
     return name.rsplit(".", 2)[0]
@@ -59,11 +59,11 @@ def page_of(name: str) -> str:
 
 def files() -> list[str]:
     """The saved files the ledger reads (sorted): ``<page>.data.json`` of every claim's data pages and
-    ``<page>.verdicts.json`` of every page-verdict claim's page."""
+    ``<page>.rule.json`` of every page-verdict claim's page."""
     out: set[str] = set()
     for s in registry.specs():
         if "page_verdict" in s.rule:
-            out.add(report.verdicts_path(s.page, "x").name)
+            out.add(report.rule_path(s.page, "x").name)
         elif not s.rule.get("derived") and not s.rule.get("visual"):
             out.update(registry.data_name(p) for p in s.data_pages)
     return sorted(out)
