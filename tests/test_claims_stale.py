@@ -62,13 +62,14 @@ def test_numbers_saved_before_stamps_existed_are_stale(saved):
 
 
 def test_analysis_verdicts_saved_by_other_kit_code_are_reported_stale(tmp_path, monkeypatch):
-    """Claims judged by a page's own rule (the Eq 4.11 analysis) read its saved verdicts: stamped the same way."""
+    """Claims judged by a page's own rule (the Eq 4.11 analysis) read its rule's saved verdicts
+    (``<page>.rule.json``): stamped the same way."""
     monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path / "build"))
     monkeypatch.setenv("THESIS_REPRO_PUBLISHED_BUILD", str(tmp_path / "published"))
     s = next(x for x in L.specs() if "page_verdict" in x.rule)
     n = int(s.rule["page_verdict"]) + 1
-    path = report.report(s.page, SCALE, [report.Verdict(s.page, "c", report.REPRODUCES, "e")] * n, display=False)
-    assert L.judge(s, SCALE, with_null=False).stale == [] and not report.stale(s.page, SCALE)
+    path = report.save_rule(s.page, SCALE, [report.Verdict(s.page, "c", report.REPRODUCES, "e")] * n)
+    assert L.judge(s, SCALE, with_null=False).stale == []
     _restamp(path, "0" * 12)
     row = L.judge(s, SCALE, with_null=False)
     assert row.status == report.REPRODUCES and row.stale == [s.page]

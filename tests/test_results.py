@@ -32,7 +32,7 @@ def test_the_fallbacks_word_todays_ledger_keys():
     row = results.claims_table([CLAIM]).splitlines()[2]
     cut = "There is a clear trade-off between training performance and generalisation across all ..."
     assert row.startswith(f"| `3.3-pareto` | l. 547 | {cut} |")
-    assert row.endswith("| - | 0/2 units yes, yes-share [0.00, 0.00] | **does not reproduce** |")
+    assert row.endswith("| - | 0/2 units yes, yes-share [0.00, 0.00] | **does not reproduce** | - |")
     assert len(results.short(CLAIM).removesuffix(" ...").split()) == results.SHORT_WORDS
 
 
@@ -41,7 +41,7 @@ def test_the_ledgers_new_keys_win_over_the_fallbacks():
     new |= {"ours": "r = 0.71 [0.02, 1.39]", "label": "contradicted"}
     row = results.claims_table([new]).splitlines()[2]
     assert "| Training return trades off against generalisation | r < 0 | r = 0.71 [0.02, 1.39] |" in row
-    assert row.endswith("**contradicted** |")
+    assert row.endswith("**contradicted** | - |")  # no fresh seeds judged
     block = results.readme_results({"claims": [new, {**CLAIM, "id": "x", "verdict": "inconclusive"}]}, "small")
     assert "| contradicted | 1 |" in block and "| inconclusive | 1 |" in block
     line = "- `3.3-pareto` (l. 547): Training return trades off against generalisation; ours: r = 0.71 [0.02, 1.39]"
