@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import os
 import signal
 import sys
@@ -98,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
         with _signals_as_interrupts():
             return _main(argv)
     except KeyboardInterrupt as err:
+        # the notebook client's pending tasks die with the kernel: asyncio would log each as it is collected
+        logging.getLogger("asyncio").setLevel(logging.CRITICAL)
         nb = sys.modules.get("thesis_repro.notebooks")
         if nb is not None:  # no kernel can be running if the notebooks module was never imported
             nb.kill_kernels()
