@@ -14,7 +14,7 @@ import pytest
 from thesis_repro import paths
 from thesis_repro.cache import entry_identity, read_entry
 from thesis_repro.compact import CODEC, CompactError, is_compact, read_arrays, write_compact
-from thesis_repro.runs import compact_entry, compact_shipped
+from thesis_repro.runs import compact_entry, compact_shipped, export
 
 
 def _shipped_train(n: int) -> list[Path]:
@@ -127,3 +127,18 @@ def test_runs_compact_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, c
     assert "1 shipped training runs compacted" in capsys.readouterr().out
     assert is_compact(tmp_path / "train" / entry.name / "arrays.npz")
     assert main(["runs", "--compact"]) == 0 and "0 shipped training runs compacted" in capsys.readouterr().out
+
+
+def test_export_ships_a_training_run_compact(tmp_path: Path) -> None:
+    """A newly shipped training run lands compact: the same arrays bit for bit, the same identity."""
+    entry = _shipped_train(1)[0]
+    local = tmp_path / "runs" / "train" / entry.name
+    shutil.copytree(entry, local)
+    if is_compact(local / "arrays.npz"):
+        pytest.skip("the shipped run is compact already")
+    shipped = export(type("Result", (), {"path": local})(), tmp_path / "layer").path
+    assert is_compact(shipped / "arrays.npz")
+    assert _same(read_arrays(shipped / "arrays.npz"), read_arrays(local / "arrays.npz"))
+    assert entry_identity(shipped) == entry_identity(local)
+    read_entry(shipped)  # its manifest verifies
+    assert compact_entry(shipped) is None

@@ -174,11 +174,17 @@ def _size(folder: Path) -> int:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
 
 
+#: Kinds whose shipped ``arrays.npz`` :func:`export` writes compact (:mod:`thesis_repro.compact`; ``runs --compact``
+#: does the same to runs shipped before).
+COMPACT_KINDS = ("train",)
+
+
 def export(result: Result, layer_root: str | Path | None = None) -> Exported:
     """Compact copy of the finished entry ``result`` into the shipped layer (``paths.reference()`` by default).
 
-    Keeps ``config.json``, ``provenance.json``, ``result.json``, ``arrays.npz`` and ``out/`` minus
-    :data:`EXCLUDE`; writes a fresh manifest; replaces an older copy atomically. A training entry without
+    Keeps ``config.json``, ``provenance.json``, ``result.json``, ``arrays.npz`` (in the compact lossless layout for
+    :data:`COMPACT_KINDS`) and ``out/`` minus :data:`EXCLUDE`; writes a fresh manifest; replaces an older copy
+    atomically. A training entry without
     the files evaluation needs (:data:`REQUIRED`) is a ``ValueError``.
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
@@ -201,9 +207,14 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
     tmp = dest.parent / f".tmp-export-{src.name}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    for name in ("config.json", "provenance.json", "result.json", "arrays.npz"):
+    for name in ("config.json", "provenance.json", "result.json"):
         if (src / name).exists():
             shutil.copy2(src / name, tmp / name)
+    if (src / "arrays.npz").exists():
+        if kind in COMPACT_KINDS and not is_compact(src / "arrays.npz"):  # the same arrays, bit for bit, fewer bytes
+            write_compact(tmp / "arrays.npz", read_arrays(src / "arrays.npz"))
+        else:
+            shutil.copy2(src / "arrays.npz", tmp / "arrays.npz")
     if (src / "out").is_dir():
         shutil.copytree(src / "out", tmp / "out", ignore=ignore)
     write_manifest(tmp, json.loads((src / "manifest.json").read_text()).get("identity"))
@@ -249,8 +260,9 @@ def compact_entry(entry: str | Path) -> tuple[int, int] | None:
 
 
 def compact_shipped(layer_root: str | Path | None = None, kind: str = "train") -> dict[Path, tuple[int, int]]:
-    """:func:`compact_entry` on every shipped entry of ``kind`` not compact yet (``runs --compact``; rerun it after
-    new runs land). Returns ``{entry: (bytes before, bytes after)}`` of the entries rewritten."""
+    """:func:`compact_entry` on every shipped entry of ``kind`` not compact yet (``runs --compact``: runs shipped
+    before :func:`export` wrote :data:`COMPACT_KINDS` compact). Returns ``{entry: (bytes before, bytes after)}``
+    of the entries rewritten."""
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     done = {}
     for entry in entries(layer):
