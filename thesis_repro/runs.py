@@ -184,8 +184,7 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
 
     Keeps ``config.json``, ``provenance.json``, ``result.json``, ``arrays.npz`` (in the compact lossless layout for
     :data:`COMPACT_KINDS`) and ``out/`` minus :data:`EXCLUDE`; writes a fresh manifest; replaces an older copy
-    atomically. A training entry without
-    the files evaluation needs (:data:`REQUIRED`) is a ``ValueError``.
+    atomically. A training entry without the files evaluation needs (:data:`REQUIRED`) is a ``ValueError``.
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     src = Path(result.path)
