@@ -7,6 +7,7 @@ The notebook runs use a toy notebook (``fig-9.1``, seconds each) in a temporary 
 
 from __future__ import annotations
 
+import asyncio
 import errno
 import json
 import os
@@ -15,6 +16,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import types
 from pathlib import Path
@@ -211,11 +213,6 @@ def _alive(pid: int) -> bool:
 PROGRESS = re.compile(r"it/s\]|s/it\]|\d%\|")
 
 
-@pytest.mark.xfail(
-    reason="known (issue 43 item 3, open): in a fresh clone the notebook kernel's pool prints asyncio's "
-    "'Task was destroyed but it is pending' and a BrokenProcessPool traceback before the one line; the code is right",
-    strict=False,
-)
 @pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_interrupting_a_real_figure_in_its_pool_is_one_line(tmp_path, sig, code):
     """Fig 3.3 at smoke scale with its training in a pool of 2 workers (the path of every figure at ``small``),
@@ -268,6 +265,51 @@ def test_interrupting_a_real_figure_in_its_pool_is_one_line(tmp_path, sig, code)
     for p in survivors:
         os.kill(p, signal.SIGKILL)
     assert survivors == [], "a kernel or worker outlived the interrupted figure"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupted_run_kills_its_kernel_instead_of_asking_it_to_shut_down(monkeypatch, sig):
+    """The interrupt passes through nbclient's cleanup before the command line's: that cleanup used to ask the
+    busy kernel to shut down, which ended its pool's workers itself (the cell then raised BrokenProcessPool)
+    and, exiting, wrote asyncio's "Task was destroyed but it is pending!" onto the shared terminal."""
+    from jupyter_client import AsyncKernelManager
+
+    from thesis_repro.__main__ import _signals_as_interrupts
+
+    async def polite(*args, **kwargs):
+        pytest.fail("the interrupted kernel was asked to shut down")
+
+    killed = []
+    monkeypatch.setattr(AsyncKernelManager, "_async_shutdown_kernel", polite)
+    monkeypatch.setattr(notebooks.QuietKernelManager, "kill_now", lambda self, grace=2.0: killed.append(self))
+    km = notebooks.QuietKernelManager()
+    with pytest.raises(KeyboardInterrupt), _signals_as_interrupts(), notebooks._noting_interrupts():
+        try:
+            os.kill(os.getpid(), sig)
+            time.sleep(5)  # not reached
+        finally:
+            asyncio.run(km.shutdown_kernel())  # what nbclient's setup_kernel does on the interrupt's way out
+    assert killed == [km]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler and notebooks._INTERRUPTED == []
+
+
+def test_a_killed_kernel_says_nothing_more(capfd):
+    """The kernel's stderr reaches ours through a relay, until this process kills the kernel: what its dying
+    family writes then (the pool's resource tracker warns of the semaphores it cleans up) is dropped."""
+    km = notebooks.QuietKernelManager()
+    read, write = os.pipe()
+    relay = threading.Thread(target=km._relay, args=(read,))
+    relay.start()
+    os.write(write, b"a kernel's own line\n")
+    deadline = time.time() + 10
+    while "a kernel's own line" not in capfd.readouterr().err:
+        assert time.time() < deadline, "the kernel's stderr was not relayed"
+        time.sleep(0.05)
+    km.kill_now()
+    os.write(write, b"resource_tracker: There appear to be 5 leaked semaphore objects\n")
+    os.close(write)
+    relay.join(10)
+    assert not relay.is_alive() and capfd.readouterr().err == ""
 
 
 def test_kernel_files_of_a_killed_run_are_removed_by_the_next_run(toy, tmp_path, monkeypatch):

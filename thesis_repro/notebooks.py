@@ -47,7 +47,9 @@ import shutil
 import signal
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -202,6 +204,10 @@ def is_current(nid: str, scale: str, parameters: dict[str, Any] | None = None) -
 KERNEL_PREFIX = "thesis-repro-kernel-"
 #: Kernels started by this process and not shut down yet (killed by :func:`kill_kernels`).
 _LIVE: set[QuietKernelManager] = set()
+#: Signals that end a run (Ctrl-C, and SIGTERM/SIGHUP where the command line raises on them).
+INTERRUPTS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: Set while a signal of :data:`INTERRUPTS` ends the running notebook (:func:`_noting_interrupts`).
+_INTERRUPTED: list[int] = []
 
 
 class QuietKernelManager(AsyncKernelManager):
@@ -211,7 +217,10 @@ class QuietKernelManager(AsyncKernelManager):
     removed when the kernel shuts down, by :func:`kill_kernels` when this process is interrupted, or by
     :func:`clean_stale` once ``<pid>`` is dead. ``extra_env`` is added to the kernel's environment.
     Shutdown skips jupyter_client's preliminary SIGINT (papermill shuts down an idle kernel), which made
-    the kernel log "KeyboardInterrupt caught in kernel" now and then.
+    the kernel log "KeyboardInterrupt caught in kernel" now and then. The shutdown of an interrupted run
+    (:func:`_noting_interrupts`) is :meth:`kill_now`: asked to shut down, the busy kernel ended its pool's
+    workers itself, and the cell then raised ``BrokenProcessPool`` and the exiting kernel wrote asyncio's "Task
+    was destroyed but it is pending!" onto the terminal it shares with this process.
     """
 
     _count = 0
@@ -225,6 +234,7 @@ class QuietKernelManager(AsyncKernelManager):
         self.connection_file = f"{base}.json"
         self.ip = str(base)
         self._closing = False
+        self._muted = False
 
     async def _async_pre_start_kernel(self, **kw: Any) -> tuple[list[str], dict[str, Any]]:
         if self.extra_env:
@@ -232,11 +242,39 @@ class QuietKernelManager(AsyncKernelManager):
         _LIVE.add(self)
         return await super()._async_pre_start_kernel(**kw)
 
+    async def _async_launch_kernel(self, kernel_cmd: list[str], **kw: Any) -> None:
+        """Launch the kernel with its stderr (and its children's) on a pipe that :meth:`_relay` copies to
+        this process's stderr, so that what the kernel family writes there once :meth:`kill_now` ends it is
+        dropped (the pool's resource tracker, for one, warns of the semaphores it then cleans up)."""
+        read, write = os.pipe()
+        try:
+            await super()._async_launch_kernel(kernel_cmd, **{**kw, "stderr": write})
+        except BaseException:
+            os.close(read)
+            raise
+        finally:
+            os.close(write)  # the kernel holds its own copy: the relay ends when the kernel family is gone
+        threading.Thread(target=self._relay, args=(read,), name=f"stderr of {self.ip}", daemon=True).start()
+
+    def _relay(self, fd: int) -> None:
+        """Copy the kernel's stderr pipe ``fd`` to this process's stderr (file descriptor 2, which the kernel
+        used to inherit) until every writer is gone; once muted, read on and drop."""
+        with open(fd, "rb", buffering=0) as pipe:
+            while chunk := pipe.read(65536):
+                while chunk and not self._muted:
+                    try:
+                        chunk = chunk[os.write(2, chunk) :]
+                    except OSError:  # stderr closed (a reader that went away): nothing to show it on
+                        break
+
     async def _async_interrupt_kernel(self) -> None:
         if not self._closing:
             await super()._async_interrupt_kernel()
 
     async def shutdown_kernel(self, now: bool = False, restart: bool = False) -> None:  # type: ignore[override]
+        if _INTERRUPTED and not restart:  # nbclient's cleanup of an interrupted run: kill, never ask politely
+            self.kill_now()
+            return
         self._closing = True
         try:
             await super()._async_shutdown_kernel(now=now, restart=restart)
@@ -247,7 +285,9 @@ class QuietKernelManager(AsyncKernelManager):
 
     def kill_now(self, grace: float = 2.0) -> None:
         """Synchronously end the kernel's process group (the kernel and its worker processes: the kernel runs
-        in a session of its own), wait up to ``grace`` seconds, then remove its connection and socket files."""
+        in a session of its own), wait up to ``grace`` seconds, then remove its connection and socket files.
+        Whatever the dying kernel family writes to its stderr from now on is dropped."""
+        self._muted = True
         prov = self.provisioner
         pid, pgid = getattr(prov, "pid", None), getattr(prov, "pgid", None)
         if pgid is not None and pgid == os.getpgid(0):
@@ -278,6 +318,36 @@ def _signal_kernel(pid: int | None, pgid: int | None, sig: int) -> bool:
     except (ProcessLookupError, PermissionError):
         return False
     return True
+
+
+@contextlib.contextmanager
+def _noting_interrupts() -> Iterator[None]:
+    """While a notebook runs, a signal of :data:`INTERRUPTS` whose handler is Python code (Ctrl-C's
+    ``KeyboardInterrupt``, the command line's ``Terminated``) is noted in :data:`_INTERRUPTED` before that
+    handler raises: nbclient's cleanup, which the exception passes through first, then kills the kernel (and
+    its workers) at once (:meth:`QuietKernelManager.shutdown_kernel`). Outside the main thread: no change."""
+
+    def noted(old: Callable[[int, Any], Any]) -> Callable[[int, Any], Any]:
+        def handler(signum: int, frame: Any) -> Any:
+            _INTERRUPTED.append(signum)
+            return old(signum, frame)
+
+        return handler
+
+    saved: dict[signal.Signals, Any] = {}
+    for sig in INTERRUPTS:
+        old = signal.getsignal(sig)
+        if callable(old):
+            with contextlib.suppress(ValueError, OSError):  # not the main thread
+                signal.signal(sig, noted(old))
+                saved[sig] = old
+    _INTERRUPTED.clear()
+    try:
+        yield
+    finally:
+        for sig, old in saved.items():
+            signal.signal(sig, old)
+        _INTERRUPTED.clear()
 
 
 def _remove_kernel_files(base: str) -> None:
@@ -476,17 +546,18 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     t0 = time.time()
     try:
         try:
-            pm.execute_notebook(
-                str(staged),
-                str(staged_out),
-                parameters={"SCALE": scale, **parameters},
-                cwd=str(paths.ROOT),
-                kernel_name="python3",
-                progress_bar=False,
-                log_output=False,
-                stderr_file=sys.stderr if log else None,
-                kernel_manager_class=manager,
-            )
+            with _noting_interrupts():
+                pm.execute_notebook(
+                    str(staged),
+                    str(staged_out),
+                    parameters={"SCALE": scale, **parameters},
+                    cwd=str(paths.ROOT),
+                    kernel_name="python3",
+                    progress_bar=False,
+                    log_output=False,
+                    stderr_file=sys.stderr if log else None,
+                    kernel_manager_class=manager,
+                )
         except PapermillExecutionError as err:
             kept = None
             if staged_out.exists():
