@@ -44,6 +44,15 @@ def test_notebook_smoke(nid, tmp_path_factory, monkeypatch):
     assert meta["execution_key"] != notebooks.execution_key(nid, "smoke", None, meta["modules"][:-1])
 
 
+def test_the_smoke_group_stays_on_one_worker(request):
+    """Under `make test` (pytest-xdist, ``--dist loadgroup``) a test of the smoke group carries its group in its node
+    id, which is what keeps the group on one worker: the smoke notebooks then execute once, for this module and
+    the book. pytest 9 ignores the id xdist 3.8 rewrites (constraints.txt pins pytest 8)."""
+    if not getattr(request.config.option, "loadgroup", False):
+        pytest.skip("not under pytest-xdist --dist loadgroup")
+    assert request.node.nodeid.endswith("@smoke"), request.node.nodeid
+
+
 def test_notebook_ids_and_book_order():
     assert all(notebooks.check_notebook(n) == n for n in IDS)
     assert IDS == sorted(IDS, key=notebooks.sort_key)
