@@ -247,9 +247,9 @@ def find_shipped(key: str, layer: Path) -> Path:
 
 def claim_pages(claim_id: str) -> list[str]:
     """The pages whose saved numbers claim ``claim_id`` reads (``ValueError`` for an unknown claim)."""
-    from thesis_repro.claims import ledger
+    from thesis_repro.claims import registry
 
-    return ledger.spec(claim_id).data_pages
+    return registry.spec(claim_id).data_pages
 
 
 def recorded_seconds(paths_: Iterable[Path]) -> float:

@@ -1,7 +1,7 @@
 """``python -m thesis_repro results`` (``make results``): RESULTS.md and the README's generated blocks.
 
 Everything here but :func:`main` is wording: pure functions over the claims ledger's JSON dicts
-(:func:`thesis_repro.claims.ledger.as_json`) and the scale table's resolved settings. A claim's dict is read
+(:func:`thesis_repro.claims.scoreboard.as_json`) and the scale table's resolved settings. A claim's dict is read
 through :func:`label`, :func:`short`, :func:`thesis_value` and :func:`ours`, which use the keys ``label``,
 ``short``, ``thesis_value`` and ``ours`` when the ledger provides them, else today's ``verdict``, ``claim`` and
 ``statistic``. :func:`main` judges every claim from the shipped claims snapshot
@@ -359,11 +359,11 @@ def snapshot_only() -> Iterator[None]:
 
 def ledger_json(scale: str) -> dict[str, Any]:
     """The ledger's JSON at ``scale`` from the shipped snapshot (no null pass rates: they are not shown)."""
-    from thesis_repro.claims import ledger
+    from thesis_repro.claims import ledger, registry, scoreboard
 
     with snapshot_only():
-        rows = sorted((ledger.judge(s, scale, False) for s in ledger.specs()), key=lambda r: r.spec.beyond)
-        return ledger.as_json(rows, scale)
+        rows = sorted((ledger.judge(s, scale, False) for s in registry.specs()), key=lambda r: r.spec.beyond)
+        return scoreboard.as_json(rows, scale)
 
 
 def scale_rows() -> str:
