@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from tests.test_layers import imported, sources
 
+
 def graph(imports: dict[str, set[str]]) -> dict[str, set[str]]:
     """Module -> the package modules it imports, without its own packages and itself."""
     return {m: {t for t in ts if t in imports and t != m and not m.startswith(t + ".")} for m, ts in imports.items()}

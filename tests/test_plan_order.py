@@ -10,8 +10,7 @@ import math
 
 import pytest
 
-from thesis_repro import figures, generator, order
-from thesis_repro import jobs as registry
+from thesis_repro import figures, generator, job_kinds, order
 from thesis_repro.__main__ import main
 from thesis_repro.cache import Job
 from thesis_repro.order import Claim, Item
@@ -21,7 +20,7 @@ def _never(config: dict, workdir) -> dict:  # a toy kind's job function: planned
     raise AssertionError("not run")
 
 
-registry.register("order-toy", "tests.test_plan_order:_never")
+job_kinds.register("order-toy", "tests.test_plan_order:_never")
 
 
 def _order(items, claims):

@@ -10,8 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import figures, generator, paths, plan, provenance, retrain_check, runs, shipped_checks
-from thesis_repro import jobs as registry
+from thesis_repro import figures, generator, job_kinds, paths, plan, provenance, retrain_check, runs, shipped_checks
 from thesis_repro.__main__ import main
 from thesis_repro.cache import CorruptEntryWarning, Job, RunCache, read_entry
 
@@ -40,7 +39,7 @@ def toy_train(config: dict, workdir: Path) -> dict:
     return {"resumed": resumed, "curve": np.arange(float(step))}
 
 
-registry.register("toy-train", "tests.test_runs:toy_train")
+job_kinds.register("toy-train", "tests.test_runs:toy_train")
 
 
 def _cfg(name: str, timesteps: int, seed: int = 0, **kw) -> dict:

@@ -4,11 +4,11 @@ The package map, layers from the bottom up. A module imports only from its own l
 (``tests/test_layers.py`` reads this list and enforces it; ``tests/test_imports.py`` forbids import circles):
 
 1. **core**: ``thesis_repro``, ``paths``, ``validation``, ``provenance``, ``scales``, ``thesis_numbers``,
-   ``jobs``, ``bench`` -- locations, checks, where and in which numerics an entry was made, the scale table, the
+   ``job_kinds``, ``bench`` -- locations, checks, where and in which numerics an entry was made, the scale table, the
    thesis's numbers, the job registry and the timing helpers; they import the standard library, third-party
    packages and each other only.
 2. **store and backends**: ``cache``, ``backends`` -- the run cache and where jobs run; may import core (a job
-   function is resolved by name through ``jobs``, never imported).
+   function is resolved by name through ``job_kinds``, never imported).
 3. **envs**: ``envs`` -- the MuJoCo tasks and their perturbations; may import core.
 4. **learners, mdl, arm**: ``learners``, ``mdl``, ``arm`` -- the RL learners, Alg 3's aggregation, chapter 5's
    arm; may import envs, the store (a job loads its dependencies through the run cache) and core.

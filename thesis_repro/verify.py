@@ -57,8 +57,7 @@ from typing import Any
 import numpy as np
 
 import thesis_repro
-from thesis_repro import jobs as registry
-from thesis_repro import paths, plan, retrain_check, runs, scales, shipped_checks
+from thesis_repro import job_kinds, paths, plan, retrain_check, runs, scales, shipped_checks
 from thesis_repro.cache import Result, RunCache, find_entry, read_entry
 from thesis_repro.validation import check_choice
 
@@ -247,7 +246,7 @@ def find_shipped(key: str, layer: Path) -> Path:
 
 def claim_pages(claim_id: str) -> list[str]:
     """The pages whose saved numbers claim ``claim_id`` reads (``ValueError`` for an unknown claim)."""
-    from thesis_repro.claims import registry
+    from thesis_repro.claims import registry  # local: the claims package loads scipy; only --claim needs it
 
     return registry.spec(claim_id).data_pages
 
@@ -377,7 +376,7 @@ def _worker(spec_file: str) -> None:
 
 
 def _modules(kinds: Iterable[str]) -> list[str]:
-    hooks = [registry.KINDS.get(k, "") for k in kinds] + [registry.DEPENDENCIES.get(k, "") for k in kinds]
+    hooks = [job_kinds.KINDS.get(k, "") for k in kinds] + [job_kinds.DEPENDENCIES.get(k, "") for k in kinds]
     return sorted({h.split(":")[0] for h in hooks if h})
 
 
@@ -456,7 +455,7 @@ def check_entry(path: Path, fresh: Path | str) -> Check:
 def missing_dependencies(path: Path, layer: Path) -> list[str]:
     """Names of the dependencies (``policy``) of shipped entry ``path`` that ``layer`` does not hold."""
     job = shipped_checks.shipped_job(path)
-    return [n for n, dep in registry.dependencies(job.kind, job.config).items() if find_entry(layer, dep) is None]
+    return [n for n, dep in job_kinds.dependencies(job.kind, job.config).items() if find_entry(layer, dep) is None]
 
 
 def _one_line(err: BaseException) -> str:
