@@ -107,7 +107,7 @@ def test_generator_until_starts_only_jobs_that_end_in_time(fake_figures, monkeyp
 
 def test_eta_counts_the_work_left_past_a_checkpoint(monkeypatch, tmp_path):
     from thesis_repro.learners import train
-    from thesis_repro.plan import Rates
+    from thesis_repro.throughput import Rates
 
     job = Job("train", {"algorithm": "ppo", "env": "Hopper", "seed": 0, "timesteps": 1_000_000})
     rates = Rates({"ppo": 1000.0}, {})

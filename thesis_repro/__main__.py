@@ -556,7 +556,7 @@ def check_environment() -> None:
 
 
 def _plan_command(args: argparse.Namespace) -> int:
-    from thesis_repro import plan, scales
+    from thesis_repro import plan, scales, throughput
 
     scales.check_scale(args.scale)
     if args.figure == "order" and (args.envs or args.algos):
@@ -566,10 +566,10 @@ def _plan_command(args: argparse.Namespace) -> int:
     if (args.rates or ("shipped" if args.figure == "order" else "bench")) == "shipped":
         from thesis_repro.cache import platform_info
 
-        rates = plan.shipped_rates(by_env=True, machine=platform_info())
+        rates = throughput.shipped_rates(by_env=True, machine=platform_info())
     else:
-        rates = plan.load_rates()
-    print(plan.rates_note(rates))
+        rates = throughput.load_rates()
+    print(throughput.rates_note(rates))
     if args.figure == "order":
         from thesis_repro import order
 
@@ -606,7 +606,7 @@ def _order_plan(
 def _runs_command(args: argparse.Namespace) -> int:
     import json
 
-    from thesis_repro import figures, generator, paths, plan, runs, scales, shipped_checks
+    from thesis_repro import figures, generator, paths, plan, runs, scales, shipped_checks, throughput
 
     scales.check_scale(args.scale)
     if args.cmd == "reference-runs":
@@ -628,7 +628,7 @@ def _runs_command(args: argparse.Namespace) -> int:
 
             if not args.seeds:
                 raise ValueError("--order claims needs --seeds: the seeds to add, such as --seeds 3 4 5")
-            rates = plan.shipped_rates(by_env=True, machine=platform_info())
+            rates = throughput.shipped_rates(by_env=True, machine=platform_info())
             ranked = _order_plan(args.scale, args.seeds, rates, missing=True, figure_ids=args.figures)
             print(order.report(ranked), flush=True)
             figure_ids = order.item_order(ranked)

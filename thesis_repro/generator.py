@@ -21,9 +21,10 @@ from thesis_repro import figures, job_kinds, paths
 from thesis_repro.backends import die_with_parent, execute, sigint_held, stop_pool
 from thesis_repro.cache import Job, Result, RunCache, entry_identity, find_entry, read_entry
 from thesis_repro.paths import shown
-from thesis_repro.plan import Rates, cost, job_rate, seed_count, shipped_rates, training_seed, work
+from thesis_repro.plan import seed_count, training_seed
 from thesis_repro.provenance import platform_info
 from thesis_repro.runs import TARGET_BYTES, Exported, export, wall_seconds
+from thesis_repro.throughput import Rates, cost, job_rate, shipped_rates, work
 from thesis_repro.validation import check_choice
 
 
@@ -249,7 +250,7 @@ def parse_until(text: str, now: datetime | None = None) -> datetime:
 
 def eta_seconds(job: Job, cache: RunCache, rates: Rates) -> float:
     """Wall seconds ``job`` is expected to still take: its work past its newest checkpoint (a resumed run) at its
-    rate in ``rates`` (units per second, :func:`thesis_repro.plan.job_rate`: its learner's on its task where
+    rate in ``rates`` (units per second, :func:`thesis_repro.throughput.job_rate`: its learner's on its task where
     ``rates`` has one, else its family's); ``inf`` for a family without a rate.
 
     >>> ppo = Job("train", {"algorithm": "ppo", "env": "Hopper", "timesteps": 1000})

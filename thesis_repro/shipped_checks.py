@@ -19,8 +19,9 @@ from typing import Any
 from thesis_repro import figures, job_kinds, paths
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.paths import shown
-from thesis_repro.plan import cost, seed_count, target_seeds
+from thesis_repro.plan import seed_count, target_seeds
 from thesis_repro.runs import corrupt, local_entries, shipped_entries
+from thesis_repro.throughput import cost
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 import thesis_repro
-from thesis_repro import job_kinds, paths, plan, retrain_check, runs, scales, shipped_checks
+from thesis_repro import job_kinds, paths, plan, retrain_check, runs, scales, shipped_checks, throughput
 from thesis_repro.cache import Result, RunCache, find_entry, read_entry
 from thesis_repro.validation import check_choice
 
@@ -497,7 +497,7 @@ def retrain_check(scale: str, layer: Path, root: Path, log: Callable[[str], None
     where = find_entry(layer, job)
     values, config = read_entry(where)
     shipped = Result(where, values, config, source="shipped")
-    log(f"--train: retraining the cheapest shipped training run, {job.label} ({plan.cost(job):,.0f} steps) ...")
+    log(f"--train: retraining the cheapest shipped training run, {job.label} ({throughput.cost(job):,.0f} steps) ...")
     t0 = time.time()
     recompute = getattr(runs, "recompute", None)  # in the numerics the shipped run was made in, where recorded
     fresh = recompute(job, root, shipped) if recompute is not None else RunCache(root, reference=False).run(job)
@@ -570,7 +570,7 @@ def _retrain_entry(path: Path, root: Path, log: Callable[[str], None]) -> bool:
     job = shipped_checks.shipped_job(path)
     cost = shipped_checks.shipped_seconds(path)
     log(
-        f"verify --entry: retraining {job.label} ({plan.cost(job):,.0f} steps"
+        f"verify --entry: retraining {job.label} ({throughput.cost(job):,.0f} steps"
         + (f", {cost / 60:.0f} min when made)" if cost == cost else ")")
     )
     fresh = retrain_check.recompute(job, root, shipped)
