@@ -447,7 +447,7 @@ def _agent_parsers(sub: Any) -> None:
 
 
 def _agent_command(args: argparse.Namespace) -> int:
-    from thesis_repro import agent, scales
+    from thesis_repro import agent, clips, scales
 
     scales.check_scale(args.scale)
     if args.cmd == "train":
@@ -458,7 +458,7 @@ def _agent_command(args: argparse.Namespace) -> int:
         ret = "" if tr is None else f", training return {float(np.mean(tr)):.1f}"
         print(f"{args.algo} on {args.task} (seed {args.seed}, scale {args.scale}): {res.source}{ret}\n{res.path}")
     elif args.cmd == "clips":
-        doc = agent.make_clips(args.scale, force=args.force)
+        doc = clips.make_clips(args.scale, force=args.force)
         for c in doc["clips"]:
             what = (
                 f"return {c['return']:.1f} in {c['length']} steps ({c['source']} run)"
@@ -466,9 +466,9 @@ def _agent_command(args: argparse.Namespace) -> int:
                 else f"no clip: not trained ({c['missing']})"
             )
             print(f"{c['algo']} on {doc['task']} ({doc['test']}, σ {doc['sigma']}): {what}")
-        print(f"clips: {agent.clips_dir(args.scale)}")
+        print(f"clips: {clips.clips_dir(args.scale)}")
     elif args.cmd == "enjoy":
-        out = agent.enjoy(
+        out = clips.enjoy(
             args.algo,
             args.task,
             args.seed,

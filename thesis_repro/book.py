@@ -12,7 +12,7 @@
 * the page "Protocol: thesis beside kit" (``protocol.md``, :mod:`thesis_repro.protocol`), last in the contents;
 * each guide notebook (``notebooks/guide-*.py``, :func:`thesis_repro.notebooks.is_guide`) as a page of its own
   among the guides (:func:`prepare_guide`: its code shown, no thesis claims, no verdict);
-* the chapter-3 landing page's clips of the basic learners (:func:`thesis_repro.agent.book_clips`).
+* the chapter-3 landing page's clips of the basic learners (:func:`thesis_repro.clips.book_clips`).
 
 Execution cache: a notebook whose executed copy carries today's execution key (notebook source, scale,
 parameters, ``THESIS_REPRO_RETRAIN``, the kit modules it imported, configuration and thesis data; see
@@ -578,9 +578,9 @@ def build(
                 )
                 page = failed_page(nid, scale, failed[nid])
             (root / f"{page_file(nid)}.ipynb").write_text(json.dumps(page, indent=1, ensure_ascii=False))
-    from thesis_repro import agent  # local: the clips render the chapter-3 policies the pages above loaded
+    from thesis_repro import clips  # local: it loads the evaluation layer (torch); only this last step needs it
 
-    agent.book_clips(root, scale)
+    clips.book_clips(root, scale)
     judged = [n for n in ids if notebooks.page_id(n) not in pending]
     for md in root.glob("chapter-*.md"):
         with md.open("a") as f:
