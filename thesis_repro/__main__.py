@@ -6,6 +6,10 @@
 (your agent under the thesis's protocol, :mod:`thesis_repro.agent`) | ``--version``. Installed, the same command
 line is the ``thesis-repro`` console script.
 
+One file on purpose (over 600 lines): it is the one parser of every command, and each command's handler keeps the
+one error contract below (its ``error:`` line, its exit code); a handler parses and calls the module that does
+the work, so nothing here is shared with another module.
+
 Every failure a user can cause ends in one ``error: ...`` line on stderr and a non-zero exit code, never a
 traceback: a bad argument or setting (2), a notebook that failed (its own exception, 1), a folder that cannot
 be written (the path and the setting naming it, 1). Ctrl-C prints ``interrupted; rerun to resume`` and exits

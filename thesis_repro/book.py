@@ -1,5 +1,11 @@
 """Build the Jupyter Book (1.x, offline) of one scale: the thesis's claims, each page with its verdict.
 
+One file on purpose (over 600 lines): every part serves :func:`build` alone (the command line is its only caller)
+and changes with the book's layout: staging, the reader's copy of each executed page, the chapter tables and the
+scoreboard, the table of contents, the progress lines and the pending / failed pages. What other commands share
+lives in their own modules (:mod:`thesis_repro.notebooks`: execution keys; :mod:`thesis_repro.pages`: a page's
+runs; :mod:`thesis_repro.clips`: the clips; :mod:`thesis_repro.claims`: the verdicts).
+
 ``build(scale)`` stages a copy of ``book/`` in ``build/<scale>/book/`` and generates, in the copy only:
 
 * one page per executed notebook (``executed/<page id>.ipynb``), *cleaned for readers*: progress bars,

@@ -1,5 +1,9 @@
 """Content-addressed, atomic, resumable run cache with a shipped read-only layer: it stores and verifies entries.
 
+One file on purpose (over 600 lines): an entry's format on disk (folders, temporary names, manifest, identity)
+and the :class:`RunCache` that commits, verifies and finds it are one contract, changed together with
+:data:`CACHE_VERSION`; the :mod:`thesis_repro.provenance` of an entry is already its own module.
+
 A :class:`Job` is a registered *kind* (:mod:`thesis_repro.job_kinds`: ``"train"``, ``"evaluate"``, ...) plus a
 JSON config. Its key is ``sha256(v<CACHE_VERSION>|<kind>|<canonical config>)``: any change to the resolved
 config is a new entry, moving the job function is not. The function is called as ``fn(config, workdir)``
@@ -28,9 +32,6 @@ and its shipped copy) in its config, filled in by :meth:`RunCache.bind`: recompu
 new evaluations, never the old weights' ones. The cache knows no kind: the registry's hooks say which.
 
 This module stores; :mod:`thesis_repro.backends` runs many jobs (``run_jobs``: a process pool or Ray).
-One file on purpose (over 600 lines): an entry's format on disk (folders, temporary names, manifest, identity)
-and the :class:`RunCache` that commits, verifies and finds it are one contract, changed together with
-:data:`CACHE_VERSION`; the :mod:`thesis_repro.provenance` of an entry is already its own module.
 
 >>> import tempfile
 >>> cache = RunCache(tempfile.mkdtemp(), reference=False)

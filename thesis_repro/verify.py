@@ -1,5 +1,8 @@
 """``make verify SCALE=small [N=20] [SEED=...] [TRAIN=1]``: are the shipped numbers real on this machine?
 
+One file on purpose (over 600 lines): it is one command, and each of its parts (which entries, recomputing them
+in a worker, comparing the values, the report) serves only that command.
+
 Picks a seeded random sample (seed printed, so a run can be repeated) of ``N`` shipped evaluation entries of a
 scale (``data/reference/evaluate/``, keys made by that scale's figures; ``--kind`` picks other shipped kinds of
 :data:`VERIFIABLE`, such as chapter 5's ``arm-target``), recomputes each into a temporary run
@@ -25,8 +28,6 @@ a mismatch. With ``--train`` it also retrains the cheapest shipped training run 
 the temporary cache) and checks it with :func:`thesis_repro.retrain_check.compare_retrain`, saying whether the shipped
 run was resumed after an interruption and whether that resume was exact.
 
-One file on purpose (over 600 lines): it is one command, and each of its parts (which entries, recomputing them
-in a worker, comparing the values, the report) serves only that command.
 
 >>> compare({"r": np.array([[1.0, 2.0]])}, {"r": np.array([[1.0, 2.0]])}, same=True).verdict
 'identical'
