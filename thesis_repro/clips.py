@@ -18,12 +18,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from thesis_repro import paths, scales
 from thesis_repro.agent import train_job
 from thesis_repro.cache import RunCache
 from thesis_repro.envs import PERTURBATIONS, make_env, short_name
+from thesis_repro.learners import load_policy
 from thesis_repro.validation import check_choice, check_nonneg
 
 
@@ -54,8 +56,6 @@ def enjoy(
     Returns ``{"return", "length", "video", "source"}``. A run neither shipped nor cached is a ``ValueError``
     naming the ``train`` command that makes it.
     """
-    from thesis_repro.learners import load_policy  # local: the learners load torch and SB3 (seconds)
-
     check_choice(test, PERTURBATIONS, "test type")
     sigma = check_nonneg(sigma, "sigma")
     if isinstance(every, bool) or not isinstance(every, int | np.integer) or every < 1:
@@ -103,8 +103,6 @@ def enjoy(
 def _follow_camera(env: Any) -> None:
     """Render from the model's ``track`` camera (it follows the body: Hopper, Walker2d, HalfCheetah) instead of
     gymnasium's default free camera, which stays where the episode started; a model without one keeps it."""
-    import mujoco  # local: only rendering needs MuJoCo's own enums
-
     renderer, model = getattr(env.unwrapped, "mujoco_renderer", None), getattr(env.unwrapped, "model", None)
     if renderer is None or model is None or getattr(renderer, "camera_id", None) != -1:
         return
@@ -116,8 +114,6 @@ def _follow_camera(env: Any) -> None:
 def _lean_rendering(env: Any) -> None:
     """Turn off the shadows, reflections and skybox of ``env``'s offscreen renderer (gymnasium's MuJoCo
     renderer; anything else is left as it is)."""
-    import mujoco  # local: only rendering needs MuJoCo's own enums
-
     renderer = getattr(env.unwrapped, "mujoco_renderer", None)
     get = getattr(renderer, "_get_viewer", None)
     scene = getattr(get("rgb_array"), "scn", None) if get is not None else None
@@ -134,7 +130,7 @@ def _check_video_writer(path: Path) -> None:
         import imageio  # noqa: F401 - local: the optional [video] extra, checked here
 
         if path.suffix.lower() == ".mp4":
-            import imageio_ffmpeg  # noqa: F401
+            import imageio_ffmpeg  # noqa: F401 - the [video] extra's .mp4 writer
     except ImportError as err:
         raise RuntimeError(
             f"writing {path.suffix} videos needs {err.name}: pip install 'thesis_repro[video]' (make venv has it)"

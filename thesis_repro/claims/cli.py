@@ -19,13 +19,12 @@ import json
 import sys
 import warnings
 
+from thesis_repro.claims import design, evidence, ledger, ledger_row, registry, scoreboard, snapshot
 from thesis_repro.scales import SCALES
 
 
 def main(argv: list[str] | None = None) -> int:
     """Print the ledger (one line per claim, or ``--json``); returns the exit code."""
-    from thesis_repro.claims import evidence, ledger, ledger_row, registry, scoreboard, snapshot
-
     warnings.simplefilter("ignore", RuntimeWarning)  # NaN means of cells a scale does not run
 
     ap = argparse.ArgumentParser(prog="python -m thesis_repro claims", description=__doc__.split("\n")[0])
@@ -52,8 +51,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     if args.freeze:
-        from thesis_repro.claims import design
-
         broken = design.check_frozen() if design.frozen().get("version") == design.VERSION else []
         if broken:
             print(
