@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import agent
+from thesis_repro import agent, clips
 from thesis_repro.__main__ import main
 from thesis_repro.evaluation import score as sc
 
@@ -266,31 +266,31 @@ def test_clips_are_rendered_once_and_placed_on_the_chapter_3_page(tmp_path, caps
     pytest.importorskip("imageio", reason="the [video] extra (make venv installs it)")
     import imageio.v2 as imageio
 
-    task = agent.CLIPS["task"]
+    task = clips.CLIPS["task"]
     agent.train_run("ppo", task, 0, "smoke")  # seconds; the other basic learners stay untrained
     assert main(["clips", "--scale", "smoke"]) == 0
     out = capsys.readouterr().out
     assert f"ppo on {task}" in out and "no clip: not trained (python -m thesis_repro train trpo" in out, out
-    doc = agent.current_clips("smoke")
-    assert doc is not None and [c["algo"] for c in doc["clips"]] == list(agent.CLIPS["learners"])
+    doc = clips.current_clips("smoke")
+    assert doc is not None and [c["algo"] for c in doc["clips"]] == list(clips.CLIPS["learners"])
     ppo = doc["clips"][0]
-    gif = agent.clips_dir("smoke") / ppo["file"]
+    gif = clips.clips_dir("smoke") / ppo["file"]
     frames = imageio.mimread(gif)
-    steps, every = agent.CLIP_STEPS["smoke"]
-    assert 1 <= len(frames) <= steps // every + 1 and frames[0].shape[:2] == (agent.CLIPS["size"],) * 2
+    steps, every = clips.CLIP_STEPS["smoke"]
+    assert 1 <= len(frames) <= steps // every + 1 and frames[0].shape[:2] == (clips.CLIPS["size"],) * 2
     assert 1 <= ppo["length"] <= steps and ppo["source"] in ("computed", "cached")
     before = gif.stat().st_mtime_ns
-    assert agent.make_clips("smoke") == doc and gif.stat().st_mtime_ns == before  # up to date: not rendered again
+    assert clips.make_clips("smoke") == doc and gif.stat().st_mtime_ns == before  # up to date: not rendered again
     root = tmp_path / "book"
     root.mkdir()
     (root / "chapter-3.md").write_text("# Chapter 3\n")
-    section = agent.book_clips(root, "smoke")
+    section = clips.book_clips(root, "smoke")
     page = (root / "chapter-3.md").read_text()
     assert page.endswith(section) and "](clips/ppo.gif)" in section and (root / "clips" / "ppo.gif").is_file()
     assert re.search(r"return -?\d+, (over the first|episode ended after) \d+ steps", section), section
     assert "not trained at scale smoke: `python -m thesis_repro train sac" in section
     agent.train_run("sac", task, 0, "smoke")
-    assert agent.current_clips("smoke") is None  # a learner's run landed: the clips are stale
+    assert clips.current_clips("smoke") is None  # a learner's run landed: the clips are stale
 
 
 def test_clips_that_cannot_be_rendered_are_one_line_on_the_page(tmp_path, monkeypatch):
@@ -303,14 +303,14 @@ def test_clips_that_cannot_be_rendered_are_one_line_on_the_page(tmp_path, monkey
         return subprocess.CompletedProcess(cmd, 1, "", "Traceback ...\nerror: cannot initialize EGL\n")
 
     (tmp_path / "chapter-3.md").write_text("# Chapter 3\n")
-    monkeypatch.setattr(agent.subprocess, "run", failing)
-    section = agent.book_clips(tmp_path, "smoke")  # no basic learner trained at smoke: nothing to render
+    monkeypatch.setattr(clips.subprocess, "run", failing)
+    section = clips.book_clips(tmp_path, "smoke")  # no basic learner trained at smoke: nothing to render
     assert not calls and "not trained at scale smoke: `python -m thesis_repro train ppo" in section
     monkeypatch.setenv("MUJOCO_GL", "egl")
-    monkeypatch.setattr(agent, "current_clips", lambda scale, cache=None: None)  # stale, and a run to render:
-    monkeypatch.setattr(agent.RunCache, "state", lambda self, job, verify=False: "shipped")
+    monkeypatch.setattr(clips, "current_clips", lambda scale, cache=None: None)  # stale, and a run to render:
+    monkeypatch.setattr(clips.RunCache, "state", lambda self, job, verify=False: "shipped")
     (tmp_path / "chapter-3.md").write_text("# Chapter 3\n")
-    section = agent.book_clips(tmp_path, "smoke")
+    section = clips.book_clips(tmp_path, "smoke")
     assert calls == ["egl", "osmesa"]  # EGL first, then the software fallback
     lines = [ln for ln in section.splitlines() if ln.strip()]
     assert len(lines) == 2 and lines[1].startswith("No clips in this build: rendering them failed"), lines

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import jobs as registry
+from thesis_repro import job_kinds
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import CACHE_VERSION, CorruptEntryWarning, Job, RunCache, canonical_json
 
@@ -43,15 +43,15 @@ def _resumable(config: dict, workdir: Path) -> dict:
     return {"resumed_from_checkpoint": (workdir / "crashed").exists(), "step": step}
 
 
-registry.register("test-counting", "tests.test_cache:_counting", label=lambda c: f"n{c['n']}")
-registry.register("test-resumable", "tests.test_cache:_resumable")
+job_kinds.register("test-counting", "tests.test_cache:_counting", label=lambda c: f"n{c['n']}")
+job_kinds.register("test-resumable", "tests.test_cache:_resumable")
 
 
 @pytest.fixture
 def scratch_registry(monkeypatch):
     """Registry changes made by a test are undone after it."""
     for name in ("KINDS", "LABELS", "PATHS", "DEPENDENCIES", "RESOURCES", "PINNED"):
-        monkeypatch.setattr(registry, name, type(getattr(registry, name))(getattr(registry, name)))
+        monkeypatch.setattr(job_kinds, name, type(getattr(job_kinds, name))(getattr(job_kinds, name)))
 
 
 def test_key_depends_on_full_config_only():
@@ -72,7 +72,7 @@ def test_key_is_hash_of_version_kind_and_config():
 
 def test_moving_the_function_keeps_the_key(scratch_registry):
     before = Job("test-counting", {"n": 1})
-    registry.register("test-counting", "tests.test_cache:_counting_moved")  # the function moved
+    job_kinds.register("test-counting", "tests.test_cache:_counting_moved")  # the function moved
     after = Job("test-counting", {"n": 1})
     assert after.key == before.key and after.fn == "tests.test_cache:_counting_moved"
     assert Job("tests.test_cache:_counting", {"n": 1}).kind == "test-counting"  # old spelling still maps
@@ -94,21 +94,21 @@ def test_unknown_kind_is_one_line_error_listing_kinds():
             Job(name, {})
         assert "\n" not in str(err.value)
     with pytest.raises(ValueError, match="short lowercase name"):
-        registry.register("Bad Kind", "m:f")
+        job_kinds.register("Bad Kind", "m:f")
 
 
 def test_a_path_cannot_name_two_kinds(scratch_registry):
     with pytest.raises(ValueError, match="already registered as job kind 'train'"):
-        registry.register("other", "thesis_repro.learners:train_job")
+        job_kinds.register("other", "thesis_repro.learners:train_job")
 
 
 def test_jobs_are_plain_picklable_data(scratch_registry):
-    registry.register("test-user", "tests.test_cache:_user_job")
+    job_kinds.register("test-user", "tests.test_cache:_user_job")
     job = Job("test-user", {"n": 1})
     back = pickle.loads(pickle.dumps(job))
     assert back == job and back.key == job.key
     # a worker process that never registered the kind still finds the function via the recorded target
-    del registry.KINDS["test-user"]
+    del job_kinds.KINDS["test-user"]
     assert back.resolve() is _user_job
 
 
@@ -120,7 +120,7 @@ def test_labels_of_the_kit_kinds():
     tgt = {"source": {"family": "reach"}, "target": "bic", "strategy": "tensor", "seed": 1}
     assert Job("arm-target", tgt).label == "tensor__reach-to-bic__s1"
     assert Job("arm-source", {"family": "throw", "seed": 3, "k": [1]}).label == "throw__s3"
-    assert registry.label("train", {"algorithm": "a/b c", "env": "E", "seed": 0}) == "a-b-c__E__s0"
+    assert job_kinds.label("train", {"algorithm": "a/b c", "env": "E", "seed": 0}) == "a-b-c__E__s0"
 
 
 def test_readable_self_describing_entry(tmp_path):
@@ -285,7 +285,7 @@ def _threads(config: dict, workdir: Path) -> dict:
     return {"threads": torch.get_num_threads(), "dot": float(torch.ones(config["n"]) @ torch.ones(config["n"]))}
 
 
-registry.register("test-threads", "tests.test_cache:_threads")
+job_kinds.register("test-threads", "tests.test_cache:_threads")
 
 
 def test_a_job_computes_single_threaded_wherever_it_runs(tmp_path):

@@ -13,9 +13,8 @@ import pandas as pd
 import pytest
 
 from thesis_repro import paths
-from thesis_repro.claims import ledger as L
+from thesis_repro.claims import evidence, ledger, ledger_row, page_verdicts, registry, report, rules, scoreboard
 from thesis_repro.claims import measures as M
-from thesis_repro.claims import report
 from thesis_repro.claims import synthetic as S
 from thesis_repro.claims.stats import Contrast, CountRule, Unit, null_pass_rate
 
@@ -39,12 +38,12 @@ NEVER_JUDGED = [
 MAX_NULL_PASS = 0.10  # chance is 0.05 (one-sided 2.5 % per unit); allow the Monte-Carlo error of 100 draws
 
 
-def _measured(s: L.Spec, n_seeds: int = 3, seed: int = 0) -> dict[str, list[Unit]]:
+def _measured(s: registry.Spec, n_seeds: int = 3, seed: int = 0) -> dict[str, list[Unit]]:
     return M.MEASURES[s.rule["measure"]](S.frames_for(s.rule["measure"], n_seeds, seed), s.rule)
 
 
 def test_every_claim_has_a_preregistered_rule():
-    specs = L.specs()
+    specs = registry.specs()
     assert len({s.id for s in specs}) == len(specs)
     for s in specs:
         r = s.rule
@@ -53,44 +52,44 @@ def test_every_claim_has_a_preregistered_rule():
             assert r.get("statistic") and r.get("units"), s.id
             assert (
                 "training seeds"
-                in L.as_json([L.Row(s, report.NOT_COMPUTED)])["claims" if not s.beyond else "beyond_the_thesis"][0][
-                    "unit"
-                ]
+                in scoreboard.as_json([ledger_row.Row(s, report.NOT_COMPUTED)])[
+                    "claims" if not s.beyond else "beyond_the_thesis"
+                ][0]["unit"]
             )
-        text = L.rule_text(s)
+        text = rules.rule_text(s)
         assert text and ("reproduces" in text or "not judged" in text or "derived" in text or "own rule" in text)
         assert s.beyond or s.lines, s.id
 
 
 def test_the_fourteen_never_judged_claims_are_registered_and_judged():
-    ids = {s.id for s in L.specs()}
+    ids = {s.id for s in registry.specs()}
     assert set(NEVER_JUDGED) <= ids
     for cid in NEVER_JUDGED:
-        s = L.spec(cid)
+        s = registry.spec(cid)
         assert not s.beyond
         groups = _measured(s)
         assert any(groups.values()), cid
-        status = [L.rule_for(s, g)[0].judge(us).status for g, us in groups.items() if us]
+        status = [rules.rule_for(s, g)[0].judge(us).status for g, us in groups.items() if us]
         assert report.NOT_COMPUTED not in status, cid
 
 
 def test_each_sentence_is_judged_once_and_beyond_is_apart():
-    texts = [s.text for s in L.specs() if not s.beyond]
+    texts = [s.text for s in registry.specs() if not s.beyond]
     assert len(texts) == len(set(texts))
-    beyond = [s for s in L.specs() if s.beyond]
+    beyond = [s for s in registry.specs() if s.beyond]
     assert beyond and all("kl_exact" in s.id or s.page == "analysis-4-kl" for s in beyond)
-    assert not any("bold" in s.text.lower() for s in L.specs())  # kit checks are not claims
+    assert not any("bold" in s.text.lower() for s in registry.specs())  # kit checks are not claims
 
 
-@pytest.mark.parametrize("cid", [s.id for s in L.specs() if "measure" in s.rule])
+@pytest.mark.parametrize("cid", [s.id for s in registry.specs() if "measure" in s.rule])
 def test_null_calibration(cid):
     """Every rule passes (reproduces) null data at most about as often as chance."""
-    s = L.spec(cid)
+    s = registry.spec(cid)
     try:
         groups = {g: us for g, us in _measured(s).items() if us}
     except (M.NotRun, M.Inconclusive):
         pytest.skip("the synthetic frames do not carry this claim's data")
-    rate = null_pass_rate(groups, {g: L.rule_for(s, g)[0] for g in groups}, draws=100, seed=1)
+    rate = null_pass_rate(groups, {g: rules.rule_for(s, g)[0] for g in groups}, draws=100, seed=1)
     assert rate <= MAX_NULL_PASS, f"{cid} passes {rate:.0%} of null draws: rewrite its rule"
 
 
@@ -110,9 +109,9 @@ def test_ambiguous_data_is_inconclusive():
     final = pd.DataFrame(
         {"condition": ["CL"] * 3 + ["NC"] * 3, "seed": [0, 1, 2] * 2, "final_success": [0.9, 0.2, 0.8, 0.5, 0.4, 0.6]}
     )
-    s = L.spec("5.6-curriculum")
+    s = registry.spec("5.6-curriculum")
     groups = M.MEASURES["curriculum"]({"final": final}, s.rule)
-    assert L.rule_for(s, "better than NC")[0].judge(groups["better than NC"]).status == report.INCONCLUSIVE
+    assert rules.rule_for(s, "better than NC")[0].judge(groups["better than NC"]).status == report.INCONCLUSIVE
 
 
 def test_a_unit_without_seeds_is_undecided_and_does_not_cap_the_others_at_indicative():
@@ -160,7 +159,7 @@ def test_a_diverged_policy_is_not_judged_on_what_it_keeps(measure, name):
 
 
 def test_one_seed_is_at_most_indicative():
-    for s in L.specs():
+    for s in registry.specs():
         if "measure" not in s.rule:
             continue
         try:
@@ -168,7 +167,7 @@ def test_one_seed_is_at_most_indicative():
         except (M.NotRun, M.Inconclusive):
             continue
         for g, us in groups.items():
-            assert L.rule_for(s, g)[0].judge(us).status == report.INDICATIVE, (s.id, g)
+            assert rules.rule_for(s, g)[0].judge(us).status == report.INDICATIVE, (s.id, g)
 
 
 def test_ledger_reads_saved_numbers_and_counts_claims_once(tmp_path, monkeypatch):
@@ -177,16 +176,18 @@ def test_ledger_reads_saved_numbers_and_counts_claims_once(tmp_path, monkeypatch
     aucs = f["aucs"][f["aucs"]["method"].isin(["ppo", "ppo-16", "ppo-scn", "ppo-scn-16", "ppo-ent", "ppo-arpl"])]
     strong = aucs.copy()
     strong.loc[strong["method"] == "ppo-ent", "value"] += 100.0  # PPO-Ent far above PPO everywhere
-    vs = L.judge_page("table-3.6", "small", {"aucs": strong}, {"budgets": {"runs": 6, "trained": 6}}, display=False)
+    vs = page_verdicts.judge_page(
+        "table-3.6", "small", {"aucs": strong}, {"budgets": {"runs": 6, "trained": 6}}, display=False
+    )
     by = {v.claim.split(" (thesis")[0]: v for v in vs}
     assert by["(ii) Entropy-regularised PPO usually surpasses vanilla PPO, sometimes by a large margin."].status == (
         report.REPRODUCES
     )
-    rows = L.ledger("small", with_null=False)
+    rows = ledger.ledger("small", with_null=False)
     assert sum(r.spec.id == "3.6-entropy" for r in rows) == 1  # repeated on fig-3.6? counted once anyway
     nc = [r for r in rows if r.spec.page == "fig-3.3"]
     assert nc and all(r.status in (report.NOT_COMPUTED,) or r.spec.rule.get("derived") for r in nc)
-    board = L.scoreboard("small", rows)
+    board = scoreboard.scoreboard("small", rows)
     assert "Distinct claims of the thesis" in board and "Beyond the thesis" in board and "false R" in board
     # the headline's counts add up to the number of distinct claims (every status is named, visual included)
     head = board.split("Distinct claims of the thesis: ")[1].split(". Under design v1")[0]
@@ -198,18 +199,18 @@ def test_ledger_reads_saved_numbers_and_counts_claims_once(tmp_path, monkeypatch
 def test_a_page_in_its_staging_folder_reads_finished_pages(tmp_path, monkeypatch):
     """A notebook runs with THESIS_REPRO_BUILD at its staging folder; a claim judged on Table 3.4 and repeated
     on Fig 3.7 must still read Table 3.4's saved numbers (it printed 'no saved numbers of table-3.4')."""
-    claim = next(s for s in L.page_claims("fig-3.7") if s.page == "table-3.4")
+    claim = next(s for s in registry.page_claims("fig-3.7") if s.page == "table-3.4")
     f = S.frames(3, seed=2)
     aucs = f["aucs"][f["aucs"]["method"].isin(["ppo", "trpo", "ddpg", "sac"])]
     monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path / "build"))
-    L.judge_page("table-3.4", "small", {"aucs": aucs}, display=False)  # a finished page
-    published = L.judge(claim, "small", with_null=False).status
+    page_verdicts.judge_page("table-3.4", "small", {"aucs": aucs}, display=False)  # a finished page
+    published = ledger.judge(claim, "small", with_null=False).status
     assert published != report.NOT_COMPUTED
     monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path / "build" / ".staging-small-fig-3.7-1"))
-    assert L.judge(claim, "small", with_null=False).status == report.NOT_COMPUTED  # what the kernel saw before
+    assert ledger.judge(claim, "small", with_null=False).status == report.NOT_COMPUTED  # what the kernel saw before
     monkeypatch.setenv(paths.PUBLISHED_ENV, str(tmp_path / "build"))
-    assert L.judge(claim, "small", with_null=False).status == published
-    assert len(report.load("table-3.4", "small")) == len(L.page_claims("table-3.4"))
+    assert ledger.judge(claim, "small", with_null=False).status == published
+    assert len(report.load("table-3.4", "small")) == len(registry.page_claims("table-3.4"))
 
 
 def test_claims_json_cli_is_fast_and_machine_readable(tmp_path):
@@ -244,13 +245,15 @@ def test_stats_match_scipy():
 def test_bolding_agreement_is_a_kit_check_judged_here_not_on_the_scoreboard():
     """The Welch-bolding agreement (a figure's ``Comparison.agreement``) is judged by the claims layer."""
     a = {"rows": 20, "best_same": 20, "same": 120, "cells": 120, "bold_both": 30, "bold_ours": 30, "bold_thesis": 30}
-    v = L.bolding_check("table-3.6", a, "full")
+    v = page_verdicts.bolding_check("table-3.6", a, "full")
     assert v.status == report.REPRODUCES and v.evidence.startswith("best learner the same in 20/20 rows")
     assert "n = 240, alpha = 0.05" in v.evidence
-    assert L.bolding_check("table-3.6", {**a, "best_same": 0}, "small").status == report.DOES_NOT
-    assert L.bolding_check("table-3.6", a, "smoke").status == report.NOT_JUDGED
-    assert L.bolding_check("table-3.6", {**a, "rows": 0, "best_same": 0}, "small").status == report.NOT_JUDGED
-    assert v.claim not in {s.text for s in L.specs()}  # not a registered thesis claim
+    assert page_verdicts.bolding_check("table-3.6", {**a, "best_same": 0}, "small").status == report.DOES_NOT
+    assert page_verdicts.bolding_check("table-3.6", a, "smoke").status == report.NOT_JUDGED
+    assert (
+        page_verdicts.bolding_check("table-3.6", {**a, "rows": 0, "best_same": 0}, "small").status == report.NOT_JUDGED
+    )
+    assert v.claim not in {s.text for s in registry.specs()}  # not a registered thesis claim
 
 
 def test_the_average_across_seeds_cannot_be_judged_from_one_seed():
@@ -281,10 +284,10 @@ def test_a_pooled_statistic_says_it_pools_the_seeds_not_that_there_is_one():
         for i, a in enumerate(["ppo", "trpo", "sac", "ddpg"])
         for s in range(3)
     ]
-    row = L._judge_frames(L.spec("3.3-mean-selection"), "small", False, {"points": pd.DataFrame(rows)}, {})
+    row = ledger._judge_frames(registry.spec("3.3-mean-selection"), "small", False, {"points": pd.DataFrame(rows)}, {})
     assert row.status == "indicative" and row.n_seeds == 1 and row.pooled_seeds == 3
     assert row.as_dict()["pooled_seeds"] == 3
-    text = L.describe(row)
+    text = evidence.describe(row)
     assert "one training seed" not in text
     assert "3 training seeds pooled (no replication)" in text and "(point estimates: seed means)" in text
     assert "one value per unit from the means of 3 training seeds: no CI; the point estimates lean" in text

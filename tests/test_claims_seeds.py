@@ -7,7 +7,7 @@ shrunk and a structured effect added: every learner / algorithm / strategy / con
 iteration has its own offset, scaled per training seed by a factor. :data:`DECIDED` factors (0.97, 1, 1.03)
 give a clear effect with a small, non-zero seed spread (every verdict decided, every CI of positive width);
 :data:`AMBIGUOUS` factors (3, -2, 1) keep the mean effect leaning one way while the seeds disagree even in sign,
-so every CI spans 0. The frames go through :func:`~thesis_repro.claims.ledger.save_page` and the ledger
+so every CI spans 0. The frames go through :func:`~thesis_repro.claims.store.save_page` and the ledger
 re-judges them (:func:`~thesis_repro.claims.ledger.judge`), as ``claims --json`` does.
 """
 
@@ -20,8 +20,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro.claims import cli, design, report
-from thesis_repro.claims import ledger as L
+from thesis_repro.claims import cli, design, evidence, ledger, page_verdicts, registry, report, scoreboard, store
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import synthetic as S
 
@@ -77,14 +76,14 @@ SCALE = "small"
 DECIDED_STATUSES = {report.REPRODUCES, report.AT_LEAST_PARTLY, report.PARTLY, report.AT_MOST_PARTLY, report.DOES_NOT}
 
 
-def is_comparative(s: L.Spec) -> bool:
+def is_comparative(s: registry.Spec) -> bool:
     """A measured rule whose measure is comparative, or a derived rule with a comparative part."""
     if "measure" in s.rule:
         return s.rule["measure"] in COMPARATIVE
-    return any(is_comparative(L.spec(i)) for i in s.rule.get("derived", []))
+    return any(is_comparative(registry.spec(i)) for i in s.rule.get("derived", []))
 
 
-COMPARATIVE_IDS = [s.id for s in L.specs() if is_comparative(s)]
+COMPARATIVE_IDS = [s.id for s in registry.specs() if is_comparative(s)]
 
 
 def _measure(cid: str) -> str:
@@ -166,7 +165,7 @@ def effect_frames(factors: tuple[float, ...], seed: int = 0) -> dict[str, dict[s
     arm["cost"] = _quiet(arm["cost"], 100) + f(arm) * (10 * i + 50 * np.exp(-arm["trials"] / tau))
 
     pages = {}
-    for spec in L.specs():
+    for spec in registry.specs():
         for page in spec.data_pages:
             pages[page] = {**ch3_5, **(ch4 if page.startswith("fig-4") else {})}
             if page in ("fig-5.4", "fig-5.5", "fig-5.6"):
@@ -176,7 +175,7 @@ def effect_frames(factors: tuple[float, ...], seed: int = 0) -> dict[str, dict[s
 
 def save(factors: tuple[float, ...]) -> None:
     for page, frames in effect_frames(factors).items():
-        L.save_page(page, SCALE, frames, {"scale": SCALE})
+        store.save_page(page, SCALE, frames, {"scale": SCALE})
 
 
 FOLDERS = ("THESIS_REPRO_BUILD", "THESIS_REPRO_DATA", "THESIS_REPRO_REFERENCE")
@@ -205,8 +204,8 @@ def judged(saved):
         with pytest.MonkeyPatch.context() as mp:
             for var, folder in env.items():
                 mp.setenv(var, folder)
-            specs = [L.spec(i) for i in COMPARATIVE_IDS] if name == "decided" else L.specs()
-            out[name] = {s.id: L.judge(s, SCALE, with_null=False) for s in specs}
+            specs = [registry.spec(i) for i in COMPARATIVE_IDS] if name == "decided" else registry.specs()
+            out[name] = {s.id: ledger.judge(s, SCALE, with_null=False) for s in specs}
     return out
 
 
@@ -229,7 +228,7 @@ def test_a_comparative_verdict_carries_a_ci_across_three_seeds(judged, cid):
     row = judged["decided"][cid]
     assert row.status in DECIDED_STATUSES, (row.status, row.note)
     assert row.n_seeds == 3
-    d = json.loads(json.dumps(L.as_json([row]), allow_nan=False))  # the claims --json row, strict JSON
+    d = json.loads(json.dumps(scoreboard.as_json([row]), allow_nan=False))  # the claims --json row, strict JSON
     (js,) = d["beyond_the_thesis" if row.spec.beyond else "claims"]
     assert js["id"] == cid and js["n_seeds"] == 3 and js["verdict"] == row.status
     contrasts = _contrasts(js)
@@ -240,9 +239,9 @@ def test_a_comparative_verdict_carries_a_ci_across_three_seeds(judged, cid):
         assert lo < hi and c["n"] == 3, c
     # the text the page and the book print carries the first contrast's CI next to the statistic
     c = contrasts[0]
-    text = L.describe(row)
+    text = evidence.describe(row)
     assert f"{c['estimate']:+.3g} [{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]" in text
-    level = L.ci_words([info.get("level", 0.95) for info in row.groups.values()])
+    level = evidence.ci_words([info.get("level", 0.95) for info in row.groups.values()])
     assert f"{level} across 3 training seeds" in text  # 95 %, or the Bonferroni level the rule uses
 
 
@@ -265,11 +264,11 @@ def test_the_claims_json_cli_exposes_the_cis(saved, monkeypatch, capsys):
 def test_the_page_prints_the_ci_next_to_the_statistic(capsys):
     """judge_page's printed verdict (and the saved evidence the chapter tables show) has '[lo, hi]'."""
     frames = effect_frames(DECIDED)["table-3.6"]
-    vs = L.judge_page("table-3.6", SCALE, frames, {"scale": SCALE}, display=False)
+    vs = page_verdicts.judge_page("table-3.6", SCALE, frames, {"scale": SCALE}, display=False)
     printed = capsys.readouterr().out
-    row = L.judge(L.spec("3.6-entropy"), SCALE, with_null=False)
+    row = ledger.judge(registry.spec("3.6-entropy"), SCALE, with_null=False)
     c = row.groups["all"]["units"][0]["contrasts"][0]
-    stat = L._stat_text(row.statistic)
+    stat = evidence._stat_text(row.statistic)
     effect = f"{c['estimate']:+.3g} [{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]"
     line = next(x for x in printed.splitlines() if "· 3.6-entropy ·" in x)  # one line: the key number, its CI
     assert "ours: pooled effect" in line and "[" in line.split("ours: ")[1] and len(line) <= report.LINE
@@ -279,7 +278,7 @@ def test_the_page_prints_the_ci_next_to_the_statistic(capsys):
     assert effect in v.evidence and effect in v._repr_markdown_()
     saved = report.load("table-3.6", SCALE)
     assert any(effect in x.evidence for x in saved)
-    table = L.units_table(row)
+    table = evidence.units_table(row)
     assert table["CI"].iloc[0] == f"[{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]" and table["CI level"].iloc[0] == "95 %"
 
 
@@ -292,13 +291,13 @@ def test_ambiguous_three_seed_data_is_inconclusive(judged, cid):
     assert row.n_seeds == 3
     contrasts = _contrasts(row.as_dict())
     assert contrasts and all(c["ci"][0] < c["ci"][1] for c in contrasts)
-    level = L.ci_words([info.get("level", 0.95) for info in row.groups.values()])
-    assert f"{level} across 3 training seeds" in L.describe(row)
+    level = evidence.ci_words([info.get("level", 0.95) for info in row.groups.values()])
+    assert f"{level} across 3 training seeds" in evidence.describe(row)
 
 
 def test_each_comparative_rule_type_has_an_inconclusive_rule(judged):
     """Rule type = measure: at least one claim of every comparative measure is inconclusive on ambiguous data."""
-    rules = {cid: design.rule(L.spec(cid).rule, L.spec(cid).v2) for cid in judged["ambiguous"]}
+    rules = {cid: design.rule(registry.spec(cid).rule, registry.spec(cid).v2) for cid in judged["ambiguous"]}
     hit = {
         rules[cid]["measure"]
         for cid, row in judged["ambiguous"].items()
@@ -316,4 +315,4 @@ def test_one_seed_is_at_most_indicative_in_the_ledger(judged):
         if cid in COMPARATIVE_IDS:
             assert row.status == report.INDICATIVE and row.n_seeds == 1, (cid, row.status)
             assert all(c["ci"] == [None, None] for c in _contrasts(row.as_dict()))
-            assert "one training seed: no CI" in L.describe(row)
+            assert "one training seed: no CI" in evidence.describe(row)

@@ -12,8 +12,7 @@ import pytest
 
 from thesis_repro import study
 from thesis_repro.cache import RunCache
-from thesis_repro.claims import ledger as L
-from thesis_repro.claims import report
+from thesis_repro.claims import diagnosis, evidence, ledger, ledger_row, registry, report, scoreboard, store
 from thesis_repro.claims import synthetic as S
 
 #: The study's result as measured (README / `python -m thesis_repro.study lr-schedule --summary`).
@@ -44,19 +43,22 @@ def _ppo_behind_on_pendulums() -> pd.DataFrame:
     return a
 
 
-def _judge_table34() -> dict[str, L.Row]:
-    L.save_page("table-3.4", "small", {"aucs": _ppo_behind_on_pendulums()}, {"scale": "small"})
-    return {cid: L.judge(L.spec(cid), "small", with_null=False) for cid in ("3.4-ppo-pendulums", "3.4-sac-walker")}
+def _judge_table34() -> dict[str, ledger_row.Row]:
+    store.save_page("table-3.4", "small", {"aucs": _ppo_behind_on_pendulums()}, {"scale": "small"})
+    return {
+        cid: ledger.judge(registry.spec(cid), "small", with_null=False)
+        for cid in ("3.4-ppo-pendulums", "3.4-sac-walker")
+    }
 
 
 def test_sensitivity_text_appears_for_a_declared_claim(monkeypatch):
     monkeypatch.setitem(study.STUDIES, "lr-schedule", lambda: FAKE)
-    assert L.sensitivity_text(FAKE) == EXPECTED
+    assert diagnosis.sensitivity_text(FAKE) == EXPECTED
     rows = _judge_table34()
     row = rows["3.4-ppo-pendulums"]
-    assert L.spec("3.4-ppo-pendulums").sensitivity == ("lr-schedule",)
+    assert registry.spec("3.4-ppo-pendulums").sensitivity == ("lr-schedule",)
     assert row.status == report.DOES_NOT
-    assert EXPECTED in row.diagnosis and "why: " in L.describe(row)
+    assert EXPECTED in row.diagnosis and "why: " in evidence.describe(row)
     js = row.as_dict()
     assert js["sensitivity_studies"] == ["lr-schedule"]
     (m,) = js["protocol_sensitivity"]
@@ -67,7 +69,7 @@ def test_sensitivity_text_appears_for_a_declared_claim(monkeypatch):
     moved = study.Sensitivity(
         **{**FAKE.__dict__, "effects": (study.Effect("Hopper", 900.0, (100.0, 1700.0), 0.03, (3, 3)),)}
     )
-    assert L.sensitivity_text(moved).endswith(
+    assert diagnosis.sensitivity_text(moved).endswith(
         "Hopper +900 (95 % CI 100 to 1,700): outside seed spread on Hopper (the CI excludes 0)"
     )
 
@@ -78,15 +80,15 @@ def test_one_seed_leaning_away_from_the_claim_still_shows_the_study(monkeypatch)
     monkeypatch.setitem(study.STUDIES, "lr-schedule", lambda: FAKE)
     a = _ppo_behind_on_pendulums()
     one = a[a["seed"] == 0]
-    L.save_page("table-3.4", "small", {"aucs": one}, {"scale": "small"})
-    row = L.judge(L.spec("3.4-ppo-pendulums"), "small", with_null=False)
+    store.save_page("table-3.4", "small", {"aucs": one}, {"scale": "small"})
+    row = ledger.judge(registry.spec("3.4-ppo-pendulums"), "small", with_null=False)
     assert row.status == report.INDICATIVE and "lean 'does not reproduce'" in row.note
     assert EXPECTED in row.diagnosis and "significantly against" not in row.diagnosis
     assert "median 95 % CI width" not in row.diagnosis
     flip = one.copy()
     flip.loc[flip["method"] == "ppo", "value"] += 1000.0  # PPO far ahead everywhere: the lean is 'reproduces'
-    L.save_page("table-3.4", "small", {"aucs": flip}, {"scale": "small"})
-    row = L.judge(L.spec("3.4-ppo-pendulums"), "small", with_null=False)
+    store.save_page("table-3.4", "small", {"aucs": flip}, {"scale": "small"})
+    row = ledger.judge(registry.spec("3.4-ppo-pendulums"), "small", with_null=False)
     assert row.status == report.INDICATIVE and "lean 'reproduces'" in row.note and row.diagnosis == ""
 
 
@@ -102,7 +104,7 @@ def test_nothing_is_said_when_the_study_runs_are_missing(monkeypatch):
     row = _judge_table34()["3.4-ppo-pendulums"]
     assert row.status == report.DOES_NOT and row.diagnosis  # still diagnosed (seed spread) ...
     assert "protocol sensitivity" not in row.diagnosis and row.sensitivity == []  # ... but silent on sensitivity
-    assert "runs are not available" in L.sensitivity_method()
+    assert "runs are not available" in diagnosis.sensitivity_method()
 
 
 class _FakeCache:
@@ -150,19 +152,19 @@ def _registry(**extra) -> dict:
 
 
 def test_the_registry_field_is_validated():
-    (s,) = L.parse_specs(_registry(sensitivity=["lr-schedule"]))
+    (s,) = registry.parse_specs(_registry(sensitivity=["lr-schedule"]))
     assert s.sensitivity == ("lr-schedule",)
-    assert L.parse_specs(_registry())[0].sensitivity == ()
+    assert registry.parse_specs(_registry())[0].sensitivity == ()
     valid = "valid: lr-schedule, reptile-outer-step, maml-outer-update$"
     with pytest.raises(ValueError, match=rf"unknown sensitivity study 'lr-shedule'; {valid}") as err:
-        L.parse_specs(_registry(sensitivity=["lr-shedule"]))
+        registry.parse_specs(_registry(sensitivity=["lr-shedule"]))
     assert "\n" not in str(err.value) and "x-claim" in str(err.value)
     with pytest.raises(ValueError, match="must be a list"):
-        L.parse_specs(_registry(sensitivity="lr-schedule"))
+        registry.parse_specs(_registry(sensitivity="lr-schedule"))
 
 
 def test_the_registry_declares_lr_schedule_on_chapter_3_ppo_claims():
-    declared = {s.id for s in L.specs() if "lr-schedule" in s.sensitivity}
+    declared = {s.id for s in registry.specs() if "lr-schedule" in s.sensitivity}
     assert declared == {
         "3.2-overfitting",
         "3.3-negative-correlation",
@@ -172,12 +174,12 @@ def test_the_registry_declares_lr_schedule_on_chapter_3_ppo_claims():
         "3.3-i-training-return",
         "3.4-ppo-pendulums",
     }
-    assert all(L.spec(cid).page.split("-")[1].startswith("3.") for cid in declared)
+    assert all(registry.spec(cid).page.split("-")[1].startswith("3.") for cid in declared)
 
 
 def test_the_method_section_explains_protocol_sensitivity(monkeypatch):
     monkeypatch.setitem(study.STUDIES, "lr-schedule", lambda: FAKE)
-    text = L.method([])
+    text = scoreboard.method([])
     assert "**Protocol sensitivity**" in text and "`lr-schedule`, declared on 3.2-overfitting" in text
     assert "3.4-ppo-pendulums: " + EXPECTED in text
 

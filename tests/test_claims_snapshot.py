@@ -8,8 +8,7 @@ import json
 
 import pytest
 
-from thesis_repro.claims import cli, report, snapshot
-from thesis_repro.claims import ledger as L
+from thesis_repro.claims import cli, evidence, ledger, ledger_row, registry, report, snapshot, store
 from thesis_repro.claims import synthetic as S
 
 SCALE = "small"
@@ -17,7 +16,7 @@ IDS = ["3.3-negative-correlation", "3.3-not-valid-metric", "4.1-harder-settings"
 
 
 def _measures(page: str) -> set[str]:
-    return {s.rule["measure"] for s in L.specs() if "measure" in s.rule and page in s.data_pages}
+    return {s.rule["measure"] for s in registry.specs() if "measure" in s.rule and page in s.data_pages}
 
 
 @pytest.fixture
@@ -29,21 +28,23 @@ def built(tmp_path, monkeypatch):
     for name in snapshot.files():
         page = snapshot.page_of(name)
         if name.endswith(".rule.json"):
-            n = max(int(s.rule["page_verdict"]) for s in L.specs() if s.page == page and "page_verdict" in s.rule)
+            n = max(
+                int(s.rule["page_verdict"]) for s in registry.specs() if s.page == page and "page_verdict" in s.rule
+            )
             report.save_rule(page, SCALE, [report.Verdict(page, "c", report.REPRODUCES, "e")] * (n + 1))
         else:
             # every measure's frames; chapter 5's arm curves ("cast_bic") replace the generic ones of that name
             measures = sorted(_measures(page), key=lambda m: (m == "cast_bic", m))
             frames = {k: v for m in measures for k, v in S.frames_for(m, 3, 0).items()}
-            L.save_page(page, SCALE, frames, {"scale": SCALE})
-    return L.data_path("fig-3.3", SCALE).parent
+            store.save_page(page, SCALE, frames, {"scale": SCALE})
+    return store.data_path("fig-3.3", SCALE).parent
 
 
 def _ledger(ids=IDS):
-    return {i: L.judge(L.spec(i), SCALE, with_null=False) for i in ids}
+    return {i: ledger.judge(registry.spec(i), SCALE, with_null=False) for i in ids}
 
 
-def _verdict(row: L.Row) -> dict:
+def _verdict(row: ledger_row.Row) -> dict:
     return {k: v for k, v in row.as_dict().items() if k != "shipped_pages"}
 
 
@@ -53,7 +54,7 @@ def _clear(build) -> None:
 
 
 def test_the_snapshot_judges_every_claim_exactly_as_the_build_it_was_shipped_from(built, capsys):
-    ids = [s.id for s in L.specs()]
+    ids = [s.id for s in registry.specs()]
     before = _ledger(ids)
     assert snapshot.ship(SCALE) == snapshot.files()  # every data file written the first time
     _clear(built)  # a fresh clone: no build, only the shipped layer
@@ -61,10 +62,10 @@ def test_the_snapshot_judges_every_claim_exactly_as_the_build_it_was_shipped_fro
     assert {i: _verdict(r) for i, r in after.items()} == {i: _verdict(r) for i, r in before.items()}
     assert after["3.3-negative-correlation"].shipped == ["fig-3.3"]
     assert after["3.3-not-valid-metric"].shipped == ["fig-3.3"]  # derived claims carry their parts' pages
-    assert L.describe(after["3.3-negative-correlation"]).endswith(
+    assert evidence.describe(after["3.3-negative-correlation"]).endswith(
         "numbers of fig-3.3 from the shipped claims snapshot (not computed here)"
     )
-    assert "shipped claims snapshot" not in L.describe(before["3.3-negative-correlation"])
+    assert "shipped claims snapshot" not in evidence.describe(before["3.3-negative-correlation"])
     assert all(r.status != report.NOT_COMPUTED and not r.stale for r in after.values())
 
     assert cli.main(["--scale", SCALE, "--json", "--no-null", "--ids", *IDS]) == 0
@@ -91,12 +92,12 @@ def test_shipping_again_rewrites_no_data_file_and_is_deterministic(built):
 
 def test_a_fresh_build_copy_wins_and_a_stale_one_yields_to_the_snapshot(built):
     snapshot.ship(SCALE)
-    s = L.spec("3.3-negative-correlation")
-    assert L.judge(s, SCALE, with_null=False).shipped == []  # the build's own numbers first
-    path = L.data_path("fig-3.3", SCALE)
+    s = registry.spec("3.3-negative-correlation")
+    assert ledger.judge(s, SCALE, with_null=False).shipped == []  # the build's own numbers first
+    path = store.data_path("fig-3.3", SCALE)
     blob = json.loads(path.read_text())
     path.write_text(json.dumps({**blob, "kit": "0" * 12}))  # written by other kit code
-    row = L.judge(s, SCALE, with_null=False)
+    row = ledger.judge(s, SCALE, with_null=False)
     assert row.shipped == ["fig-3.3"] and row.stale == []
 
 
@@ -104,7 +105,7 @@ def test_retrain_ignores_the_snapshot(built, monkeypatch):
     snapshot.ship(SCALE)
     _clear(built)
     monkeypatch.setenv("THESIS_REPRO_RETRAIN", "1")
-    assert L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False).status == report.NOT_COMPUTED
+    assert ledger.judge(registry.spec("3.3-negative-correlation"), SCALE, with_null=False).status == report.NOT_COMPUTED
 
 
 def test_a_corrupt_shipped_file_is_never_judged(built, capsys):
@@ -114,22 +115,22 @@ def test_a_corrupt_shipped_file_is_never_judged(built, capsys):
     data = bytearray(gz.read_bytes())
     data[-1] ^= 0xFF
     gz.write_bytes(bytes(data))
-    row = L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False)
+    row = ledger.judge(registry.spec("3.3-negative-correlation"), SCALE, with_null=False)
     assert row.status == report.NOT_COMPUTED
     assert "corrupt" in row.note and "`make figure-3.3 SCALE=small`" in row.note
-    assert L.judge(L.spec("4.1-harder-settings"), SCALE, with_null=False).status != report.NOT_COMPUTED
+    assert ledger.judge(registry.spec("4.1-harder-settings"), SCALE, with_null=False).status != report.NOT_COMPUTED
 
-    page = next(s for s in L.specs() if "page_verdict" in s.rule).page
+    page = next(s for s in registry.specs() if "page_verdict" in s.rule).page
     (snapshot.folder(SCALE) / f"{page}.rule.json.gz").unlink()  # a missing file is unreadable, not absent
-    row = L.judge(next(s for s in L.specs() if "page_verdict" in s.rule), SCALE, with_null=False)
+    row = ledger.judge(next(s for s in registry.specs() if "page_verdict" in s.rule), SCALE, with_null=False)
     assert row.status == report.NOT_COMPUTED and "unreadable" in row.note
 
 
 def test_shipping_refuses_missing_or_stale_pages_in_one_line(built, capsys):
-    path = L.data_path("fig-3.3", SCALE)
+    path = store.data_path("fig-3.3", SCALE)
     blob = json.loads(path.read_text())
     path.write_text(json.dumps({**blob, "kit": "0" * 12}))
-    L.data_path("fig-4.1", SCALE).unlink()
+    store.data_path("fig-4.1", SCALE).unlink()
     with pytest.raises(ValueError, match=r"not run: fig-4.1; stale: fig-3.3\); run `make book SCALE=small` first"):
         snapshot.ship(SCALE)
     assert cli.main(["--scale", SCALE, "--ship"]) == 2
@@ -143,10 +144,10 @@ def test_check_compares_this_builds_numbers_with_the_shipped_ones(built, capsys)
     n = len(snapshot.files())
     assert cli.main(["--scale", SCALE, "--check-snapshot"]) == 0
     assert capsys.readouterr().out.splitlines()[-1].startswith(f"{n}/{n} saved files identical")
-    s = L.spec("3.3-negative-correlation")
+    s = registry.spec("3.3-negative-correlation")
     frames = S.frames_for(s.rule["measure"], 3, 1)  # other numbers, saved by this kit
-    L.save_page("fig-3.3", SCALE, frames, {"scale": SCALE})
-    L.data_path("fig-4.1", SCALE).unlink()
+    store.save_page("fig-3.3", SCALE, frames, {"scale": SCALE})
+    store.data_path("fig-4.1", SCALE).unlink()
     got = snapshot.check(SCALE)
     assert got["fig-3.3.data.json"].startswith("differs (frames ") and got["fig-4.1.data.json"] == "not run here"
     assert sum(v == "identical" for v in got.values()) == n - 2
@@ -157,7 +158,7 @@ def test_a_book_says_when_the_snapshot_is_out_of_date(built):
     assert snapshot.refresh_hint(SCALE) == ""  # nothing shipped: nothing to refresh
     snapshot.ship(SCALE)
     assert snapshot.refresh_hint(SCALE) == ""
-    L.save_page("fig-3.3", SCALE, S.frames_for("correlation", 3, 1), {"scale": SCALE})  # other numbers
+    store.save_page("fig-3.3", SCALE, S.frames_for("correlation", 3, 1), {"scale": SCALE})  # other numbers
     idx = snapshot.folder(SCALE) / snapshot.INDEX
     blob = json.loads(idx.read_text())
     blob["files"]["fig-4.1.data.json"]["kit"] = "0" * 12  # shipped by other kit code

@@ -8,8 +8,7 @@ import json
 import pytest
 
 from thesis_repro import paths
-from thesis_repro.claims import cli, report
-from thesis_repro.claims import ledger as L
+from thesis_repro.claims import cli, ledger, registry, report, store
 from thesis_repro.claims import synthetic as S
 
 SCALE = "small"
@@ -20,8 +19,8 @@ def saved(tmp_path, monkeypatch):
     """Fig 3.3's numbers saved by this kit in a private build folder; returns the data file."""
     for var in ("THESIS_REPRO_BUILD", "THESIS_REPRO_DATA", "THESIS_REPRO_REFERENCE", "THESIS_REPRO_PUBLISHED_BUILD"):
         monkeypatch.setenv(var, str(tmp_path / var.lower()))
-    s = L.spec("3.3-negative-correlation")
-    return L.save_page(s.page, SCALE, S.frames_for(s.rule["measure"], 3, 0), {"scale": SCALE})
+    s = registry.spec("3.3-negative-correlation")
+    return store.save_page(s.page, SCALE, S.frames_for(s.rule["measure"], 3, 0), {"scale": SCALE})
 
 
 def _restamp(path, stamp):
@@ -34,18 +33,18 @@ def test_numbers_saved_by_this_kit_are_fresh(saved):
     blob = json.loads(saved.read_text())
     assert blob["kit"] == paths.code_stamp("fig-3.3", blob["kit_modules"])
     assert "thesis_repro/claims/ledger.py" in blob["kit_modules"]
-    row = L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False)
+    row = ledger.judge(registry.spec("3.3-negative-correlation"), SCALE, with_null=False)
     assert row.stale == [] and row.as_dict()["stale_pages"] == []
 
 
 def test_numbers_saved_by_other_kit_code_are_judged_but_reported_stale(saved, capsys):
-    before = L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False)
+    before = ledger.judge(registry.spec("3.3-negative-correlation"), SCALE, with_null=False)
     _restamp(saved, "0" * 12)
-    row = L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False)
+    row = ledger.judge(registry.spec("3.3-negative-correlation"), SCALE, with_null=False)
     assert (row.status, row.statistic) == (before.status, before.statistic)  # the same verdict, flagged
     assert row.stale == ["fig-3.3"]
     # a claim derived from stale claims is stale too
-    assert L.judge(L.spec("3.3-not-valid-metric"), SCALE, with_null=False).stale == ["fig-3.3"]
+    assert ledger.judge(registry.spec("3.3-not-valid-metric"), SCALE, with_null=False).stale == ["fig-3.3"]
 
     assert cli.main(["--scale", SCALE, "--json", "--no-null", "--ids", "3.3-negative-correlation"]) == 0
     out, err = capsys.readouterr()
@@ -58,7 +57,7 @@ def test_numbers_saved_before_stamps_existed_are_stale(saved):
     blob = json.loads(saved.read_text())
     del blob["kit"]
     saved.write_text(json.dumps(blob))
-    assert L.judge(L.spec("3.3-negative-correlation"), SCALE, with_null=False).stale == ["fig-3.3"]
+    assert ledger.judge(registry.spec("3.3-negative-correlation"), SCALE, with_null=False).stale == ["fig-3.3"]
 
 
 def test_analysis_verdicts_saved_by_other_kit_code_are_reported_stale(tmp_path, monkeypatch):
@@ -66,12 +65,12 @@ def test_analysis_verdicts_saved_by_other_kit_code_are_reported_stale(tmp_path, 
     (``<page>.rule.json``): stamped the same way."""
     monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path / "build"))
     monkeypatch.setenv("THESIS_REPRO_PUBLISHED_BUILD", str(tmp_path / "published"))
-    s = next(x for x in L.specs() if "page_verdict" in x.rule)
+    s = next(x for x in registry.specs() if "page_verdict" in x.rule)
     n = int(s.rule["page_verdict"]) + 1
     path = report.save_rule(s.page, SCALE, [report.Verdict(s.page, "c", report.REPRODUCES, "e")] * n)
-    assert L.judge(s, SCALE, with_null=False).stale == []
+    assert ledger.judge(s, SCALE, with_null=False).stale == []
     _restamp(path, "0" * 12)
-    row = L.judge(s, SCALE, with_null=False)
+    row = ledger.judge(s, SCALE, with_null=False)
     assert row.status == report.REPRODUCES and row.stale == [s.page]
 
 

@@ -13,8 +13,7 @@ import pandas as pd
 import pytest
 
 from thesis_repro import budgets
-from thesis_repro.claims import cli, design, registry, report
-from thesis_repro.claims import ledger as L
+from thesis_repro.claims import cli, design, ledger, ledger_row, page_verdicts, registry, report, scoreboard, store
 from thesis_repro.claims import synthetic as S
 
 #: The claims registered with the check (chosen by wording: see the registry's header comment).
@@ -44,9 +43,9 @@ def _points() -> pd.DataFrame:
     return p.assign(trained=~low)
 
 
-def _judge(cid: str, page: str, frames: dict[str, pd.DataFrame], scale: str = "small") -> L.Row:
-    L.save_page(page, scale, frames, {"scale": scale})
-    return L.judge(L.spec(cid), scale, with_null=False)
+def _judge(cid: str, page: str, frames: dict[str, pd.DataFrame], scale: str = "small") -> ledger_row.Row:
+    store.save_page(page, scale, frames, {"scale": scale})
+    return ledger.judge(registry.spec(cid), scale, with_null=False)
 
 
 def test_the_registered_claims_and_the_names_are_checked():
@@ -130,7 +129,7 @@ def test_a_page_saved_before_the_column_degrades_to_not_available():
 
 
 def test_json_verbose_and_page_carry_the_check():
-    L.save_page("fig-3.3", "small", {"points": _points()}, {"scale": "small"})
+    store.save_page("fig-3.3", "small", {"points": _points()}, {"scale": "small"})
     out = io.StringIO()
     with redirect_stdout(out):
         ids = ["3.3-negative-correlation", "3.3-not-valid-metric"]
@@ -144,11 +143,11 @@ def test_json_verbose_and_page_carry_the_check():
     with redirect_stdout(out):
         cli.main(["--scale", "small", "--verbose", "--no-null", "--ids", "3.3-negative-correlation"])
     assert "    sensitivity, trained runs only (90/105 runs, 20/20 units): reproduces" in out.getvalue()
-    vs = {v.claim.split(" (thesis")[0]: v for v in L.verdicts("fig-3.3", "small")}
-    first = vs[L.spec("3.3-negative-correlation").text].evidence.split("\n\n")[0]
+    vs = {v.claim.split(" (thesis")[0]: v for v in page_verdicts.verdicts("fig-3.3", "small")}
+    first = vs[registry.spec("3.3-negative-correlation").text].evidence.split("\n\n")[0]
     assert first.startswith("sensitivity, trained runs only (90/105 runs") and "\n" not in first
-    assert vs[L.spec("3.3-not-valid-metric").text].evidence.startswith("v1 verdict:")
-    assert "**Subset sensitivity**" in L.method([])
+    assert vs[registry.spec("3.3-not-valid-metric").text].evidence.startswith("v1 verdict:")
+    assert "**Subset sensitivity**" in scoreboard.method([])
 
 
 def test_smoke_judges_nothing():

@@ -11,8 +11,7 @@ import pytest
 
 from tests.test_claims_seeds import SCALE, effect_frames
 from thesis_repro.claims import confirmatory as C
-from thesis_repro.claims import ledger as L
-from thesis_repro.claims import report
+from thesis_repro.claims import ledger, registry, report, scoreboard, store
 
 pytestmark = pytest.mark.xdist_group("claims-seeds")
 
@@ -26,9 +25,9 @@ def _judge(tmp_path_factory, factors, name):
     with pytest.MonkeyPatch.context() as mp:
         for var in ("THESIS_REPRO_BUILD", "THESIS_REPRO_DATA", "THESIS_REPRO_REFERENCE"):
             mp.setenv(var, str(tmp_path_factory.mktemp(f"{var.lower()}-{name}")))
-        L.save_page(PAGE, SCALE, effect_frames(factors)[PAGE], {"scale": SCALE})
-        with L._one_pass():
-            return {s.id: L.judge(s, SCALE, with_null=False) for s in L.specs() if s.page == PAGE}
+        store.save_page(PAGE, SCALE, effect_frames(factors)[PAGE], {"scale": SCALE})
+        with store.one_pass():
+            return {s.id: ledger.judge(s, SCALE, with_null=False) for s in registry.specs() if s.page == PAGE}
 
 
 @pytest.fixture(scope="module")
@@ -38,8 +37,8 @@ def rows(tmp_path_factory):
 
 def test_three_seeds_have_no_confirmatory_verdict(rows):
     assert all(r.confirmation is None for r in rows["design"].values())
-    counts = L.as_json(list(rows["design"].values()), SCALE)["confirmatory_counts"]
-    assert set(counts) == {L.NOT_YET}
+    counts = scoreboard.as_json(list(rows["design"].values()), SCALE)["confirmatory_counts"]
+    assert set(counts) == {scoreboard.NOT_YET}
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +64,7 @@ def test_fresh_seeds_that_lean_the_other_way_are_flagged(rows, holding):
     c = row.confirmation
     assert c is not None and C.SIDE[c.status] == -1  # the fresh seeds alone: the effect runs the other way
     assert c.disagrees == (C.SIDE.get(row.status, 0) > 0) and ("DISAGREES" in c.line()) == c.disagrees
-    d = json.loads(json.dumps(L.as_json(list(rows["oppose"].values()), SCALE), allow_nan=False))
+    d = json.loads(json.dumps(scoreboard.as_json(list(rows["oppose"].values()), SCALE), allow_nan=False))
     (js,) = [x for x in d["claims"] if x["id"] == claim]
     assert js["confirmatory"]["verdict"] == c.status and js["confirmatory"]["seeds"] == [3, 4, 5]
     assert js["confirmatory"]["disagrees"] == c.disagrees

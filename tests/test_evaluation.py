@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from thesis_repro import evaluation as ev
-from thesis_repro import jobs as registry
+from thesis_repro import job_kinds
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation import jobs as jobs_mod
@@ -277,8 +277,8 @@ def fake_learners(monkeypatch):
     stub = types.SimpleNamespace(load_policy=load_policy, train_config=train_config)
     monkeypatch.setattr(jobs_mod, "load_policy", load_policy)
     monkeypatch.setattr(jobs_mod, "train_config", train_config)
-    monkeypatch.setitem(registry.KINDS, "fake-train", "tests.test_evaluation:fake_train_job")
-    monkeypatch.setitem(registry.PATHS, "tests.test_evaluation:fake_train_job", "fake-train")
+    monkeypatch.setitem(job_kinds.KINDS, "fake-train", "tests.test_evaluation:fake_train_job")
+    monkeypatch.setitem(job_kinds.PATHS, "tests.test_evaluation:fake_train_job", "fake-train")
     monkeypatch.setattr(jobs_mod, "TRAIN_KIND", "fake-train")
     monkeypatch.setenv("THESIS_REPRO_JOBS", "1")
     return stub

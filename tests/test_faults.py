@@ -344,10 +344,10 @@ import signal
 import sys
 
 from thesis_repro import figures
-from thesis_repro import jobs as registry
+from thesis_repro import job_kinds
 from thesis_repro.cache import Job
 
-registry.register("sleepy", "sleepy_jobs:sleepy")
+job_kinds.register("sleepy", "sleepy_jobs:sleepy")
 
 if __name__ == "__main__":
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # the test's dump of every thread if it hangs

@@ -9,11 +9,6 @@ from __future__ import annotations
 
 from tests.test_layers import imported, sources
 
-#: KNOWN EXCEPTION, to be removed by the claims-v2 rewrite (issue 47 leaves claims/ to it): claims/ledger.py and
-#: claims/snapshot.py import each other. Once the rewrite breaks the circle,
-#: test_the_known_exception_is_still_a_circle fails: delete this entry (and that test) then.
-KNOWN_CIRCLES: frozenset[frozenset[str]] = frozenset()
-
 
 def graph(imports: dict[str, set[str]]) -> dict[str, set[str]]:
     """Module -> the package modules it imports, without its own packages and itself."""
@@ -67,7 +62,7 @@ def package_circles() -> set[frozenset[str]]:
 
 
 def test_no_import_circles_inside_the_package():
-    new = package_circles() - KNOWN_CIRCLES
+    new = package_circles()
     assert not new, "import circles: " + "; ".join(" <-> ".join(sorted(c)) for c in sorted(new, key=sorted))
 
 

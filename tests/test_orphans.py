@@ -9,8 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from thesis_repro import backends, paths
-from thesis_repro import jobs as registry
+from thesis_repro import backends, job_kinds, paths
 from thesis_repro.cache import Job, Result
 
 
@@ -26,7 +25,7 @@ def _pool_execute(job: Job, root: str | None, reference: str | bool) -> Result:
     return backends.execute(job, root, reference)
 
 
-registry.register("test-orphan-sleep", "tests.test_orphans:_sleep")
+job_kinds.register("test-orphan-sleep", "tests.test_orphans:_sleep")
 
 #: The parent: two such jobs on a pool of two workers (what a figure's ``run_jobs`` does).
 PARENT = """

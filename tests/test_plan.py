@@ -8,12 +8,12 @@ import json
 
 import pytest
 
-from thesis_repro import figures, plan
+from thesis_repro import figures, plan, throughput
 from thesis_repro.__main__ import main
 from thesis_repro.cache import Job
 from thesis_repro.learners import train_config
 
-RATES = plan.Rates({"ppo": 128.0, "evaluate": 100.0}, {"ppo": "test", "evaluate": "test"})
+RATES = throughput.Rates({"ppo": 128.0, "evaluate": 100.0}, {"ppo": "test", "evaluate": "test"})
 
 
 def test_core_hours_and_makespan():
@@ -34,15 +34,15 @@ def test_core_hours_and_makespan():
 
 def test_family_and_work_of_jobs():
     cfg = train_config("sac", "Hopper", 0, 4_000_000)
-    assert plan.family(Job("train", cfg)) == "sac" and plan.work(Job("train", cfg)) == 4_000_000
-    assert plan.family(Job("train", train_config("ppo-epopt", "Hopper", 0, 1000))) == "multidomain"
-    assert plan.family(Job("train", train_config("ppo-scn-16", "Hopper", 0, 1000))) == "ppo"
-    assert plan.family(Job("train", train_config("trpo", "Hopper", 0, 1000))) == "trpo"
+    assert throughput.family(Job("train", cfg)) == "sac" and throughput.work(Job("train", cfg)) == 4_000_000
+    assert throughput.family(Job("train", train_config("ppo-epopt", "Hopper", 0, 1000))) == "multidomain"
+    assert throughput.family(Job("train", train_config("ppo-scn-16", "Hopper", 0, 1000))) == "ppo"
+    assert throughput.family(Job("train", train_config("trpo", "Hopper", 0, 1000))) == "trpo"
     test = {"perturbation": "obs", "sigmas": [0.0, 0.1, 0.2], "n_rollouts": 20, "max_episode_steps": 1000}
     ev = Job("evaluate", {"train": cfg, "test": test})
-    assert plan.family(ev) == "evaluate" and plan.work(ev) == 3 * 20 * 1000
+    assert throughput.family(ev) == "evaluate" and throughput.work(ev) == 3 * 20 * 1000
     arm = Job("arm-solve", {"generations": 10, "popsize": None, "family": "bic"})
-    assert plan.family(arm) == "arm" and plan.work(arm) == 10 * plan.ARM_DEFAULT_POPSIZE
+    assert throughput.family(arm) == "arm" and throughput.work(arm) == 10 * throughput.ARM_DEFAULT_POPSIZE
 
 
 def test_smoke_plan_matches_the_counted_jobs():
@@ -52,11 +52,13 @@ def test_smoke_plan_matches_the_counted_jobs():
     assert p.n_train == len(train) == 6 and p.n_other == len(jobs) - len(train) == 24
     assert p.env_steps == sum(j.config["timesteps"] for j in train) == 6 * 256
     assert [(ln.kind, ln.family, ln.jobs) for ln in p.lines] == [("train", "ppo", 6), ("evaluate", "evaluate", 24)]
-    evals = sum(plan.work(j) for j in jobs if j.kind == "evaluate")
+    evals = sum(throughput.work(j) for j in jobs if j.kind == "evaluate")
     assert p.core_hours == pytest.approx((6 * 256 / 128 + evals / 100) / 3600)
     train_h, eval_h = p.wall_hours()
     assert train_h == pytest.approx(3 * 256 / 128 / 3600)  # 6 equal runs on 2 cores: 3 rounds
-    assert eval_h == pytest.approx(plan.makespan([plan.work(j) / 100 / 3600 for j in jobs if j.kind == "evaluate"], 2))
+    assert eval_h == pytest.approx(
+        plan.makespan([throughput.work(j) / 100 / 3600 for j in jobs if j.kind == "evaluate"], 2)
+    )
     assert "fig-3.3 (smoke): 6 training jobs (1,536 env steps), 24 evaluation and other jobs" in plan.summary(p)
 
 
@@ -75,7 +77,7 @@ def test_throughput_file_roundtrip(tmp_path):
         "evaluation": {"batched_steps_per_s": 20000.0},
         "arm": None,
     }
-    assert plan.throughput_from_bench(bench) == {
+    assert throughput.throughput_from_bench(bench) == {
         "ppo": 1500.0,
         "sac": 200.0,
         "joint": 1200.0,
@@ -83,16 +85,16 @@ def test_throughput_file_roundtrip(tmp_path):
         "multidomain": 900.0,  # the slowest measured multi-domain learner
         "evaluate": 20000.0,
     }
-    path = plan.write_throughput(bench, tmp_path / "throughput.json")
-    assert plan.write_throughput({"arm": None}, tmp_path / "other.json") is None  # nothing measured: no file
+    path = throughput.write_throughput(bench, tmp_path / "throughput.json")
+    assert throughput.write_throughput({"arm": None}, tmp_path / "other.json") is None  # nothing measured: no file
     doc = json.loads(path.read_text())
     assert doc["rates"]["ppo"]["per_cpu_second"] == 1500.0 and doc["rates"]["ppo"]["unit"] == "env steps"
-    plan.write_throughput({"arm": {"vectorised_rollouts_per_s": 5000.0}}, path)  # merged, not replaced
-    rates = plan.load_rates(path)
+    throughput.write_throughput({"arm": {"vectorised_rollouts_per_s": 5000.0}}, path)  # merged, not replaced
+    rates = throughput.load_rates(path)
     assert rates.rate("ppo") == 1500.0 and rates.rate("arm") == 5000.0
     assert rates.source("ppo").startswith("measured 20") and rates.source("ddpg") == "default"
     assert rates.rate("trpo") == 1500.0 and "PPO" in rates.source("trpo")  # not benchmarked: PPO's rate
-    assert rates.rate("ddpg") == plan.DEFAULT_RATES["ddpg"] > 0
+    assert rates.rate("ddpg") == throughput.DEFAULT_RATES["ddpg"] > 0
 
 
 def test_plan_command(capsys):
@@ -161,17 +163,17 @@ def test_shipped_rates_prefer_the_runs_made_on_this_cpu(tmp_path):
     for i, pace in enumerate([2000.0, 2100.0, 2200.0, 1900.0]):
         _ship(tmp_path, f"intel{i}", ppo, pace, intel)
     _ship(tmp_path, "amd0", ppo, 1000.0, amd)
-    base = plan.load_rates()
-    one = plan.shipped_rates(tmp_path, base, by_env=True, machine=amd)
+    base = throughput.load_rates()
+    one = throughput.shipped_rates(tmp_path, base, by_env=True, machine=amd)
     assert one.rate("ppo") == 2000.0 and one.source("ppo") == "shipped pace, median of 5"  # 1 AMD run: too few
     _ship(tmp_path, "amd1", ppo, 1100.0, amd)
-    two = plan.shipped_rates(tmp_path, base, by_env=True, machine=amd)
+    two = throughput.shipped_rates(tmp_path, base, by_env=True, machine=amd)
     assert two.rate("ppo") == two.rate("ppo:Hopper") == 1050.0
-    assert two.source("ppo") == f"shipped pace on this CPU, median of {plan.MIN_LOCAL_RUNS}"
-    assert "this CPU's runs alone" in plan.rates_note(two)
-    assert plan.shipped_rates(tmp_path, base, machine=intel).rate("ppo") == 2050.0  # the Xeon: its 4 runs
-    assert plan.shipped_rates(tmp_path, base).rate("ppo") == 1950.0  # no machine: every run's median
-    assert "this CPU" not in plan.rates_note(plan.shipped_rates(tmp_path, base))
+    assert two.source("ppo") == f"shipped pace on this CPU, median of {throughput.MIN_LOCAL_RUNS}"
+    assert "this CPU's runs alone" in throughput.rates_note(two)
+    assert throughput.shipped_rates(tmp_path, base, machine=intel).rate("ppo") == 2050.0  # the Xeon: its 4 runs
+    assert throughput.shipped_rates(tmp_path, base).rate("ppo") == 1950.0  # no machine: every run's median
+    assert "this CPU" not in throughput.rates_note(throughput.shipped_rates(tmp_path, base))
 
 
 def test_shipped_rates_are_the_median_pace_of_the_shipped_runs_per_family(tmp_path, capsys, monkeypatch):
@@ -181,21 +183,21 @@ def test_shipped_rates_are_the_median_pace_of_the_shipped_runs_per_family(tmp_pa
     for i, pace in enumerate([3000.0, 4000.0]):
         _ship(tmp_path, f"ppo{i}", train_config("ppo", "Hopper", i, 1000), pace)
     _ship(tmp_path, "old", train_config("ddpg", "Hopper", 0, 1000), None)  # made before paces were recorded
-    base = plan.load_rates()
-    r = plan.shipped_rates(tmp_path, base)
+    base = throughput.load_rates()
+    r = throughput.shipped_rates(tmp_path, base)
     assert r.rate("sac") == 300.0 and r.source("sac") == "shipped pace, median of 3"
     assert r.rate("ppo") == 3500.0 and r.source("ppo") == "shipped pace, median of 2"
     assert r.rate("ddpg") == base.rate("ddpg") and r.source("ddpg") == base.source("ddpg")  # no pace: unchanged
-    assert "an ETA, not a benchmark" in plan.rates_note(r)
+    assert "an ETA, not a benchmark" in throughput.rates_note(r)
     # by_env: one rate per learner and task beside the family's, which prices the tasks without shipped runs
     _ship(tmp_path, "sac-idp", train_config("sac", "InvertedDoublePendulum", 0, 1000), 2000.0)
-    r = plan.shipped_rates(tmp_path, base, by_env=True)
+    r = throughput.shipped_rates(tmp_path, base, by_env=True)
     assert r.rate("sac:Hopper") == 300.0 and r.rate("sac:InvertedDoublePendulum") == 2000.0
     assert r.rate("sac") == 650.0  # the family's median over all four
     walker = plan.plan_jobs("x", [Job("train", train_config("sac", "Walker2d", 0, 1300))], "small", 1, r)
     hopper = plan.plan_jobs("x", [Job("train", train_config("sac", "Hopper", 0, 1200))], "small", 1, r)
     assert walker.lines[0].rate == pytest.approx(650.0) and hopper.lines[0].rate == pytest.approx(300.0)
-    assert "per learner and task" in plan.rates_note(r)
+    assert "per learner and task" in throughput.rates_note(r)
     # the CLI: --rates shipped reads the shipped layer; a bad choice is rejected with the valid ones
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path))
     assert main(["plan", "table-3.3", "--scale", "small", "--rates", "shipped"]) == 0

@@ -10,8 +10,7 @@ import math
 
 import pytest
 
-from thesis_repro import figures, generator, order
-from thesis_repro import jobs as registry
+from thesis_repro import figures, generator, job_kinds, order
 from thesis_repro.__main__ import main
 from thesis_repro.cache import Job
 from thesis_repro.order import Claim, Item
@@ -21,7 +20,7 @@ def _never(config: dict, workdir) -> dict:  # a toy kind's job function: planned
     raise AssertionError("not run")
 
 
-registry.register("order-toy", "tests.test_plan_order:_never")
+job_kinds.register("order-toy", "tests.test_plan_order:_never")
 
 
 def _order(items, claims):
@@ -160,7 +159,7 @@ def test_a_bad_order_is_one_error_line(capsys):
 def test_seeds_past_chapter_5_s_list_are_planned_without_changing_the_scale():
     """`--seeds 3 4 5` plans chapter 5's CMA-ES seeds too (they list `seeds`, not a `train_seeds` count), while the
     scale's own list stays: a fresh clone's page never trains seeds that are not shipped."""
-    from thesis_repro import plan
+    from thesis_repro import plan, throughput
 
     assert figures.settings("5.3", "small")["seeds"] == [0, 1, 2]
     assert plan.seed_count("5.3", "small", {3, 4, 5}) == {"seeds": [0, 1, 2, 3, 4, 5]}
@@ -172,19 +171,22 @@ def test_seeds_past_chapter_5_s_list_are_planned_without_changing_the_scale():
     assert len(plan.seed_jobs("5.4", "small", range(3, 10))) == 7 * per_seed > 0
     planned = generator.plan("small", ["5.3"], kinds=["arm-solve"], seeds=[4, 3], order="item")
     assert [p.job.config["seed"] for p in planned] == [4, 3]
-    p = plan.plan_figure("5.6", "small", rates=plan.Rates({"arm": 1.0}, {}), seeds=[3, 4, 5, 6, 7, 8, 9])
+    p = plan.plan_figure("5.6", "small", rates=throughput.Rates({"arm": 1.0}, {}), seeds=[3, 4, 5, 6, 7, 8, 9])
     assert p.n_other == 7 * len(plan.seed_jobs("5.6", "small", [0])) and p.core_hours > 0
 
 
 def test_shipped_pace_prices_chapter_5_by_kind(tmp_path):
     """`--rates shipped` (and `plan order`) price an arm job at the pace its kind's shipped entries kept."""
-    from thesis_repro import plan
+    from thesis_repro import throughput
 
     job = Job("arm-solve", {"popsize": 10, "generations": 30, "seed": 0})
     entry = tmp_path / "arm-solve" / "solve__key"
     entry.mkdir(parents=True)
     (entry / "config.json").write_text(json.dumps({"kind": "arm-solve", "config": dict(job.config)}))
     (entry / "provenance.json").write_text(json.dumps({"wall_seconds": 3.0}))
-    rates = plan.shipped_rates(root=tmp_path, by_env=True)
+    rates = throughput.shipped_rates(root=tmp_path, by_env=True)
     assert rates.rate("arm:arm-solve") == pytest.approx(100.0)  # 10 x 30 rollouts in 3 s
-    assert plan.job_rate(job, rates) == pytest.approx(100.0) and plan.job_rate(Job("arm-target", {}), rates) > 100
+    assert (
+        throughput.job_rate(job, rates) == pytest.approx(100.0)
+        and throughput.job_rate(Job("arm-target", {}), rates) > 100
+    )

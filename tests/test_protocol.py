@@ -164,11 +164,11 @@ FRESH_CLONE_EVAL_STEPS = 10_000_000
 def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
     """Issue 22: every small evaluation is shipped, so a fresh clone's book loads rather than evaluates for hours;
     no more than :data:`FRESH_CLONE_EVAL_STEPS`."""
-    from thesis_repro import paths, plan
+    from thesis_repro import paths, plan, throughput
 
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path))
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
-    _, book = plan.plan_book("small", cores=2, rates=plan.Rates(dict(plan.DEFAULT_RATES), {}), missing=True)
+    _, book = plan.plan_book("small", cores=2, rates=throughput.Rates(dict(throughput.DEFAULT_RATES), {}), missing=True)
     assert book.n_train == 0
     evaluation = sum(ln.work for ln in book.other if ln.family == "evaluate")
     assert evaluation <= FRESH_CLONE_EVAL_STEPS, (

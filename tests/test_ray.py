@@ -20,8 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import backends, figures
-from thesis_repro import jobs as registry
+from thesis_repro import backends, figures, job_kinds
 from thesis_repro.backends import run_jobs
 from thesis_repro.cache import Job, RunCache, read_entry
 from thesis_repro.learners import train_config
@@ -40,7 +39,7 @@ def _fail(config: dict, workdir: Path) -> dict:
     raise ValueError(f"deterministic failure for x={config['x']}")
 
 
-registry.register("test-fail", "tests.test_ray:_fail")  # also on Ray workers, which import this module to run it
+job_kinds.register("test-fail", "tests.test_ray:_fail")  # also on Ray workers, which import this module to run it
 
 
 # ---------------------------------------------------------------- without Ray

@@ -59,8 +59,7 @@ def test_local_runs_used_over_shipped_ones_are_named_in_the_verdicts_evidence(to
     """The page's meta counts its runs read from the local run cache (those replacing a shipped copy too), and
     every verdict judged from that page's numbers says how many in its evidence."""
     from thesis_repro import pages
-    from thesis_repro.claims import ledger as L
-    from thesis_repro.claims import report
+    from thesis_repro.claims import ledger, page_verdicts, registry, report, store
     from thesis_repro.claims import synthetic as S
 
     monkeypatch.setitem(figures.FIGURES, "3.3", dataclasses.replace(figures.get("3.3"), grid=lambda s: list(TOY)))
@@ -76,12 +75,12 @@ def test_local_runs_used_over_shipped_ones_are_named_in_the_verdicts_evidence(to
 
     frames = S.frames_for("correlation", 3, 0)
     text = "fig-3.3 used 1 of its 2 training runs from the local run cache, not the shipped layer (1 in place of a"
-    vs = L.judge_page("fig-3.3", "small", frames, {"local_runs": use}, display=False)
+    vs = page_verdicts.judge_page("fig-3.3", "small", frames, {"local_runs": use}, display=False)
     assert vs and all(text in v.evidence for v in vs if v.status != report.VISUAL)
-    row = L.judge(L.spec("3.3-negative-correlation"), "small", with_null=False)
+    row = ledger.judge(registry.spec("3.3-negative-correlation"), "small", with_null=False)
     assert row.local_runs == {"fig-3.3": use} and row.as_dict()["local_runs"] == {"fig-3.3": use}
-    assert L.judge(L.spec("3.3-not-valid-metric"), "small", with_null=False).local_runs == {"fig-3.3": use}
+    assert ledger.judge(registry.spec("3.3-not-valid-metric"), "small", with_null=False).local_runs == {"fig-3.3": use}
     # no local run: nothing said, and the saved meta stays as before (the shipped snapshot's bytes do not change)
-    L.judge_page("fig-3.3", "small", frames, {}, display=False)
-    assert "local_runs" not in L.load_page("fig-3.3", "small")["meta"]
-    assert all("local run cache" not in v.evidence for v in L.verdicts("fig-3.3", "small"))
+    page_verdicts.judge_page("fig-3.3", "small", frames, {}, display=False)
+    assert "local_runs" not in store.load_page("fig-3.3", "small")["meta"]
+    assert all("local run cache" not in v.evidence for v in page_verdicts.verdicts("fig-3.3", "small"))

@@ -10,8 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import figures, generator, paths, plan, provenance, retrain_check, runs, shipped_checks
-from thesis_repro import jobs as registry
+from thesis_repro import figures, generator, job_kinds, paths, plan, provenance, retrain_check, runs, shipped_checks
 from thesis_repro.__main__ import main
 from thesis_repro.cache import CorruptEntryWarning, Job, RunCache, read_entry
 
@@ -40,7 +39,7 @@ def toy_train(config: dict, workdir: Path) -> dict:
     return {"resumed": resumed, "curve": np.arange(float(step))}
 
 
-registry.register("toy-train", "tests.test_runs:toy_train")
+job_kinds.register("toy-train", "tests.test_runs:toy_train")
 
 
 def _cfg(name: str, timesteps: int, seed: int = 0, **kw) -> dict:
@@ -108,7 +107,7 @@ def test_generator_until_starts_only_jobs_that_end_in_time(fake_figures, monkeyp
 
 def test_eta_counts_the_work_left_past_a_checkpoint(monkeypatch, tmp_path):
     from thesis_repro.learners import train
-    from thesis_repro.plan import Rates
+    from thesis_repro.throughput import Rates
 
     job = Job("train", {"algorithm": "ppo", "env": "Hopper", "seed": 0, "timesteps": 1_000_000})
     rates = Rates({"ppo": 1000.0}, {})

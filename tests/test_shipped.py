@@ -10,7 +10,7 @@ import json
 
 import pytest
 
-from thesis_repro import paths, plan, provenance, retrain_check, runs, shipped_checks
+from thesis_repro import paths, provenance, retrain_check, runs, shipped_checks, throughput
 from thesis_repro.cache import RunCache
 from thesis_repro.claims import ledger, report, snapshot
 
@@ -50,7 +50,7 @@ def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
     job = shipped_checks.cheapest_shipped("train", LAYER)
     if job is None:
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
-    assert plan.cost(job) <= 250_000, f"cheapest shipped run {job.label} costs {plan.cost(job):,.0f} steps"
+    assert throughput.cost(job) <= 250_000, f"cheapest shipped run {job.label} costs {throughput.cost(job):,.0f} steps"
     shipped = RunCache(tmp_path / "unused", reference=LAYER).load(job)
     assert shipped is not None and shipped.source == "shipped"
     # in the numerics the shipped run was made in (its provenance says native MKL dispatch or portable)

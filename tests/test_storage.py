@@ -17,8 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import backends, runs
-from thesis_repro import jobs as registry
+from thesis_repro import backends, job_kinds, runs
 from thesis_repro.cache import (
     VOLATILE,
     Job,
@@ -71,15 +70,15 @@ def _timed(config: dict, workdir: Path) -> dict:
     }
 
 
-registry.register("test-policy", "tests.test_storage:_policy")
-registry.register("test-eval", "tests.test_storage:_evaluation", deps="tests.test_storage:_eval_deps", pin=True)
-registry.register("test-timed", "tests.test_storage:_timed")
+job_kinds.register("test-policy", "tests.test_storage:_policy")
+job_kinds.register("test-eval", "tests.test_storage:_evaluation", deps="tests.test_storage:_eval_deps", pin=True)
+job_kinds.register("test-timed", "tests.test_storage:_timed")
 
 
 # ---------------------------------------------------------------- item 7: no import cycle
 #: Modules of the storage layer and every module that defines a job kind or a kind's hook.
 def _job_modules() -> set[str]:
-    paths = [*registry.KINDS.values(), *registry.DEPENDENCIES.values()]
+    paths = [*job_kinds.KINDS.values(), *job_kinds.DEPENDENCIES.values()]
     return {p.split(":")[0] for p in paths if p.startswith("thesis_repro")}
 
 
@@ -112,10 +111,10 @@ def _imports(name: str) -> set[str]:
 
 def test_cache_imports_neither_backends_nor_any_job_module():
     own = _imports("thesis_repro.cache")
-    allowed = {"thesis_repro", "thesis_repro.jobs", "thesis_repro.paths", "thesis_repro.provenance"}
+    allowed = {"thesis_repro", "thesis_repro.job_kinds", "thesis_repro.paths", "thesis_repro.provenance"}
     assert own <= allowed | {"thesis_repro.compact"}, own  # compact: the arrays codec, numpy and stdlib only
     assert _imports("thesis_repro.compact") <= {"thesis_repro"}
-    assert _imports("thesis_repro.jobs") <= {"thesis_repro.validation"}
+    assert _imports("thesis_repro.job_kinds") <= {"thesis_repro.validation"}
     jobs_modules = _job_modules() - {"thesis_repro.cache"}
     assert not _imports("thesis_repro.backends") & jobs_modules
     assert not _imports("thesis_repro.backends") & {m for m in _imports("thesis_repro.backends") if ".arm" in m}
@@ -123,7 +122,7 @@ def test_cache_imports_neither_backends_nor_any_job_module():
 
 def test_no_import_cycle_through_the_storage_layer():
     graph: dict[str, set[str]] = {}
-    todo = ["thesis_repro.cache", "thesis_repro.backends", "thesis_repro.jobs", *_job_modules()]
+    todo = ["thesis_repro.cache", "thesis_repro.backends", "thesis_repro.job_kinds", *_job_modules()]
     while todo:
         name = todo.pop()
         if name not in graph:
@@ -141,12 +140,12 @@ def test_no_import_cycle_through_the_storage_layer():
                 stack.extend(graph.get(m, ()))
         return False
 
-    for mod in ("thesis_repro.cache", "thesis_repro.backends", "thesis_repro.jobs"):
+    for mod in ("thesis_repro.cache", "thesis_repro.backends", "thesis_repro.job_kinds"):
         assert not reaches(mod, mod), f"{mod} imports itself back"
 
 
 def test_each_module_imports_alone_in_a_fresh_process():
-    light = ["thesis_repro.cache", "thesis_repro.jobs", "thesis_repro.backends"]
+    light = ["thesis_repro.cache", "thesis_repro.job_kinds", "thesis_repro.backends"]
     mods = [*light, *sorted(_job_modules() - set(light))]
     code = (
         "import importlib, json, sys; importlib.import_module(sys.argv[1]); "
@@ -167,7 +166,7 @@ def test_each_module_imports_alone_in_a_fresh_process():
         "thesis_repro",
         "thesis_repro.cache",
         "thesis_repro.compact",
-        "thesis_repro.jobs",
+        "thesis_repro.job_kinds",
         "thesis_repro.paths",
         "thesis_repro.provenance",
         "thesis_repro.validation",
@@ -192,7 +191,7 @@ def _code_strings(path: Path) -> set[str]:
 
 
 def test_neither_cache_nor_backends_names_a_kind():
-    kinds = set(registry.KINDS)
+    kinds = set(job_kinds.KINDS)
     for mod in ("cache.py", "backends.py"):
         assert not _code_strings(PKG / mod) & kinds, mod
         assert "COMPETITORS" not in (PKG / mod).read_text()
@@ -208,14 +207,14 @@ def test_kinds_declare_their_dependencies_and_resources():
     assert [(d.kind, d.config["policy"]) for d in backends.dependencies(fcnn)] == [("arm-competitor-source", "fcnn")]
     assert backends.dependencies(Job("square", {"x": 1})) == []
     assert backends.resources("train")["memory"] > backends.resources("arm-target")["memory"]
-    assert registry.pinned("evaluate") and not registry.pinned("arm-target") and not registry.pinned("train")
+    assert job_kinds.pinned("evaluate") and not job_kinds.pinned("arm-target") and not job_kinds.pinned("train")
     cache = RunCache(reference=False)
     assert cache.bind(tensor) is tensor  # an unpinned kind is keyed by its config alone, as before
 
 
 def test_pin_needs_a_dependency_hook():
     with pytest.raises(ValueError, match="dependency hook"):
-        registry.register("test-nohook", "tests.test_storage:_nowhere", pin=True)
+        job_kinds.register("test-nohook", "tests.test_storage:_nowhere", pin=True)
 
 
 # ---------------------------------------------------------------- item 4c: evaluations pin their policy
@@ -287,7 +286,7 @@ def test_run_jobs_binds_evaluations_after_running_their_policies(tmp_path):
 def test_the_evaluate_kind_pins_its_training_run():
     train = {"algorithm": "ppo", "env": "Hopper", "seed": 0}
     ev = Job("evaluate", {"train": train, "test": {"perturbation": "obs", "sigmas": [0.0]}})
-    assert {k: d.key for k, d in registry.dependencies("evaluate", ev.config).items()} == {
+    assert {k: d.key for k, d in job_kinds.dependencies("evaluate", ev.config).items()} == {
         "policy": Job("train", train).key
     }
 

@@ -115,9 +115,9 @@ def test_the_kit_runs_of_the_maml_study_are_table_3_7s_and_step_is_alg_1_read_li
 
 @pytest.mark.parametrize("name", ["reptile-outer-step", "maml-outer-update"])
 def test_the_registry_declares_the_meta_learning_studies_on_table_3_7s_claim(name):
-    from thesis_repro.claims import ledger as L
+    from thesis_repro.claims import registry
 
-    assert {s.id for s in L.specs() if name in s.sensitivity} == {"3.7-maml-reptile"}
+    assert {s.id for s in registry.specs() if name in s.sensitivity} == {"3.7-maml-reptile"}
 
 
 #: The block of each study shown on the book page ``book/learners.md`` (its marker); the page names the command.

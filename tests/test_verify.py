@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import backends, figures, generator, retrain_check, runs, shipped_checks, verify
-from thesis_repro import jobs as registry
+from thesis_repro import backends, figures, generator, job_kinds, retrain_check, runs, shipped_checks, verify
 from thesis_repro.__main__ import main
 from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry, save_arrays, write_manifest
 
@@ -42,8 +41,8 @@ def _pool_execute(job: Job, root: str | None, reference: str | bool) -> Result:
     return backends.execute(job, root, reference)
 
 
-registry.register("test-verify-policy", "tests.test_verify:_policy", label=lambda c: f"w{c['w']}")
-registry.register(
+job_kinds.register("test-verify-policy", "tests.test_verify:_policy", label=lambda c: f"w{c['w']}")
+job_kinds.register(
     "test-verify-eval",
     "tests.test_verify:_evaluation",
     label=lambda c: f"w{c['train']['w']}__eval",
@@ -294,7 +293,7 @@ def test_arm_kinds_compare_their_summaries_across_platforms():
     worse = {**other_path, "mean_total_cost": 2224.8 * 1.2}
     assert "MISMATCH: summaries differ by 16.7% > 5%" in verify.compare(arm, worse, False, summaries_only=True).verdict
     assert set(verify.VERIFIABLE) == {*verify.KINDS, *verify.ARM_KINDS}
-    assert all(registry.KINDS.get(k) for k in verify.ARM_KINDS)  # each names a registered kind
+    assert all(job_kinds.KINDS.get(k) for k in verify.ARM_KINDS)  # each names a registered kind
 
 
 def _train_entry(tmp_path: Path, resumed_from: int, start: str) -> Result:

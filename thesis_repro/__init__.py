@@ -4,26 +4,27 @@ The package map, layers from the bottom up. A module imports only from its own l
 (``tests/test_layers.py`` reads this list and enforces it; ``tests/test_imports.py`` forbids import circles):
 
 1. **core**: ``thesis_repro``, ``paths``, ``validation``, ``provenance``, ``scales``, ``thesis_numbers``,
-   ``jobs``, ``bench`` -- locations, checks, where and in which numerics an entry was made, the scale table, the
+   ``job_kinds``, ``bench`` -- locations, checks, where and in which numerics an entry was made, the scale table, the
    thesis's numbers, the job registry and the timing helpers; they import the standard library, third-party
    packages and each other only.
 2. **store and backends**: ``cache``, ``backends`` -- the run cache and where jobs run; may import core (a job
-   function is resolved by name through ``jobs``, never imported).
+   function is resolved by name through ``job_kinds``, never imported).
 3. **envs**: ``envs`` -- the MuJoCo tasks and their perturbations; may import core.
 4. **learners, mdl, arm**: ``learners``, ``mdl``, ``arm`` -- the RL learners, Alg 3's aggregation, chapter 5's
    arm; may import envs, the store (a job loads its dependencies through the run cache) and core.
 5. **evaluation**: ``evaluation``, ``bench.evaluation`` -- the chapter 3 testing protocol; may import every
    layer above this line.
 6. **figures**: ``figures`` -- each item's jobs and numbers, no verdicts; may import every layer below.
-7. **runs**: ``plan``, ``runs``, ``shipped_checks``, ``retrain_check``, ``generator``, ``order``, ``study``,
-   ``budgets`` -- cost plans, where the runs are and their export into the shipped layer, the shipped layer's
-   checks, a retrain against a shipped run, the reference-run generator and the order it makes items in (claims
-   settled per core-hour), the protocol studies, budgets; may import figures and below.
+7. **runs**: ``throughput``, ``plan``, ``runs``, ``shipped_checks``, ``retrain_check``, ``generator``, ``order``,
+   ``study``, ``budgets`` -- what a job costs, cost plans, where the runs are and their export into the shipped
+   layer, the shipped layer's checks, a retrain against a shipped run, the reference-run generator and the order it
+   makes items in (claims settled per core-hour), the protocol studies, budgets; may import figures and below.
 8. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed, in the verdict words
    of ``claims.report``; may import runs (the studies) and below, never figures.
-9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``verify``, ``__main__``,
-   ``bench.__main__``, ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside the shipped
-   learners, ``make verify`` (it re-runs a claim's notebooks) and the command lines; may import everything.
+9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``clips``, ``verify``,
+   ``__main__``, ``bench.__main__``, ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside
+   the shipped learners, videos of trained policies, ``make verify`` (it re-runs a claim's notebooks) and the
+   command lines; may import everything.
 """
 
 import os

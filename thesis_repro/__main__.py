@@ -6,6 +6,10 @@
 (your agent under the thesis's protocol, :mod:`thesis_repro.agent`) | ``--version``. Installed, the same command
 line is the ``thesis-repro`` console script.
 
+One file on purpose (over 600 lines): it is the one parser of every command, and each command's handler keeps the
+one error contract below (its ``error:`` line, its exit code); a handler parses and calls the module that does
+the work, so nothing here is shared with another module.
+
 Every failure a user can cause ends in one ``error: ...`` line on stderr and a non-zero exit code, never a
 traceback: a bad argument or setting (2), a notebook that failed (its own exception, 1), a folder that cannot
 be written (the path and the setting naming it, 1). Ctrl-C prints ``interrupted; rerun to resume`` and exits
@@ -447,7 +451,7 @@ def _agent_parsers(sub: Any) -> None:
 
 
 def _agent_command(args: argparse.Namespace) -> int:
-    from thesis_repro import agent, scales
+    from thesis_repro import agent, clips, scales
 
     scales.check_scale(args.scale)
     if args.cmd == "train":
@@ -458,7 +462,7 @@ def _agent_command(args: argparse.Namespace) -> int:
         ret = "" if tr is None else f", training return {float(np.mean(tr)):.1f}"
         print(f"{args.algo} on {args.task} (seed {args.seed}, scale {args.scale}): {res.source}{ret}\n{res.path}")
     elif args.cmd == "clips":
-        doc = agent.make_clips(args.scale, force=args.force)
+        doc = clips.make_clips(args.scale, force=args.force)
         for c in doc["clips"]:
             what = (
                 f"return {c['return']:.1f} in {c['length']} steps ({c['source']} run)"
@@ -466,9 +470,9 @@ def _agent_command(args: argparse.Namespace) -> int:
                 else f"no clip: not trained ({c['missing']})"
             )
             print(f"{c['algo']} on {doc['task']} ({doc['test']}, σ {doc['sigma']}): {what}")
-        print(f"clips: {agent.clips_dir(args.scale)}")
+        print(f"clips: {clips.clips_dir(args.scale)}")
     elif args.cmd == "enjoy":
-        out = agent.enjoy(
+        out = clips.enjoy(
             args.algo,
             args.task,
             args.seed,
@@ -556,7 +560,7 @@ def check_environment() -> None:
 
 
 def _plan_command(args: argparse.Namespace) -> int:
-    from thesis_repro import plan, scales
+    from thesis_repro import plan, scales, throughput
 
     scales.check_scale(args.scale)
     if args.figure == "order" and (args.envs or args.algos):
@@ -566,10 +570,10 @@ def _plan_command(args: argparse.Namespace) -> int:
     if (args.rates or ("shipped" if args.figure == "order" else "bench")) == "shipped":
         from thesis_repro.cache import platform_info
 
-        rates = plan.shipped_rates(by_env=True, machine=platform_info())
+        rates = throughput.shipped_rates(by_env=True, machine=platform_info())
     else:
-        rates = plan.load_rates()
-    print(plan.rates_note(rates))
+        rates = throughput.load_rates()
+    print(throughput.rates_note(rates))
     if args.figure == "order":
         from thesis_repro import order
 
@@ -606,7 +610,7 @@ def _order_plan(
 def _runs_command(args: argparse.Namespace) -> int:
     import json
 
-    from thesis_repro import figures, generator, paths, plan, runs, scales, shipped_checks
+    from thesis_repro import figures, generator, paths, plan, runs, scales, shipped_checks, throughput
 
     scales.check_scale(args.scale)
     if args.cmd == "reference-runs":
@@ -628,7 +632,7 @@ def _runs_command(args: argparse.Namespace) -> int:
 
             if not args.seeds:
                 raise ValueError("--order claims needs --seeds: the seeds to add, such as --seeds 3 4 5")
-            rates = plan.shipped_rates(by_env=True, machine=platform_info())
+            rates = throughput.shipped_rates(by_env=True, machine=platform_info())
             ranked = _order_plan(args.scale, args.seeds, rates, missing=True, figure_ids=args.figures)
             print(order.report(ranked), flush=True)
             figure_ids = order.item_order(ranked)

@@ -1,5 +1,5 @@
 """Running jobs: :func:`run_jobs` loads what the run cache has and computes the rest in a local process pool or
-on Ray. The run cache (:mod:`thesis_repro.cache`) only stores; the job kinds (:mod:`thesis_repro.jobs`) say what
+on Ray. The run cache (:mod:`thesis_repro.cache`) only stores; the job kinds (:mod:`thesis_repro.job_kinds`) say what
 a kind needs (dependencies, resources); this module knows no kind.
 
 The backend is chosen by ``THESIS_REPRO_BACKEND`` (``make figure-3.3 BACKEND=ray`` sets it), so the figure
@@ -61,7 +61,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from thesis_repro import jobs as registry
+from thesis_repro import job_kinds
 from thesis_repro.cache import Job, Result, RunCache, read_entry
 from thesis_repro.validation import check_choice
 
@@ -70,8 +70,8 @@ BACKENDS: tuple[str, ...] = ("local", "ray")
 ENV_VAR = "THESIS_REPRO_BACKEND"
 _GIB = 1024**3
 #: Ray resources of one task per job kind (``num_cpus``, ``memory`` in bytes), as each kind registered them
-#: (:func:`thesis_repro.jobs.register`; the registry's own dict).
-RESOURCES: dict[str, dict[str, float]] = registry.RESOURCES
+#: (:func:`thesis_repro.job_kinds.register`; the registry's own dict).
+RESOURCES: dict[str, dict[str, float]] = job_kinds.RESOURCES
 #: Resources of a kind not in :data:`RESOURCES`.
 DEFAULT_RESOURCES: dict[str, float] = {"num_cpus": 1, "memory": 1 * _GIB}
 #: Retries of a task whose worker died (Ray's ``max_retries``); ``THESIS_REPRO_RAY_RETRIES`` overrides.
@@ -98,16 +98,17 @@ def resources(kind: str) -> dict[str, float]:
     >>> resources("train")["num_cpus"]
     1
     """
-    return dict(registry.RESOURCES.get(kind, DEFAULT_RESOURCES))
+    return dict(job_kinds.RESOURCES.get(kind, DEFAULT_RESOURCES))
 
 
 def dependencies(job: Job) -> list[Job]:
-    """Jobs whose results ``job`` loads through the run cache (its kind's hook, :func:`thesis_repro.jobs.dependencies`).
+    """Jobs whose results ``job`` loads through the run cache (its kind's hook,
+    :func:`thesis_repro.job_kinds.dependencies`).
 
     >>> [d.kind for d in dependencies(Job("evaluate", {"train": {"algorithm": "ppo"}, "test": {}}))]
     ['train']
     """
-    return list(registry.dependencies(job.kind, job.config).values())
+    return list(job_kinds.dependencies(job.kind, job.config).values())
 
 
 # ---------------------------------------------------------------- running jobs
@@ -132,7 +133,7 @@ def _bind_all(
 ) -> tuple[list[Job], dict[str, Result]]:
     """``jobs`` bound (:meth:`RunCache.bind`), and the results of their pinned dependencies, which are run first
     (loaded and verified, or computed)."""
-    deps = {d.key: d for job in jobs if registry.pinned(job.kind) for d in dependencies(job)}
+    deps = {d.key: d for job in jobs if job_kinds.pinned(job.kind) for d in dependencies(job)}
     done: dict[str, Result] = {}
     if deps:
         ran = run_jobs(list(deps.values()), n_jobs, cache, progress, f"{desc}: dependencies")
@@ -343,8 +344,8 @@ def compute(
 
     torch.set_num_threads(max(1, int(threads)))
     fn = job.resolve()  # imports the job's module first: it may register a user-defined kind (and its label)
-    if job.kind not in registry.KINDS:
-        registry.register(job.kind, job.target)
+    if job.kind not in job_kinds.KINDS:
+        job_kinds.register(job.kind, job.target)
     with _environ(env):
         cache = RunCache(root, reference=reference)
         for dep in deps:  # shipped or already local (shared storage): nothing to do

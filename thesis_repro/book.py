@@ -1,5 +1,11 @@
 """Build the Jupyter Book (1.x, offline) of one scale: the thesis's claims, each page with its verdict.
 
+One file on purpose (over 600 lines): every part serves :func:`build` alone (the command line is its only caller)
+and changes with the book's layout: staging, the reader's copy of each executed page, the chapter tables and the
+scoreboard, the table of contents, the progress lines and the pending / failed pages. What other commands share
+lives in their own modules (:mod:`thesis_repro.notebooks`: execution keys; :mod:`thesis_repro.pages`: a page's
+runs; :mod:`thesis_repro.clips`: the clips; :mod:`thesis_repro.claims`: the verdicts).
+
 ``build(scale)`` stages a copy of ``book/`` in ``build/<scale>/book/`` and generates, in the copy only:
 
 * one page per executed notebook (``executed/<page id>.ipynb``), *cleaned for readers*: progress bars,
@@ -12,7 +18,7 @@
 * the page "Protocol: thesis beside kit" (``protocol.md``, :mod:`thesis_repro.protocol`), last in the contents;
 * each guide notebook (``notebooks/guide-*.py``, :func:`thesis_repro.notebooks.is_guide`) as a page of its own
   among the guides (:func:`prepare_guide`: its code shown, no thesis claims, no verdict);
-* the chapter-3 landing page's clips of the basic learners (:func:`thesis_repro.agent.book_clips`).
+* the chapter-3 landing page's clips of the basic learners (:func:`thesis_repro.clips.book_clips`).
 
 Execution cache: a notebook whose executed copy carries today's execution key (notebook source, scale,
 parameters, ``THESIS_REPRO_RETRAIN``, the kit modules it imported, configuration and thesis data; see
@@ -47,7 +53,8 @@ from typing import Any
 import yaml
 
 from thesis_repro import notebooks, paths, protocol
-from thesis_repro.claims import report
+from thesis_repro.claims import ledger, registry, report, results
+from thesis_repro.claims import scoreboard as claims_scoreboard
 from thesis_repro.scales import check_scale
 
 #: Lines of a stream output that are progress or log, not content (tqdm bars, file logs, verdict echo).
@@ -362,14 +369,12 @@ def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[s
 
 def scoreboard(executed: list[str], scale: str) -> str:
     """The scoreboard of distinct thesis claims at ``scale``, read from the claims ledger (issue 21:
-    :func:`thesis_repro.claims.ledger.scoreboard`, the same ledger as ``python -m thesis_repro claims``),
+    :func:`thesis_repro.claims.scoreboard.scoreboard`, the same ledger as ``python -m thesis_repro claims``),
     with the beyond-the-thesis count and the method section (each rule's null pass rate). ``executed`` is
     kept for the caller; the ledger judges every registered claim from the numbers the pages saved."""
-    from thesis_repro.claims import ledger, results  # the claims layer judges and words; the book only shows
-
     rows = ledger.ledger(scale)
-    head, sep, method = ledger.scoreboard(scale, rows).partition(_METHOD)
-    return f"{head}\n\n{results.verdict_lists(ledger.as_json(rows, scale))}\n{sep}{method}"
+    head, sep, method = claims_scoreboard.scoreboard(scale, rows).partition(_METHOD)
+    return f"{head}\n\n{results.verdict_lists(claims_scoreboard.as_json(rows, scale))}\n{sep}{method}"
 
 
 #: Where ``intro.md`` takes the scoreboard (else it is appended); the method section goes last either way.
@@ -436,14 +441,12 @@ def stage(root: Path) -> None:
 
 def execution_order(ids: list[str]) -> list[str]:
     """``ids`` (notebook ids, book order) with each page moved after the pages whose saved numbers its claims
-    read (:func:`thesis_repro.claims.ledger.reads`), so a verdict repeated on Fig 3.4 from Table 3.4 is shown
+    read (:func:`thesis_repro.claims.registry.reads`), so a verdict repeated on Fig 3.4 from Table 3.4 is shown
     there; pages outside ``ids`` are not added. Otherwise book order.
 
     >>> execution_order(["3.3", "3.4", "table-3.4"])
     ['3.3', 'table-3.4', '3.4']
     """
-    from thesis_repro.claims import ledger  # local: the ledger loads scipy; only the execution order needs it
-
     by_page = {notebooks.page_id(n): n for n in ids}
     out: list[str] = []
     seen: set[str] = set()
@@ -452,7 +455,7 @@ def execution_order(ids: list[str]) -> list[str]:
         if nid in seen:
             return
         seen.add(nid)
-        for other in sorted(ledger.reads(notebooks.page_id(nid)), key=lambda p: ids.index(by_page.get(p, nid))):
+        for other in sorted(registry.reads(notebooks.page_id(nid)), key=lambda p: ids.index(by_page.get(p, nid))):
             if other in by_page:
                 visit(by_page[other])
         out.append(nid)
@@ -581,9 +584,9 @@ def build(
                 )
                 page = failed_page(nid, scale, failed[nid])
             (root / f"{page_file(nid)}.ipynb").write_text(json.dumps(page, indent=1, ensure_ascii=False))
-    from thesis_repro import agent  # local: the clips render the chapter-3 policies the pages above loaded
+    from thesis_repro import clips  # local: it loads the evaluation layer (torch); only this last step needs it
 
-    agent.book_clips(root, scale)
+    clips.book_clips(root, scale)
     judged = [n for n in ids if notebooks.page_id(n) not in pending]
     for md in root.glob("chapter-*.md"):
         with md.open("a") as f:

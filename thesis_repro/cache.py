@@ -1,6 +1,10 @@
 """Content-addressed, atomic, resumable run cache with a shipped read-only layer: it stores and verifies entries.
 
-A :class:`Job` is a registered *kind* (:mod:`thesis_repro.jobs`: ``"train"``, ``"evaluate"``, ...) plus a
+One file on purpose (over 600 lines): an entry's format on disk (folders, temporary names, manifest, identity)
+and the :class:`RunCache` that commits, verifies and finds it are one contract, changed together with
+:data:`CACHE_VERSION`; the :mod:`thesis_repro.provenance` of an entry is already its own module.
+
+A :class:`Job` is a registered *kind* (:mod:`thesis_repro.job_kinds`: ``"train"``, ``"evaluate"``, ...) plus a
 JSON config. Its key is ``sha256(v<CACHE_VERSION>|<kind>|<canonical config>)``: any change to the resolved
 config is a new entry, moving the job function is not. The function is called as ``fn(config, workdir)``
 and returns a dict of JSON values and numpy arrays; files it writes under ``workdir / "out"`` are kept
@@ -28,9 +32,6 @@ and its shipped copy) in its config, filled in by :meth:`RunCache.bind`: recompu
 new evaluations, never the old weights' ones. The cache knows no kind: the registry's hooks say which.
 
 This module stores; :mod:`thesis_repro.backends` runs many jobs (``run_jobs``: a process pool or Ray).
-One file on purpose (over 600 lines): an entry's format on disk (folders, temporary names, manifest, identity)
-and the :class:`RunCache` that commits, verifies and finds it are one contract, changed together with
-:data:`CACHE_VERSION`; the :mod:`thesis_repro.provenance` of an entry is already its own module.
 
 >>> import tempfile
 >>> cache = RunCache(tempfile.mkdtemp(), reference=False)
@@ -65,8 +66,7 @@ from typing import Any
 
 import numpy as np
 
-from thesis_repro import jobs as registry
-from thesis_repro import paths
+from thesis_repro import job_kinds, paths
 from thesis_repro.compact import read_arrays
 from thesis_repro.provenance import platform_info as platform_info  # re-exported: callers read it from the cache
 from thesis_repro.provenance import record
@@ -146,9 +146,9 @@ class Job:
     def __post_init__(self) -> None:
         if not isinstance(self.config, Mapping):
             raise TypeError(f"Job config must be a mapping, got {type(self.config).__name__}")
-        kind = registry.kind_of(self.kind)
+        kind = job_kinds.kind_of(self.kind)
         object.__setattr__(self, "kind", kind)
-        object.__setattr__(self, "target", registry.KINDS[kind])
+        object.__setattr__(self, "target", job_kinds.KINDS[kind])
         object.__setattr__(self, "config", _jsonable(self.config))
 
     @property
@@ -159,7 +159,7 @@ class Job:
     @property
     def label(self) -> str:
         """Readable part of the run folder name (``ppo-scn-16__Hopper__s0``)."""
-        return registry.label(self.kind, self.config)
+        return job_kinds.label(self.kind, self.config)
 
     @property
     def key(self) -> str:
@@ -172,7 +172,7 @@ class Job:
         return f"{self.label}__{self.key}"
 
     def resolve(self) -> Callable[[dict[str, Any], Path], dict[str, Any]]:
-        return registry.resolve(self.kind, self.target)
+        return job_kinds.resolve(self.kind, self.target)
 
 
 class Result(Mapping[str, Any]):
@@ -484,14 +484,14 @@ class RunCache:
     def bind(self, job: Job, compute: bool = False) -> Job | None:
         """``job`` with the identity of each of its pinned dependencies' entries in its config.
 
-        For kinds registered with ``pin=True`` (:mod:`thesis_repro.jobs`; an evaluation pins its training run as
+        For kinds registered with ``pin=True`` (:mod:`thesis_repro.job_kinds`; an evaluation pins its training run as
         ``config["policy"]``); every other job, and a job already bound, is returned as is. The identity is that
         of the entry :meth:`load` gives (local first, then shipped). A dependency not committed yet gives
         ``None``, unless ``compute``: then it is loaded or computed through this cache first.
         """
-        if not registry.pinned(job.kind):
+        if not job_kinds.pinned(job.kind):
             return job
-        deps = registry.dependencies(job.kind, job.config)
+        deps = job_kinds.dependencies(job.kind, job.config)
         if all(name in job.config for name in deps):
             return job
         pins: dict[str, str] = {}

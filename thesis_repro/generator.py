@@ -17,14 +17,14 @@ from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-from thesis_repro import figures, paths
-from thesis_repro import jobs as registry
+from thesis_repro import figures, job_kinds, paths
 from thesis_repro.backends import die_with_parent, execute, sigint_held, stop_pool
 from thesis_repro.cache import Job, Result, RunCache, entry_identity, find_entry, read_entry
 from thesis_repro.paths import shown
-from thesis_repro.plan import Rates, cost, job_rate, seed_count, shipped_rates, training_seed, work
+from thesis_repro.plan import seed_count, training_seed
 from thesis_repro.provenance import platform_info
 from thesis_repro.runs import TARGET_BYTES, Exported, export, wall_seconds
+from thesis_repro.throughput import Rates, cost, job_rate, shipped_rates, work
 from thesis_repro.validation import check_choice
 
 
@@ -112,7 +112,7 @@ def _bind_to_layer(planned: list[Planned], layer: Path, cache: RunCache, log: Ca
         if bound is None:
             unshipped += 1
             continue
-        for dep in registry.dependencies(bound.kind, bound.config).values():
+        for dep in job_kinds.dependencies(bound.kind, bound.config).values():
             local = find_entry(cache.root, dep)
             if local is not None and entry_identity(local) != entry_identity(find_entry(layer, dep)):
                 differ.append(shown(local))
@@ -140,7 +140,7 @@ class _Followers:
         """The waiting jobs that load the run with key ``landed`` (``None``: all) and can run now, bound."""
         out = []
         for key, p in list(self.waiting.items()):
-            deps = {d.key for d in registry.dependencies(p.job.kind, p.job.config).values()}
+            deps = {d.key for d in job_kinds.dependencies(p.job.kind, p.job.config).values()}
             if landed is not None and landed not in deps:
                 continue
             bound = _bind_to_layer([p], self.layer, self.cache, lambda _: None)
@@ -250,7 +250,7 @@ def parse_until(text: str, now: datetime | None = None) -> datetime:
 
 def eta_seconds(job: Job, cache: RunCache, rates: Rates) -> float:
     """Wall seconds ``job`` is expected to still take: its work past its newest checkpoint (a resumed run) at its
-    rate in ``rates`` (units per second, :func:`thesis_repro.plan.job_rate`: its learner's on its task where
+    rate in ``rates`` (units per second, :func:`thesis_repro.throughput.job_rate`: its learner's on its task where
     ``rates`` has one, else its family's); ``inf`` for a family without a rate.
 
     >>> ppo = Job("train", {"algorithm": "ppo", "env": "Hopper", "timesteps": 1000})
@@ -359,15 +359,15 @@ def generate(
     fits (an interrupted run resumes only on the machine that holds its checkpoints; a new one starts it again).
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
-    kinds = tuple(check_choice(k, sorted(registry.KINDS), "job kind") for k in kinds)
-    pinned_kinds = tuple(k for k in kinds if registry.pinned(k))
+    kinds = tuple(check_choice(k, sorted(job_kinds.KINDS), "job kind") for k in kinds)
+    pinned_kinds = tuple(k for k in kinds if job_kinds.pinned(k))
     if pinned_kinds and len(pinned_kinds) < len(kinds):  # training and evaluation in one command: they follow
         kinds = tuple(k for k in kinds if k not in pinned_kinds)
         only = {"algos": algos, "seeds": seeds, "order": order, "item_seeds": item_seeds}
         followers = _Followers(plan(scale, figure_ids, pinned_kinds, **only), layer, cache)
     else:
         followers = None
-    pinned = any(registry.pinned(k) for k in kinds)
+    pinned = any(job_kinds.pinned(k) for k in kinds)
     cache = cache or RunCache(reference=layer if pinned else False)  # evaluations load the shipped policies
     by_figure = figure_ids is not None
     planned = plan(scale, figure_ids, kinds, by_figure, algos, seeds, order, item_seeds)
@@ -403,7 +403,7 @@ def generate(
             line += f", committed {git_commit(ex.path, msg)}"
         log(line + f" -> {shown(ex.path)}")
         done.append(ex)
-        if followers is not None and not registry.pinned(p.job.kind):
+        if followers is not None and not job_kinds.pinned(p.job.kind):
             follow(followers.ready(p.job.key))
 
     def follow(ready: list[Planned]) -> None:

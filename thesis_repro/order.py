@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from thesis_repro import figures
-from thesis_repro.plan import CH5_TARGET_SEEDS, Rates, core_hours, job_rate, seed_jobs, table, to_compute, work
+from thesis_repro.plan import CH5_TARGET_SEEDS, core_hours, seed_jobs, table, to_compute
+from thesis_repro.throughput import Rates, job_rate, work
 
 #: The chapters whose every item is in the plan; the other items (chapter 4's) only where they can settle a claim.
 EVERY_ITEM_CHAPTERS: tuple[int, ...] = (3, 5)

@@ -16,12 +16,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from thesis_repro import figures, paths
-from thesis_repro import jobs as registry
+from thesis_repro import figures, job_kinds, paths
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.paths import shown
-from thesis_repro.plan import cost, seed_count, target_seeds
+from thesis_repro.plan import seed_count, target_seeds
 from thesis_repro.runs import corrupt, local_entries, shipped_entries
+from thesis_repro.throughput import cost
 
 
 @dataclass(frozen=True)
@@ -63,7 +63,7 @@ def current_keys(
         for j in figures.jobs(fid, scale, **seed_count(fid, scale, seeds)):
             if kinds is None or j.kind in kinds:
                 keys.add(j.key)
-                if registry.pinned(j.kind) and (bound := shipped_view.bind(j)) is not None:
+                if job_kinds.pinned(j.kind) and (bound := shipped_view.bind(j)) is not None:
                     keys.add(bound.key)
     return keys
 

@@ -1,5 +1,8 @@
 """``make verify SCALE=small [N=20] [SEED=...] [TRAIN=1]``: are the shipped numbers real on this machine?
 
+One file on purpose (over 600 lines): it is one command, and each of its parts (which entries, recomputing them
+in a worker, comparing the values, the report) serves only that command.
+
 Picks a seeded random sample (seed printed, so a run can be repeated) of ``N`` shipped evaluation entries of a
 scale (``data/reference/evaluate/``, keys made by that scale's figures; ``--kind`` picks other shipped kinds of
 :data:`VERIFIABLE`, such as chapter 5's ``arm-target``), recomputes each into a temporary run
@@ -25,8 +28,6 @@ a mismatch. With ``--train`` it also retrains the cheapest shipped training run 
 the temporary cache) and checks it with :func:`thesis_repro.retrain_check.compare_retrain`, saying whether the shipped
 run was resumed after an interruption and whether that resume was exact.
 
-One file on purpose (over 600 lines): it is one command, and each of its parts (which entries, recomputing them
-in a worker, comparing the values, the report) serves only that command.
 
 >>> compare({"r": np.array([[1.0, 2.0]])}, {"r": np.array([[1.0, 2.0]])}, same=True).verdict
 'identical'
@@ -57,8 +58,7 @@ from typing import Any
 import numpy as np
 
 import thesis_repro
-from thesis_repro import jobs as registry
-from thesis_repro import paths, plan, retrain_check, runs, scales, shipped_checks
+from thesis_repro import job_kinds, paths, plan, retrain_check, runs, scales, shipped_checks, throughput
 from thesis_repro.cache import Result, RunCache, find_entry, read_entry
 from thesis_repro.validation import check_choice
 
@@ -247,9 +247,9 @@ def find_shipped(key: str, layer: Path) -> Path:
 
 def claim_pages(claim_id: str) -> list[str]:
     """The pages whose saved numbers claim ``claim_id`` reads (``ValueError`` for an unknown claim)."""
-    from thesis_repro.claims import ledger
+    from thesis_repro.claims import registry  # local: the claims package loads scipy; only --claim needs it
 
-    return ledger.spec(claim_id).data_pages
+    return registry.spec(claim_id).data_pages
 
 
 def recorded_seconds(paths_: Iterable[Path]) -> float:
@@ -377,7 +377,7 @@ def _worker(spec_file: str) -> None:
 
 
 def _modules(kinds: Iterable[str]) -> list[str]:
-    hooks = [registry.KINDS.get(k, "") for k in kinds] + [registry.DEPENDENCIES.get(k, "") for k in kinds]
+    hooks = [job_kinds.KINDS.get(k, "") for k in kinds] + [job_kinds.DEPENDENCIES.get(k, "") for k in kinds]
     return sorted({h.split(":")[0] for h in hooks if h})
 
 
@@ -456,7 +456,7 @@ def check_entry(path: Path, fresh: Path | str) -> Check:
 def missing_dependencies(path: Path, layer: Path) -> list[str]:
     """Names of the dependencies (``policy``) of shipped entry ``path`` that ``layer`` does not hold."""
     job = shipped_checks.shipped_job(path)
-    return [n for n, dep in registry.dependencies(job.kind, job.config).items() if find_entry(layer, dep) is None]
+    return [n for n, dep in job_kinds.dependencies(job.kind, job.config).items() if find_entry(layer, dep) is None]
 
 
 def _one_line(err: BaseException) -> str:
@@ -498,7 +498,7 @@ def retrain_check(scale: str, layer: Path, root: Path, log: Callable[[str], None
     where = find_entry(layer, job)
     values, config = read_entry(where)
     shipped = Result(where, values, config, source="shipped")
-    log(f"--train: retraining the cheapest shipped training run, {job.label} ({plan.cost(job):,.0f} steps) ...")
+    log(f"--train: retraining the cheapest shipped training run, {job.label} ({throughput.cost(job):,.0f} steps) ...")
     t0 = time.time()
     recompute = getattr(runs, "recompute", None)  # in the numerics the shipped run was made in, where recorded
     fresh = recompute(job, root, shipped) if recompute is not None else RunCache(root, reference=False).run(job)
@@ -571,7 +571,7 @@ def _retrain_entry(path: Path, root: Path, log: Callable[[str], None]) -> bool:
     job = shipped_checks.shipped_job(path)
     cost = shipped_checks.shipped_seconds(path)
     log(
-        f"verify --entry: retraining {job.label} ({plan.cost(job):,.0f} steps"
+        f"verify --entry: retraining {job.label} ({throughput.cost(job):,.0f} steps"
         + (f", {cost / 60:.0f} min when made)" if cost == cost else ")")
     )
     fresh = retrain_check.recompute(job, root, shipped)

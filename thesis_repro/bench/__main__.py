@@ -22,7 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    from thesis_repro.plan import write_throughput  # the cost plan (`python -m thesis_repro plan`) reads it
+    from thesis_repro.throughput import write_throughput  # the cost plan (`python -m thesis_repro plan`) reads it
 
     written = write_throughput(results)
     if written is not None:

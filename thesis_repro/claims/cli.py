@@ -19,13 +19,12 @@ import json
 import sys
 import warnings
 
+from thesis_repro.claims import design, evidence, ledger, ledger_row, registry, scoreboard, snapshot
 from thesis_repro.scales import SCALES
 
 
 def main(argv: list[str] | None = None) -> int:
     """Print the ledger (one line per claim, or ``--json``); returns the exit code."""
-    from thesis_repro.claims import ledger, snapshot
-
     warnings.simplefilter("ignore", RuntimeWarning)  # NaN means of cells a scale does not run
 
     ap = argparse.ArgumentParser(prog="python -m thesis_repro claims", description=__doc__.split("\n")[0])
@@ -52,8 +51,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     if args.freeze:
-        from thesis_repro.claims import design
-
         broken = design.check_frozen() if design.frozen().get("version") == design.VERSION else []
         if broken:
             print(
@@ -85,18 +82,18 @@ def main(argv: list[str] | None = None) -> int:
             f"{len(changed)} data file(s) changed" + (f": {', '.join(changed)}" if changed else "")
         )
         return 0
-    specs = [s for s in ledger.specs() if not args.ids or s.id in args.ids]
+    specs = [s for s in registry.specs() if not args.ids or s.id in args.ids]
     rows = sorted((ledger.judge(s, args.scale, not args.no_null) for s in specs), key=lambda r: r.spec.beyond)
     hints = (
-        ledger.shipped_hint(rows, args.scale),
-        ledger.not_computed_hint(rows, args.scale),
-        ledger.stale_hint(ledger.stale_pages(rows), args.scale),
+        scoreboard.shipped_hint(rows, args.scale),
+        scoreboard.not_computed_hint(rows, args.scale),
+        scoreboard.stale_hint(ledger_row.stale_pages(rows), args.scale),
     )
     for hint in hints:
         if hint:
             print(hint, file=sys.stderr)
     if args.json:
-        json.dump(ledger.as_json(rows, args.scale), sys.stdout, indent=1, ensure_ascii=False)
+        json.dump(scoreboard.as_json(rows, args.scale), sys.stdout, indent=1, ensure_ascii=False)
         print()
         return 0
     beyond = False
@@ -104,16 +101,16 @@ def main(argv: list[str] | None = None) -> int:
         if r.spec.beyond and not beyond:
             beyond = True
             print("beyond the thesis (the kit's own extensions, counted apart):")
-        print(ledger.headline(r, width=160))
+        print(ledger_row.headline(r, width=160))
         if args.verbose:
-            print(f"    v1: {r.v1_status or r.status}; {ledger.describe(r)}")
+            print(f"    v1: {r.v1_status or r.status}; {evidence.describe(r)}")
             if r.subset:
                 print(f"    {r.subset['line']}")
-    c = ledger.counts(rows)
-    print("distinct thesis claims: " + ", ".join(f"{v} {ledger.SHORT.get(k, k)}" for k, v in c.items()))
-    b = ledger.counts(rows, beyond=True)
+    c = scoreboard.counts(rows)
+    print("distinct thesis claims: " + ", ".join(f"{v} {scoreboard.SHORT.get(k, k)}" for k, v in c.items()))
+    b = scoreboard.counts(rows, beyond=True)
     if b:
-        print("beyond the thesis: " + ", ".join(f"{v} {ledger.SHORT.get(k, k)}" for k, v in b.items()))
+        print("beyond the thesis: " + ", ".join(f"{v} {scoreboard.SHORT.get(k, k)}" for k, v in b.items()))
     return 0
 
 

@@ -1,7 +1,7 @@
 """``python -m thesis_repro results`` (``make results``): RESULTS.md and the README's generated blocks.
 
 Everything here but :func:`main` is wording: pure functions over the claims ledger's JSON dicts
-(:func:`thesis_repro.claims.ledger.as_json`) and the scale table's resolved settings. A claim's dict is read
+(:func:`thesis_repro.claims.scoreboard.as_json`) and the scale table's resolved settings. A claim's dict is read
 through :func:`label`, :func:`short`, :func:`thesis_value` and :func:`ours`, which use the keys ``label``,
 ``short``, ``thesis_value`` and ``ours`` when the ledger provides them, else today's ``verdict``, ``claim`` and
 ``statistic``. :func:`main` judges every claim from the shipped claims snapshot
@@ -24,12 +24,17 @@ import contextlib
 import os
 import sys
 import tempfile
+import warnings
 from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 from unittest import mock
 
+import yaml
+
+from thesis_repro import paths, scales
+from thesis_repro.claims import ledger, registry, scoreboard
 from thesis_repro.claims.confirmatory import FIRST_FRESH, FRESH_WORDS, fresh_summary, fresh_verdict
 
 #: The README's generated blocks: the results summary and the scale table.
@@ -349,8 +354,6 @@ def render(ledger_json: Mapping[str, Any], scale: str, readme: str, scale_rows: 
 @contextlib.contextmanager
 def snapshot_only() -> Iterator[None]:
     """Inside: the ledger sees no build pages, so it judges the shipped claims snapshot (as a fresh clone does)."""
-    from thesis_repro import paths
-
     with tempfile.TemporaryDirectory(prefix="thesis-repro-results-") as empty:
         with mock.patch.dict(os.environ, {"THESIS_REPRO_BUILD": empty}):  # the whole environment comes back after
             os.environ.pop(paths.PUBLISHED_ENV, None)
@@ -359,27 +362,19 @@ def snapshot_only() -> Iterator[None]:
 
 def ledger_json(scale: str) -> dict[str, Any]:
     """The ledger's JSON at ``scale`` from the shipped snapshot (no null pass rates: they are not shown)."""
-    from thesis_repro.claims import ledger
-
     with snapshot_only():
-        rows = sorted((ledger.judge(s, scale, False) for s in ledger.specs()), key=lambda r: r.spec.beyond)
-        return ledger.as_json(rows, scale)
+        rows = sorted((ledger.judge(s, scale, False) for s in registry.specs()), key=lambda r: r.spec.beyond)
+        return scoreboard.as_json(rows, scale)
 
 
 def scale_rows() -> str:
     """The README's scale table, from ``thesis_repro/config/scales.yaml``."""
-    import yaml
-
-    from thesis_repro import paths, scales
-
     descriptions = yaml.safe_load((paths.CONFIG / "scales.yaml").read_text())["scales"]
     return scales_table({s: scales.figure_settings("_example", s) for s in scales.SCALES}, descriptions)
 
 
 def generate(scale: str = SCALE, root: Path | None = None) -> dict[Path, str]:
     """{path: text} of every generated file, rendered from the shipped snapshot (nothing is written)."""
-    from thesis_repro import paths
-
     root = Path(root) if root is not None else paths.ROOT
     readme = (root / "README.md").read_text()
     texts = render(ledger_json(scale), scale, readme, scale_rows())
@@ -389,8 +384,6 @@ def generate(scale: str = SCALE, root: Path | None = None) -> dict[Path, str]:
 def main(argv: list[str] | None = None, parser: type[argparse.ArgumentParser] = argparse.ArgumentParser) -> int:
     """Write (or with ``--check`` compare) RESULTS.md and the README blocks; returns the exit code (``parser``:
     the command line's own class, whose errors are one line)."""
-    import warnings
-
     warnings.simplefilter("ignore", RuntimeWarning)  # NaN means of cells a scale does not run
     ap = parser(prog=COMMAND, description=__doc__.split("\n")[0])
     ap.add_argument("--check", action="store_true", help="write nothing; exit 1 if a generated file is out of date")

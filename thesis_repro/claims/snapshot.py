@@ -14,7 +14,7 @@ the book) copies the files the ledger reads into ``data/reference/claims/<scale>
   once, the :func:`~thesis_repro.cache.provenance` of the shipping (command, git commit, host, platform).
 
 The ledger reads a page's own build file first and falls back to the snapshot when the build has none or only
-a stale one (:func:`thesis_repro.claims.ledger.saved_blob`); ``THESIS_REPRO_RETRAIN=1`` ignores the snapshot,
+a stale one (:func:`thesis_repro.claims.store.saved_blob`); ``THESIS_REPRO_RETRAIN=1`` ignores the snapshot,
 as it ignores the shipped runs. Nothing here is typed in: every shipped number was saved by a page.
 
 >>> "fig-3.3.data.json" in files() and "analysis-4-kl.rule.json" in files()

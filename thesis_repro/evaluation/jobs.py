@@ -41,7 +41,7 @@ from thesis_repro.evaluation.metrics import auc, expected_return, sigma_step
 from thesis_repro.learners import load_policy, train_config
 from thesis_repro.validation import check_choice, check_nonneg
 
-#: Job kinds of training and evaluation runs (``thesis_repro.jobs``).
+#: Job kinds of training and evaluation runs (``thesis_repro.job_kinds``).
 TRAIN_KIND = "train"
 EVAL_KIND = "evaluate"
 

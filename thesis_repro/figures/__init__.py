@@ -29,8 +29,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from thesis_repro import jobs as job_kinds
-from thesis_repro import scales
+from thesis_repro import job_kinds, scales
 from thesis_repro.cache import Job
 from thesis_repro.validation import check_choice
 

@@ -1,4 +1,9 @@
-"""Structured Control Net (Srouji et al., 2018) as an SB3 on-policy actor-critic policy.
+"""Structured Control Net (Srouji et al., 2018) as an SB3 on-policy actor-critic policy: the kit's policy classes.
+
+The file keeps the name ``policies`` because the shipped runs' format names it: each SCN run's ``learner.json``
+stores its class by module path (``thesis_repro.learners.policies:SCNPolicy``, looked up in
+:data:`thesis_repro.learners.policy_file.POLICY_CLASSES`), so renaming the file would orphan every shipped SCN run.
+:mod:`thesis_repro.learners.policy_file` is the other side: how a trained policy is saved and loaded.
 
 The action mean is the sum of a linear stream and a nonlinear (MLP) stream of the (normalised)
 observation, ``mu(s) = K s + b + W h(s)``, where ``h`` is the ``net_arch["pi"]`` MLP. We implement it

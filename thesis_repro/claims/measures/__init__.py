@@ -1,7 +1,7 @@
 """What each claim measures: the page's per-seed numbers turned into units of contrasts (:mod:`..stats`).
 
 A measure is ``fn(data, spec) -> {group: [Unit, ...]}``; ``data`` maps frame names to the per-seed frames a
-notebook saved (:func:`thesis_repro.claims.ledger.judge_page`), ``spec`` is the claim's registry entry.
+notebook saved (:func:`thesis_repro.claims.page_verdicts.judge_page`), ``spec`` is the claim's registry entry.
 Values are always one number per training seed (rollouts and episodes averaged inside the seed first).
 A measure raises :class:`NotRun` when the scale did not train a learner the claim needs, and
 :class:`Inconclusive` when the data cannot answer the claim (e.g. every kl_avg run diverged).
