@@ -88,7 +88,7 @@ COMPARATIVE_IDS = [s.id for s in registry.specs() if is_comparative(s)]
 
 def _measure(cid: str) -> str:
     """A claim's v1 measure, or its derived parts' (a derived claim has no measure of its own)."""
-    s = L.spec(cid)
+    s = registry.spec(cid)
     return s.rule.get("measure") or "+".join(sorted(_measure(i) for i in s.rule.get("derived", [])))
 
 

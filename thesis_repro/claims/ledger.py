@@ -151,12 +151,11 @@ def _judge_frames(
     """:func:`judge` of a claim with a measure, from its pages' saved ``frames`` and ``meta``: design v2's verdict
     (:mod:`thesis_repro.claims.judge`), with design v1's beside it; ``seeds``: the frames hold only these training
     seeds' rows (the confirmatory check), and so does Holm's family (:func:`family_p`)."""
-    v1 = _judge_v1_frames(s, scale, False, frames, meta)
     rule2, lv, mg = design.rule(s.rule, s.v2), design.level(s.v2), design.margin(s.v2)
+    measured = _measure(frames, rule2)
+    v1 = _judge_v1_frames(s, scale, False, frames, meta, measured if rule2 == s.rule else None)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            groups = M.MEASURES[rule2["measure"]](frames, rule2)
+        groups = _units(measured)
     except (M.NotRun, M.Inconclusive):
         v1.v1_status, v1.v1_statistic, v1.level, v1.margin = v1.status, v1.statistic, lv, mg
         return v1
@@ -303,15 +302,38 @@ def ship_calibration(scale: str) -> Path:
     return out
 
 
-def _judge_v1_frames(
-    s: Spec, scale: str, with_null: bool, frames: dict[str, pd.DataFrame], meta: dict[str, Any]
-) -> Row:
-    """Design v1's :func:`judge` of a claim with a measure (kept to show each claim's v1 verdict beside v2's)."""
-    r = s.rule
+def _measure(frames: Mapping[str, pd.DataFrame], rule: Mapping[str, Any]) -> dict[str, list[Unit]] | Exception:
+    """A rule's measure on ``frames``: its units per group, or the :class:`~thesis_repro.claims.measures.NotRun` /
+    ``Inconclusive`` it raised (kept, so that v1 and v2 share one measurement when their rules are the same)."""
     try:
         with warnings.catch_warnings():  # empty slices of a scale's missing cells are skipped as NaN
             warnings.simplefilter("ignore", RuntimeWarning)
-            groups = M.MEASURES[r["measure"]](frames, r)
+            return M.MEASURES[rule["measure"]](frames, rule)
+    except (M.NotRun, M.Inconclusive) as err:
+        return err
+
+
+def _units(measured: dict[str, list[Unit]] | Exception) -> dict[str, list[Unit]]:
+    """The units of a :func:`_measure` (a copy of each group's list, so no judge sees another's changes), or its
+    exception raised again."""
+    if isinstance(measured, Exception):
+        raise measured
+    return {g: list(us) for g, us in measured.items()}
+
+
+def _judge_v1_frames(
+    s: Spec,
+    scale: str,
+    with_null: bool,
+    frames: Mapping[str, pd.DataFrame],
+    meta: dict[str, Any],
+    measured: dict[str, list[Unit]] | Exception | None = None,
+) -> Row:
+    """Design v1's :func:`judge` of a claim with a measure (kept to show each claim's v1 verdict beside v2's);
+    ``measured``: its measure's :func:`_measure` when already taken (v2's, under the same rule)."""
+    r = s.rule
+    try:
+        groups = _units(_measure(frames, r) if measured is None else measured)
     except M.NotRun as err:
         return Row(s, report.NOT_RUN, note=str(err))
     except M.Inconclusive as err:
