@@ -199,12 +199,38 @@ def test_verify_claim_recomputes_its_entries_and_compares_its_pages_with_the_sna
     monkeypatch.setattr(verify, "claim_pages", lambda cid: ["fig-_verify"])
     saved = {"page": "fig-_verify", "frames": {"auc": [{"seed": 0, "auc": 317.41}]}, "kit": "k"}
     snapshot = {**saved, "frames": {"auc": [{"seed": 0, "auc": 331.70}]}}  # edited, index rehashed
-    pages = lambda pages, scale, layer, root, log: {"fig-_verify.data.json": verify.compare_saved(saved, snapshot)}  # noqa: E731
+
+    def pages(pages, scale, layer, root, log, rtol):
+        return {"fig-_verify.data.json": verify.compare_saved(saved, snapshot, rtol)}
+
     monkeypatch.setattr(verify, "recompute_pages", pages)
     assert main(["verify", "--scale", "smoke", "--claim", "toy"]) == 1
     out = capsys.readouterr().out
     assert "claim toy (pages fig-_verify): 3 shipped entries to recompute" in out and "3/3 match" in out
     assert "fig-_verify.data.json: MISMATCH: the snapshot differs from the recomputed page in frames auc" in out
+
+
+def test_a_page_on_entries_made_under_native_numerics_is_compared_within_the_tolerance(layer, monkeypatch, capsys):
+    """An entry made under native numerics on another CPU matches only within VERIFY_RTOL, so the page rebuilt
+    from it is compared within it too (a clean clone's claim check once failed on such a page)."""
+    monkeypatch.setattr(verify, "claim_pages", lambda cid: ["fig-_verify"])
+    native = lambda chosen, layer, root: {  # noqa: E731
+        p: verify.Check(p.name, 1.0, 1.01, 0.01, "within 5% (native numerics on another CPU: ...)", True)
+        for p in chosen
+    }
+    monkeypatch.setattr(verify, "_check_all", native)
+    saved = {"page": "fig-_verify", "frames": {"auc": [{"seed": 0, "auc": 317.41}]}, "kit": "k"}
+    near = {**saved, "frames": {"auc": [{"seed": 0, "auc": 320.0}]}}  # 0.8 % off
+    got = []
+
+    def pages(pages, scale, layer, root, log, rtol):
+        got.append(rtol)
+        return {"fig-_verify.data.json": verify.compare_saved(saved, near, rtol)}
+
+    monkeypatch.setattr(verify, "recompute_pages", pages)
+    assert main(["verify", "--scale", "smoke", "--claim", "toy"]) == 0
+    assert got == [verify.VERIFY_RTOL]
+    assert "fig-_verify.data.json: within 5% (its entries were made under native numerics" in capsys.readouterr().out
 
 
 def test_verify_reports_a_corrupt_entry_and_skips_one_whose_policy_is_not_shipped(layer, capsys):

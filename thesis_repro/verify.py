@@ -269,11 +269,12 @@ def _duration(seconds: float) -> str:
 
 
 def recompute_pages(
-    pages: Sequence[str], scale: str, layer: Path, root: Path, log: Callable[[str], None]
+    pages: Sequence[str], scale: str, layer: Path, root: Path, log: Callable[[str], None], rtol: float = 0.0
 ) -> dict[str, str]:
     """Execute the notebooks of ``pages`` at ``scale`` into a temporary build (``root/build``), reading the
     recomputed entries of ``root/runs`` first (then the shipped layer), and compare each file they save for the
-    ledger with the shipped claims snapshot: ``{file: "identical" | "MISMATCH: ..."}``."""
+    ledger with the shipped claims snapshot (:func:`compare_saved`, with ``rtol``): ``{file: "identical" |
+    "within ..." | "MISMATCH: ..."}``."""
     from thesis_repro import notebooks
     from thesis_repro.claims import snapshot
 
@@ -300,18 +301,24 @@ def recompute_pages(
             except snapshot.CorruptSnapshot as err:
                 out[name] = f"MISMATCH: {_one_line(err)}"
                 continue
-            out[name] = compare_saved(built, shipped)
+            out[name] = compare_saved(built, shipped, rtol)
     return out
 
 
-def compare_saved(built: Mapping[str, Any], shipped: Mapping[str, Any] | None) -> str:
+def compare_saved(built: Mapping[str, Any], shipped: Mapping[str, Any] | None, rtol: float = 0.0) -> str:
     """``identical`` when a page's recomputed saved file holds exactly the shipped snapshot's numbers, else a
-    ``MISMATCH`` naming the frames (or meta) that differ.
+    ``MISMATCH`` naming the frames (or meta) that differ. ``rtol`` > 0 (a page built on entries made under native
+    numerics on another CPU, which match only within :data:`VERIFY_RTOL`): each frame's numbers may differ by
+    ``rtol`` of that frame's largest magnitude, with the same layout and the same non-numbers.
 
     >>> compare_saved({"frames": {"auc": [1.0]}, "kit": "a"}, {"frames": {"auc": [1.0]}, "kit": "b"})
     'identical'
     >>> compare_saved({"frames": {"auc": [1.0]}}, {"frames": {"auc": [1.045]}})
     'MISMATCH: the snapshot differs from the recomputed page in frames auc'
+    >>> compare_saved({"frames": {"auc": [1.0, 2.0]}}, {"frames": {"auc": [1.045, 2.0]}}, rtol=0.05)
+    'within 5% (its entries were made under native numerics on another CPU: frames differ by up to 2.2% of their scale)'
+    >>> compare_saved({"frames": {"auc": [1.0]}}, {"frames": {"auc": [1.2]}}, rtol=0.05)
+    'MISMATCH: the snapshot differs from the recomputed page in frames auc (by 16.7% of its scale, over 5%)'
     """
     if shipped is None:
         return "MISMATCH: not in the shipped snapshot"
@@ -320,9 +327,64 @@ def compare_saved(built: Mapping[str, Any], shipped: Mapping[str, Any] | None) -
     a, b = ({k: v for k, v in x.items() if k not in (*STAMP_KEYS, "version")} for x in (built, shipped))
     if a == b:
         return "identical"
-    frames = sorted(k for k in a.get("frames", {}) if a["frames"][k] != b.get("frames", {}).get(k))
+    fa, fb = a.get("frames", {}), b.get("frames", {})
+    frames = sorted(k for k in fa if fa[k] != fb.get(k))
     where = f"frames {', '.join(frames)}" if frames else "meta or verdicts"
-    return f"MISMATCH: the snapshot differs from the recomputed page in {where}"
+    if (
+        rtol <= 0
+        or not frames
+        or {k: v for k, v in a.items() if k != "frames"} != {k: v for k, v in b.items() if k != "frames"}
+    ):
+        return f"MISMATCH: the snapshot differs from the recomputed page in {where}"
+    worst = {k: _relative_gap(fa[k], fb.get(k)) for k in frames}
+    over = {k: g for k, g in worst.items() if g is None or g > rtol}
+    if over:
+        gaps = ", ".join(
+            f"{k}" + ("" if g is None else f" (by {g:.1%} of its scale, over {rtol:.0%})") for k, g in over.items()
+        )
+        return f"MISMATCH: the snapshot differs from the recomputed page in frames {gaps}"
+    return (
+        f"within {rtol:.0%} (its entries were made under native numerics on another CPU: frames differ by up to "
+        f"{max(worst.values()):.1%} of their scale)"
+    )
+
+
+def _leaves(x: Any) -> tuple[list[float], list[Any]]:
+    """A saved frame's numbers and its other leaves (strings, keys, layout), in a fixed order."""
+    if isinstance(x, bool) or x is None or isinstance(x, str):
+        return [], [x]
+    if isinstance(x, (int, float)):
+        return [float(x)], [type(x).__name__]
+    if isinstance(x, Mapping):
+        nums, other = [], [sorted(x)]
+        for k in sorted(x):
+            n, o = _leaves(x[k])
+            nums += n
+            other += o
+        return nums, other
+    if isinstance(x, (list, tuple)):
+        nums, other = [], [len(x)]
+        for v in x:
+            n, o = _leaves(v)
+            nums += n
+            other += o
+        return nums, other
+    return [], [repr(x)]
+
+
+def _relative_gap(a: Any, b: Any) -> float | None:
+    """The largest |difference| between two saved frames' numbers over the frame's largest magnitude; ``None``
+    when they differ in anything but numbers (layout, labels, NaN places)."""
+    (na, oa), (nb, ob) = _leaves(a), _leaves(b)
+    if oa != ob or len(na) != len(nb):
+        return None
+    x, y = np.asarray(na, float), np.asarray(nb, float)
+    if not np.array_equal(np.isnan(x), np.isnan(y)):
+        return None
+    ok = ~np.isnan(x)
+    scale = float(np.max(np.abs(np.concatenate([x[ok], y[ok]])), initial=0.0))
+    gap = float(np.max(np.abs(x[ok] - y[ok]), initial=0.0))
+    return 0.0 if gap == 0 else (gap / scale if scale else None)
 
 
 def sample(entries: Sequence[Path], n: int, seed: int) -> list[Path]:
@@ -643,13 +705,16 @@ def run(
                 f"verify ({scale}) {what}: {len(chosen)} shipped {noun} to recompute, {_duration(cost)} of compute "
                 f"when they were made; recomputed in {tmp}; {RULE}"
             )
+            checks = _check_all(chosen, layer, tmp / "runs") if chosen else {}
             if chosen:
-                ok = _report(_check_all(chosen, layer, tmp / "runs"), log)
+                ok = _report(checks, log)
             if pages:
-                saved = recompute_pages(pages, scale, layer, tmp, log)
+                # a page built on entries that match only within the tolerance can match only within it too
+                native = any(c.ok and c.verdict.startswith("within") for c in checks.values())
+                saved = recompute_pages(pages, scale, layer, tmp, log, VERIFY_RTOL if native else 0.0)
                 for name, verdict in saved.items():
                     log(f"{name}: {verdict}")
-                ok = ok and all(v == "identical" for v in saved.values())
+                ok = ok and all(not v.startswith("MISMATCH") for v in saved.values())
         else:
             seed = secrets.randbelow(2**31) if seed is None else int(seed)
             ok = _sample_run(scale, n, seed, layer, kinds, tmp, train, log)
