@@ -641,3 +641,21 @@ def test_a_malformed_claims_registry_is_one_line_naming_file_and_line(monkeypatc
     monkeypatch.setattr(paths, "THESIS_DATA", tmp_path)
     assert main(["claims", "--scale", "small"]) == 2
     assert_one_error(capsys.readouterr().err, str(tmp_path / "claims.yaml").rsplit("/", 1)[0], says)
+
+
+def test_an_error_after_a_progress_bar_starts_on_its_own_line_without_terminal_codes(capsys):
+    """A notebook that fails under a half-drawn progress bar: the `error:` line is not glued onto the bar, and
+    terminal colour codes in the message (torch's) are dropped."""
+    from thesis_repro import notebooks
+    from thesis_repro.__main__ import _guarded
+
+    def fails() -> int:
+        notebooks._STDERR.write("\revaluate obs:   0%|          | 0/1")
+        raise RuntimeError("refusing policy.pth: \x1b[1monly if you trust it\x1b[0m")
+
+    assert _guarded(fails) == 1
+    err = capsys.readouterr().err
+    assert err.endswith("0/1\nerror: refusing policy.pth: only if you trust it\n"), err
+    notebooks._STDERR.write("done\n")
+    assert not notebooks.line_open()
+    assert _guarded(fails) == 1 and "\n\nerror" not in capsys.readouterr().err

@@ -22,6 +22,7 @@ import argparse
 import contextlib
 import logging
 import os
+import re
 import signal
 import sys
 import tempfile
@@ -279,22 +280,37 @@ def _guarded(command: Any) -> int:
     try:
         return command()
     except ValueError as err:
-        print(f"error: {_one_line(err)}", file=sys.stderr)
+        _error(_one_line(err))
         return 2
     except BrokenPipeError:  # the reader went away (`... runs all | head`): stop quietly
         with contextlib.suppress(OSError):
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
         return 1
     except OSError as err:  # an unwritable, full or misplaced folder
-        print(f"error: {describe_os_error(err)}", file=sys.stderr)
+        _error(describe_os_error(err))
         return 1
     except RuntimeError as err:  # e.g. a notebook that failed, notebooks that failed while the book was built
-        print(f"error: {_one_line(err)}", file=sys.stderr)
+        _error(_one_line(err))
         return 1
+
+
+def _error(message: str) -> None:
+    """Print ``error: message`` on a line of its own (after a notebook's unfinished progress bar, a new line)."""
+    nb = sys.modules.get("thesis_repro.notebooks")  # no bar can be open if no notebook ran
+    print(("\n" if nb is not None and nb.line_open() else "") + f"error: {message}", file=sys.stderr)
+
+
+#: Terminal colour and style codes (torch's messages carry some); an error line is plain text.
+_ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
 
 def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or type(err).__name__
+    """``err``'s message on one line, without terminal codes.
+
+    >>> _one_line(ValueError("do this \\x1b[1monly if you trust it\\x1b[0m.\\n  (see above)"))
+    'do this only if you trust it. (see above)'
+    """
+    return " ".join(_ANSI.sub("", str(err)).split()) or type(err).__name__
 
 
 def describe_os_error(err: OSError) -> str:

@@ -498,6 +498,29 @@ def outputs_of(nid: str, scale: str, since: float = 0.0) -> list[Path]:
     return found
 
 
+class _TrackedStderr:
+    """This process's stderr as papermill writes a notebook's stderr (its progress bars) onto it, remembering
+    whether the last line is still open (a bar redrawn with ``\r``), so that an error starts on its own line."""
+
+    line_open = False
+
+    def write(self, text: str) -> int:
+        if text:
+            _TrackedStderr.line_open = not text.endswith("\n")
+        return sys.stderr.write(text)
+
+    def flush(self) -> None:
+        sys.stderr.flush()
+
+
+_STDERR = _TrackedStderr()
+
+
+def line_open() -> bool:
+    """True while a notebook's progress bar holds the terminal's last line (nothing has ended it)."""
+    return _TrackedStderr.line_open
+
+
 def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log: bool = True) -> Path:
     """Execute notebook ``nid`` at ``scale`` and return the path of the executed ``.ipynb``.
 
@@ -555,7 +578,7 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
                     kernel_name="python3",
                     progress_bar=False,
                     log_output=False,
-                    stderr_file=sys.stderr if log else None,
+                    stderr_file=_STDERR if log else None,
                     kernel_manager_class=manager,
                 )
         except PapermillExecutionError as err:
