@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from thesis_repro import backends, figures, notebooks, paths, runs, shipped_checks
+from thesis_repro import backends, figures, notebook_kernel, notebooks, paths, runs, shipped_checks
 from thesis_repro.__main__ import INTERRUPTED, main
 from thesis_repro.cache import Job, RunCache
 
@@ -281,22 +281,22 @@ def test_an_interrupted_run_kills_its_kernel_instead_of_asking_it_to_shut_down(m
 
     killed = []
     monkeypatch.setattr(AsyncKernelManager, "_async_shutdown_kernel", polite)
-    monkeypatch.setattr(notebooks.QuietKernelManager, "kill_now", lambda self, grace=2.0: killed.append(self))
-    km = notebooks.QuietKernelManager()
-    with pytest.raises(KeyboardInterrupt), _signals_as_interrupts(), notebooks._noting_interrupts():
+    monkeypatch.setattr(notebook_kernel.QuietKernelManager, "kill_now", lambda self, grace=2.0: killed.append(self))
+    km = notebook_kernel.QuietKernelManager()
+    with pytest.raises(KeyboardInterrupt), _signals_as_interrupts(), notebook_kernel.noting_interrupts():
         try:
             os.kill(os.getpid(), sig)
             time.sleep(5)  # not reached
         finally:
             asyncio.run(km.shutdown_kernel())  # what nbclient's setup_kernel does on the interrupt's way out
     assert killed == [km]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler and notebooks._INTERRUPTED == []
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler and notebook_kernel._INTERRUPTED == []
 
 
 def test_a_killed_kernel_says_nothing_more(capfd):
     """The kernel's stderr reaches ours through a relay, until this process kills the kernel: what its dying
     family writes then (the pool's resource tracker warns of the semaphores it cleans up) is dropped."""
-    km = notebooks.QuietKernelManager()
+    km = notebook_kernel.QuietKernelManager()
     read, write = os.pipe()
     relay = threading.Thread(target=km._relay, args=(read,))
     relay.start()
@@ -646,16 +646,15 @@ def test_a_malformed_claims_registry_is_one_line_naming_file_and_line(monkeypatc
 def test_an_error_after_a_progress_bar_starts_on_its_own_line_without_terminal_codes(capsys):
     """A notebook that fails under a half-drawn progress bar: the `error:` line is not glued onto the bar, and
     terminal colour codes in the message (torch's) are dropped."""
-    from thesis_repro import notebooks
     from thesis_repro.__main__ import _guarded
 
     def fails() -> int:
-        notebooks._STDERR.write("\revaluate obs:   0%|          | 0/1")
+        notebook_kernel.TRACKED_STDERR.write("\revaluate obs:   0%|          | 0/1")
         raise RuntimeError("refusing policy.pth: \x1b[1monly if you trust it\x1b[0m")
 
     assert _guarded(fails) == 1
     err = capsys.readouterr().err
     assert err.endswith("0/1\nerror: refusing policy.pth: only if you trust it\n"), err
-    notebooks._STDERR.write("done\n")
-    assert not notebooks.line_open()
+    notebook_kernel.TRACKED_STDERR.write("done\n")
+    assert not notebook_kernel.line_open()
     assert _guarded(fails) == 1 and "\n\nerror" not in capsys.readouterr().err

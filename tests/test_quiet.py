@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from thesis_repro import notebooks
+from thesis_repro import notebook_kernel, notebooks
 from thesis_repro.envs import make_env
 from thesis_repro.envs.registry import MODEL_XML
 
@@ -57,7 +57,7 @@ def test_kernel_uses_ipc_transport_and_cleans_up():
     """The notebook kernel runs over IPC sockets (no 'TCP without encryption' warning) and removes them."""
 
     async def run() -> tuple[dict, list[str]]:
-        km = notebooks.QuietKernelManager(kernel_name="python3")
+        km = notebook_kernel.QuietKernelManager(kernel_name="python3")
         await km.start_kernel()
         kc = km.client()
         kc.start_channels()

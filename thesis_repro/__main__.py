@@ -106,9 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as err:
         # the notebook client's pending tasks die with the kernel: asyncio would log each as it is collected
         logging.getLogger("asyncio").setLevel(logging.CRITICAL)
-        nb = sys.modules.get("thesis_repro.notebooks")
-        if nb is not None:  # no kernel can be running if the notebooks module was never imported
-            nb.kill_kernels()
+        nk = sys.modules.get("thesis_repro.notebook_kernel")
+        if nk is not None:  # no kernel can be running if the kernel module was never imported
+            nk.kill_kernels()
         print(f"\n{INTERRUPTED}", file=sys.stderr)  # on its own line, never glued onto a progress bar's
         return err.code if isinstance(err, Terminated) else 130
 
@@ -296,8 +296,8 @@ def _guarded(command: Any) -> int:
 
 def _error(message: str) -> None:
     """Print ``error: message`` on a line of its own (after a notebook's unfinished progress bar, a new line)."""
-    nb = sys.modules.get("thesis_repro.notebooks")  # no bar can be open if no notebook ran
-    print(("\n" if nb is not None and nb.line_open() else "") + f"error: {message}", file=sys.stderr)
+    nk = sys.modules.get("thesis_repro.notebook_kernel")  # no bar can be open if no notebook ran
+    print(("\n" if nk is not None and nk.line_open() else "") + f"error: {message}", file=sys.stderr)
 
 
 #: Terminal colour and style codes (torch's messages carry some); an error line is plain text.
