@@ -21,10 +21,10 @@ The package map, layers from the bottom up. A module imports only from its own l
    makes items in (claims settled per core-hour), the protocol studies, budgets; may import figures and below.
 8. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed, in the verdict words
    of ``claims.report``; may import runs (the studies) and below, never figures.
-9. **book and CLI**: ``book``, ``pages``, ``notebooks`` (``notebook_kernel``: the kernel it runs one in),
-   ``protocol``, ``agent``, ``clips``, ``verify``, ``__main__``, ``bench.__main__``, ``claims.__main__``,
-   ``claims.cli`` -- pages, the book, a user's agent beside the shipped learners, videos of trained policies,
-   ``make verify`` (it re-runs a claim's notebooks) and the command lines; may import everything.
+9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``clips``, ``verify``,
+   ``__main__``, ``bench.__main__``, ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside
+   the shipped learners, videos of trained policies, ``make verify`` (it re-runs a claim's notebooks) and the
+   command lines; may import everything.
 """
 
 import os
