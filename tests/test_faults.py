@@ -646,7 +646,7 @@ def test_a_malformed_claims_registry_is_one_line_naming_file_and_line(monkeypatc
 def test_an_error_after_a_progress_bar_starts_on_its_own_line_without_terminal_codes(capsys):
     """A notebook that fails under a half-drawn progress bar: the `error:` line is not glued onto the bar, and
     terminal colour codes in the message (torch's) are dropped."""
-    from thesis_repro.__main__ import _guarded
+    from thesis_repro.__main__ import _guarded, main
 
     def fails() -> int:
         notebook_kernel.TRACKED_STDERR.write("\revaluate obs:   0%|          | 0/1")
@@ -655,6 +655,9 @@ def test_an_error_after_a_progress_bar_starts_on_its_own_line_without_terminal_c
     assert _guarded(fails) == 1
     err = capsys.readouterr().err
     assert err.endswith("0/1\nerror: refusing policy.pth: only if you trust it\n"), err
-    notebook_kernel.TRACKED_STDERR.write("done\n")
-    assert not notebook_kernel.line_open()
-    assert _guarded(fails) == 1 and "\n\nerror" not in capsys.readouterr().err
+    assert not notebook_kernel.line_open()  # the error line ended it
+    notebook_kernel.TRACKED_STDERR.write("\rtrain:  50%|#####     | 1/2")
+    assert notebook_kernel.line_open()
+    capsys.readouterr()
+    assert main(["figure", "3.3", "--scale", "medium"]) == 2  # a new command: a bar of an earlier one is not its
+    assert capsys.readouterr().err.startswith("error: unknown scale 'medium'")

@@ -100,6 +100,8 @@ def version() -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (see the module docstring)."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    if (nk := sys.modules.get("thesis_repro.notebook_kernel")) is not None:  # a new command: no bar of its yet
+        nk.line_ended()
     try:
         with _signals_as_interrupts():
             return _main(argv)
@@ -298,6 +300,8 @@ def _error(message: str) -> None:
     """Print ``error: message`` on a line of its own (after a notebook's unfinished progress bar, a new line)."""
     nk = sys.modules.get("thesis_repro.notebook_kernel")  # no bar can be open if no notebook ran
     print(("\n" if nk is not None and nk.line_open() else "") + f"error: {message}", file=sys.stderr)
+    if nk is not None:
+        nk.line_ended()
 
 
 #: Terminal colour and style codes (torch's messages carry some); an error line is plain text.

@@ -227,3 +227,8 @@ TRACKED_STDERR = _TrackedStderr()
 def line_open() -> bool:
     """True while a notebook's progress bar holds the terminal's last line (nothing has ended it)."""
     return _TrackedStderr.line_open
+
+
+def line_ended() -> None:
+    """Note that the terminal's last line was ended (a new command starts, or an error line was printed)."""
+    _TrackedStderr.line_open = False
