@@ -412,6 +412,9 @@ def test_ctrl_c_stops_a_parallel_reference_run_at_once(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
             pytest.fail(f"the generator did not start its workers: {proc.communicate()}")
         time.sleep(0.05)
+    deadline = time.time() + 60  # the line is printed as the pool starts: its workers may still be spawning
+    while len(session_processes(proc.pid)) < 3 and time.time() < deadline:
+        time.sleep(0.05)
     assert len(session_processes(proc.pid)) >= 3  # the generator and its two workers
     os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
     try:  # "at once": well inside the 300 s the sleepy runs would take (60 s leaves room for a loaded machine)
