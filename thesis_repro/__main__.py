@@ -100,7 +100,7 @@ def version() -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (see the module docstring)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    if (nk := sys.modules.get("thesis_repro.notebook_kernel")) is not None:  # a new command: no bar of its yet
+    if (nk := sys.modules.get("thesis_repro.notebook_kernel")) is not None:  # a new command: no bar of its own yet
         nk.line_ended()
     try:
         with _signals_as_interrupts():
