@@ -340,8 +340,9 @@ def produce(
 ) -> None:
     """Train the jobs that are neither cached nor shipped, ``n_jobs`` at a time; export (and commit) each."""
     # local: only the generator needs runs (which imports the figure layer); the claims layer imports this module
-    from thesis_repro.backends import execute
-    from thesis_repro.runs import _die_with_parent, export, git_commit, wall_seconds
+    from thesis_repro.backends import die_with_parent, execute
+    from thesis_repro.generator import git_commit
+    from thesis_repro.runs import export, wall_seconds
 
     spec = spec or SPECS["lr-schedule"]
     leaf = spec.path.split(".")[-1]
@@ -366,7 +367,7 @@ def produce(
             land(job, cache.run(job))
         return
     with ProcessPoolExecutor(
-        max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent
+        max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=die_with_parent
     ) as pool:
         futures = {pool.submit(execute, job, str(cache.root), True): job for job in todo}
         pending, t0 = set(futures), time.time()
