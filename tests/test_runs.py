@@ -274,7 +274,7 @@ def test_export_of_a_real_training_run_keeps_what_evaluation_needs(tmp_path):
 
 
 def test_retrain_comparison_is_bit_exact_on_the_same_platform_else_by_outcome(tmp_path):
-    from thesis_repro.cache import platform_info
+    from thesis_repro.provenance import platform_info
 
     entry = tmp_path / "train" / "a__Toy__s0__0123"
     entry.mkdir(parents=True)

@@ -588,7 +588,7 @@ def _plan_command(args: argparse.Namespace) -> int:
     if args.figure == "order" and not args.seeds:
         raise ValueError("plan order needs --seeds: the seeds to add, such as --seeds 3 4 5")
     if (args.rates or ("shipped" if args.figure == "order" else "bench")) == "shipped":
-        from thesis_repro.cache import platform_info
+        from thesis_repro.provenance import platform_info
 
         rates = throughput.shipped_rates(by_env=True, machine=platform_info())
     else:

@@ -68,7 +68,6 @@ import numpy as np
 
 from thesis_repro import job_kinds, paths
 from thesis_repro.compact import read_arrays
-from thesis_repro.provenance import platform_info as platform_info  # re-exported: callers read it from the cache
 from thesis_repro.provenance import record
 
 #: Bump to invalidate every cached entry after a change that alters results but not configs.

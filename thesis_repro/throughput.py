@@ -238,7 +238,7 @@ def shipped_rates(
     ``by_env``, also one rate per family and task under the key ``"<family>:<env>"`` (:func:`rate_key`), and one per
     chapter-5 arm kind (``"arm:arm-target"``: its work per wall second, ``provenance.json``'s ``wall_seconds``).
 
-    With ``machine`` (this machine's :func:`~thesis_repro.cache.platform_info`), a rate that at least
+    With ``machine`` (this machine's :func:`~thesis_repro.provenance.platform_info`), a rate that at least
     :data:`MIN_LOCAL_RUNS` runs made on that platform give is their median alone: one CPU kept half another's pace
     on the same runs (chapter 4's Walker2d runs: Intel Xeon vs AMD EPYC), and a deadline (``--until``) must not
     start a run it cannot finish.

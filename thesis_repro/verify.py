@@ -483,7 +483,7 @@ def _provenance(path: Path) -> dict[str, Any]:
 
 def same_numerics(shipped: Path, fresh: Path) -> bool | None:
     """Were ``shipped`` and its recomputation ``fresh`` made on equal platforms
-    (:func:`~thesis_repro.cache.platform_info`) in equal numerics (where ``shipped`` records them)? Then the kit
+    (:func:`~thesis_repro.provenance.platform_info`) in equal numerics (where ``shipped`` records them)? Then the kit
     claims bit-identity. ``None`` if ``shipped`` does not record its platform."""
     a, b = _provenance(shipped), _provenance(fresh)
     if a.get("platform") is None:
