@@ -7,10 +7,11 @@ current figure config and intact, and retrains the cheapest one to prove the run
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
-from thesis_repro import paths, provenance, retrain_check, runs, shipped_checks, throughput
+from thesis_repro import paths, provenance, retrain_check, runs, shipped_checks, throughput, verify
 from thesis_repro.cache import RunCache
 from thesis_repro.claims import ledger, report, snapshot
 
@@ -32,6 +33,17 @@ def test_every_shipped_run_is_current_and_intact():
         assert (entry / "provenance.json").exists() and (entry / "manifest.json").exists(), entry
         assert not any(p.name.endswith((".zip", ".pkl")) for p in entry.rglob("*")), f"{entry}: optimiser/SB3 state"
         assert json.loads((entry / "config.json").read_text())["key"] == job.key
+
+
+def test_verify_samples_every_shipped_evaluation_the_fresh_seeds_too():
+    """`make verify` draws from every shipped evaluation `runs --check` counts current, the fresh seeds' (3 and
+    above, shipped before the scale table reads them) included (issue 46: verify samples the new seeds too)."""
+    ours, others = verify.shipped_of_scale("small", LAYER, verify.VERIFIABLE)
+    if not ours:
+        pytest.skip("no evaluations shipped yet")
+    assert not others, f"shipped evaluations verify leaves out: {[p.name for p in others][:5]}"
+    fresh = [p for p in ours if int(re.search(r"__s(\d+)__", p.name)[1]) >= 3]
+    assert fresh, "no fresh-seed evaluation in verify's population, though some are shipped"
 
 
 def test_shipped_layer_is_compact():

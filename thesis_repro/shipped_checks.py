@@ -68,6 +68,21 @@ def current_keys(
     return keys
 
 
+def target_keys(
+    scale: str,
+    kinds: Iterable[str] | None = None,
+    figure_ids: Iterable[str] | None = None,
+    layer_root: str | Path | None = None,
+) -> set[str]:
+    """:func:`current_keys` with each figure's training seeds taken to the confirmatory replication's target
+    (:func:`~thesis_repro.plan.target_seeds`): the runs shipped for the fresh seeds count as current (and are
+    verified) before the scale table reads them."""
+    keys: set[str] = set()
+    for fid in figure_ids or figures.ids():
+        keys |= current_keys(scale, kinds, [fid], layer_root, seeds=range(target_seeds(fid)))
+    return keys
+
+
 def shipped_job(path: str | Path) -> Job:
     """The :class:`Job` a shipped (or cached) entry was made from, rebuilt from its ``config.json``;
     ``ValueError`` if it no longer hashes to the entry's key (e.g. after a ``CACHE_VERSION`` bump)."""
@@ -129,9 +144,7 @@ def check_shipped(
     An empty list means every shipped run is still used; otherwise each :attr:`StaleRun.message` says how
     to regenerate.
     """
-    keys = current_keys(scale, layer_root=layer_root) | set(also)
-    for fid in figures.ids():
-        keys |= current_keys(scale, figure_ids=[fid], layer_root=layer_root, seeds=range(target_seeds(fid)))
+    keys = target_keys(scale, layer_root=layer_root) | set(also)
     stale = []
     for path in shipped_entries(layer_root):
         key = path.name.rsplit("__", 1)[1]

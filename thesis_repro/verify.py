@@ -206,12 +206,13 @@ def compare(
 # ---------------------------------------------------------------- which entries
 def shipped_of_scale(scale: str, layer: Path, kinds: Iterable[str] = KINDS) -> tuple[list[Path], list[Path]]:
     """Shipped entries of ``kinds`` in ``layer`` that ``scale``'s figures make (keys bound to the shipped
-    policies), and the other shipped entries of those kinds (stale, or of another scale)."""
+    policies; the fresh seeds' too, up to :func:`~thesis_repro.plan.target_seeds`), and the other shipped entries
+    of those kinds (stale, or of another scale)."""
     kinds = tuple(kinds)
     entries = [p for p in runs.shipped_entries(layer) if p.parent.name in kinds]
     if not entries:
         return [], []
-    keys = shipped_checks.current_keys(scale, kinds, layer_root=layer)
+    keys = shipped_checks.target_keys(scale, kinds, layer_root=layer)
     ours = [p for p in entries if p.name.rsplit("__", 1)[1] in keys]
     return ours, [p for p in entries if p not in ours]
 
@@ -220,11 +221,11 @@ def shipped_of_figures(
     scale: str, layer: Path, figure_ids: Iterable[str], kinds: Iterable[str] | None = None
 ) -> list[Path]:
     """Every shipped entry of ``kinds`` (default :data:`VERIFIABLE`) that the figures ``figure_ids`` make at
-    ``scale`` (keys bound to the shipped policies), in listing order."""
+    ``scale`` (keys bound to the shipped policies; the fresh seeds' too), in listing order."""
     kinds, figure_ids = tuple(VERIFIABLE if kinds is None else kinds), list(figure_ids)
     if not figure_ids:
         return []
-    keys = shipped_checks.current_keys(scale, kinds, figure_ids=figure_ids, layer_root=layer)
+    keys = shipped_checks.target_keys(scale, kinds, figure_ids=figure_ids, layer_root=layer)
     return [p for p in runs.shipped_entries(layer) if p.parent.name in kinds and p.name.rsplit("__", 1)[1] in keys]
 
 
