@@ -5,7 +5,7 @@ It may print its own lines and returns a dict of measured values (printed as ``n
 ``None``. Entries whose module is not importable yet are reported as missing, never as failures.
 To add yours, add one line to :data:`BENCHMARKS` (small edit) or call :func:`register` at import time.
 Each benchmark lives beside what it measures, so a ``bench`` module is always a throughput benchmark:
-``learners/bench.py`` (training), ``mdl/bench.py`` (multi-domain learners), ``arm/bench.py`` (the arm simulator)
+``learners/bench.py`` (training, the multi-domain learners too), ``arm/bench.py`` (the arm simulator)
 and ``bench/evaluation.py`` (the evaluator); this package only registers and runs them.
 
 >>> run(["nope"])  # doctest: +ELLIPSIS
@@ -28,7 +28,7 @@ BENCHMARKS: dict[str, str] = {
     "evaluation": "thesis_repro.bench.evaluation:bench_evaluation",  # chapter 3: batched evaluator vs predict/raw
     "training": "thesis_repro.learners.bench:bench_training",  # chapter 3: PPO training throughput
     "generator-path": "thesis_repro.learners.bench:bench_generator_path",  # SAC/DDPG: the training job's extras
-    "multidomain": "thesis_repro.mdl.bench:bench_multidomain",  # chapter 4: multi-domain iteration vs PPO
+    "multidomain": "thesis_repro.learners.bench:bench_multidomain",  # chapter 4: multi-domain iteration vs PPO
     "arm": "thesis_repro.arm.bench:bench_arm",  # chapter 5: vectorised arm simulator
 }
 

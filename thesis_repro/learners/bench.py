@@ -14,7 +14,13 @@ One line per target of issue 7, each ``measured value, ratio, target, met/not me
 Rates are steps per CPU-second of this process (``time.process_time``; everything measured is single-threaded),
 measured in alternating chunks (one chunk of each contender per round, after one warm-up chunk each), so
 that the other work sharing the machine affects all contenders alike. Called by ``make bench`` through
-:mod:`thesis_repro.bench`; the multi-domain line is :func:`thesis_repro.mdl.bench.bench_multidomain`.
+:mod:`thesis_repro.bench`.
+
+* **Multi-domain learners** (chapter 4, :func:`bench_multidomain`): ``joint``, ``params-avg``, ``kl-avg`` and
+  ``kl-exact`` (their ``hyperparams.yaml`` settings: N = 4 domains × T = 1024 steps per iteration, Alg 3's
+  per-epoch aggregation) against the kit's PPO (8 envs × 256), each built by the one training stack
+  (``train_config`` + ``build_model``) and trained alternately, one iteration per chunk: target >= 0.8x the PPO
+  rate. A learner the stack cannot build is reported as not available, with the reason.
 
 >>> out = bench_training(rounds=1, ppo_chunk=2048, off_policy_chunk=200)  # doctest: +SKIP
 >>> out["ppo ratio"] > 1  # doctest: +SKIP
@@ -215,6 +221,45 @@ def bench_generator_path(
                 f"{r['1M'] / r['bench']:.3f}x; + the training job's bookkeeping {r['job'] / r['bench']:.3f}x",
                 flush=True,
             )
+        return out
+    finally:
+        th.set_num_threads(threads)
+
+
+# ---------------------------------------------------------------- chapter 4: the multi-domain learners
+MULTIDOMAIN_ALGOS: tuple[str, ...] = ("joint", "params-avg", "kl-avg", "kl-exact")
+
+
+def _iteration_steps(model: Any) -> int:
+    return int(model.n_steps) * int(model.env.num_envs)
+
+
+def bench_multidomain(
+    env: str = "Hopper", rounds: int = 3, algos: tuple[str, ...] = MULTIDOMAIN_ALGOS
+) -> dict[str, float]:
+    """Steps/s of each multi-domain learner and of plain kit PPO on ``env``; prints one target line per learner."""
+    threads = th.get_num_threads()
+    th.set_num_threads(1)
+    try:
+        ppo = kit_model("ppo", env)
+        chunks = {"ppo": _learn_chunk(ppo, _iteration_steps(ppo))}
+        for algo in algos:
+            try:
+                model = kit_model(algo, env)
+                chunks[algo] = _learn_chunk(model, _iteration_steps(model))
+            except Exception as err:  # the multi-domain stack is being rebuilt; say so instead of failing
+                print(f"  {algo}: not available with the current training stack ({type(err).__name__}: {err})")
+        rates = interleaved(chunks, rounds)
+        out = {"ppo steps/s": rates["ppo"]}
+        for algo in algos:
+            if algo in rates:
+                out[f"{algo} steps/s"] = rates[algo]
+                out[f"{algo} ratio"] = target_line(
+                    f"{algo} {env} iteration vs plain kit PPO, per env step",
+                    f"{rates[algo]:,.0f} vs {rates['ppo']:,.0f} steps/s",
+                    rates[algo] / rates["ppo"],
+                    TARGETS["multidomain"],
+                )
         return out
     finally:
         th.set_num_threads(threads)
