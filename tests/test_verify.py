@@ -285,6 +285,22 @@ def test_verify_kind_samples_other_shipped_kinds(layer, monkeypatch, capsys):
     assert out.count(" identical") == 6
 
 
+def test_a_long_verification_lists_only_the_entries_that_are_not_identical():
+    same = verify.Check("e", 1.0, 1.0, 0.0, "identical", True)
+    odd = verify.Check("odd", 1.0, 1.5, 0.5, "MISMATCH: not bit-identical (max |diff| 0.5)", False)
+    lines: list[str] = []
+    ok = verify._report({Path(str(i)): same for i in range(verify.LISTED)}, lines.append)
+    assert ok and sum(" identical" in ln for ln in "\n".join(lines).splitlines()) == verify.LISTED  # all listed
+    lines.clear()
+    ok = verify._report({**{Path(str(i)): same for i in range(verify.LISTED)}, Path("odd"): odd}, lines.append)
+    out = "\n".join(lines)
+    assert not ok and "odd " in out and f"{verify.LISTED} entries bit-identical (not listed)" in out
+    assert f"{verify.LISTED}/{verify.LISTED + 1} match; 1 MISMATCH" in out and out.count(" identical\n") == 0
+    lines.clear()
+    assert verify._report({Path(str(i)): same for i in range(verify.LISTED + 1)}, lines.append)
+    assert "entry" not in "\n".join(lines) and f"{verify.LISTED + 1} entries bit-identical" in "\n".join(lines)
+
+
 def test_verify_run_checks_n():
     with pytest.raises(ValueError, match="valid values are integers >= 1"):
         verify.run("smoke", 0)

@@ -23,8 +23,8 @@ Targets instead of a sample: ``--entry KEY`` (one shipped entry, any kind; a tra
 then the pages' saved numbers recomputed from them and compared with the shipped claims snapshot) and ``--all``
 (``make verify-all``: every shipped evaluation of the scale, its cost printed first).
 
-It prints a table (entry, shipped value, recomputed value, largest |diff| of any value, verdict) and exits 1 on
-a mismatch. With ``--train`` it also retrains the cheapest shipped training run of the scale from scratch (into
+It prints a table (entry, shipped value, recomputed value, largest |diff| of any value, verdict; over
+:data:`LISTED` entries, only those not bit-identical, with the count of the others) and exits 1 on a mismatch. With ``--train`` it also retrains the cheapest shipped training run of the scale from scratch (into
 the temporary cache) and checks it with :func:`thesis_repro.retrain_check.compare_retrain`, saying whether the shipped
 run was resumed after an interruption and whether that resume was exact.
 
@@ -611,11 +611,24 @@ def _check_all(chosen: Sequence[Path], layer: Path, root: Path) -> dict[Path, Ch
     return {p: checks[p] for p in chosen}
 
 
-def _report(checks: Mapping[Path, Check], log: Callable[[str], None]) -> bool:
+#: Above this many entries (``--figure``, ``--claim``, ``--all``) the table lists only those not bit-identical.
+LISTED = 40
+
+
+def _report(checks: Mapping[Path, Check], log: Callable[[str], None], listed: int = LISTED) -> bool:
+    """The table of ``checks`` (only the entries that are not identical when there are more than ``listed``),
+    then the count that match; True if all do."""
+    rows = list(checks.values())
+    shown = rows if len(rows) <= listed else [c for c in rows if c.verdict != "identical"]
     log("")
-    log(plan.table([c.row() for c in checks.values()], ("entry", "shipped", "recomputed", "|diff|", "verdict")))
-    bad = sum(not c.ok for c in checks.values())
-    log(f"\n{len(checks) - bad}/{len(checks)} match" + (f"; {bad} MISMATCH" if bad else ""))
+    if shown:
+        log(plan.table([c.row() for c in shown], ("entry", "shipped", "recomputed", "|diff|", "verdict")))
+    if len(shown) < len(rows):
+        if shown:
+            log("")
+        log(f"{len(rows) - len(shown)} entries bit-identical (not listed)")
+    bad = sum(not c.ok for c in rows)
+    log(f"\n{len(rows) - bad}/{len(rows)} match" + (f"; {bad} MISMATCH" if bad else ""))
     return not bad
 
 
