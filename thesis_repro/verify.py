@@ -24,9 +24,11 @@ then the pages' saved numbers recomputed from them and compared with the shipped
 (``make verify-all``: every shipped evaluation of the scale, its cost printed first).
 
 It prints a table (entry, shipped value, recomputed value, largest |diff| of any value, verdict; over
-:data:`LISTED` entries, only those not bit-identical, with the count of the others) and exits 1 on a mismatch. With ``--train`` it also retrains the cheapest shipped training run of the scale from scratch (into
-the temporary cache) and checks it with :func:`thesis_repro.retrain_check.compare_retrain`, saying whether the shipped
-run was resumed after an interruption and whether that resume was exact.
+:data:`LISTED` entries, only those not bit-identical, with the count of the others, and in a terminal a progress
+bar instead of a line per entry) and exits 1 on a mismatch. With ``--train`` it also retrains the cheapest shipped
+training run of the scale from scratch (into the temporary cache) and checks it with
+:func:`thesis_repro.retrain_check.compare_retrain`, saying whether the shipped run was resumed after an interruption
+and whether that resume was exact.
 
 
 >>> compare({"r": np.array([[1.0, 2.0]])}, {"r": np.array([[1.0, 2.0]])}, same=True).verdict
@@ -425,6 +427,11 @@ def _worker(spec_file: str) -> None:
         importlib.import_module(module)
     cache = RunCache(spec["root"], reference=Path(spec["layer"]))
     out: dict[str, str] = {}
+    bar = None
+    if sys.stdout.isatty() and spec["total"] > LISTED:  # a long run in a terminal: a bar, not a line per entry
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(spec["entries"]), desc="recomputing", unit="entry", file=sys.stdout, leave=False)
     for i, path in spec["entries"]:
         t0 = time.time()
         try:
@@ -435,7 +442,15 @@ def _worker(spec_file: str) -> None:
         except Exception as err:  # noqa: BLE001 - a recomputation that fails is a failed check, shown in the table
             out[path] = f"error: {_one_line(err)}"
             said = out[path]
-        print(f"  [{i}/{spec['total']}] {_name(Path(path))}: {said} ({time.time() - t0:.0f} s)", flush=True)
+        line = f"  [{i}/{spec['total']}] {_name(Path(path))}: {said} ({time.time() - t0:.0f} s)"
+        if bar is None:
+            print(line, flush=True)
+        else:
+            if said != "recomputed":
+                bar.write(line)
+            bar.update()
+    if bar is not None:
+        bar.close()
     Path(spec["out"]).write_text(json.dumps(out))
 
 
