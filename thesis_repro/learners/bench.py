@@ -247,7 +247,7 @@ def bench_multidomain(
             try:
                 model = kit_model(algo, env)
                 chunks[algo] = _learn_chunk(model, _iteration_steps(model))
-            except Exception as err:  # the multi-domain stack is being rebuilt; say so instead of failing
+            except Exception as err:  # a learner the stack cannot build: say so, instead of failing the bench
                 print(f"  {algo}: not available with the current training stack ({type(err).__name__}: {err})")
         rates = interleaved(chunks, rounds)
         out = {"ppo steps/s": rates["ppo"]}
