@@ -357,7 +357,9 @@ def test_make_bench_lists_and_rejects_an_unknown_benchmark_in_one_line(capsys):
     assert "evaluation     thesis_repro.evaluation.bench:bench_evaluation" in capsys.readouterr().out
     assert main(["bench", "nope"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: unknown benchmark 'nope'; valid benchmarks are: 'evaluation'") and err.count("\n") == 1
+    assert (
+        err.startswith("error: unknown benchmark 'nope'; valid benchmarks are: 'evaluation'") and err.count("\n") == 1
+    )
 
 
 def test_bench_evaluation_reports_all_rates(capsys):
