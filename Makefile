@@ -169,7 +169,7 @@ plan-%: $(STAMP)
 
 ## make bench : throughput benchmarks (batched evaluation, PPO training, ...), printed as ratios
 bench: $(STAMP)
-	$(BIN)/python -m thesis_repro.bench
+	$(BIN)/python -m thesis_repro bench
 
 lint: $(STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks

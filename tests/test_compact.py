@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from thesis_repro import paths
-from thesis_repro.cache import entry_identity, read_entry
+from thesis_repro.cache import entry_identity, read_entry, same_computation, write_manifest
 from thesis_repro.compact import CODEC, CompactError, is_compact, read_arrays, write_compact
 from thesis_repro.runs import compact_entry, compact_shipped, export
 
@@ -136,9 +136,30 @@ def test_export_ships_a_training_run_compact(tmp_path: Path) -> None:
     shutil.copytree(entry, local)
     if is_compact(local / "arrays.npz"):
         pytest.skip("the shipped run is compact already")
+    write_manifest(local, None)  # as the run cache writes a new entry: its identity is its files' hash
     shipped = export(type("Result", (), {"path": local})(), tmp_path / "layer").path
     assert is_compact(shipped / "arrays.npz")
     assert _same(read_arrays(shipped / "arrays.npz"), read_arrays(local / "arrays.npz"))
     assert entry_identity(shipped) == entry_identity(local)
     read_entry(shipped)  # its manifest verifies
     assert compact_entry(shipped) is None
+
+
+def test_a_local_run_and_its_compact_copy_are_the_same_computation(tmp_path: Path) -> None:
+    """A shipped compact copy with an identity of its own (as exports made it before they kept the local one) is
+    still the local run's computation, so the generator evaluates it; another policy is not."""
+    entry = _shipped_train(1)[0]
+    local, copy = tmp_path / "local" / entry.name, tmp_path / "copy" / entry.name
+    shutil.copytree(entry, local)
+    if is_compact(local / "arrays.npz"):
+        pytest.skip("the shipped run is compact already")
+    write_manifest(local, None)
+    shutil.copytree(local, copy)
+    write_compact(copy / "arrays.npz", read_arrays(local / "arrays.npz"))
+    write_manifest(copy, None)
+    assert entry_identity(copy) != entry_identity(local)
+    assert same_computation(local, copy) and same_computation(copy, local)
+    policy = copy / "out" / "policy.pth"
+    policy.write_bytes(policy.read_bytes() + b"\0")
+    write_manifest(copy, None)
+    assert not same_computation(local, copy)

@@ -350,8 +350,20 @@ def test_bench_registry_reports_missing_and_rejects_unknown(monkeypatch, capsys)
         bench.register("x", "no_colon")
 
 
+def test_make_bench_lists_and_rejects_an_unknown_benchmark_in_one_line(capsys):
+    from thesis_repro.__main__ import main
+
+    assert main(["bench", "--list"]) == 0
+    assert "evaluation     thesis_repro.evaluation.bench:bench_evaluation" in capsys.readouterr().out
+    assert main(["bench", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err.startswith("error: unknown benchmark 'nope'; valid benchmarks are: 'evaluation'") and err.count("\n") == 1
+    )
+
+
 def test_bench_evaluation_reports_all_rates(capsys):
-    from thesis_repro.bench.evaluation import bench_evaluation
+    from thesis_repro.evaluation.bench import bench_evaluation
 
     out = bench_evaluation(seconds=0.02, n_envs=2, horizon=10, rounds=1)
     assert {"batched_steps_per_s", "predict_steps_per_s", "raw_steps_per_s", "a_over_b", "a_over_c"} <= set(out)

@@ -191,7 +191,7 @@ def package_map() -> list[tuple[str, list[str]]]:
 
 
 def layer_of(module: str, layers: list[tuple[str, list[str]]]) -> int | None:
-    """The index of ``module``'s layer: the one naming its longest prefix (``bench.evaluation`` before ``bench``)."""
+    """The index of ``module``'s layer: the one naming its longest prefix (``claims.cli`` before ``claims``)."""
     best: tuple[int, int] | None = None
     for i, (_, prefixes) in enumerate(layers):
         for p in prefixes:

@@ -12,8 +12,8 @@ The package map, layers from the bottom up. A module imports only from its own l
 3. **envs**: ``envs`` -- the MuJoCo tasks and their perturbations; may import core.
 4. **learners, mdl, arm**: ``learners``, ``mdl``, ``arm`` -- the RL learners, Alg 3's aggregation, chapter 5's
    arm; may import envs, the store (a job loads its dependencies through the run cache) and core.
-5. **evaluation**: ``evaluation``, ``bench.evaluation`` -- the chapter 3 testing protocol; may import every
-   layer above this line.
+5. **evaluation**: ``evaluation`` -- the chapter 3 testing protocol and its benchmark; may import every layer
+   above this line.
 6. **figures**: ``figures`` -- each item's jobs and numbers, no verdicts; may import every layer below.
 7. **runs**: ``throughput``, ``plan``, ``runs``, ``shipped_checks``, ``retrain_check``, ``generator``, ``order``,
    ``study``, ``budgets`` -- what a job costs, cost plans, where the runs are and their export into the shipped
@@ -22,7 +22,7 @@ The package map, layers from the bottom up. A module imports only from its own l
 8. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed, in the verdict words
    of ``claims.report``; may import runs (the studies) and below, never figures.
 9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``clips``, ``verify``,
-   ``__main__``, ``bench.__main__``, ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside
+   ``__main__``, ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside
    the shipped learners, videos of trained policies, ``make verify`` (it re-runs a claim's notebooks) and the
    command lines; may import everything.
 """

@@ -1,6 +1,6 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
 ``reference-runs --scale small`` | ``budgets --scale small [--spread]`` | ``plan 3.3 --scale full --cores 64`` |
-``claims ...`` | ``results [--check]`` | ``verify --scale small -n 20`` |
+``claims ...`` | ``results [--check]`` | ``verify --scale small -n 20`` | ``bench [NAME ...] [--list]`` |
 ``score model.zip --task Hopper --scale small`` | ``train ppo Hopper --seed 0 --scale small`` |
 ``enjoy ppo Hopper --seed 0 --test obs --sigma 0.4 --video out.mp4``
 (your agent under the thesis's protocol, :mod:`thesis_repro.agent`) | ``--version``. Installed, the same command
@@ -261,6 +261,9 @@ def _main(argv: list[str]) -> int:
     ver.add_argument(
         "--all", action="store_true", help="recompute every shipped evaluation of the scale (make verify-all)"
     )
+    bench_p = sub.add_parser("bench", help="throughput benchmarks, printed as ratios (make bench)")
+    bench_p.add_argument("names", nargs="*", help="benchmarks to run (default: all; --list names them)")
+    bench_p.add_argument("--list", action="store_true", help="list the registered benchmarks and exit")
     _agent_parsers(sub)
     sub.add_parser("claims", help="the thesis's claims ledger (`claims --help` for its commands)", add_help=False)
     sub.add_parser("results", help="write RESULTS.md and the README's results block (`results --help`)", add_help=False)
@@ -401,6 +404,8 @@ def _command(args: argparse.Namespace) -> int:
             notebooks.execute(nid, args.scale, params)
     elif args.cmd == "plan":
         return _plan_command(args)
+    elif args.cmd == "bench":
+        return _bench_command(args)
     elif args.cmd in AGENT_COMMANDS:
         return _agent_command(args)
     elif args.cmd == "verify":
@@ -434,6 +439,20 @@ def _command(args: argparse.Namespace) -> int:
         for folder in (paths.runs(), paths.build(args.scale)):
             check_writable(folder)
         book_mod.build(args.scale, reuse=args.reuse, force=args.force, shipped_only=args.shipped_only)
+    return 0
+
+
+def _bench_command(args: argparse.Namespace) -> int:
+    """``make bench``: run the registered benchmarks; the rates they measure price the cost plan (``plan``)."""
+    from thesis_repro import bench, throughput
+
+    if args.list:
+        for name, target in bench.BENCHMARKS.items():
+            print(f"{name:14s} {target}")
+        return 0
+    written = throughput.write_throughput(bench.run(args.names or None))
+    if written is not None:
+        print(f"throughput per learner family (steps per CPU-second) -> {written}")
     return 0
 
 

@@ -302,6 +302,28 @@ def entry_identity(path: str | Path) -> str:
     return hashlib.sha256(canonical_json(kept).encode()).hexdigest()[:20]
 
 
+def same_computation(a: str | Path, b: str | Path) -> bool:
+    """Whether committed entries ``a`` and ``b`` computed the same thing: the same :func:`entry_identity`, or the
+    same files but for the layout of ``arrays.npz`` holding the same arrays bit for bit (a local run and the
+    compact copy shipped with an identity of its own, as the shipped layer's exports did before they kept it)."""
+    a, b = Path(a), Path(b)
+    if entry_identity(a) == entry_identity(b):
+        return True
+
+    def kept(entry: Path) -> dict[str, str]:
+        sums = json.loads((entry / "manifest.json").read_text())["sha256"]
+        return {k: v for k, v in sums.items() if k == "result.json" or (k.startswith("out/") and not _unshipped(k))}
+
+    if kept(a) != kept(b) or (a / "arrays.npz").exists() != (b / "arrays.npz").exists():
+        return False
+    if not (a / "arrays.npz").exists():
+        return True
+    x, y = read_arrays(a / "arrays.npz"), read_arrays(b / "arrays.npz")
+    return set(x) == set(y) and all(
+        x[k].dtype == y[k].dtype and x[k].shape == y[k].shape and x[k].tobytes() == y[k].tobytes() for k in x
+    )
+
+
 @contextmanager
 def naming(path: Path) -> Iterator[None]:
     """An ``OSError`` raised in the block without a file name (``ENOSPC`` from a write, an fsync) is re-raised

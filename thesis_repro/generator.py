@@ -19,7 +19,7 @@ from typing import Any
 
 from thesis_repro import figures, job_kinds, paths
 from thesis_repro.backends import die_with_parent, execute, sigint_held, stop_pool
-from thesis_repro.cache import Job, Result, RunCache, entry_identity, find_entry, read_entry
+from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry, same_computation
 from thesis_repro.paths import shown
 from thesis_repro.plan import seed_count, training_seed
 from thesis_repro.provenance import platform_info
@@ -101,10 +101,13 @@ def plan(
     return sorted(out.values(), key=position)
 
 
-def _bind_to_layer(planned: list[Planned], layer: Path, cache: RunCache, log: Callable[[str], None]) -> list[Planned]:
+def _bind_to_layer(
+    planned: list[Planned], layer: Path, cache: RunCache, log: Callable[[str], None], count_unshipped: bool = True
+) -> list[Planned]:
     """``planned`` with each job of a pinned kind bound to the shipped entries of its dependencies (the key its
     shipped copy gets, :meth:`RunCache.bind`); jobs whose dependency is not shipped, or differs in the local
-    ``cache`` from the shipped one (the job would load the local one), are left out and counted in the log."""
+    ``cache`` from the shipped one (the job would load the local one), are left out and logged (the ones not
+    shipped yet as a count, unless ``count_unshipped`` is false)."""
     shipped_view = RunCache(layer, reference=False)
     out, unshipped, differ = [], 0, []
     for p in planned:
@@ -114,12 +117,12 @@ def _bind_to_layer(planned: list[Planned], layer: Path, cache: RunCache, log: Ca
             continue
         for dep in job_kinds.dependencies(bound.kind, bound.config).values():
             local = find_entry(cache.root, dep)
-            if local is not None and entry_identity(local) != entry_identity(find_entry(layer, dep)):
+            if local is not None and not same_computation(local, find_entry(layer, dep)):
                 differ.append(shown(local))
                 break
         else:
             out.append(Planned(bound, p.figures))
-    if unshipped:
+    if unshipped and count_unshipped:
         what = "/".join(sorted({p.job.kind for p in planned}))
         log(f"{unshipped} {what} jobs skipped: the run they load is not shipped (ship it first)")
     for path in differ:
@@ -131,8 +134,10 @@ class _Followers:
     """Pinned jobs (evaluations) waiting for the runs they load: :meth:`ready` hands each out once, bound to the
     shipped entries of ``layer``, as soon as its every dependency is shipped (unless it is shipped itself)."""
 
-    def __init__(self, planned: list[Planned], layer: Path, cache: RunCache | None) -> None:
-        self.layer = layer
+    def __init__(
+        self, planned: list[Planned], layer: Path, cache: RunCache | None, log: Callable[[str], None] = print
+    ) -> None:
+        self.layer, self.log = layer, log
         self.cache = RunCache(cache.root if cache is not None else None, reference=layer)  # loads shipped policies
         self.waiting = {p.job.key: p for p in planned}
 
@@ -143,7 +148,7 @@ class _Followers:
             deps = {d.key for d in job_kinds.dependencies(p.job.kind, p.job.config).values()}
             if landed is not None and landed not in deps:
                 continue
-            bound = _bind_to_layer([p], self.layer, self.cache, lambda _: None)
+            bound = _bind_to_layer([p], self.layer, self.cache, self.log, count_unshipped=False)
             if bound:
                 del self.waiting[key]
                 if find_entry(self.layer, bound[0].job) is None:
@@ -364,7 +369,7 @@ def generate(
     if pinned_kinds and len(pinned_kinds) < len(kinds):  # training and evaluation in one command: they follow
         kinds = tuple(k for k in kinds if k not in pinned_kinds)
         only = {"algos": algos, "seeds": seeds, "order": order, "item_seeds": item_seeds}
-        followers = _Followers(plan(scale, figure_ids, pinned_kinds, **only), layer, cache)
+        followers = _Followers(plan(scale, figure_ids, pinned_kinds, **only), layer, cache, log)
     else:
         followers = None
     pinned = any(job_kinds.pinned(k) for k in kinds)

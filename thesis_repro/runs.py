@@ -183,8 +183,10 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
     """Compact copy of the finished entry ``result`` into the shipped layer (``paths.reference()`` by default).
 
     Keeps ``config.json``, ``provenance.json``, ``result.json``, ``arrays.npz`` (in the compact lossless layout for
-    :data:`COMPACT_KINDS`) and ``out/`` minus :data:`EXCLUDE`; writes a fresh manifest; replaces an older copy
-    atomically. A training entry without the files evaluation needs (:data:`REQUIRED`) is a ``ValueError``.
+    :data:`COMPACT_KINDS`) and ``out/`` minus :data:`EXCLUDE`; writes a fresh manifest that keeps the entry's
+    :func:`~thesis_repro.cache.entry_identity` (the evaluations pinned to it get the same key from either copy);
+    replaces an older copy atomically. A training entry without the files evaluation needs (:data:`REQUIRED`) is a
+    ``ValueError``.
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     src = Path(result.path)
@@ -209,14 +211,16 @@ def export(result: Result, layer_root: str | Path | None = None) -> Exported:
     for name in ("config.json", "provenance.json", "result.json"):
         if (src / name).exists():
             shutil.copy2(src / name, tmp / name)
+    identity = json.loads((src / "manifest.json").read_text()).get("identity")
     if (src / "arrays.npz").exists():
         if kind in COMPACT_KINDS and not is_compact(src / "arrays.npz"):  # the same arrays, bit for bit, fewer bytes
             write_compact(tmp / "arrays.npz", read_arrays(src / "arrays.npz"))
+            identity = entry_identity(src)  # other bytes, the same computation: the local entry's identity
         else:
             shutil.copy2(src / "arrays.npz", tmp / "arrays.npz")
     if (src / "out").is_dir():
         shutil.copytree(src / "out", tmp / "out", ignore=ignore)
-    write_manifest(tmp, json.loads((src / "manifest.json").read_text()).get("identity"))
+    write_manifest(tmp, identity)
     read_entry(tmp)  # the copy verifies before it replaces anything
     if dest.exists():
         shutil.rmtree(dest)

@@ -40,7 +40,7 @@ MEASURED_LEARNERS: tuple[str, ...] = ("joint", "params-avg", "kl-avg", "kl-exact
 MULTIDOMAIN_CLASSES: tuple[str, ...] = ("SubPolicyAggregation", "EPOpt", "MAMLDG", "ReptileDG")
 
 #: Fallback throughput (units per CPU-second) of each family when ``build/bench/throughput.json`` lacks it:
-#: the rates of ``python -m thesis_repro.bench training multidomain evaluation arm`` (= ``make bench``) on the
+#: the rates of ``python -m thesis_repro bench training multidomain evaluation arm`` (= ``make bench``) on the
 #: 2-core development machine on 2026-11-24 (Hopper; evaluation: the batched evaluator; arm: vectorised
 #: rollouts), measured while other training shared the machine, rounded to 3 digits. ``trpo`` was not
 #: benchmarked and takes PPO's rate (same rollouts, a cheaper update); ``multidomain`` (EPOpt, MAML-DG,
@@ -195,7 +195,7 @@ def write_throughput(results: Mapping[str, Mapping[str, Any] | None], path: str 
     stamp = {"measured": datetime.now(UTC).isoformat(timespec="seconds"), "host": platform.node()}
     for fam, rate in measured.items():
         doc["rates"][fam] = {"per_cpu_second": rate, "unit": unit(fam), **stamp}
-    doc["source"] = "make bench (python -m thesis_repro.bench): units per CPU-second, one single-threaded process"
+    doc["source"] = "make bench (python -m thesis_repro bench): units per CPU-second, one single-threaded process"
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp{os.getpid()}")
     tmp.write_text(json.dumps(doc, indent=1, sort_keys=True))

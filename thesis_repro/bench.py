@@ -1,4 +1,4 @@
-"""Registry of throughput benchmarks run by ``make bench`` (``python -m thesis_repro.bench``).
+"""Registry of throughput benchmarks run by ``make bench`` (``python -m thesis_repro bench``).
 
 A benchmark is a zero-argument function named by ``"package.module:function"`` in :data:`BENCHMARKS`.
 It may print its own lines and returns a dict of measured values (printed as ``name.key = value``) or
@@ -6,7 +6,7 @@ It may print its own lines and returns a dict of measured values (printed as ``n
 To add yours, add one line to :data:`BENCHMARKS` (small edit) or call :func:`register` at import time.
 Each benchmark lives beside what it measures, so a ``bench`` module is always a throughput benchmark:
 ``learners/bench.py`` (training, the multi-domain learners too), ``arm/bench.py`` (the arm simulator)
-and ``bench/evaluation.py`` (the evaluator); this package only registers and runs them.
+and ``evaluation/bench.py`` (the evaluator); this module only registers and runs them.
 
 >>> run(["nope"])  # doctest: +ELLIPSIS
 Traceback (most recent call last):
@@ -25,7 +25,7 @@ from thesis_repro.validation import check_choice
 
 #: name -> "module:function". Order = run order.
 BENCHMARKS: dict[str, str] = {
-    "evaluation": "thesis_repro.bench.evaluation:bench_evaluation",  # chapter 3: batched evaluator vs predict/raw
+    "evaluation": "thesis_repro.evaluation.bench:bench_evaluation",  # chapter 3: batched evaluator vs predict/raw
     "training": "thesis_repro.learners.bench:bench_training",  # chapter 3: PPO training throughput
     "generator-path": "thesis_repro.learners.bench:bench_generator_path",  # SAC/DDPG: the training job's extras
     "multidomain": "thesis_repro.learners.bench:bench_multidomain",  # chapter 4: multi-domain iteration vs PPO
