@@ -163,3 +163,29 @@ def test_a_local_run_and_its_compact_copy_are_the_same_computation(tmp_path: Pat
     policy.write_bytes(policy.read_bytes() + b"\0")
     write_manifest(copy, None)
     assert not same_computation(local, copy)
+
+
+def test_the_generator_evaluates_a_run_whose_shipped_copy_has_an_identity_of_its_own(tmp_path: Path) -> None:
+    """The generating machine's local run and its compact shipped copy (committed with the copy's own identity):
+    the evaluation is bound to the shipped identity and the local run adopts it, so the job that loads the local
+    run finds the identity it was bound to."""
+    from thesis_repro.cache import Job, RunCache
+    from thesis_repro.generator import Planned, _bind_to_layer
+
+    entry = _shipped_train(1)[0]
+    local, shipped = tmp_path / "runs" / "train" / entry.name, tmp_path / "layer" / "train" / entry.name
+    shutil.copytree(entry, local)
+    if is_compact(local / "arrays.npz"):
+        pytest.skip("the shipped run is compact already")
+    write_manifest(local, None)
+    shutil.copytree(local, shipped)
+    write_compact(shipped / "arrays.npz", read_arrays(local / "arrays.npz"))
+    write_manifest(shipped, None)
+    train = json.loads((local / "config.json").read_text())["config"]
+    job = Job("evaluate", {"train": train, "test": {"perturbation": "obs", "sigmas": [0.0], "n_rollouts": 1}})
+    assert entry.name.endswith(Job("train", train).key)
+    lines: list[str] = []
+    bound = _bind_to_layer([Planned(job)], tmp_path / "layer", RunCache(tmp_path / "runs"), lines.append)
+    assert len(bound) == 1 and bound[0].job.config["policy"] == entry_identity(shipped) and not lines
+    assert entry_identity(local) == entry_identity(shipped)
+    read_entry(local)  # its manifest still verifies

@@ -324,6 +324,19 @@ def same_computation(a: str | Path, b: str | Path) -> bool:
     )
 
 
+def adopt_identity(entry: str | Path, identity: str) -> None:
+    """Give committed entry ``entry`` the :func:`entry_identity` ``identity`` (a rewritten manifest, atomically;
+    its files verified first): for a local run whose shipped copy, the same computation
+    (:func:`same_computation`), was committed with an identity of its own, so that the evaluations pinned to the
+    shipped copy load the local one too."""
+    entry = Path(entry)
+    check_manifest(entry)
+    sums = json.loads((entry / "manifest.json").read_text())["sha256"]
+    tmp = entry.parent / f".tmp-manifest-{entry.name}-{os.getpid()}"  # beside the entry: never one of its files
+    tmp.write_text(json.dumps({"sha256": sums, "identity": identity}, indent=1))
+    os.replace(tmp, entry / "manifest.json")
+
+
 @contextmanager
 def naming(path: Path) -> Iterator[None]:
     """An ``OSError`` raised in the block without a file name (``ENOSPC`` from a write, an fsync) is re-raised

@@ -19,7 +19,16 @@ from typing import Any
 
 from thesis_repro import figures, job_kinds, paths
 from thesis_repro.backends import die_with_parent, execute, sigint_held, stop_pool
-from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry, same_computation
+from thesis_repro.cache import (
+    Job,
+    Result,
+    RunCache,
+    adopt_identity,
+    entry_identity,
+    find_entry,
+    read_entry,
+    same_computation,
+)
 from thesis_repro.paths import shown
 from thesis_repro.plan import seed_count, training_seed
 from thesis_repro.provenance import platform_info
@@ -116,10 +125,12 @@ def _bind_to_layer(
             unshipped += 1
             continue
         for dep in job_kinds.dependencies(bound.kind, bound.config).values():
-            local = find_entry(cache.root, dep)
-            if local is not None and not same_computation(local, find_entry(layer, dep)):
+            local, shipped = find_entry(cache.root, dep), find_entry(layer, dep)
+            if local is not None and not same_computation(local, shipped):
                 differ.append(shown(local))
                 break
+            if local is not None and entry_identity(local) != entry_identity(shipped):
+                adopt_identity(local, entry_identity(shipped))  # shipped compact with an identity of its own
         else:
             out.append(Planned(bound, p.figures))
     if unshipped and count_unshipped:
