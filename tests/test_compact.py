@@ -145,18 +145,25 @@ def test_export_ships_a_training_run_compact(tmp_path: Path) -> None:
     assert compact_entry(shipped) is None
 
 
-def test_a_local_run_and_its_compact_copy_are_the_same_computation(tmp_path: Path) -> None:
-    """A shipped compact copy with an identity of its own (as exports made it before they kept the local one) is
-    still the local run's computation, so the generator evaluates it; another policy is not."""
+def _run_and_old_export(local_root: Path, layer_root: Path) -> tuple[Path, Path]:
+    """A new local training run and its compact copy in the layer, committed as exports used to commit one: with
+    an identity of its own (its files' hash)."""
     entry = _shipped_train(1)[0]
-    local, copy = tmp_path / "local" / entry.name, tmp_path / "copy" / entry.name
+    local, copy = local_root / "train" / entry.name, layer_root / "train" / entry.name
     shutil.copytree(entry, local)
     if is_compact(local / "arrays.npz"):
         pytest.skip("the shipped run is compact already")
-    write_manifest(local, None)
+    write_manifest(local, None)  # as the run cache writes a new entry
     shutil.copytree(local, copy)
     write_compact(copy / "arrays.npz", read_arrays(local / "arrays.npz"))
     write_manifest(copy, None)
+    return local, copy
+
+
+def test_a_local_run_and_its_compact_copy_are_the_same_computation(tmp_path: Path) -> None:
+    """A shipped compact copy with an identity of its own (as exports made it before they kept the local one) is
+    still the local run's computation, so the generator evaluates it; another policy is not."""
+    local, copy = _run_and_old_export(tmp_path / "runs", tmp_path / "layer")
     assert entry_identity(copy) != entry_identity(local)
     assert same_computation(local, copy) and same_computation(copy, local)
     policy = copy / "out" / "policy.pth"
@@ -172,18 +179,10 @@ def test_the_generator_evaluates_a_run_whose_shipped_copy_has_an_identity_of_its
     from thesis_repro.cache import Job, RunCache
     from thesis_repro.generator import Planned, _bind_to_layer
 
-    entry = _shipped_train(1)[0]
-    local, shipped = tmp_path / "runs" / "train" / entry.name, tmp_path / "layer" / "train" / entry.name
-    shutil.copytree(entry, local)
-    if is_compact(local / "arrays.npz"):
-        pytest.skip("the shipped run is compact already")
-    write_manifest(local, None)
-    shutil.copytree(local, shipped)
-    write_compact(shipped / "arrays.npz", read_arrays(local / "arrays.npz"))
-    write_manifest(shipped, None)
+    local, shipped = _run_and_old_export(tmp_path / "runs", tmp_path / "layer")
     train = json.loads((local / "config.json").read_text())["config"]
     job = Job("evaluate", {"train": train, "test": {"perturbation": "obs", "sigmas": [0.0], "n_rollouts": 1}})
-    assert entry.name.endswith(Job("train", train).key)
+    assert local.name.endswith(Job("train", train).key)
     lines: list[str] = []
     bound = _bind_to_layer([Planned(job)], tmp_path / "layer", RunCache(tmp_path / "runs"), lines.append)
     assert len(bound) == 1 and bound[0].job.config["policy"] == entry_identity(shipped) and not lines

@@ -303,7 +303,7 @@ def score_model(
     for m in models:
         check_model_fits(m, task, make)
     policies = [sb3_policy(m, v) for m, v in zip(models, norms, strict=True)]
-    from tqdm.auto import tqdm
+    from tqdm import tqdm  # the text bar (stderr), as every bar of the kit: in a kernel it reaches the terminal
 
     returns: dict[str, list[np.ndarray]] = {t: [] for t in tests}
     todo = [(t, i) for t in tests for i in range(len(policies))]
