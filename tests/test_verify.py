@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -351,6 +352,29 @@ def test_resume_note_says_whether_the_shipped_run_was_resumed_exactly(tmp_path):
     assert "resumed from step 20,480 before exact resume landed" in before and "NOT" in before
     after = verify.resume_note(_train_entry(tmp_path, 20480, "2026-11-25T10:00:00+00:00"))
     assert "after exact resume landed" in after and "bit-identical" in after
+
+
+def test_a_failing_evaluation_is_one_logged_line_and_the_generator_goes_on(toy_figure, tmp_path, monkeypatch):
+    """An evaluation that fails while the policies train is one log line: the trainings and the other
+    evaluations land, the generator ends normally and names it, and the next run makes it."""
+    real = _evaluation
+
+    def flaky(config: dict, workdir: Path) -> dict:
+        if config["train"]["w"] == 2:
+            raise RuntimeError("planted\n  failure")
+        return real(config, workdir)
+
+    monkeypatch.setattr(sys.modules[__name__], "_evaluation", flaky)
+    layer, lines = tmp_path / "reference", []
+    kinds = ["test-verify-policy", "test-verify-eval"]
+    out = generator.generate("smoke", ["_verify"], kinds, layer_root=layer, log=lines.append)
+    assert sorted(e.path.parent.name for e in out) == ["test-verify-eval"] * 2 + ["test-verify-policy"] * 3
+    failed = [line for line in lines if "FAILED" in line]
+    assert len(failed) == 1 and "w2__eval" in failed[0] and failed[0].endswith("planted failure")
+    assert lines[-1] == "1 evaluation(s) failed and were left for the next run: w2__eval"
+    monkeypatch.setattr(sys.modules[__name__], "_evaluation", real)
+    again = generator.generate("smoke", ["_verify"], kinds, layer_root=layer, log=str)
+    assert [e.path.name.split("__")[0] for e in again] == ["w2"]
 
 
 def test_evaluations_follow_their_policy_in_one_command(toy_figure, tmp_path, monkeypatch):

@@ -22,13 +22,14 @@ import argparse
 import contextlib
 import logging
 import os
-import re
 import signal
 import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, NoReturn
+
+from thesis_repro.validation import one_line
 
 INTERRUPTED = "interrupted; rerun to resume"
 
@@ -285,7 +286,7 @@ def _guarded(command: Any) -> int:
     try:
         return command()
     except ValueError as err:
-        _error(_one_line(err))
+        _error(one_line(err))
         return 2
     except BrokenPipeError:  # the reader went away (`... runs all | head`): stop quietly
         with contextlib.suppress(OSError):
@@ -295,7 +296,7 @@ def _guarded(command: Any) -> int:
         _error(describe_os_error(err))
         return 1
     except RuntimeError as err:  # e.g. a notebook that failed, notebooks that failed while the book was built
-        _error(_one_line(err))
+        _error(one_line(err))
         return 1
 
 
@@ -307,19 +308,6 @@ def _error(message: str) -> None:
         nk.line_ended()
 
 
-#: Terminal colour and style codes (torch's messages carry some); an error line is plain text.
-_ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
-
-
-def _one_line(err: BaseException) -> str:
-    """``err``'s message on one line, without terminal codes.
-
-    >>> _one_line(ValueError("do this \\x1b[1monly if you trust it\\x1b[0m.\\n  (see above)"))
-    'do this only if you trust it. (see above)'
-    """
-    return " ".join(_ANSI.sub("", str(err)).split()) or type(err).__name__
-
-
 def describe_os_error(err: OSError) -> str:
     """One line for an ``OSError``: what went wrong, the path, and the setting that chose the path.
 
@@ -328,7 +316,7 @@ def describe_os_error(err: OSError) -> str:
     """
     from thesis_repro import paths
 
-    what = err.strerror or _one_line(err)
+    what = err.strerror or one_line(err)
     name = err.filename
     if name is None:
         return what

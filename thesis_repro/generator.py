@@ -34,7 +34,7 @@ from thesis_repro.plan import seed_count, training_seed
 from thesis_repro.provenance import platform_info
 from thesis_repro.runs import TARGET_BYTES, Exported, export, wall_seconds
 from thesis_repro.throughput import Rates, cost, job_rate, shipped_rates, work
-from thesis_repro.validation import check_choice
+from thesis_repro.validation import check_choice, one_line
 
 
 @dataclass
@@ -422,9 +422,17 @@ def generate(
         if followers is not None and not job_kinds.pinned(p.job.kind):
             follow(followers.ready(p.job.key))
 
+    failed: list[str] = []
+
     def follow(ready: list[Planned]) -> None:
         for q in ready:  # in this process, single-threaded (RunCache.compute), beside the pool's workers
-            land(0, q, followers.cache.run(q.job))
+            try:
+                result = followers.cache.run(q.job)
+            except Exception as err:  # noqa: BLE001 - one evaluation must not stop the trainings in flight
+                log(f"[follows] {q.job.kind} {q.job.label} FAILED, left for the next run: {one_line(err, 300)}")
+                failed.append(q.job.label)
+                continue
+            land(0, q, result)
 
     def follow_shipped() -> None:  # the evaluations of the runs shipped before this command
         if followers is not None:
@@ -477,4 +485,6 @@ def generate(
                 stop_pool(ex)
                 raise
     queue.report()
+    if failed:
+        log(f"{len(failed)} evaluation(s) failed and were left for the next run: {', '.join(failed)}")
     return done

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
+
+#: Terminal colour and style codes (torch's messages carry some); an error line is plain text.
+_ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
 
 def check_choice(value: Any, valid: Iterable[Any], what: str) -> Any:
@@ -87,3 +91,15 @@ def read_yaml(path: str | Path) -> Any:
         where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
         what = getattr(err, "problem", None) or str(err).splitlines()[0]
         raise ValueError(f"{where}: not valid YAML ({what}); fix the file") from None
+
+
+def one_line(err: BaseException, limit: int | None = None) -> str:
+    """``err``'s message on one line, without terminal codes; cut to ``limit`` characters if given.
+
+    >>> one_line(ValueError("do this \\x1b[1monly if you trust it\\x1b[0m.\\n  (see above)"))
+    'do this only if you trust it. (see above)'
+    >>> one_line(RuntimeError("x" * 200), limit=10)
+    'xxxxxxx...'
+    """
+    text = " ".join(_ANSI.sub("", str(err)).split()) or type(err).__name__
+    return text if limit is None or len(text) <= limit else text[: limit - 3] + "..."

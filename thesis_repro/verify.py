@@ -62,7 +62,7 @@ import numpy as np
 import thesis_repro
 from thesis_repro import job_kinds, paths, plan, retrain_check, runs, scales, shipped_checks, throughput
 from thesis_repro.cache import Result, RunCache, find_entry, read_entry
-from thesis_repro.validation import check_choice
+from thesis_repro.validation import check_choice, one_line
 
 #: Shipped kinds whose entries ``verify`` recomputes by default (evaluations: seconds to minutes each, from a
 #: shipped policy).
@@ -302,7 +302,7 @@ def recompute_pages(
             try:
                 shipped = snapshot.read(name, scale)
             except snapshot.CorruptSnapshot as err:
-                out[name] = f"MISMATCH: {_one_line(err)}"
+                out[name] = f"MISMATCH: {one_line(err, 160)}"
                 continue
             out[name] = compare_saved(built, shipped, rtol)
     return out
@@ -440,7 +440,7 @@ def _worker(spec_file: str) -> None:
             out[path] = str(fresh)
             said = "recomputed"
         except Exception as err:  # noqa: BLE001 - a recomputation that fails is a failed check, shown in the table
-            out[path] = f"error: {_one_line(err)}"
+            out[path] = f"error: {one_line(err, 160)}"
             said = out[path]
         line = f"  [{i}/{spec['total']}] {_name(Path(path))}: {said} ({time.time() - t0:.0f} s)"
         if bar is None:
@@ -522,7 +522,7 @@ def check_entry(path: Path, fresh: Path | str) -> Check:
     try:
         shipped_values, _ = read_entry(path)
     except Exception as err:  # noqa: BLE001 - any failure to read means the entry is unusable
-        return Check(name, None, None, None, f"MISMATCH: shipped entry is corrupt ({_one_line(err)})", False)
+        return Check(name, None, None, None, f"MISMATCH: shipped entry is corrupt ({one_line(err, 160)})", False)
     if isinstance(fresh, str):
         return Check(name, headline(shipped_values), None, None, f"MISMATCH: {fresh.removeprefix('error: ')}", False)
     fresh_values, _ = read_entry(fresh)
@@ -535,11 +535,6 @@ def missing_dependencies(path: Path, layer: Path) -> list[str]:
     """Names of the dependencies (``policy``) of shipped entry ``path`` that ``layer`` does not hold."""
     job = shipped_checks.shipped_job(path)
     return [n for n, dep in job_kinds.dependencies(job.kind, job.config).items() if find_entry(layer, dep) is None]
-
-
-def _one_line(err: BaseException) -> str:
-    text = " ".join(str(err).split()) or type(err).__name__
-    return text if len(text) <= 160 else text[:157] + "..."
 
 
 def resume_note(result: Result) -> str:
@@ -616,7 +611,7 @@ def _check_all(chosen: Sequence[Path], layer: Path, root: Path) -> dict[Path, Ch
         try:
             missing = missing_dependencies(path, layer)
         except Exception as err:  # noqa: BLE001 - e.g. a config that no longer hashes to its key
-            checks[path] = check_entry(path, f"error: {_one_line(err)}")
+            checks[path] = check_entry(path, f"error: {one_line(err, 160)}")
             continue
         if missing:
             checks[path] = check_entry(path, f"error: its {', '.join(missing)} is not shipped")
