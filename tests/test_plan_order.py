@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from thesis_repro import figures, generator, job_kinds, order
+from thesis_repro import figures, generator, job_kinds, order, paths
 from thesis_repro.__main__ import main
 from thesis_repro.cache import Job
 from thesis_repro.order import Claim, Item
@@ -98,6 +98,7 @@ def test_chapter_5_goes_to_10_seeds_and_the_others_to_the_seeds_asked():
 def test_the_plan_leaves_out_chapter_4_items_no_claim_of_which_6_seeds_settle(monkeypatch):
     monkeypatch.setattr(figures, "ids", lambda: ["3.2", "4.1", "4.7", "5.3"])
     monkeypatch.setattr(order, "priced_runs", lambda f, *a, **k: {f"{f}-run": 1.0})
+    monkeypatch.setattr(order, "item_state", lambda f, *a: {"3.2": "made", "4.7": "read"}.get(f, "to make"))
     claims = [
         Claim("4.1-a", ("4.1",), None),
         Claim("4.7-b", ("4.7",), 6),
@@ -110,6 +111,8 @@ def test_the_plan_leaves_out_chapter_4_items_no_claim_of_which_6_seeds_settle(mo
     assert p.skipped == {"4.3-d": "every kl_avg run diverged"} and p.unsettled == ["3.2-c", "4.1-a"]
     text = order.report(p)
     assert "left out (issue 46 item 1): 4.1" in text and "4.7-b" in text and "3-9" in text
+    assert p.states == {"4.7": "read", "3.2": "made", "5.3": "to make"}
+    assert "made but not read yet: 3.2: raise each one's block" in text and "train_seeds: 6" in text
     named = order.confirmatory_plan("small", [3, 4, 5], claims, rates=None, figure_ids=["4.1", "3.2"])
     assert [r.item for r in named.ranked] == ["3.2", "4.1"] and not named.left_out  # named items are all ranked
     with pytest.raises(ValueError, match="seeds"):
@@ -190,3 +193,10 @@ def test_shipped_pace_prices_chapter_5_by_kind(tmp_path):
         throughput.job_rate(job, rates) == pytest.approx(100.0)
         and throughput.job_rate(Job("arm-target", {}), rates) > 100
     )
+
+
+def test_an_item_s_fresh_seeds_are_read_made_or_to_make(monkeypatch):
+    """Fig 3.4's seeds 3-5 are shipped and its block reads them; a seed nobody made is still to make."""
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
+    assert order.item_state("3.4", "small", [3, 4, 5]) == "read"
+    assert order.item_state("3.4", "small", [40]) == "to make"

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from thesis_repro import figures
-from thesis_repro.plan import CH5_TARGET_SEEDS, core_hours, seed_jobs, table, to_compute
+from thesis_repro.plan import CH5_TARGET_SEEDS, core_hours, seed_count, seed_jobs, table, to_compute
 from thesis_repro.throughput import Rates, job_rate, work
 
 #: The chapters whose every item is in the plan; the other items (chapter 4's) only where they can settle a claim.
@@ -163,6 +163,16 @@ def priced_runs(
     return {j.key: core_hours(work(j), job_rate(j, rates)) for j in jobs}
 
 
+def item_state(figure_id: str, scale: str, seeds: Iterable[int]) -> str:
+    """Where an item's fresh ``seeds`` (:func:`item_seeds`) are: ``to make`` (some of their jobs are neither shipped
+    nor cached), ``made`` (all are, but the item's block in the scale table does not read them yet: raise it,
+    rebuild the page, ship the claims) or ``read`` (its page, and so its claims' verdicts, hold them)."""
+    wanted = item_seeds(figure_id, seeds)
+    if to_compute(seed_jobs(figure_id, scale, wanted)):
+        return "to make"
+    return "made" if seed_count(figure_id, scale, set(wanted)) else "read"
+
+
 def page_items() -> dict[str, str]:
     """Page (``fig-3.3``, ``table-3.4``) -> the figure id whose runs it shows."""
     return {figures.get(f).notebook_id: f for f in figures.ids()}
@@ -193,6 +203,7 @@ class OrderPlan:
     left_out: dict[str, str] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     unsettled: list[str] = field(default_factory=list)
+    states: dict[str, str] = field(default_factory=dict)  # item -> item_state
 
 
 def confirmatory_plan(
@@ -224,12 +235,14 @@ def confirmatory_plan(
     settled = {c for r in ranked for c in r.settles}
     skipped = {c.id: c.skip for c in claims if c.skip and c.items}  # claims on no item's runs: not the plan's
     unsettled = sorted(c.id for c in claims if not c.skip and c.id not in settled)
-    return OrderPlan(scale, seeds, ranked, left_out, skipped, unsettled)
+    states = {r.item: item_state(r.item, scale, seeds) for r in ranked}
+    return OrderPlan(scale, seeds, ranked, left_out, skipped, unsettled, states)
 
 
 def report(p: OrderPlan) -> str:
-    """The plan as a table (rank, item, seeds, claims it can settle, core-hours, claims per core-hour, running
-    total), then the items left out and the claims skipped, each with why."""
+    """The plan as a table (rank, item, seeds, state, claims it can settle, core-hours, claims per core-hour,
+    running total), then the items made but not read yet, the items left out and the claims skipped, each with
+    why."""
     total = 0.0
     rows = []
     for r in p.ranked:
@@ -239,13 +252,14 @@ def report(p: OrderPlan) -> str:
                 "rank": str(r.rank),
                 "item": r.item,
                 "seeds": f"{min(p.seeds)}-{r.target - 1}",
+                "state": p.states.get(r.item, "-"),
                 "claims it can settle": f"{len(r.settles)}: {', '.join(r.settles)}" if r.settles else "0",
                 "core-hours": f"{r.core_hours:,.1f}",
                 "per core-hour": "-" if not r.settles else f"{r.per_core_hour:,.2f}",
                 "total": f"{total:,.1f}",
             }
         )
-    cols = ("rank", "item", "seeds", "claims it can settle", "core-hours", "per core-hour", "total")
+    cols = ("rank", "item", "seeds", "state", "claims it can settle", "core-hours", "per core-hour", "total")
     settled = sum(len(r.settles) for r in p.ranked)
     lines = [
         f"the generator's order at {p.scale} for seeds {' '.join(map(str, p.seeds))}: claims settled per core-hour "
@@ -253,6 +267,13 @@ def report(p: OrderPlan) -> str:
         table(rows, cols),
         f"{len(p.ranked)} items, {total:,.1f} core-hours; {settled} claims can be settled",
     ]
+    made = [f for f, state in p.states.items() if state == "made"]
+    if made:
+        lines.append(
+            f"made but not read yet: {', '.join(made)}: raise each one's block in thesis_repro/config/scales.yaml "
+            f"(train_seeds: {max(p.seeds) + 1}; chapter 5: its seeds list), then `make figure-<item> SCALE={p.scale}` "
+            f"(or `make book SCALE={p.scale}`), `make ship-claims SCALE={p.scale}` and `make results`"
+        )
     if p.left_out:
         lines.append(f"left out (issue 46 item 1): {'; '.join(f'{f}: {why}' for f, why in p.left_out.items())}")
     if p.skipped:
