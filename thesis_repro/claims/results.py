@@ -367,10 +367,44 @@ def ledger_json(scale: str) -> dict[str, Any]:
         return scoreboard.as_json(rows, scale)
 
 
+def more_seeds(scale: str) -> dict[str, int]:
+    """The items whose block at ``scale`` reads more training seeds than the scale's default (an item's fresh seeds,
+    once all are shipped): figure id -> its training seeds (chapter 5: its ``seeds`` list's length)."""
+    default = int(scales.figure_settings("_example", scale)["train_seeds"])
+    out = {}
+    for fid in scales.figures():
+        s = scales.figure_settings(fid, scale)
+        n = len(s["seeds"]) if isinstance(s.get("seeds"), list) else int(s.get("train_seeds") or default)
+        if n > default:
+            out[fid] = n
+    return out
+
+
+def seeds_note(more: Mapping[str, Mapping[str, int]]) -> str:
+    """The line under the scale table naming the items that read more seeds than their scale's default.
+
+    >>> seeds_note({"smoke": {}, "small": {"3.4": 6, "table-3.5": 6, "5.3": 10}})[-41:]
+    'Fig 3.4 (6), Table 3.5 (6), Fig 5.3 (10).'
+    >>> seeds_note({"small": {}})
+    ''
+    """
+    parts = []
+    for scale, items in more.items():
+        if items:
+            named = ", ".join(
+                f"{'Table ' + f.removeprefix('table-') if f.startswith('table-') else 'Fig ' + f} ({n})"
+                for f, n in items.items()
+            )
+            parts.append(f"Items that read more training seeds at `{scale}` (their fresh seeds, all shipped): {named}.")
+    return " ".join(parts)
+
+
 def scale_rows() -> str:
-    """The README's scale table, from ``thesis_repro/config/scales.yaml``."""
+    """The README's scale table, from ``thesis_repro/config/scales.yaml``, and the items that read more seeds."""
     descriptions = yaml.safe_load((paths.CONFIG / "scales.yaml").read_text())["scales"]
-    return scales_table({s: scales.figure_settings("_example", s) for s in scales.SCALES}, descriptions)
+    table = scales_table({s: scales.figure_settings("_example", s) for s in scales.SCALES}, descriptions)
+    note = seeds_note({s: more_seeds(s) for s in scales.SCALES})
+    return f"{table}\n\n{note}" if note else table
 
 
 def generate(scale: str = SCALE, root: Path | None = None) -> dict[Path, str]:
