@@ -59,8 +59,8 @@ def confirmatory_counts(rows: Sequence[Row]) -> Counter:
     return Counter(r.confirmation.status if r.confirmation else NOT_YET for r in rows if not r.spec.beyond)
 
 
-#: A claim's confirmatory count when its pages do not hold the fresh seeds yet.
-NOT_YET = "fresh seeds not yet shipped"
+#: A claim's confirmatory count when its pages do not hold the fresh seeds yet (as README and RESULTS.md say it).
+NOT_YET = "not yet judged"
 
 
 def as_json(rows: Sequence[Row], scale: str = "") -> dict[str, Any]:
