@@ -106,14 +106,17 @@ def test_every_shipped_ppo_run_anneals_or_names_its_schedule():
 
 
 def test_each_scale_states_its_seeds_and_rollouts_once():
-    """`defaults` of scales.yaml give each scale's seeds and rollouts; no figure block of `small` restates them
-    (Fig 3.2 counts 3 like the rest), and the caller's explicit override is the last word."""
+    """`defaults` of scales.yaml give each scale's seeds and rollouts; a figure block of `small` restates neither
+    (Fig 3.2 counts 3 like the rest), but for an item raised to the confirmatory seed count once its fresh seeds
+    are shipped (issue 46), and the caller's explicit override is the last word."""
+    from thesis_repro.plan import CONFIRMATORY_SEEDS
+
     table = scales._table()
     assert (table["defaults"]["small"]["train_seeds"], table["defaults"]["small"]["test_rollouts"]) == (3, 10)
     assert set(table) == {"scales", "defaults", "figures"}
     for fid in scales.figures():
         block = table["figures"][fid]["small"] or {}
-        assert not {"train_seeds", "test_rollouts"} & set(block), fid
+        assert "test_rollouts" not in block and block.get("train_seeds", CONFIRMATORY_SEEDS) == CONFIRMATORY_SEEDS, fid
     assert scales.figure_settings("3.3", "small", train_seeds=5)["train_seeds"] == 5
     s = scales.figure_settings("table-3.5", "small", protocol="thesis")
     assert (s["protocol"], s["test_rollouts"]) == ("thesis", 10)
@@ -135,12 +138,13 @@ def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
 
 
 def test_small_has_3_seeds_10_rollouts_and_every_learner():
-    """Issue 22's evidence at small: 3 training seeds x 10 test rollouts for every chapter 3-4 item, no learner
-    skipped; chapter 5 keeps its own seeds."""
+    """Issue 22's evidence at small: 3 training seeds (6 for an item whose fresh seeds are shipped, issue 46) x 10
+    test rollouts for every chapter 3-4 item, no learner skipped; chapter 5 keeps its own seeds."""
     small = {fid: scales.figure_settings(fid, "small") for fid in scales.figures()}
     assert {s["protocol"] for s in small.values()} == {"thesis"}
     for s in small.values():
-        assert (s["train_seeds"], s["test_rollouts"], s.get("skip_algos", [])) == (3, 10, []), s["figure"]
+        assert s["train_seeds"] in (3, 6), s["figure"]
+        assert (s["test_rollouts"], s.get("skip_algos", [])) == (10, []), s["figure"]
     assert scales.figure_settings("5.6", "small")["seeds"] == [0, 1, 2]
     assert scales.figure_settings("3.3", "full")["train_seeds"] == 12
 
@@ -195,11 +199,13 @@ def test_a_seed_past_the_confirmatory_target_is_stale(tmp_path):
     assert stale == {p.job.key for p in beyond}
 
 
-def test_book_names_exactly_the_items_with_three_seeds():
-    """The book page on shipped runs lists the items whose seeds 1-2 are shipped; the scale table decides which."""
+def test_book_names_exactly_the_items_with_three_and_six_seeds():
+    """The book page on shipped runs lists the items at 3 seeds and those at 6 (fresh seeds shipped); the scale
+    table decides which."""
     text = (paths.ROOT / "book" / "runs.md").read_text()
-    block = text.split("<!-- three-seeds:begin -->")[1].split("<!-- three-seeds:end -->")[0]
-    assert block == protocol.items_with_seeds(3, "small"), (
-        "book/runs.md's three-seeds list is stale: paste `python -c \"from thesis_repro import protocol; "
-        'print(protocol.items_with_seeds(3))"`'
-    )
+    for name, seeds in (("three", 3), ("six", 6)):
+        block = text.split(f"<!-- {name}-seeds:begin -->")[1].split(f"<!-- {name}-seeds:end -->")[0]
+        assert block == protocol.items_with_seeds(seeds, "small"), (
+            f"book/runs.md's {name}-seeds list is stale: paste `python -c \"from thesis_repro import protocol; "
+            f'print(protocol.items_with_seeds({seeds}))"`'
+        )
