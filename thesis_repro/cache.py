@@ -67,7 +67,7 @@ from typing import Any
 import numpy as np
 
 from thesis_repro import job_kinds, paths
-from thesis_repro.compact import read_arrays
+from thesis_repro.compact import read_arrays, same_arrays
 from thesis_repro.provenance import record
 
 #: Bump to invalidate every cached entry after a change that alters results but not configs.
@@ -318,10 +318,7 @@ def same_computation(a: str | Path, b: str | Path) -> bool:
         return False
     if not (a / "arrays.npz").exists():
         return True
-    x, y = read_arrays(a / "arrays.npz"), read_arrays(b / "arrays.npz")
-    return set(x) == set(y) and all(
-        x[k].dtype == y[k].dtype and x[k].shape == y[k].shape and x[k].tobytes() == y[k].tobytes() for k in x
-    )
+    return same_arrays(read_arrays(a / "arrays.npz"), read_arrays(b / "arrays.npz"))
 
 
 def adopt_identity(entry: str | Path, identity: str) -> None:

@@ -85,6 +85,16 @@ def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
+def same_arrays(x: Mapping[str, np.ndarray], y: Mapping[str, np.ndarray]) -> bool:
+    """Whether ``x`` and ``y`` hold the same named arrays, bit for bit (dtype, shape and bytes).
+
+    >>> a = {"r": np.array([1.0, np.nan])}
+    >>> same_arrays(a, {"r": np.array([1.0, np.nan])}), same_arrays(a, {"r": np.array([1.0, np.nan], "f4")})
+    (True, False)
+    """
+    return set(x) == set(y) and all(_same_bits(x[k], y[k]) for k in x)
+
+
 def _encode(name: str, a: np.ndarray, plain_ints: Mapping[str, np.ndarray]) -> tuple[dict[str, Any], bytes | None]:
     """(spec, stored bytes) of one array; ``plain_ints``: the 1-D integer arrays stored as themselves so far."""
     spec: dict[str, Any] = {"dtype": a.dtype.str, "shape": list(a.shape), "sha256": _digest(a)}
@@ -152,7 +162,7 @@ def write_compact(path: str | Path, arrays: Mapping[str, np.ndarray]) -> None:
             info.external_attr = 0o644 << 16
             zf.writestr(info, data, compresslevel=9)
     back = read_arrays(path)
-    if set(back) != set(arrays) or not all(_same_bits(back[k], arrays[k]) for k in arrays):
+    if not same_arrays(back, arrays):
         raise CompactError(f"{path} does not read back bit for bit")  # pragma: no cover - a codec bug
 
 

@@ -29,8 +29,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from thesis_repro import figures, paths
 from thesis_repro.cache import (
     UNSHIPPED,
@@ -42,7 +40,7 @@ from thesis_repro.cache import (
     sweep_tmp,
     write_manifest,
 )
-from thesis_repro.compact import is_compact, read_arrays, write_compact
+from thesis_repro.compact import is_compact, read_arrays, same_arrays, write_compact
 from thesis_repro.paths import shown
 
 #: States of a job in :func:`rows`.
@@ -249,10 +247,7 @@ def compact_entry(entry: str | Path) -> tuple[int, int] | None:
     write_compact(tmp / "arrays.npz", arrays)
     write_manifest(tmp, identity)
     back, _ = read_entry(tmp)
-    if set(back) != set(values) or any(
-        isinstance(v, np.ndarray) and (back[k].dtype != v.dtype or back[k].tobytes() != v.tobytes())
-        for k, v in values.items()
-    ):
+    if set(back) != set(values) or not same_arrays(read_arrays(tmp / "arrays.npz"), arrays):
         shutil.rmtree(tmp, ignore_errors=True)
         raise ValueError(f"{entry}: the compact copy does not read back the same arrays")  # pragma: no cover
     before, after = arrays_file.stat().st_size, (tmp / "arrays.npz").stat().st_size
