@@ -93,3 +93,16 @@ def test_the_confirmatory_check_reads_only_the_fresh_seeds():
 )
 def test_disagreement_is_a_lean_the_other_way(primary, fresh, flag):
     assert C.disagrees(primary, fresh) is flag
+
+
+def test_the_terminal_shows_the_fresh_seeds_verdict_under_each_claim_and_counts_them(rows, holding):
+    """`claims --scale small`: a claim judged on the fresh seeds too has its confirmatory line under its headline,
+    and the counts on the fresh seeds alone follow the ledger's; with no fresh seed anywhere, neither is printed."""
+    from thesis_repro.claims.cli import ledger_lines
+
+    text = ledger_lines(list(rows["agree"].values()))
+    under = text[text.index(next(t for t in text if f"· {holding[0]} ·" in t)) + 1]
+    assert under == f"    {rows['agree'][holding[0]].confirmation.line()}"
+    assert text[-1].startswith("on the fresh seeds alone (confirmatory, the same frozen rules): ")
+    plain = ledger_lines(list(rows["design"].values()))
+    assert not any("fresh seeds" in t for t in plain) and plain[-1].startswith("distinct thesis claims: ")

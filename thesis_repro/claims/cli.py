@@ -18,6 +18,7 @@ import argparse
 import json
 import sys
 import warnings
+from collections.abc import Sequence
 
 from thesis_repro.claims import design, evidence, ledger, ledger_row, registry, scoreboard, snapshot
 from thesis_repro.scales import SCALES
@@ -96,22 +97,39 @@ def main(argv: list[str] | None = None) -> int:
         json.dump(scoreboard.as_json(rows, args.scale), sys.stdout, indent=1, ensure_ascii=False)
         print()
         return 0
-    beyond = False
+    print("\n".join(ledger_lines(rows, args.verbose)))
+    return 0
+
+
+def ledger_lines(rows: Sequence[ledger_row.Row], verbose: bool = False) -> list[str]:
+    """The ledger on the terminal: a line per claim (its fresh seeds' verdict under it, where they are shipped;
+    ``verbose``: v1's verdict and the evidence), then the counts, on the fresh seeds alone too."""
+    out, beyond = [], False
     for r in rows:
         if r.spec.beyond and not beyond:
             beyond = True
-            print("beyond the thesis (the kit's own extensions, counted apart):")
-        print(ledger_row.headline(r, width=160))
-        if args.verbose:
-            print(f"    v1: {r.v1_status or r.status}; {evidence.describe(r)}")
+            out.append("beyond the thesis (the kit's own extensions, counted apart):")
+        out.append(ledger_row.headline(r, width=160))
+        if r.confirmation:
+            out.append(f"    {r.confirmation.line()}")
+        if verbose:
+            out.append(f"    v1: {r.v1_status or r.status}; {evidence.describe(r)}")
             if r.subset:
-                print(f"    {r.subset['line']}")
+                out.append(f"    {r.subset['line']}")
     c = scoreboard.counts(rows)
-    print("distinct thesis claims: " + ", ".join(f"{v} {scoreboard.SHORT.get(k, k)}" for k, v in c.items()))
+    out.append("distinct thesis claims: " + ", ".join(f"{v} {scoreboard.SHORT.get(k, k)}" for k, v in c.items()))
+    if any(r.confirmation for r in rows):
+        fresh = sorted(
+            scoreboard.confirmatory_counts(rows).items(), key=lambda kv: (kv[0] == scoreboard.NOT_YET, -kv[1])
+        )
+        out.append(
+            "on the fresh seeds alone (confirmatory, the same frozen rules): "
+            + ", ".join(f"{v} {scoreboard.SHORT.get(k, k)}" for k, v in fresh)
+        )
     b = scoreboard.counts(rows, beyond=True)
     if b:
-        print("beyond the thesis: " + ", ".join(f"{v} {scoreboard.SHORT.get(k, k)}" for k, v in b.items()))
-    return 0
+        out.append("beyond the thesis: " + ", ".join(f"{v} {scoreboard.SHORT.get(k, k)}" for k, v in b.items()))
+    return out
 
 
 if __name__ == "__main__":  # pragma: no cover
