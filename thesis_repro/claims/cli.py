@@ -119,9 +119,7 @@ def ledger_lines(rows: Sequence[ledger_row.Row], verbose: bool = False) -> list[
     c = scoreboard.counts(rows)
     out.append("distinct thesis claims: " + ", ".join(f"{v} {scoreboard.SHORT.get(k, k)}" for k, v in c.items()))
     if any(r.confirmation for r in rows):
-        fresh = sorted(
-            scoreboard.confirmatory_counts(rows).items(), key=lambda kv: (kv[0] == scoreboard.NOT_YET, -kv[1])
-        )
+        fresh = sorted(scoreboard.confirmatory_counts(rows).items(), key=scoreboard.fresh_order)
         out.append(
             "on the fresh seeds alone (confirmatory, the same frozen rules): "
             + ", ".join(f"{v} {scoreboard.SHORT.get(k, k)}" for k, v in fresh)

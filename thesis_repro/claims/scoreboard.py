@@ -115,7 +115,7 @@ def scoreboard(scale: str, rows: Sequence[Row]) -> str:
     thesis = [r.as_dict() for r in rows if not r.spec.beyond]
     lead += (
         f"**Fresh seeds.** {fresh_summary(thesis)} Counts on the fresh seeds alone: "
-        + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(confirmatory_counts(rows).items(), key=_fresh_order))
+        + ", ".join(f"{v} {SHORT.get(k, k)}" for k, v in sorted(confirmatory_counts(rows).items(), key=fresh_order))
         + " ({doc}`the confirmatory check <fresh-seeds>`).\n\n"
     )
     for label, want in (("Do not reproduce", report.DOES_NOT), ("Reproduce", report.REPRODUCES)):
@@ -145,7 +145,8 @@ def _order(status: str) -> int:
     return COUNTED.index(status) if status in COUNTED else len(COUNTED)
 
 
-def _fresh_order(kv: tuple[str, int]) -> tuple[int, int]:
+def fresh_order(kv: tuple[str, int]) -> tuple[int, int]:
+    """Sort key of (confirmatory verdict, count) pairs: the verdicts in the scoreboard's order, then by count."""
     return (_order(kv[0]), -kv[1])
 
 
