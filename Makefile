@@ -121,7 +121,7 @@ confirmatory:
 	  KINDS="train evaluate arm-solve arm-source arm-competitor-source arm-target arm-curriculum" \
 	  $(if $(UNTIL),UNTIL=$(UNTIL))
 
-## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] [FIGURE=3.3 | ENTRY=<key> |
+## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] [FIGURE=3.3 | ENTRY=<key or label> |
 ## CLAIM=<id>] : recompute a seeded random sample of N shipped evaluations on this machine (temporary cache) and
 ## compare: bit-identical wherever the numerics are pinned (the default; any difference is a mismatch, with its size),
 ## rollout means within 5 % only for entries made under THESIS_REPRO_NUMERICS=native on another CPU; prints a table

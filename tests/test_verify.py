@@ -186,6 +186,8 @@ def test_a_consistent_edit_is_caught_by_verify_entry_and_verify_figure(layer, ca
     out = capsys.readouterr().out
     assert "1 shipped entry to recompute" in out and "0/1 match; 1 MISMATCH" in out
     assert "MISMATCH: not bit-identical (max |diff| " in out and "0.0431 relative" in out
+    assert main(["verify", "--scale", "smoke", "--entry", target.name.rsplit("__", 1)[0]]) == 1  # by label
+    assert "1 shipped entry to recompute" in capsys.readouterr().out
     assert main(["verify", "--scale", "smoke", "--figure", "_verify"]) == 1
     out = capsys.readouterr().out
     assert "figure _verify: 3 shipped entries to recompute" in out
@@ -263,7 +265,7 @@ def test_verify_with_no_shipped_evaluations_says_so(toy_figure, tmp_path, monkey
         (["verify", "--kind", "train"], "error: --kind: invalid value 'train'; valid kinds are: 'evaluate', 'arm-"),
         (["verify", "--figure", "9.9"], "error: unknown --figure figure '9.9'; valid --figure figures are: '3.2'"),
         (["verify", "--entry", "ab"], "error: --entry: 'ab' is too short"),
-        (["verify", "--entry", "0123456789abcdef0123"], "error: --entry: no shipped entry with key '0123456789abcd"),
+        (["verify", "--entry", "0123456789abcdef0123"], "error: --entry: no shipped entry named '0123456789abcdef"),
         (["verify", "--claim", "nosuch"], "error: unknown claim 'nosuch'; known: "),
         (["verify", "--figure", "3.3", "--all"], "error: verify: --figure and --all exclude each other"),
     ],
@@ -408,3 +410,14 @@ def test_evaluations_follow_their_policy_in_one_command(toy_figure, tmp_path, mo
         "[3/3]",
     ]
     assert sum(line.startswith("[follows] test-verify-eval") for line in pooled) == 3
+
+
+def test_verify_entry_takes_a_label_and_names_the_keys_when_the_label_is_ambiguous(tmp_path):
+    """``--entry ppo__Hopper__s4__obs`` finds the one shipped entry of that label; two of one label ask for a key."""
+    one, two = (tmp_path / "evaluate" / f"ppo__Hopper__s4__obs__{k * 20}" for k in "ab")
+    one.mkdir(parents=True)
+    assert verify.find_shipped("ppo__Hopper__s4__obs", tmp_path) == one
+    assert verify.find_shipped("aaaaaa", tmp_path) == one
+    two.mkdir()
+    with pytest.raises(ValueError, match=r"names 2 shipped entries \(keys aaaaaaaaaa, bbbbbbbbbb\); pass one key"):
+        verify.find_shipped("ppo__Hopper__s4__obs", tmp_path)

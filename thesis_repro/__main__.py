@@ -253,7 +253,11 @@ def _main(argv: list[str]) -> int:
         help="shipped kinds to sample from (default: evaluate; chapter 5's arm kinds too, e.g. arm-target)",
     )
     ver.add_argument("--figure", default=None, help="recompute every shipped evaluation behind a figure, e.g. 3.3")
-    ver.add_argument("--entry", default=None, help="recompute one shipped entry (its key, or its first 6+ characters)")
+    ver.add_argument(
+        "--entry",
+        default=None,
+        help="recompute one shipped entry: its label (ppo__Hopper__s4__obs) or key (6+ characters)",
+    )
     ver.add_argument(
         "--claim",
         default=None,

@@ -232,16 +232,28 @@ def shipped_of_figures(
 
 
 def find_shipped(key: str, layer: Path) -> Path:
-    """The shipped entry whose key (or folder name) is ``key`` or starts with it (at least 6 characters); a
-    ``ValueError`` naming what to pass when there is none or several."""
+    """The shipped entry labelled ``key`` (``ppo__Hopper__s0__obs``, its folder name without the key), or whose key
+    (or folder name) is ``key`` or starts with it (at least 6 characters); a ``ValueError`` naming what to pass
+    when there is none or several."""
     key = str(key).strip().rstrip("/").rsplit("/", 1)[-1]
+    entries = runs.shipped_entries(layer)
+    named = [p for p in entries if p.name.rsplit("__", 1)[0] == key]
+    if len(named) > 1:
+        keys = ", ".join(p.name.rsplit("__", 1)[1][:10] for p in named)
+        raise ValueError(f"--entry: {key!r} names {len(named)} shipped entries (keys {keys}); pass one key")
+    if named:
+        return named[0]
     bare = key.rsplit("__", 1)[-1]
     if len(bare) < 6:
-        raise ValueError(f"--entry: {key!r} is too short; pass an entry's key (20 hex digits, or its first 6+)")
-    found = [p for p in runs.shipped_entries(layer) if p.name == key or p.name.rsplit("__", 1)[1].startswith(bare)]
+        raise ValueError(
+            f"--entry: {key!r} is too short; pass an entry's label (ppo__Hopper__s0__obs) or its key (20 hex digits,"
+            " or its first 6+)"
+        )
+    found = [p for p in entries if p.name == key or p.name.rsplit("__", 1)[1].startswith(bare)]
     if not found:
         raise ValueError(
-            f"--entry: no shipped entry with key {bare!r} in {layer} (`python -m thesis_repro runs` lists them)"
+            f"--entry: no shipped entry named {key!r} or with key {bare!r} in {layer}"
+            " (`python -m thesis_repro runs` lists them)"
         )
     if len(found) > 1:
         raise ValueError(f"--entry: {bare!r} matches {len(found)} shipped entries; pass more of the key")

@@ -102,6 +102,9 @@ def ours_text(row: Row) -> str:
     ...     "n": 20})
     >>> ours_text(row)
     'pooled r +0.80 [+0.70, +0.90], 0/20 units yes'
+    >>> row.primary["pooled"] = dict(pooled, ci=[None, None])  # one value per unit: nothing to replicate
+    >>> ours_text(row)
+    'pooled r +0.80 (no CI: no replication), 0/20 units yes'
     """
     prim = row.primary
     if not prim:
@@ -119,7 +122,8 @@ def ours_text(row: Row) -> str:
             if q["kind"] == "r":
                 est, lo, hi = (None if x is None else math.tanh(x) for x in (est, lo, hi))
             what = "r" if q["kind"] == "r" else "effect"
-            out.append(f"{head}pooled {what} {_num(est)} [{_num(lo)}, {_num(hi)}], {p['k']}/{p['n']} units yes")
+            ci = " (no CI: no replication)" if lo is None and hi is None else f" [{_num(lo)}, {_num(hi)}]"
+            out.append(f"{head}pooled {what} {_num(est)}{ci}, {p['k']}/{p['n']} units yes")
         else:
             lo, hi = p.get("share_ci", [None, None])
             band = f" (share {lo:.2f}-{hi:.2f})" if lo is not None and hi is not None and lo != hi else ""
