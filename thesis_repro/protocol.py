@@ -241,6 +241,19 @@ def protocols_at(scale: str = "small") -> dict[str, list[str]]:
     return out
 
 
+def _in_words(figs: list[str], tables: list[str]) -> str:
+    """``"Figs 3.2 and 3.4 and Table 3.3"``; ``"no item"`` when both are empty."""
+
+    def words(kind: str, ids: list[str]) -> str:
+        if not ids:
+            return ""
+        head = kind if len(ids) == 1 else kind + "s"
+        return f"{head} {ids[0]}" if len(ids) == 1 else f"{head} {', '.join(ids[:-1])} and {ids[-1]}"
+
+    parts = [w for w in (words("Fig", figs), words("Table", tables)) if w]
+    return " and ".join(parts) or "no item"
+
+
 def items_with_seeds(seeds: int, scale: str = "small") -> str:
     """The chapter 3-4 items that train ``seeds`` training seeds at ``scale`` (from the scale table), in words:
     ``"Figs 3.2 and 3.4 and Table 3.3"`` (the book page ``book/runs.md`` quotes it; a test keeps them equal).
@@ -253,15 +266,20 @@ def items_with_seeds(seeds: int, scale: str = "small") -> str:
         s = scales.figure_settings(fig, scale)
         if "test_rollouts" in s and s.get("train_seeds") == seeds and not fig.startswith(("5.", "analysis-")):
             (tables if fig.startswith("table-") else figs).append(fig.removeprefix("table-"))
+    return _in_words(figs, tables)
 
-    def words(kind: str, ids: list[str]) -> str:
-        if not ids:
-            return ""
-        head = kind if len(ids) == 1 else kind + "s"
-        return f"{head} {ids[0]}" if len(ids) == 1 else f"{head} {', '.join(ids[:-1])} and {ids[-1]}"
 
-    parts = [w for w in (words("Fig", figs), words("Table", tables)) if w]
-    return " and ".join(parts) or "no item"
+def arm_items_with_seeds(seeds: int, scale: str = "small") -> str:
+    """Chapter 5's CMA-ES items that run ``seeds`` seeds at ``scale`` (the ``seeds`` list of their blocks), in
+    words (``book/runs.md`` quotes it; a test keeps them equal).
+
+    >>> arm_items_with_seeds(99)
+    'no item'
+    """
+    figs = [
+        f for f in scales.figures() if f.startswith("5.") and len(scales.figure_settings(f, scale)["seeds"]) == seeds
+    ]
+    return _in_words(figs, [])
 
 
 def switch_summary(scale: str = "small") -> str:
