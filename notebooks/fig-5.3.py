@@ -38,11 +38,16 @@ summary.round(2)
 
 # %%
 n = len(results)
-fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.4), squeeze=False)
-for ax, row, r in zip(axes[0], summary.itertuples(), results, strict=True):
+cols = min(n, 5)
+rows = -(-n // cols)
+fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 4.4 * rows), squeeze=False)
+for ax, row, r in zip(axes.flat[:n], summary.itertuples(), results, strict=True):
     status = f"caught at {row.catch_time:.2f} s" if row.success else "not caught"
     plot.ball_in_cup(ax, r, f"reproduced, seed {row.seed}: {status}", ArmConfig().cup_radius)
-axes[0, 0].set_ylabel("y (m)")
+for ax in axes.flat[n:]:
+    ax.set_axis_off()
+for ax in axes[:, 0]:
+    ax.set_ylabel("y (m)")
 axes[0, 0].plot([], [], color="tab:red", label="ball, string taut")
 axes[0, 0].plot([], [], color="tab:green", label="ball, string slack")
 axes[0, 0].legend(fontsize=7, loc="lower left")
