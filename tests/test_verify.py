@@ -341,6 +341,15 @@ def test_arm_kinds_compare_their_summaries_across_platforms():
     assert all(job_kinds.KINDS.get(k) for k in verify.ARM_KINDS)  # each names a registered kind
 
 
+def test_a_curriculum_entry_with_named_phases_compares():
+    """Fig 5.6's curriculum entries carry an array of phase names beside their numbers: compared as values, not
+    a NumPy truth-value error (`verify --entry NC__s9` used to end in one)."""
+    cl = {"curve": np.array([0.5, 0.2]), "phases": np.array(["reach", "bic"])}
+    assert verify.compare(cl, {k: v.copy() for k, v in cl.items()}, same=True).verdict == "identical"
+    other = {**cl, "phases": np.array(["throw", "bic"])}
+    assert verify.compare(cl, other, same=True).verdict == "MISMATCH: phases differ"
+
+
 def _train_entry(tmp_path: Path, resumed_from: int, start: str) -> Result:
     path = tmp_path / f"r{resumed_from}-{start[:10]}"
     path.mkdir()

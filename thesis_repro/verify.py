@@ -114,14 +114,19 @@ class Check:
 
 
 def _numeric(values: Mapping[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """``values`` split into float arrays (numbers, numeric arrays and lists) and everything else."""
+    """``values`` split into float arrays (numbers, numeric arrays and lists) and everything else (other arrays,
+    such as the phase names of a curriculum, as lists, so that ``==`` compares them).
+
+    >>> _numeric({"cost": 1, "phases": np.array(["reach", "bic"]), "name": "x"})
+    ({'cost': array(1.)}, {'phases': ['reach', 'bic'], 'name': 'x'})
+    """
     nums, other = {}, {}
     for k, v in values.items():
         arr = np.asarray(v) if not isinstance(v, Mapping | str) and v is not None else None
         if arr is not None and arr.dtype.kind in "biuf":
             nums[k] = arr.astype(np.float64)
         else:
-            other[k] = v
+            other[k] = arr.tolist() if isinstance(v, np.ndarray) else v
     return nums, other
 
 
