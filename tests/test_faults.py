@@ -387,6 +387,28 @@ def test_a_ctrl_c_while_workers_spawn_is_deferred_not_lost():
     assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
 
 
+def test_a_ctrl_c_another_thread_takes_still_waits_for_the_spawn_window_to_end():
+    """With a pool's manager thread alive, a Ctrl-C is delivered to that thread (the spawning one blocks it), and
+    Python used to raise it in the main thread at once, inside the window: between starting a worker and handing
+    it its job (the worker then printed "EOFError: Ran out of input", CI of this session). It waits for the end."""
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)  # does not block SIGINT, as the pool's threads do not
+    other.start()
+    reached = False
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with backends.sigint_held():
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.2)
+                reached = True
+            time.sleep(5)  # not reached
+    finally:
+        stop.set()
+        other.join()
+    assert reached
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
 def test_ctrl_c_stops_a_parallel_reference_run_at_once(tmp_path):
     """`make reference-runs JOBS=2`, Ctrl-C while its workers start: the terminal interrupts the whole process
     group; the workers print nothing and are ended, no queued run starts, and the generator exits 130 at once

@@ -234,14 +234,26 @@ def die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker p
 def sigint_held() -> Iterator[None]:
     """Block SIGINT in this thread for the block: processes spawned in it start with it blocked (their
     :func:`die_with_parent` ignores and then unblocks it, dropping a pending one), and a Ctrl-C that arrives
-    meanwhile is held, not lost: it is raised as KeyboardInterrupt when the block ends."""
-    import signal
+    meanwhile is held, not lost: it is raised as KeyboardInterrupt when the block ends.
 
+    Another thread (a process pool's manager thread) may take the signal instead; in the main thread the block
+    also swaps Python's SIGINT handler for one that notes it, so that a spawn is never cut between starting a
+    worker and handing it its job (the worker would print a traceback, "EOFError: Ran out of input")."""
+    import signal
+    import threading
+
+    noted: list[int] = []
+    swap = threading.current_thread() is threading.main_thread()
+    handler = signal.signal(signal.SIGINT, lambda signum, _frame: noted.append(signum)) if swap else None
     old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
+        if swap:
+            signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
         signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a Ctrl-C held pending above lands now (unless blocked before)
+        if noted:
+            signal.raise_signal(signal.SIGINT)  # the one another thread took meanwhile, to its own handler now
 
 
 def stop_pool(ex: ProcessPoolExecutor) -> None:
