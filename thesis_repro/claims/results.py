@@ -35,7 +35,7 @@ import yaml
 
 from thesis_repro import paths, scales
 from thesis_repro.claims import ledger, registry, scoreboard
-from thesis_repro.claims.confirmatory import FIRST_FRESH, FRESH_WORDS, fresh_summary, fresh_verdict
+from thesis_repro.claims.confirmatory import FIRST_FRESH, FRESH_WORDS, fresh_summary, fresh_verdict, seed_range
 
 #: The README's generated blocks: the results summary and the scale table.
 RESULTS_MARKERS = ("<!-- results:start -->", "<!-- results:end -->")
@@ -177,9 +177,9 @@ def fresh_md(ledger_json: Mapping[str, Any], scale: str) -> str:
     if judged:
         out += [
             "",
-            "| claim | thesis line | claim, in short | verdict (every seed) | fresh seeds alone "
+            "| claim | thesis line | claim, in short | verdict (every seed) | fresh seeds | fresh seeds alone "
             "| ours on fresh seeds |",
-            "|---|---|---|---|---|---|",
+            "|---|---|---|---|---|---|---|",
         ]
     for c in judged:
         cells = (
@@ -187,6 +187,7 @@ def fresh_md(ledger_json: Mapping[str, Any], scale: str) -> str:
             thesis_lines(c),
             short(c),
             label(c),
+            seed_range(c["confirmatory"]["seeds"]) if c["confirmatory"].get("seeds") else "-",
             f"**{fresh_cell(c)}**",
             c["confirmatory"].get("ours") or "-",
         )
