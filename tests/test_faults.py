@@ -379,7 +379,7 @@ def test_a_ctrl_c_while_workers_spawn_is_deferred_not_lost():
     used to vanish (it was ignored) and leave the generator waiting on its runs (CI after stop 34); now it is raised
     by the window's end at the latest."""
     with pytest.raises(KeyboardInterrupt):
-        with backends.sigint_held():
+        with backends.interrupts_held():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.05)
         time.sleep(5)  # not reached
@@ -397,7 +397,7 @@ def test_a_ctrl_c_another_thread_takes_still_waits_for_the_spawn_window_to_end()
     reached = False
     try:
         with pytest.raises(KeyboardInterrupt):
-            with backends.sigint_held():
+            with backends.interrupts_held():
                 os.kill(os.getpid(), signal.SIGINT)
                 time.sleep(0.2)
                 reached = True
@@ -407,6 +407,30 @@ def test_a_ctrl_c_another_thread_takes_still_waits_for_the_spawn_window_to_end()
         other.join()
     assert reached
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_sigterm_in_the_spawn_window_waits_for_its_end():
+    """SIGTERM, which the command line raises as `Terminated`, is held by the same window as Ctrl-C."""
+
+    class Ended(Exception):
+        pass
+
+    def end(signum, _frame):
+        raise Ended(signum)
+
+    before = signal.signal(signal.SIGTERM, end)
+    reached = False
+    try:
+        with pytest.raises(Ended):
+            with backends.interrupts_held():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.2)
+                reached = True
+            time.sleep(5)  # not reached
+        assert signal.getsignal(signal.SIGTERM) is end
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert reached
 
 
 def test_ctrl_c_stops_a_parallel_reference_run_at_once(tmp_path):

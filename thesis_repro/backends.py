@@ -193,7 +193,7 @@ def run_jobs(
         ) as ex:
             ref = str(cache.reference) if cache.reference is not None else False
             try:  # Ctrl-C or SIGTERM: end the workers now (their runs resume from their checkpoints), one line
-                with sigint_held():  # the workers start deaf to Ctrl-C: this process ends them
+                with interrupts_held():  # the workers start deaf to Ctrl-C: this process ends them
                     futures = {ex.submit(execute, job, str(cache.root), ref): key for key, job in todo.items()}
                 for fut in as_completed(futures):
                     results[futures[fut]] = fut.result()
@@ -218,7 +218,7 @@ def die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker p
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the spawning parent (sigint_held)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the spawning parent (interrupts_held)
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
@@ -231,29 +231,33 @@ def die_with_parent() -> None:  # pragma: no cover - runs in the pool's worker p
 
 
 @contextmanager
-def sigint_held() -> Iterator[None]:
-    """Block SIGINT in this thread for the block: processes spawned in it start with it blocked (their
-    :func:`die_with_parent` ignores and then unblocks it, dropping a pending one), and a Ctrl-C that arrives
-    meanwhile is held, not lost: it is raised as KeyboardInterrupt when the block ends.
+def interrupts_held() -> Iterator[None]:
+    """Hold the interrupts for the block, so that a worker is never cut between being started and being handed its
+    job (it would print a traceback, "EOFError: Ran out of input"); one that arrives meanwhile is held, not lost: it
+    is raised when the block ends.
 
-    Another thread (a process pool's manager thread) may take the signal instead; in the main thread the block
-    also swaps Python's SIGINT handler for one that notes it, so that a spawn is never cut between starting a
-    worker and handing it its job (the worker would print a traceback, "EOFError: Ran out of input")."""
+    SIGINT is blocked in this thread: processes spawned in it start with it blocked (their
+    :func:`die_with_parent` ignores and then unblocks it, dropping a pending one). Another thread (a process pool's
+    manager thread) may take a signal instead, so in the main thread the block also swaps the Python handlers of
+    SIGINT and of SIGTERM / SIGHUP (where the command line raises on them) for one that notes the signal."""
     import signal
     import threading
 
     noted: list[int] = []
-    swap = threading.current_thread() is threading.main_thread()
-    handler = signal.signal(signal.SIGINT, lambda signum, _frame: noted.append(signum)) if swap else None
+    handlers: dict[int, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            if callable(signal.getsignal(sig)):  # a Python handler (SIG_DFL / SIG_IGN act in C, at once)
+                handlers[sig] = signal.signal(sig, lambda signum, _frame: noted.append(signum))
     old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        if swap:
-            signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
         signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a Ctrl-C held pending above lands now (unless blocked before)
         if noted:
-            signal.raise_signal(signal.SIGINT)  # the one another thread took meanwhile, to its own handler now
+            signal.raise_signal(noted[0])  # the one another thread took meanwhile, to its own handler now
 
 
 def stop_pool(ex: ProcessPoolExecutor) -> None:

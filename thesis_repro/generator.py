@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from thesis_repro import figures, job_kinds, paths
-from thesis_repro.backends import die_with_parent, execute, sigint_held, stop_pool
+from thesis_repro.backends import die_with_parent, execute, interrupts_held, stop_pool
 from thesis_repro.cache import (
     Job,
     Result,
@@ -459,7 +459,7 @@ def generate(
 
             def submit() -> None:  # keep n_jobs in flight, each the next job the deadline allows
                 while len(pending) < n_jobs and (p := queue.take()) is not None:
-                    with sigint_held():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
+                    with interrupts_held():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
                         fut = ex.submit(execute, p.job, str(cache.root), ref)
                     futures[fut] = p
                     pending.add(fut)
