@@ -390,7 +390,7 @@ def test_a_ctrl_c_while_workers_spawn_is_deferred_not_lost():
 def test_a_ctrl_c_another_thread_takes_still_waits_for_the_spawn_window_to_end():
     """With a pool's manager thread alive, a Ctrl-C is delivered to that thread (the spawning one blocks it), and
     Python used to raise it in the main thread at once, inside the window: between starting a worker and handing
-    it its job (the worker then printed "EOFError: Ran out of input", CI of this session). It waits for the end."""
+    it its job (the worker then printed "EOFError: Ran out of input", seen in CI). It waits for the end."""
     stop = threading.Event()
     other = threading.Thread(target=stop.wait)  # does not block SIGINT, as the pool's threads do not
     other.start()
