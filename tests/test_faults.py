@@ -387,6 +387,19 @@ def test_a_ctrl_c_while_workers_spawn_is_deferred_not_lost():
     assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
 
 
+def _raised_at_the_windows_end(sig: int, raised: type[BaseException]) -> None:
+    """``sig`` sent to this process inside :func:`backends.interrupts_held` raises ``raised`` at the block's end,
+    not inside it."""
+    reached = False
+    with pytest.raises(raised):
+        with backends.interrupts_held():
+            os.kill(os.getpid(), sig)
+            time.sleep(0.2)
+            reached = True
+        time.sleep(5)  # not reached
+    assert reached
+
+
 def test_a_ctrl_c_another_thread_takes_still_waits_for_the_spawn_window_to_end():
     """With a pool's manager thread alive, a Ctrl-C is delivered to that thread (the spawning one blocks it), and
     Python used to raise it in the main thread at once, inside the window: between starting a worker and handing
@@ -394,18 +407,11 @@ def test_a_ctrl_c_another_thread_takes_still_waits_for_the_spawn_window_to_end()
     stop = threading.Event()
     other = threading.Thread(target=stop.wait)  # does not block SIGINT, as the pool's threads do not
     other.start()
-    reached = False
     try:
-        with pytest.raises(KeyboardInterrupt):
-            with backends.interrupts_held():
-                os.kill(os.getpid(), signal.SIGINT)
-                time.sleep(0.2)
-                reached = True
-            time.sleep(5)  # not reached
+        _raised_at_the_windows_end(signal.SIGINT, KeyboardInterrupt)
     finally:
         stop.set()
         other.join()
-    assert reached
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
@@ -419,18 +425,11 @@ def test_a_sigterm_in_the_spawn_window_waits_for_its_end():
         raise Ended(signum)
 
     before = signal.signal(signal.SIGTERM, end)
-    reached = False
     try:
-        with pytest.raises(Ended):
-            with backends.interrupts_held():
-                os.kill(os.getpid(), signal.SIGTERM)
-                time.sleep(0.2)
-                reached = True
-            time.sleep(5)  # not reached
+        _raised_at_the_windows_end(signal.SIGTERM, Ended)
         assert signal.getsignal(signal.SIGTERM) is end
     finally:
         signal.signal(signal.SIGTERM, before)
-    assert reached
 
 
 def test_ctrl_c_stops_a_parallel_reference_run_at_once(tmp_path):
