@@ -147,11 +147,15 @@ def test_plan_reports_cost_per_training_seed():
     assert plan.per_seed(plan.plan_jobs("x", [], "smoke", 1, RATES)) == ""
 
 
-def _ship(root, name: str, cfg: dict, pace: float | None, machine: dict | None = None) -> None:
+def _ship(
+    root, name: str, cfg: dict, pace: float | None, machine: dict | None = None, cpu_pace: float | None = None
+) -> None:
     entry = root / "train" / name
     entry.mkdir(parents=True)
     (entry / "config.json").write_text(json.dumps({"config": cfg, "kind": "train"}))
     measured = {} if pace is None else {"measured": {"steps_per_s": pace}}
+    if cpu_pace is not None:
+        measured["measured"]["steps_per_cpu_s"] = cpu_pace
     (entry / "provenance.json").write_text(json.dumps({**measured, "platform": machine}))
 
 
@@ -174,6 +178,22 @@ def test_shipped_rates_prefer_the_runs_made_on_this_cpu(tmp_path):
     assert throughput.shipped_rates(tmp_path, base, machine=intel).rate("ppo") == 2050.0  # the Xeon: its 4 runs
     assert throughput.shipped_rates(tmp_path, base).rate("ppo") == 1950.0  # no machine: every run's median
     assert "this CPU" not in throughput.rates_note(throughput.shipped_rates(tmp_path, base))
+
+
+def test_a_run_that_shared_its_core_is_priced_at_its_cpu_pace(tmp_path):
+    """A run that shared its core with CI kept 1,000 steps per wall second but 4,000 per CPU-second: the plan
+    prices it at 4,000, and once enough runs recorded CPU time their median alone prices the family, so a deadline
+    and the core-hours read what a run costs on a core of its own."""
+    ppo = train_config("ppo", "Hopper", 0, 1000)
+    _ship(tmp_path, "old", ppo, 3000.0)  # made before CPU time was recorded: its wall pace
+    _ship(tmp_path, "beside-ci", ppo, 1000.0, cpu_pace=4000.0)
+    one = throughput.shipped_rates(tmp_path, throughput.load_rates())
+    assert one.rate("ppo") == 3500.0 and one.source("ppo") == "shipped pace, median of 2"  # one CPU-timed run: too few
+    _ship(tmp_path, "alone", ppo, 4100.0, cpu_pace=4200.0)
+    _ship(tmp_path, "old2", ppo, 900.0)
+    two = throughput.shipped_rates(tmp_path, throughput.load_rates())
+    assert two.rate("ppo") == 4100.0 and two.source("ppo") == "shipped pace, CPU-timed, median of 2"  # they alone
+    assert "per CPU-second" in throughput.rates_note(two)
 
 
 def test_shipped_rates_are_the_median_pace_of_the_shipped_runs_per_family(tmp_path, capsys, monkeypatch):

@@ -230,18 +230,19 @@ def shipped_rates(
     by_env: bool = False,
     machine: Mapping[str, Any] | None = None,
 ) -> Rates:
-    """The pace the shipped training runs actually kept, per family: the median of ``measured.steps_per_s`` (env
-    steps per WALL second of one run, as the generator ran it: two runs at a time on the 2-core machine, with
-    whatever else it ran) over the entries of ``<root>/train`` (default: the shipped layer). Families without a
-    shipped run keep ``base``'s rate (default :func:`load_rates`). For an ETA of ``make reference-runs JOBS=2`` on
-    a machine like the one that made them, not a benchmark: the pace of one family spans a factor ~3-5. With
+    """The pace the shipped training runs actually kept, per family: the median of each run's :func:`run_pace` (env
+    steps per CPU-second of one run as the generator ran it, one run per core; per wall second for the runs made
+    before CPU time was recorded) over the entries of ``<root>/train`` (default: the shipped layer). Families
+    without a shipped run keep ``base``'s rate (default :func:`load_rates`). For an ETA of ``make reference-runs
+    JOBS=2`` on a machine like the one that made them, not a benchmark: the pace of one family spans a factor ~3. With
     ``by_env``, also one rate per family and task under the key ``"<family>:<env>"`` (:func:`rate_key`), and one per
     chapter-5 arm kind (``"arm:arm-target"``: its work per wall second, ``provenance.json``'s ``wall_seconds``).
 
     With ``machine`` (this machine's :func:`~thesis_repro.provenance.platform_info`), a rate that at least
     :data:`MIN_LOCAL_RUNS` runs made on that platform give is their median alone: one CPU kept half another's pace
     on the same runs (chapter 4's Walker2d runs: Intel Xeon vs AMD EPYC), and a deadline (``--until``) must not
-    start a run it cannot finish.
+    start a run it cannot finish. Then, among those runs, the CPU-timed ones alone where at least
+    :data:`MIN_LOCAL_RUNS` recorded CPU time: a wall pace reads the share of a core the run got, not the run.
 
     >>> r = shipped_rates(root="/nonexistent")
     >>> r.rates == load_rates().rates
@@ -250,8 +251,7 @@ def shipped_rates(
     base = base or load_rates()
     folder = (Path(root) if root is not None else paths.reference()) / "train"
     here = json.loads(json.dumps(machine)) if machine is not None else None
-    paces: dict[str, list[float]] = {}
-    local: dict[str, list[float]] = {}
+    paces: dict[str, list[tuple[float, bool, bool]]] = {}  # per key: (pace, made on this CPU, CPU-timed)
     arm = sorted(folder.parent.glob("arm-*/*")) if by_env else []  # chapter 5: work per wall second, by kind
     for entry in [*(sorted(folder.glob("*")) if folder.is_dir() else []), *arm]:
         try:
@@ -259,23 +259,37 @@ def shipped_rates(
             prov = json.loads((entry / "provenance.json").read_text())
             job = Job(entry.parent.name, cfg)
             trains = job.kind in TRAINING_KINDS
-            pace = float(prov["measured"]["steps_per_s"] if trains else work(job) / prov["wall_seconds"])
+            pace = run_pace(prov["measured"]) if trains else work(job) / prov["wall_seconds"]
+            timed = trains and bool(prov["measured"].get("steps_per_cpu_s"))
         except (OSError, ValueError, KeyError, TypeError, ZeroDivisionError):
             continue
         if pace > 0:
             keys = (family(job), rate_key(job)) if trains and by_env else (family(job),) if trains else (rate_key(job),)
+            mine = here is not None and prov.get("platform") == here
             for key in keys:
-                paces.setdefault(key, []).append(pace)
-                if here is not None and prov.get("platform") == here:
-                    local.setdefault(key, []).append(pace)
+                paces.setdefault(key, []).append((pace, mine, timed))
     rates, sources = dict(base.rates), dict(base.sources)
-    for key, values in paces.items():
-        mine = local.get(key, [])
+    for key, runs in paces.items():
+        mine = [r for r in runs if r[1]]
         where = " on this CPU" if len(mine) >= MIN_LOCAL_RUNS else ""
-        values = mine if where else values
-        rates[key] = float(statistics.median(values))
-        sources[key] = f"{SHIPPED_PACE}{where}, median of {len(values)}"
+        runs = mine if where else runs
+        timed = [r for r in runs if r[2]]
+        how = ", CPU-timed" if len(timed) >= MIN_LOCAL_RUNS else ""
+        runs = timed if how else runs
+        rates[key] = float(statistics.median(r[0] for r in runs))
+        sources[key] = f"{SHIPPED_PACE}{where}{how}, median of {len(runs)}"
     return Rates(rates, sources)
+
+
+def run_pace(measured: Mapping[str, Any]) -> float:
+    """A training run's pace from its ``provenance.json["measured"]``: env steps per CPU-second where it recorded
+    them (``steps_per_cpu_s``), else per wall second (``steps_per_s``). The wall pace of a run that shared its core
+    (with CI, a book build) reads up to 5x slow; its CPU pace does not.
+
+    >>> run_pace({"steps_per_s": 1000.0, "steps_per_cpu_s": 4000.0}), run_pace({"steps_per_s": 1000.0})
+    (4000.0, 1000.0)
+    """
+    return float(measured.get("steps_per_cpu_s") or measured["steps_per_s"])
 
 
 def rate_key(job: Job) -> str:
@@ -307,8 +321,8 @@ def rates_note(rates: Rates) -> str:
         by_env = any(":" in k for k in rates.rates)
         local = any(s.startswith(f"{SHIPPED_PACE} on this CPU") for s in rates.sources.values())
         return (
-            "rates: the shipped training runs' median pace per family (env steps per wall second of one run, two "
-            "runs at a time on the machine that made them: an ETA, not a benchmark; 'core-hours' are then run-hours)"
+            "rates: the shipped training runs' median pace per family (env steps per CPU-second of one run, one run "
+            "per core, on the machines that made them: an ETA, not a benchmark)"
             + ("; per learner and task where shipped runs give one" if by_env else "")
             + ("; this CPU's runs alone where it made enough" if local else "")
         )
