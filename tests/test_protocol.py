@@ -204,13 +204,12 @@ def test_a_seed_past_the_confirmatory_target_is_stale(tmp_path):
     [
         ("three", 3, "items_with_seeds"),
         ("six", 6, "items_with_seeds"),
-        ("arm-three", 3, "arm_items_with_seeds"),
         ("arm-ten", 10, "arm_items_with_seeds"),
     ],
 )
 def test_book_names_exactly_the_items_at_each_seed_count(name: str, seeds: int, words: str):
     """The book page on shipped runs lists the chapter 3-4 items at 3 seeds and those at 6 (fresh seeds shipped),
-    and chapter 5's at 3 and at 10; the scale table decides which."""
+    and chapter 5's at 10; the scale table decides which."""
     text = (paths.ROOT / "book" / "runs.md").read_text()
     block = text.split(f"<!-- {name}-seeds:begin -->")[1].split(f"<!-- {name}-seeds:end -->")[0]
     assert block == getattr(protocol, words)(seeds, "small"), (
