@@ -184,13 +184,21 @@ def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
 def test_a_seed_past_the_confirmatory_target_is_stale(tmp_path):
     """The scale's own seeds are current; the confirmatory replication's (3-5 here) are current for
     `check_shipped` before the scale table counts them; a seed past that target is stale."""
-    from thesis_repro import generator, shipped_checks
+    from thesis_repro import generator, scales, shipped_checks
 
-    within = generator.plan("small", ["table-3.6"], seeds=[2], algos=["ppo-16"])
-    fresh = generator.plan("small", ["table-3.6"], seeds=[5], algos=["ppo-16"])
-    beyond = generator.plan("small", ["table-3.6"], seeds=[6], algos=["ppo-16"])
+    at_three = [  # an item the scale table still reads at 3 seeds (issue 46 raises them one by one)
+        f
+        for f in scales.figures()
+        if f.startswith("table-3.") and scales.figure_settings(f, "small").get("train_seeds") == 3
+    ]
+    if not at_three:
+        pytest.skip("every chapter-3 table reads its fresh seeds at small")
+    item, algo = at_three[0], scales.figure_settings(at_three[0], "small")["algos"][-1]
+    within = generator.plan("small", [item], seeds=[2], algos=[algo])
+    fresh = generator.plan("small", [item], seeds=[5], algos=[algo])
+    beyond = generator.plan("small", [item], seeds=[6], algos=[algo])
     assert within and fresh and beyond
-    current = shipped_checks.current_keys("small", figure_ids=["table-3.6"])
+    current = shipped_checks.current_keys("small", figure_ids=[item])
     assert {p.job.key for p in within} <= current
     assert not {p.job.key for p in fresh} & current
     for p in (*fresh, *beyond):  # entry folders named as `export` names them (a folder no job binds to)
