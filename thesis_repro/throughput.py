@@ -250,7 +250,9 @@ def shipped_rates(
     :data:`MIN_LOCAL_RUNS` runs made on that platform give is their median alone: one CPU kept half another's pace
     on the same runs (chapter 4's Walker2d runs: Intel Xeon vs AMD EPYC), and a deadline (``--until``) must not
     start a run it cannot finish. Then, among those runs, the CPU-timed ones alone where at least
-    :data:`MIN_LOCAL_RUNS` recorded CPU time: a wall pace reads the share of a core the run got, not the run.
+    :data:`MIN_LOCAL_RUNS` recorded CPU time: a wall pace reads the share of a core the run got, not the run. For
+    the same reason a task whose runs give only a wall pace, in a family that has a CPU-timed rate, has no rate of
+    its own: its jobs are priced at the family's (SAC's 160 wall steps/s on HalfCheetah against 469 per CPU-second).
 
     >>> r = shipped_rates(root="/nonexistent")
     >>> r.rates == load_rates().rates
@@ -286,6 +288,10 @@ def shipped_rates(
         runs = timed if how else runs
         rates[key] = float(statistics.median(r.pace for r in runs))
         sources[key] = f"{SHIPPED_PACE}{where}{how}, median of {len(runs)}"
+    for key in [k for k in paces if ":" in k]:  # a task's wall pace only understates a CPU-timed family's rate
+        fam = key.split(":")[0]
+        if "CPU-timed" not in sources[key] and "CPU-timed" in sources.get(fam, ""):
+            del rates[key], sources[key]
     return Rates(rates, sources)
 
 
