@@ -196,6 +196,23 @@ def test_a_run_that_shared_its_core_is_priced_at_its_cpu_pace(tmp_path):
     assert "per CPU-second" in throughput.rates_note(two)
 
 
+def test_a_task_with_only_wall_paced_runs_takes_its_cpu_timed_familys_rate(tmp_path):
+    """SAC's HalfCheetah runs predate CPU timing and kept 160 steps per wall second on a shared machine, while its
+    CPU-timed Walker2d runs kept 470 per CPU-second: a deadline must not price HalfCheetah at a third of its pace."""
+    for i, pace in enumerate([150.0, 160.0, 170.0]):
+        _ship(tmp_path, f"hc{i}", train_config("sac", "HalfCheetah", i, 1000), pace)
+    walker = train_config("sac", "Walker2d", 0, 1000)
+    _ship(tmp_path, "w0", walker, 300.0, cpu_pace=460.0)
+    one = throughput.shipped_rates(tmp_path, throughput.load_rates(), by_env=True)
+    assert one.rate("sac:HalfCheetah") == 160.0  # one CPU-timed run: the family is not CPU-timed yet
+    _ship(tmp_path, "w1", walker, 470.0, cpu_pace=480.0)
+    two = throughput.shipped_rates(tmp_path, throughput.load_rates(), by_env=True)
+    assert "CPU-timed" in two.source("sac") and two.rate("sac") == 470.0
+    assert "sac:HalfCheetah" not in two.rates and two.rate("sac:Walker2d") == 470.0
+    hc = Job("train", train_config("sac", "HalfCheetah", 5, 1000))
+    assert throughput.job_rate(hc, two) == 470.0
+
+
 def test_shipped_rates_are_the_median_pace_of_the_shipped_runs_per_family(tmp_path, capsys, monkeypatch):
     sac = train_config("sac", "Hopper", 0, 1000)
     for i, pace in enumerate([200.0, 300.0, 1000.0]):

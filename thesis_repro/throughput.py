@@ -21,7 +21,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from thesis_repro import figures, paths
 from thesis_repro.cache import Job
@@ -224,6 +224,14 @@ SHIPPED_PACE = "shipped pace"
 MIN_LOCAL_RUNS = 2
 
 
+class _Pace(NamedTuple):
+    """One shipped run's pace, as :func:`shipped_rates` weighs it."""
+
+    pace: float
+    mine: bool  # made on this machine's platform
+    timed: bool  # recorded CPU time
+
+
 def shipped_rates(
     root: str | Path | None = None,
     base: Rates | None = None,
@@ -242,7 +250,9 @@ def shipped_rates(
     :data:`MIN_LOCAL_RUNS` runs made on that platform give is their median alone: one CPU kept half another's pace
     on the same runs (chapter 4's Walker2d runs: Intel Xeon vs AMD EPYC), and a deadline (``--until``) must not
     start a run it cannot finish. Then, among those runs, the CPU-timed ones alone where at least
-    :data:`MIN_LOCAL_RUNS` recorded CPU time: a wall pace reads the share of a core the run got, not the run.
+    :data:`MIN_LOCAL_RUNS` recorded CPU time: a wall pace reads the share of a core the run got, not the run. For
+    the same reason a task whose runs give only a wall pace, in a family that has a CPU-timed rate, has no rate of
+    its own: its jobs are priced at the family's (SAC's 160 wall steps/s on HalfCheetah against 469 per CPU-second).
 
     >>> r = shipped_rates(root="/nonexistent")
     >>> r.rates == load_rates().rates
@@ -251,7 +261,7 @@ def shipped_rates(
     base = base or load_rates()
     folder = (Path(root) if root is not None else paths.reference()) / "train"
     here = json.loads(json.dumps(machine)) if machine is not None else None
-    paces: dict[str, list[tuple[float, bool, bool]]] = {}  # per key: (pace, made on this CPU, CPU-timed)
+    paces: dict[str, list[_Pace]] = {}
     arm = sorted(folder.parent.glob("arm-*/*")) if by_env else []  # chapter 5: work per wall second, by kind
     for entry in [*(sorted(folder.glob("*")) if folder.is_dir() else []), *arm]:
         try:
@@ -267,17 +277,21 @@ def shipped_rates(
             keys = (family(job), rate_key(job)) if trains and by_env else (family(job),) if trains else (rate_key(job),)
             mine = here is not None and prov.get("platform") == here
             for key in keys:
-                paces.setdefault(key, []).append((pace, mine, timed))
+                paces.setdefault(key, []).append(_Pace(pace, mine, timed))
     rates, sources = dict(base.rates), dict(base.sources)
     for key, runs in paces.items():
-        mine = [r for r in runs if r[1]]
+        mine = [r for r in runs if r.mine]
         where = " on this CPU" if len(mine) >= MIN_LOCAL_RUNS else ""
         runs = mine if where else runs
-        timed = [r for r in runs if r[2]]
+        timed = [r for r in runs if r.timed]
         how = ", CPU-timed" if len(timed) >= MIN_LOCAL_RUNS else ""
         runs = timed if how else runs
-        rates[key] = float(statistics.median(r[0] for r in runs))
+        rates[key] = float(statistics.median(r.pace for r in runs))
         sources[key] = f"{SHIPPED_PACE}{where}{how}, median of {len(runs)}"
+    for key in [k for k in paces if ":" in k]:  # a task's wall pace only understates a CPU-timed family's rate
+        fam = key.split(":")[0]
+        if "CPU-timed" not in sources[key] and "CPU-timed" in sources.get(fam, ""):
+            del rates[key], sources[key]
     return Rates(rates, sources)
 
 
