@@ -89,11 +89,11 @@ def table3_3(lines: list[str]) -> tuple[list[dict], list[dict]]:
         noise = next(c.strip() for c in line.split("\t") if c.strip().endswith(".")).rstrip(".").lower()
         if k == 0:  # the deterministic column holds a single value (one policy for all noise types)
             mean, std = values.pop(0)
-            a_rows.append({"train_condition": "deterministic", "train_sigma": 0.0, "noise_type": "none",
-                           "mean": mean, "std": std})
-        (mean, std), = values
-        a_rows.append({"train_condition": "noisy", "train_sigma": 0.2, "noise_type": noise,
-                       "mean": mean, "std": std})
+            a_rows.append(
+                {"train_condition": "deterministic", "train_sigma": 0.0, "noise_type": "none", "mean": mean, "std": std}
+            )
+        ((mean, std),) = values
+        a_rows.append({"train_condition": "noisy", "train_sigma": 0.2, "noise_type": noise, "mean": mean, "std": std})
     start = next(i for i, line in enumerate(lines) if line.startswith("(b) Testing performance"))
     b_rows = []
     for k, line in enumerate(lines[start + 2 : start + 14]):
@@ -102,8 +102,9 @@ def table3_3(lines: list[str]) -> tuple[list[dict], list[dict]]:
         if float(cells[1]) != sigma_te or (cells[0] and TEST_TOKENS[cells[0]] != noise):
             raise ValueError(f"Table 3.3(b) row {k} is not ({noise}, {sigma_te}): {line!r}")
         for train_sigma, (mean, std) in zip([0.0, 0.2], PM.findall(line), strict=True):
-            b_rows.append({"noise_type": noise, "sigma_te": sigma_te, "train_sigma": train_sigma,
-                           "mean": mean, "std": std})
+            b_rows.append(
+                {"noise_type": noise, "sigma_te": sigma_te, "train_sigma": train_sigma, "mean": mean, "std": std}
+            )
     return a_rows, b_rows
 
 
