@@ -279,6 +279,7 @@ def shipped_rates(
             for key in keys:
                 paces.setdefault(key, []).append(_Pace(pace, mine, timed))
     rates, sources = dict(base.rates), dict(base.sources)
+    cpu_timed: set[str] = set()  # keys whose rate is CPU-seconds' pace
     for key, runs in paces.items():
         mine = [r for r in runs if r.mine]
         where = " on this CPU" if len(mine) >= MIN_LOCAL_RUNS else ""
@@ -286,11 +287,12 @@ def shipped_rates(
         timed = [r for r in runs if r.timed]
         how = ", CPU-timed" if len(timed) >= MIN_LOCAL_RUNS else ""
         runs = timed if how else runs
+        if how:
+            cpu_timed.add(key)
         rates[key] = float(statistics.median(r.pace for r in runs))
         sources[key] = f"{SHIPPED_PACE}{where}{how}, median of {len(runs)}"
     for key in [k for k in paces if ":" in k]:  # a task's wall pace only understates a CPU-timed family's rate
-        fam = key.split(":")[0]
-        if "CPU-timed" not in sources[key] and "CPU-timed" in sources.get(fam, ""):
+        if key not in cpu_timed and key.split(":")[0] in cpu_timed:
             del rates[key], sources[key]
     return Rates(rates, sources)
 
