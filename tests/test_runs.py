@@ -105,6 +105,32 @@ def test_generator_until_starts_only_jobs_that_end_in_time(fake_figures, monkeyp
     assert [e.path.name.split("__")[0] for e in done] == ["b"]
 
 
+def test_deadline_stretches_the_eta_by_the_core_share_trainings_kept():
+    """`--until`: a machine shared with other work (trainings keeping 0.5 of a core) doubles a job's expected wall
+    time, so a job that fits on a quiet machine waits; evaluations (no pace measured) leave the share as it is."""
+
+    class Landed:  # what generate() hands _Deadline.observe: a finished run and its measured paces
+        def __init__(self, per_wall, per_cpu):
+            self.paces = {"steps_per_s": per_wall, "steps_per_cpu_s": per_cpu}
+
+        def measured(self, name, default=None):
+            return self.paces.get(name, default)
+
+    assert generator.core_share(Landed(300.0, 400.0)) == pytest.approx(0.75)
+    assert generator.core_share(Landed(500.0, 400.0)) == 1.0  # a pace per wall second above the CPU pace: capped
+    assert generator.core_share(Landed(None, None)) is None
+    job = generator.Planned(Job("train", _cfg("a", 10)), ["9.9"])
+    queue = generator._Deadline([job], datetime.now() + timedelta(seconds=600), lambda j: 300.0, lambda line: None)
+    assert queue.share == 1.0
+    for _ in range(generator.SHARE_WINDOW):
+        queue.observe(Landed(200.0, 400.0))
+    queue.observe(Landed(None, None))
+    assert queue.share == pytest.approx(0.5)
+    assert queue.take() is None  # 1.25 x 300 s / 0.5 > 600 s left
+    queue.shares = [1.0]
+    assert queue.take() is job
+
+
 def test_eta_counts_the_work_left_past_a_checkpoint(monkeypatch, tmp_path):
     from thesis_repro.learners import train
     from thesis_repro.throughput import Rates

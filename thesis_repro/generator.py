@@ -243,6 +243,24 @@ def in_flight(submitted: Iterable[Future], pending: Collection[Future], n_jobs: 
 #: pace of one family spans a factor ~3 on one machine.
 DEADLINE_MARGIN = 1.25
 
+#: ``--until``: how many of this command's latest trainings :func:`core_share` averages over.
+SHARE_WINDOW = 4
+
+
+def core_share(result: Result) -> float | None:
+    """The share of a core a finished training kept in its last session (its env steps per wall second over its env
+    steps per CPU-second), at most 1; ``None`` for a run that measured neither (an evaluation, an older entry).
+
+    The shipped rates are paces per CPU-second: a run that keeps 0.75 of a core (a book building beside the
+    generator) takes 1/0.75 times as long on the wall clock.
+    """
+    wall, cpu = result.measured("steps_per_s"), result.measured("steps_per_cpu_s")
+    try:
+        share = float(wall) / float(cpu)
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return min(1.0, share) if share > 0 and math.isfinite(share) else None
+
 
 def parse_until(text: str, now: datetime | None = None) -> datetime:
     """The next local clock time ``HH:MM`` after ``now`` (today, else tomorrow): when ``--until`` stops starting jobs.
@@ -302,15 +320,27 @@ def _default_eta(cache: RunCache) -> Callable[[Job], float]:
 
 class _Deadline:
     """The generator's queue of jobs to start, in order; with a deadline (``until``), :meth:`take` hands out the
-    first job expected to end by then (:data:`DEADLINE_MARGIN` x ``eta`` seconds from now) and ``None`` once none
-    fits."""
+    first job expected to end by then (:data:`DEADLINE_MARGIN` x ``eta`` seconds from now, over the share of a core
+    this command's latest trainings kept, :meth:`observe`) and ``None`` once none fits."""
 
     def __init__(
         self, todo: Sequence[Planned], until: datetime | None, eta: Callable[[Job], float], log: Callable[[str], None]
     ) -> None:
         self.queue, self.until, self.eta, self.log = list(todo), until, eta, log
+        self.shares: list[float] = []
         if until is not None:
             log(f"--until {until:%Y-%m-%d %H:%M}: starting only jobs expected to end by then")
+
+    def observe(self, result: Result) -> None:
+        """Note the share of a core a landed training kept (:func:`core_share`)."""
+        share = core_share(result)
+        if share is not None:
+            self.shares = [*self.shares, share][-SHARE_WINDOW:]
+
+    @property
+    def share(self) -> float:
+        """The mean share of a core of the latest :data:`SHARE_WINDOW` trainings landed, 1 before any has."""
+        return sum(self.shares) / len(self.shares) if self.shares else 1.0
 
     def take(self) -> Planned | None:
         if not self.queue:
@@ -319,7 +349,7 @@ class _Deadline:
             return self.queue.pop(0)
         left = (self.until - datetime.now()).total_seconds()
         for i, p in enumerate(self.queue):
-            need = self.eta(p.job)
+            need = self.eta(p.job) / self.share
             if DEADLINE_MARGIN * need <= left:
                 if i:
                     self.log(f"  --until: {i} longer job(s) wait; starting {p.job.label} (~{need / 60:.0f} min)")
@@ -370,7 +400,8 @@ def generate(
     last training run.
 
     With ``until`` (``--until 22:40``), a job starts only while it is expected to finish by then (``eta``, default
-    :func:`eta_seconds`: the work left past its checkpoint at the shipped runs' pace): at the end of a session the
+    :func:`eta_seconds`: the work left past its checkpoint at the shipped runs' pace, over the share of a core this
+    command's latest trainings kept, :func:`core_share`): at the end of a session the
     generator takes the next job that fits instead of one that would be cut off, and stops starting jobs when none
     fits (an interrupted run resumes only on the machine that holds its checkpoints; a new one starts it again).
     """
@@ -419,6 +450,7 @@ def generate(
             line += f", committed {git_commit(ex.path, msg)}"
         log(line + f" -> {shown(ex.path)}")
         done.append(ex)
+        queue.observe(result)
         if followers is not None and not job_kinds.pinned(p.job.kind):
             follow(followers.ready(p.job.key))
 
