@@ -75,16 +75,22 @@ def thesis_value(claim: Mapping[str, Any]) -> str:
 
 
 def ours(claim: Mapping[str, Any]) -> str:
-    """Our key number with its CI (``ours``), else the yes-share of the units with its interval, or ``-``.
+    """Our key number with its CI (``ours``), else the yes-share of the units with its interval, else (a derived
+    claim) the verdicts of the claims it combines, or ``-``.
 
     >>> ours({"statistic": {"k": 3, "n": 20, "value": 0.4, "ci": [0.15, 0.9], "undecided": 14}})
     '3/20 units yes, yes-share [0.15, 0.90]'
     >>> ours({"ours": "r = 0.71 [0.02, 1.39]"}), ours({"statistic": {}})
     ('r = 0.71 [0.02, 1.39]', '-')
+    >>> ours({"statistic": {"parts": {"3.3-a": "reproduces", "3.3-b": "does not reproduce"}}})
+    'from 3.3-a (reproduces) and 3.3-b (does not reproduce)'
     """
     if claim.get("ours"):
         return str(claim["ours"])
     st = claim.get("statistic") or {}
+    parts = st.get("parts")
+    if isinstance(parts, Mapping) and parts:
+        return "from " + " and ".join(f"{cid} ({verdict})" for cid, verdict in parts.items())
     stats = [st] if "n" in st else [v for v in st.values() if isinstance(v, Mapping) and "n" in v]
     stats = [s for s in stats if s.get("n")]
     if not stats:
