@@ -251,8 +251,10 @@ def core_share(result: Result) -> float | None:
     """The share of a core a finished training kept in its last session (its env steps per wall second over its env
     steps per CPU-second), at most 1; ``None`` for a run that measured neither (an evaluation, an older entry).
 
-    The shipped rates are paces per CPU-second: a run that keeps 0.75 of a core (a book building beside the
-    generator) takes 1/0.75 times as long on the wall clock.
+    The shipped rates of the families the confirmatory plan trains are paces per CPU-second: a run that keeps 0.75
+    of a core (a book building beside the generator) takes 1/0.75 times as long on the wall clock. A family priced at
+    its wall pace (chapter 4's multi-domain learners, :func:`thesis_repro.throughput.shipped_rates`) already carries
+    the shares its runs kept, so for it the deadline errs toward starting fewer jobs.
     """
     wall, cpu = result.measured("steps_per_s"), result.measured("steps_per_cpu_s")
     try:
