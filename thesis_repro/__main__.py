@@ -677,7 +677,7 @@ def _study_plan(name: str, scale: str, cores: int | None, rates: Any, missing: b
     jobs = budget_study.jobs(scale)
     todo = plan.to_compute(jobs) if missing else jobs
     p = plan.plan_jobs(name, todo, scale, cores or os.cpu_count() or 1, rates)
-    lines = [plan.report(p, rates)]
+    lines = [plan.report(p, rates), budget_study.size_line(budget_study.size_estimate(scale))]
     if missing:
         n_train = sum(j.kind == "train" for j in todo)
         lines.append(

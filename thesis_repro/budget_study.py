@@ -369,3 +369,74 @@ def prefix_checks(scale: str = "small", cache: RunCache | None = None) -> list[P
     here)."""
     cache = cache or RunCache()
     return [prefix_check(j, cache, twin_budget(j.config, scale)) for j in train_jobs(scale)]
+
+
+# ---------------------------------------------------------------- the shipped layer's size
+@dataclass(frozen=True)
+class SizeEstimate:
+    """Expected bytes the study adds to the shipped layer, from the shipped ``small`` twins of its runs:
+    ``train`` per run label (an upper bound: the twin's training curves and episodes scaled by the budget ratio,
+    later episodes being longer, plus one copy of its policy files per snapshot), ``evaluate`` in all (the twin's
+    mean evaluation entry per evaluation job), ``missing`` the runs without a shipped twin (not counted)."""
+
+    train: dict[str, int]
+    evaluate: int
+    n_evaluate: int
+    missing: tuple[str, ...]
+
+    @property
+    def total(self) -> int:
+        return sum(self.train.values()) + self.evaluate
+
+
+def _files(entry: Path) -> dict[str, int]:
+    return {str(p.relative_to(entry)): p.stat().st_size for p in entry.rglob("*") if p.is_file()}
+
+
+def size_estimate(scale: str = "small", layer_root: str | Path | None = None) -> SizeEstimate:
+    """:class:`SizeEstimate` of the study at ``scale`` from the twins shipped in ``layer_root`` (default the layer)."""
+    from thesis_repro.cache import find_entry
+
+    layer = Path(layer_root) if layer_root is not None else paths.reference()
+    train, missing, ev_bytes, n_ev = {}, [], 0, 0
+    evals_per_run = {}
+    for e in eval_jobs(scale):
+        k = Job("train", e.config["train"]).key
+        evals_per_run[k] = evals_per_run.get(k, 0) + 1
+    twin_evals = {}
+    for entry in sorted((layer / "evaluate").glob("*")) if (layer / "evaluate").is_dir() else []:
+        label = entry.name.rsplit("__", 1)[0]
+        twin_evals.setdefault(label.rsplit("__", 1)[0], []).append(sum(_files(entry).values()))
+    for job in train_jobs(scale):
+        twin = Job("train", small_twin(job.config, twin_budget(job.config, scale)))
+        entry = find_entry(layer, twin)
+        if entry is None:
+            missing.append(job.label)
+            continue
+        files = _files(Path(entry))
+        ratio = int(job.config["timesteps"]) / int(twin.config["timesteps"])
+        outs = sum(v for k, v in files.items() if k.startswith("out/") and "/snapshots/" not in k)
+        arrays = files.get("arrays.npz", 0)
+        rest = sum(files.values()) - outs - arrays
+        train[job.label] = int(rest + ratio * arrays + outs * (1 + len(snapshot_at_steps(job.config))))
+        sizes = twin_evals.get(job.label, [])
+        if sizes:
+            ev_bytes += int(np.mean(sizes) * evals_per_run[job.key])
+            n_ev += evals_per_run[job.key]
+    return SizeEstimate(train, ev_bytes, n_ev, tuple(missing))
+
+
+def size_line(est: SizeEstimate) -> str:
+    """One line of :class:`SizeEstimate`: MB in all, per training run (median, max) and for the evaluations.
+
+    >>> size_line(SizeEstimate({"a": 300_000, "b": 500_000}, 1_000_000, 16, ()))
+    'expected shipped size: 1.8 MB (2 training runs 0.8 MB: median 400 kB, max 500 kB per run; 16 evaluations 1.0 MB)'
+    """
+    per = sorted(est.train.values())
+    med = float(np.median(per)) if per else 0.0
+    text = (
+        f"expected shipped size: {est.total / 1e6:,.1f} MB ({len(per)} training runs {sum(per) / 1e6:,.1f} MB: "
+        f"median {med / 1e3:,.0f} kB, max {max(per, default=0) / 1e3:,.0f} kB per run; {est.n_evaluate:,} "
+        f"evaluations {est.evaluate / 1e6:,.1f} MB)"
+    )
+    return text + (f"; {len(est.missing)} runs without a shipped twin not counted" if est.missing else "")
