@@ -139,11 +139,12 @@ thesis-budget:
 ## (over 40 entries, only those not bit-identical), fails on a mismatch; TRAIN=1 also retrains the cheapest shipped
 ## training run; KINDS samples other shipped kinds too (chapter 5's arm-target, ...); FIGURE / ENTRY / CLAIM
 ## recompute every entry behind a figure, one entry, or a claim (then its pages' saved numbers too, compared with the
-## shipped claims snapshot)
+## shipped claims snapshot); STUDY=thesis-budget: that study's free integrity check instead (each learner without a
+## budget-dependent schedule, at the small budget, is the shipped small run of the same seed bit for bit)
 verify: $(STAMP)
 	$(BIN)/python -m thesis_repro verify --scale $(SCALE) $(if $(N),-n $(N)) $(if $(SEED),--seed $(SEED)) \
 	  $(if $(TRAIN),--train) $(if $(KINDS),--kind $(KINDS)) $(if $(FIGURE),--figure $(FIGURE)) \
-	  $(if $(ENTRY),--entry $(ENTRY)) $(if $(CLAIM),--claim $(CLAIM))
+	  $(if $(ENTRY),--entry $(ENTRY)) $(if $(CLAIM),--claim $(CLAIM)) $(if $(STUDY),--study $(STUDY))
 
 ## make verify-all SCALE=small : recompute every shipped evaluation (and chapter 5 entry) of the scale; prints the
 ## count and the compute they took when made before it starts
