@@ -681,8 +681,8 @@ def _study_plan(name: str, scale: str, cores: int | None, rates: Any, missing: b
     if missing:
         n_train = sum(j.kind == "train" for j in todo)
         lines.append(
-            f"{name} ({scale}): {len(todo)} jobs left of {len(jobs)} ({n_train} training runs, "
-            f"{len(todo) - n_train} evaluations)"
+            f"{name} ({scale}): {len(todo):,} jobs left of {len(jobs):,} ({n_train:,} training runs, "
+            f"{len(todo) - n_train:,} evaluations)"
         )
     ordered = [q.job for q in _study_order(name, scale, rates, ("train",))]
     rows, total = [], 0.0
