@@ -795,7 +795,7 @@ def _runs_command(args: argparse.Namespace) -> int:
         from thesis_repro.budget_study import study_keys
         from thesis_repro.study import study_jobs
 
-        also = {j.key for j in study_jobs()} | (study_keys(args.scale) if args.scale != "smoke" else set())
+        also = {j.key for j in study_jobs()} | study_keys(args.scale)
         stale = shipped_checks.check_shipped(args.scale, also=also)
         corrupt, local = shipped_checks.verify_shipped(), shipped_checks.verify_local()
         for s in stale:
