@@ -605,10 +605,13 @@ def check_environment() -> None:
 
 
 def _plan_command(args: argparse.Namespace) -> int:
-    from thesis_repro import budget_study, plan, scales, throughput
+    from thesis_repro import budget_study, figures, plan, scales, throughput
 
     study = args.figure in budget_study.STUDIES
     args.scale = scales.check_scale(args.scale or ("small" if study else "full"))
+    if not study and args.figure not in ("all", "order") and args.figure.removeprefix("fig-") not in figures.FIGURES:
+        named = [f"'{f}'" for f in ("all", "order", *figures.ids(), *budget_study.STUDIES)]
+        raise ValueError(f"unknown figure or study {args.figure!r}; valid choices are: {', '.join(named)}")
     if study and (args.envs or args.algos or args.seeds):
         raise ValueError(f"plan {args.figure} prices the whole study; --envs/--algos/--seeds subset a figure's jobs")
     if args.figure == "order" and (args.envs or args.algos):
