@@ -111,7 +111,7 @@ def test_bad_names_are_one_line_errors(capsys):
     assert err.count("\n") == 0 and "valid budget studies are: 'thesis-budget'" in err
     assert main(["plan", "thesis-budgets"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "unknown figure or study 'thesis-budgets'" in err and "'thesis-budget'" in err
+    assert err.count("\n") == 0 and "unknown figure 'thesis-budgets'" in err and "'thesis-budget'" in err
     assert main(["verify", "--study", "budget"]) == 2
     assert "valid budget studies are" in capsys.readouterr().err
     assert main(["reference-runs", "--study", "thesis-budget", "--seeds", "0"]) == 2

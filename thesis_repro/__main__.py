@@ -610,8 +610,11 @@ def _plan_command(args: argparse.Namespace) -> int:
     study = args.figure in budget_study.STUDIES
     args.scale = scales.check_scale(args.scale or ("small" if study else "full"))
     if not study and args.figure not in ("all", "order") and args.figure.removeprefix("fig-") not in figures.FIGURES:
-        named = [f"'{f}'" for f in ("all", "order", *figures.ids(), *budget_study.STUDIES)]
-        raise ValueError(f"unknown figure or study {args.figure!r}; valid choices are: {', '.join(named)}")
+        named = ", ".join(f"'{f}'" for f in figures.ids())
+        studies = ", ".join(f"'{s}'" for s in budget_study.STUDIES)
+        raise ValueError(
+            f"unknown figure {args.figure!r}; valid figures are: {named}; or 'all', 'order' or a budget study: {studies}"
+        )
     if study and (args.envs or args.algos or args.seeds):
         raise ValueError(f"plan {args.figure} prices the whole study; --envs/--algos/--seeds subset a figure's jobs")
     if args.figure == "order" and (args.envs or args.algos):
