@@ -613,7 +613,7 @@ def _plan_command(args: argparse.Namespace) -> int:
         named = ", ".join(f"'{f}'" for f in figures.ids())
         studies = ", ".join(f"'{s}'" for s in budget_study.STUDIES)
         raise ValueError(
-            f"unknown figure {args.figure!r}; valid figures are: {named}; or 'all', 'order' or a budget study: {studies}"
+            f"unknown figure {args.figure!r}; valid figures are: {named}; or 'all', 'order', a budget study: {studies}"
         )
     if study and (args.envs or args.algos or args.seeds):
         raise ValueError(f"plan {args.figure} prices the whole study; --envs/--algos/--seeds subset a figure's jobs")
