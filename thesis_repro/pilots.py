@@ -56,6 +56,8 @@ SERIES: tuple[str, ...] = (
     "kl_bound",
     "kl_old",
 )
+#: Differences of log σ at most this (float64 rounding, amplified by CG) show as "rounding" on the page.
+ROUNDING = 1e-12
 #: A reading "reduces to params_avg" when its median step fraction is at most this.
 REDUCES_BELOW = 0.01
 #: Diverged: the late-third mean of the 5-iteration smoothed return below this fraction of its own peak, or a
@@ -144,6 +146,12 @@ def diverged(returns: Sequence[float | None], entropy: Sequence[float | None]) -
     return bool(peak > 0 and late < DIVERGED_FRACTION * peak)
 
 
+def _median(values: Sequence[float | None] | None) -> float:
+    """Median of the finite values (NaN when there are none or no series)."""
+    arr = np.asarray([np.nan if v is None else v for v in values or []], dtype=float)
+    return float(np.median(arr[np.isfinite(arr)])) if np.isfinite(arr).any() else float("nan")
+
+
 def pilot_table(doc: Mapping[str, Any]) -> pd.DataFrame:
     """One row per pilot of a summary: reading, whether it trains, its step fraction, its Eq 4.7 against
     params_avg's at the same iterations, its return at the end and its wall time."""
@@ -164,10 +172,13 @@ def pilot_table(doc: Mapping[str, Any]) -> pd.DataFrame:
                 "reading": names.get(p["algo"], "comparator"),
                 "trains": "diverged" if bad else "yes",
                 "step fraction (median)": median_frac,
-                "reduces to params_avg": bool(len(frac)) and median_frac <= REDUCES_BELOW,
+                "reduces to params_avg": bool(median_frac <= REDUCES_BELOW) if len(frac) else None,
+                "KL to params_avg (median)": _median(s.get("kl_params_avg")),
                 "Eq 4.7 / params_avg (median)": float(np.median(ratio)) if len(ratio) else float("nan"),
                 "Eq 4.7 / params_avg (max)": float(np.max(ratio)) if len(ratio) else float("nan"),
-                "iterations Eq 4.7 ≤ params_avg": float(np.mean(ratio <= 1.0)) if len(ratio) else float("nan"),
+                "share of iterations with Eq 4.7 ≤ params_avg's": float(np.mean(ratio <= 1.0))
+                if len(ratio)
+                else float("nan"),
                 "max Eq 4.7 (nats)": float(np.nanmax(eq47)) if np.isfinite(eq47).any() else float("nan"),
                 "final return": s["return"][-1],
                 "env steps": p["provenance"]["timesteps"],
@@ -175,6 +186,174 @@ def pilot_table(doc: Mapping[str, Any]) -> pd.DataFrame:
             }
         )
     return pd.DataFrame(rows)
+
+
+#: The book page each pilot set's summary is rendered into (a static section of its chapter, see ``book.write_toc``).
+PAGES: dict[str, str] = {"ch4-readings": "chapter-4-readings.md"}
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    """A table cell: numbers with ``digits`` significant digits, NaN as an em dash, booleans as yes/no."""
+    if value is None:
+        return "—"
+    if isinstance(value, bool | np.bool_):
+        return "yes" if value else "no"
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    if isinstance(value, float | np.floating):
+        return "—" if not np.isfinite(value) else f"{value:.{digits}g}"
+    return str(value)
+
+
+def _markdown(frame: pd.DataFrame) -> str:
+    head = "| " + " | ".join(frame.columns) + " |\n|" + "---|" * len(frame.columns) + "\n"
+    return head + "".join("| " + " | ".join(_fmt(v) for v in row) + " |\n" for row in frame.itertuples(index=False))
+
+
+def _at_steps(doc: Mapping[str, Any], marks: Sequence[int]) -> pd.DataFrame:
+    """Per pilot, the training return and the Eq 4.7 ratio to params_avg at the iterations nearest ``marks``."""
+    rows = []
+    for p in doc["pilots"]:
+        s = p["series"]
+        ts = np.asarray(s["timesteps"])
+        row: dict[str, Any] = {"learner": p["algo"]}
+        for m in marks:
+            i = int(np.argmin(np.abs(ts - m)))
+            ratio = np.nan
+            if s.get("eq47") and s.get("eq47_params_avg"):
+                e, r = s["eq47"][i], s["eq47_params_avg"][i]
+                ratio = e / r if e is not None and r else np.nan
+            row[f"return at {ts[i] // 1000}k"] = float("nan") if s["return"][i] is None else s["return"][i]
+            row[f"Eq 4.7 ratio at {ts[i] // 1000}k"] = ratio
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def render_page(name: str, doc: Mapping[str, Any]) -> str:
+    """The book page of pilot set ``name`` (``ch4-readings``), every number from ``doc`` or computed here."""
+    from thesis_repro.mdl.readings import log_std_gaps  # local: the page's one computation (torch, seconds)
+
+    check_choice(name, list(PAGES), "pilot set with a page")
+    table = pilot_table(doc)
+    if doc["pilots"]:
+        cfg = doc["pilots"][0]["config"]
+        setting = (
+            f"Fig {doc['figure']} panel {doc['panel']}: {cfg['env']}, c_a = {cfg['c_a']:g}, "
+            f"wind ξ ~ U({cfg['wind'][0]:g}, {cfg['wind'][1]:g}), training seed {doc['seed']}, "
+            f"the first {_fmt(cfg['stop_at'])} env steps of "
+            f"`{doc['scale']}`'s {_fmt(cfg['timesteps'])}-step run (the same learning-rate and clip-range schedules), "
+            f"N = {cfg['n_envs']} domains × T = {cfg['sb3']['n_steps']} steps per iteration"
+        )
+    else:
+        setting = "no pilot has finished yet"
+    commits = sorted({str(p["provenance"]["git_commit"])[:10] for p in doc["pilots"]})
+    dirty = any(p["provenance"].get("git_dirty") for p in doc["pilots"])
+    made_by = (", ".join(f"`{c}`" for c in commits) or "—") + (" (with uncommitted changes)" if dirty else "")
+    basis = pd.DataFrame(
+        [
+            {
+                "learner": f"`{r.algo}`",
+                "reading": r.name,
+                "thesis lines": r.lines,
+                "basis in the text": r.basis,
+                "the update": r.update,
+            }
+            for r in READINGS
+        ]
+    )
+    verdicts = []
+    for row in table.itertuples(index=False):
+        if row.learner == "params-avg":
+            continue
+        if row.trains != "yes":
+            what = "diverged: not judged on its runs"
+        elif row[table.columns.get_loc("reduces to params_avg")]:
+            what = "trains, and reduces to params_avg (its claims are judged on params_avg's runs)"
+        else:
+            what = "trains, and is distinct from params_avg"
+        verdicts.append(f"- `{row.learner}` ({row.reading}): {what}.")
+    gaps = log_std_gaps()
+    gap_rows = pd.DataFrame(
+        [
+            {"aggregate": k, "largest difference of log σ from params_avg's": "rounding" if v <= ROUNDING else v}
+            for k, v in gaps.items()
+        ]
+    )
+    marks = [100_000, 200_000, 300_000]
+    return f"""# Chapter 4: readings of the update
+
+Chapter 4's method aggregates N sub-policies into the policy closest to them in KL (Eq 4.7, thesis l. 809),
+replaces each KL by its quadratic expansion (Eq 4.8, l. 813) and solves that by conjugate gradient (Eq 4.10/4.11,
+l. 855-859). The text leaves open the damping, the CG iterations, any step size, line search or trust region for
+the aggregate, and whether log σ belongs to θ. Each reading below is a learner id of
+`thesis_repro/config/hyperparams.yaml` that the kit trains like any other (`thesis_repro.mdl.readings`).
+
+Generated by `python -m thesis_repro.pilots {name} --summary` from `data/reference/pilots/{name}.json`
+(the pilots' configs, provenance and per-iteration diagnostics); do not edit by hand.
+
+## The readings and their basis in the thesis
+
+{_markdown(basis)}
+Readings considered and not trained:
+
+- *log σ outside θ* (l. 861 applies the update to "policy networks, of which the outputs are probabilistic
+  distributions"): the same aggregate as every Fisher reading above, by the log-σ argument below.
+- *Eq 4.10 undamped, CG to convergence*: the closed form of l. 855 read without the CG truncation of l. 859;
+  the analysis page (why the literal Eq 4.11 does not beat parameter averaging) computes it and finds it further
+  from the Eq 4.7 optimum than the damped step, so it is not piloted.
+- *aggregating once after the K epochs* (l. 859's "after multiple gradient steps"): Alg 3 (l. 845) computes the
+  aggregate inside the epoch loop, as the literal reading does; the kit's `aggregate_every_epoch: false` trains
+  it, but it is not piloted here.
+
+## The log-σ argument
+
+The policy's log σ is a parameter independent of the state. Its block of the Fisher matrix (Eq 4.9) is 2·1 in
+every sub-policy (Eq 4.9, l. 817), with no cross term to the mean network's parameters
+(I = E_s[J_μᵀ Σ⁻¹ J_μ + 2 J_ℓᵀ J_ℓ]). So Eq
+4.10/4.11 leave log σ at the sub-policies' plain mean, params_avg's, for any damping: Eq 4.11 cannot move the
+policy's entropy away from params_avg's (the effect l. 956 reports). The line search and the diagonal Fisher keep
+that log σ; the trust region's lies between θ_old's and it (a fraction of the same step). Only the exact
+Eq 4.7 minimiser (kl_exact), which matches the sub-policies' moments, changes σ. Computed now on a small float64
+policy (`thesis_repro.mdl.readings.log_std_gaps`; checked exactly in
+`tests/test_ch4_readings.py::test_log_std_of_eq_4_11_is_params_avg_exactly`):
+
+{_markdown(gap_rows)}
+## Pilots: one seed each, past the literal reading's collapse
+
+Setting: {setting}. Kit commit(s): {made_by}.
+Pilots are not grid runs and are not shipped: they stay in the local run cache (train them again with
+`python -m thesis_repro.pilots {name}`).
+
+How to read the table:
+
+- *trains*: "diverged" when the last third of the iterations' return (smoothed over 5 iterations) falls below
+  half its own peak, or a return or entropy is not finite (the rule the chapter-4 claims use for a diverged run).
+- *step fraction*: the median over iterations of the fraction of the reading's full Eq 4.11 step it took
+  (the iteration's mean over its aggregations). The literal reading always takes the whole step (1); the line
+  search's is the fraction of the Eq 4.11 correction added to params_avg (0: params_avg itself); the trust
+  region's is the fraction of the step from θ_old to the Eq 4.11 aggregate (0: θ_old). The diagonal Fisher and
+  kl_exact take no fraction of an Eq 4.11 step (—). A median at most {_fmt(REDUCES_BELOW)} reads as
+  *reduces to params_avg*.
+- *KL to params_avg*: the median over iterations of E_s KL(π_params_avg ‖ π_aggregate) (nats), logged by the
+  readings the kit added (0: the aggregate is params_avg).
+- *Eq 4.7 / params_avg*: the true Eq 4.7 objective of the aggregate over params_avg's, on the same sub-policies
+  and states, at the iteration's last aggregation (above 1: farther from the sub-policies than params_avg).
+
+{_markdown(table)}
+Training return (mean of the last 100 episodes) and Eq 4.7 ratio along the way:
+
+{_markdown(_at_steps(doc, marks))}
+What the pilots say, reading by reading:
+
+{chr(10).join(verdicts) or "- no pilot has finished yet."}
+"""
+
+
+def write_page(name: str) -> Path:
+    """Render pilot set ``name``'s page from its summary into ``book/`` (:data:`PAGES`)."""
+    out = paths.BOOK / PAGES[name]
+    out.write_text(render_page(name, load_summary(name)))
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -199,6 +378,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{cfg['algorithm']}: {res.source}, {time.time() - t0:.0f} s", flush=True)
             write_summary(args.name, everything, cache)
     print(paths.shown(write_summary(args.name, everything, cache)))
+    if args.name in PAGES:
+        print(paths.shown(write_page(args.name)))
     return 0
 
 
