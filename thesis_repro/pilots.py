@@ -107,6 +107,24 @@ def _entry(result: Any, cfg: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def shipped_start(result: Any, cfg: Mapping[str, Any], cache: RunCache) -> dict[str, Any] | None:
+    """How a pilot compares with the full run of the same config (without ``stop_at``) where that run is cached or
+    shipped: its key, the iterations both have and the largest absolute difference of the training return and of
+    Eq 4.7 over them (0: the pilot is that run's start, bit for bit). None when there is no such run."""
+    full = {k: v for k, v in cfg.items() if k != "stop_at"}
+    other = cache.load(Job("train", full))
+    if other is None:
+        return None
+    mine, theirs = np.asarray(result["curve_timesteps"]), np.asarray(other["curve_timesteps"])
+    common, i, j = np.intersect1d(mine, theirs, return_indices=True)
+    diffs = {}
+    for stat in ("return", "eq47"):
+        if f"curve_{stat}" in result and f"curve_{stat}" in other:
+            a, b = np.asarray(result[f"curve_{stat}"])[i], np.asarray(other[f"curve_{stat}"])[j]
+            diffs[f"max_abs_diff_{stat}"] = float(np.nanmax(np.abs(a - b))) if len(common) else None
+    return {"key": other.key, "source": other.source, "iterations": int(len(common)), **diffs}
+
+
 def write_summary(name: str, configs: Sequence[Mapping[str, Any]], cache: RunCache | None = None) -> Path:
     """Write pilot set ``name``'s summary from the finished runs of ``configs`` in the cache (others skipped)."""
     cache = cache or RunCache()
@@ -115,7 +133,7 @@ def write_summary(name: str, configs: Sequence[Mapping[str, Any]], cache: RunCac
     for cfg in configs:
         result = cache.load(Job("train", dict(cfg)))
         if result is not None:
-            entries.append(_entry(result, cfg))
+            entries.append({**_entry(result, cfg), "full_run": shipped_start(result, cfg, cache)})
     doc = {"name": name, "figure": figure, "scale": scale, "panel": panel, "seed": seed, "pilots": entries}
     out = summary_path(name)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -166,6 +184,11 @@ def pilot_table(doc: Mapping[str, Any]) -> pd.DataFrame:
         frac = frac[np.isfinite(frac)]
         median_frac = float(np.median(frac)) if len(frac) else float("nan")
         bad = diverged(s["return"], s["entropy"])
+        full = p.get("full_run")
+        same = None
+        if full is not None:
+            gaps = [v for k, v in full.items() if k.startswith("max_abs_diff_")]
+            same = bool(full["iterations"]) and all(g == 0 for g in gaps)
         rows.append(
             {
                 "learner": p["algo"],
@@ -183,6 +206,7 @@ def pilot_table(doc: Mapping[str, Any]) -> pd.DataFrame:
                 "final return": s["return"][-1],
                 "env steps": p["provenance"]["timesteps"],
                 "wall time (min)": (p["provenance"]["wall_time"] or float("nan")) / 60,
+                "= start of the full run": same,
             }
         )
     return pd.DataFrame(rows)
@@ -336,6 +360,9 @@ How to read the table:
   *reduces to params_avg*.
 - *KL to params_avg*: the median over iterations of E_s KL(π_params_avg ‖ π_aggregate) (nats), logged by the
   readings the kit added (0: the aggregate is params_avg).
+- *= start of the full run*: where the `{doc["scale"]}` run of the same config is shipped or cached, whether the
+  pilot's return and Eq 4.7 equal that run's at every iteration both have (— : no such run). A pilot is the start
+  of its grid run, not a shorter run.
 - *Eq 4.7 / params_avg*: the true Eq 4.7 objective of the aggregate over params_avg's, on the same sub-policies
   and states, at the iteration's last aggregation (above 1: farther from the sub-policies than params_avg).
 
