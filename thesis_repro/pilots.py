@@ -325,9 +325,6 @@ Readings considered and not trained:
 - *Eq 4.10 undamped, CG to convergence*: the closed form of l. 855 read without the CG truncation of l. 859;
   the analysis page (why the literal Eq 4.11 does not beat parameter averaging) computes it and finds it further
   from the Eq 4.7 optimum than the damped step, so it is not piloted.
-- *aggregating once after the K epochs* (l. 859's "after multiple gradient steps"): Alg 3 (l. 845) computes the
-  aggregate inside the epoch loop, as the literal reading does; the kit's `aggregate_every_epoch: false` trains
-  it, but it is not piloted here.
 
 ## The log-σ argument
 

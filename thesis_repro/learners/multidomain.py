@@ -388,7 +388,8 @@ class SubPolicyAggregation(MultiDomainPPO):
     @property
     def _reading(self) -> bool:
         """A reading beyond the thesis's kl_avg, the kit's kl_exact and params_avg (logs its step diagnostics)."""
-        return self.aggregate == "kl_diag" or self.line_search or self.trust_region
+        once = not self.aggregate_every_epoch and self.aggregate != "params_avg"
+        return self.aggregate == "kl_diag" or self.line_search or self.trust_region or once
 
     def _aggregate(
         self, view: agg.PolicyView, thetas: list[th.Tensor], states: th.Tensor, old: th.Tensor, info: dict, start

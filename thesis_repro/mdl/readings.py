@@ -80,6 +80,14 @@ READINGS: tuple[Reading, ...] = (
         "largest sub-policy's own",
     ),
     Reading(
+        "kl-avg-once",
+        "once per iteration",
+        "845, 859",
+        "l. 859: Eq 4.11 'can be approximately solved by conjugate gradient methods after multiple gradient steps'; "
+        "Alg 3 (l. 845) instead aggregates after every epoch",
+        "the literal Eq 4.11 step, once per iteration after each sub-policy's K PPO epochs",
+    ),
+    Reading(
         "kl-diag",
         "diagonal Fisher",
         "817, 859",
