@@ -151,7 +151,7 @@ def test_pilot_table_reads_a_summary():
     doc = {"pilots": [{"algo": "kl-avg-ls", "series": series, "provenance": prov}]}
     row = pilots.pilot_table(doc).iloc[0]
     assert row["trains"] == "yes" and row["reduces to params_avg"]
-    assert row["Eq 4.7 / params_avg (median)"] == 0.5 and row["final return"] == 110.0
+    assert row["Eq 4.7 vs params_avg (median)"] == -0.5 and row["final return"] == 110.0
 
 
 def test_the_readings_page_is_a_section_of_chapter_4_in_the_contents(tmp_path):
