@@ -36,7 +36,9 @@ import pandas as pd
 from thesis_repro import figures, paths
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.figures import ch4
-from thesis_repro.mdl.readings import READINGS, reading_ids
+from thesis_repro.learners import hyperparams
+from thesis_repro.mdl.aggregate import LINE_SEARCH_FRACTIONS
+from thesis_repro.mdl.readings import READINGS, Reading, reading_ids
 from thesis_repro.validation import check_choice
 
 #: Pilot sets: name -> (figure, scale, panel, seed, learner ids).
@@ -220,6 +222,17 @@ def pilot_table(doc: Mapping[str, Any]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def update_text(reading: Reading) -> str:
+    """A reading's ``update`` with its learner's settings filled in (``hyperparams.yaml``; the line search's
+    smallest fraction from :data:`~thesis_repro.mdl.aggregate.LINE_SEARCH_FRACTIONS`).
+
+    >>> update_text(READINGS[0])[:30]
+    'Eq 4.11 by 10 CG iterations, d'
+    """
+    smallest = min(f for f in LINE_SEARCH_FRACTIONS if f > 0)
+    return reading.update.format(**hyperparams(reading.algo)["sb3"], smallest_fraction=f"2^{int(np.log2(smallest))}")
+
+
 #: The book page each pilot set's summary is rendered into (a static section of its chapter, see ``book.write_toc``).
 PAGES: dict[str, str] = {"ch4-readings": "chapter-4-readings.md"}
 
@@ -288,7 +301,7 @@ def render_page(name: str, doc: Mapping[str, Any]) -> str:
                 "reading": r.name,
                 "thesis lines": r.lines,
                 "basis in the text": r.basis,
-                "the update": r.update,
+                "the update": update_text(r),
             }
             for r in READINGS
         ]

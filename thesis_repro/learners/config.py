@@ -272,6 +272,8 @@ def _validate(cfg: dict[str, Any]) -> None:
             raise ValueError(f"{key} must be true or false, got {sb3[key]!r}")
     if sb3.get("trust_region") and (sb3.get("line_search") or sb3.get("aggregate") != "kl_avg"):
         raise ValueError("trust_region is a step rule of aggregate 'kl_avg' without line_search")
-    for key in ("damping", "cg_rtol", "inner_lr"):
+    if sb3.get("kl_bound") is not None and not sb3.get("trust_region"):
+        raise ValueError("kl_bound is the bound of trust_region; set trust_region too")
+    for key in ("damping", "cg_rtol", "inner_lr", "kl_bound"):
         if key in sb3:
             check_nonneg(sb3[key], key)

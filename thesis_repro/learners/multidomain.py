@@ -332,7 +332,8 @@ class SubPolicyAggregation(MultiDomainPPO):
 
     ``aggregate``: ``params_avg`` (Eq 4.6), ``kl_avg`` (Eq 4.10/4.11: ``cg_iters``, ``cg_rtol``, ``damping``;
     ``line_search`` backtracks the correction on Eq 4.7, ``trust_region`` bounds the aggregate's KL to the
-    epoch's θ_old, :func:`~thesis_repro.mdl.readings.kl_trust_region`), ``kl_diag`` (Eq 4.10 with diagonal
+    epoch's θ_old by ``kl_bound`` or, if None, by the largest sub-policy's own,
+    :func:`~thesis_repro.mdl.readings.kl_trust_region`), ``kl_diag`` (Eq 4.10 with diagonal
     Fishers, ``damping``: :func:`~thesis_repro.mdl.readings.kl_diag`) or ``kl_exact`` (``exact_iters`` Newton-CG
     steps on the true Eq 4.7: ``cg_iters``, ``cg_rtol``, ``damping``); ``aggregate_every_epoch``: aggregate
     after each of the ``n_epochs`` epochs (Alg 3) or once after all; ``fim_states``: rollout states used for
@@ -362,6 +363,7 @@ class SubPolicyAggregation(MultiDomainPPO):
         damping: float = 0.1,
         line_search: bool = False,
         trust_region: bool = False,
+        kl_bound: float | None = None,
         exact_iters: int = 10,
         cg_rtol: float = 1e-3,
         **kwargs: Any,
@@ -371,6 +373,9 @@ class SubPolicyAggregation(MultiDomainPPO):
         self.fim_states, self.cg_iters, self.exact_iters = int(fim_states), int(cg_iters), int(exact_iters)
         self.damping, self.cg_rtol = check_nonneg(damping, "damping"), check_nonneg(cg_rtol, "cg_rtol")
         self.line_search, self.trust_region = bool(line_search), bool(trust_region)
+        self.kl_bound = None if kl_bound is None else check_nonneg(kl_bound, "kl_bound")
+        if self.kl_bound is not None and not self.trust_region:
+            raise ValueError("kl_bound is the bound of trust_region; set trust_region too")
         if self.trust_region and (self.line_search or self.aggregate != "kl_avg"):
             raise ValueError("trust_region is a step rule of aggregate 'kl_avg' without line_search")
         super().__init__(*args, **kwargs)
@@ -408,6 +413,7 @@ class SubPolicyAggregation(MultiDomainPPO):
                 cg_iters=self.cg_iters,
                 damping=self.damping,
                 cg_rtol=self.cg_rtol,
+                kl_bound=self.kl_bound,
                 info=info,
             )
         if self.aggregate == "kl_avg":

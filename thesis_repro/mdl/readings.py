@@ -39,7 +39,8 @@ from thesis_repro.validation import check_nonneg
 
 
 class Reading(NamedTuple):
-    """One reading of the aggregation step: its hyperparameter id, the thesis lines it rests on, what it does."""
+    """One reading of the aggregation step: its hyperparameter id, the thesis lines it rests on, what it does
+    (``update``: a template whose ``{name}`` fields are the learner's settings, filled in where it is shown)."""
 
     algo: str
     name: str
@@ -59,7 +60,7 @@ READINGS: tuple[Reading, ...] = (
         "845, 855-859",
         "Alg 3 computes θ_new 'following Eq. (4.11)' after every epoch; l. 859: 'approximately solved by conjugate "
         "gradient methods ... without forming the full matrices'",
-        "Eq 4.11 by 10 CG iterations, damping λ = 0.1 on the mean Fisher (TRPO's cg_damping), full step",
+        "Eq 4.11 by {cg_iters} CG iterations, damping λ = {damping} on the mean Fisher (TRPO's cg_damping), full step",
     ),
     Reading(
         "kl-avg-ls",
@@ -67,7 +68,7 @@ READINGS: tuple[Reading, ...] = (
         "807, 809, 813",
         "l. 807: 'we take a step to minimise overall probability distance'; Eq 4.7 (l. 809) is that distance and "
         "Eq 4.8 (l. 813) only its quadratic model, so a step is accepted only where the true Eq 4.7 agrees",
-        "the same CG correction, backtracked (1, 1/2, ..., 2^-10, 0) until Eq 4.7 is no larger than at "
+        "the same CG correction, backtracked (1, 1/2, ..., {smallest_fraction}, 0) until Eq 4.7 is no larger than at "
         "params_avg: never worse than params_avg",
     ),
     Reading(
@@ -78,6 +79,14 @@ READINGS: tuple[Reading, ...] = (
         "divergence between old and updated policy'",
         "the Eq 4.11 aggregate, its step from θ_old scaled (bisection) until E_s KL(π_θold ‖ π_θ) is at most the "
         "largest sub-policy's own",
+    ),
+    Reading(
+        "kl-avg-trpo",
+        "trust region δ = 0.01",
+        "783, 803, 1251",
+        "the trust region of l. 783/803 with the bound the thesis gives TRPO: 'Maximum KL divergence: 0.01' "
+        "(App. A, l. 1251; Eq 4.11's CG settings, 10 iterations and damping 0.1, are App. A's TRPO ones too)",
+        "the Eq 4.11 aggregate, its step from θ_old scaled (bisection) until E_s KL(π_θold ‖ π_θ) ≤ {kl_bound}",
     ),
     Reading(
         "kl-avg-once",
