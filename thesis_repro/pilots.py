@@ -280,6 +280,7 @@ def render_page(name: str, doc: Mapping[str, Any]) -> str:
 
     check_choice(name, list(PAGES), "pilot set with a page")
     table = pilot_table(doc)
+    names = {r.algo for r in READINGS}
     if doc["pilots"]:
         cfg = doc["pilots"][0]["config"]
         setting = (
@@ -307,16 +308,30 @@ def render_page(name: str, doc: Mapping[str, Any]) -> str:
         ]
     )
     verdicts = []
-    for row in table.itertuples(index=False):
-        if row.learner == "params-avg":
+    groups: dict[str, list[str]] = {}
+    for _, row in table.iterrows():
+        if row["learner"] not in names:  # the comparator
             continue
-        if row.trains != "yes":
-            what = "diverged: not judged on its runs"
-        elif row[table.columns.get_loc("reduces to params_avg")]:
-            what = "trains, and reduces to params_avg (its claims are judged on params_avg's runs)"
+        frac, change = row["step fraction (median)"], row["Eq 4.7 vs params_avg (median)"]
+        took = f" (median step fraction {_fmt(frac)})" if np.isfinite(frac) else ""
+        if row["trains"] != "yes":
+            what = f"diverged{took}: not judged on its runs"
+        elif row["reduces to params_avg"]:
+            what = f"trains{took}, and reduces to params_avg (its claims are judged on params_avg's runs)"
+        elif row["reduces to params_avg"] is None:
+            what = f"trains, and is not an Eq 4.11 step; its Eq 4.7 against params_avg's: {_fmt(change)} (median)"
         else:
-            what = "trains, and is distinct from params_avg"
-        verdicts.append(f"- `{row.learner}` ({row.reading}): {what}.")
+            what = f"trains{took}, and is distinct from params_avg"
+        verdicts.append(f"- `{row['learner']}` ({row['reading']}): {what}.")
+        kind = "diverged" if row["trains"] != "yes" else "params_avg" if row["reduces to params_avg"] else "distinct"
+        groups.setdefault(kind, []).append(f"`{row['learner']}`")
+    heads = {
+        "distinct": "train and differ from params_avg",
+        "params_avg": "train but reduce to params_avg",
+        "diverged": "diverge",
+    }
+    answer = "; ".join(f"{heads[k]}: {', '.join(groups[k])}" for k in heads if k in groups)
+    answer = f"**The pilots (one seed each): {answer or 'none has finished yet'}.**"
     gaps = log_std_gaps()
     gap_rows = pd.DataFrame(
         [
@@ -326,6 +341,8 @@ def render_page(name: str, doc: Mapping[str, Any]) -> str:
     )
     marks = [100_000, 200_000, 300_000]
     return f"""# Chapter 4: readings of the update
+
+{answer}
 
 Chapter 4's method aggregates N sub-policies into the policy closest to them in KL (Eq 4.7, thesis l. 809),
 replaces each KL by its quadratic expansion (Eq 4.8, l. 813) and solves that by conjugate gradient (Eq 4.10/4.11,
