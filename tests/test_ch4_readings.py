@@ -108,7 +108,7 @@ def test_each_reading_trains_stably_on_a_short_run(algo, tmp_path):
     if algo in ("kl-avg-trpo",):
         assert (res["curve_kl_bound"] == cfg["sb3"]["kl_bound"]).all()
     if algo not in ("kl-avg", "kl-exact"):
-        assert (res["curve_kl_params_avg"] >= 0).all()
+        assert (res["curve_kl_params_avg"] >= -1e-6).all()  # a KL, to float32 rounding
 
 
 def test_bad_reading_ids_are_one_line_errors_naming_the_valid_choices():
