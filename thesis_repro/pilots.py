@@ -309,6 +309,8 @@ def render_page(name: str, doc: Mapping[str, Any]) -> str:
     )
     verdicts = []
     groups: dict[str, list[str]] = {}
+    comparator = table[~table["learner"].isin(names)]["max Eq 4.7 (nats)"]
+    reference = float(comparator.iloc[0]) if len(comparator) else float("nan")
     for _, row in table.iterrows():
         if row["learner"] not in names:  # the comparator
             continue
@@ -319,9 +321,16 @@ def render_page(name: str, doc: Mapping[str, Any]) -> str:
         elif row["reduces to params_avg"]:
             what = f"trains{took}, and reduces to params_avg (its claims are judged on params_avg's runs)"
         elif row["reduces to params_avg"] is None:
-            what = f"trains, and is not an Eq 4.11 step; its Eq 4.7 against params_avg's: {_fmt(change)} (median)"
+            what = "trains, and is not an Eq 4.11 step"
         else:
             what = f"trains{took}, and is distinct from params_avg"
+        if row["trains"] == "yes" and not row["reduces to params_avg"]:
+            what += (
+                f"; its Eq 4.7 relative to params_avg's: {change:+.3g} (median), "
+                f"{row['Eq 4.7 vs params_avg (max)']:+.3g} (largest); its largest Eq 4.7 "
+                f"{_fmt(row['max Eq 4.7 (nats)'])} nats"
+                + (f" (params_avg's pilot: {_fmt(reference)})" if np.isfinite(reference) else "")
+            )
         verdicts.append(f"- `{row['learner']}` ({row['reading']}): {what}.")
         kind = "diverged" if row["trains"] != "yes" else "params_avg" if row["reduces to params_avg"] else "distinct"
         groups.setdefault(kind, []).append(f"`{row['learner']}`")
@@ -383,7 +392,7 @@ Setting: {setting}. Kit commit(s): {made_by}.
 Pilots are not grid runs and are not shipped: they stay in the local run cache (train them again with
 `python -m thesis_repro.pilots {name}`).
 
-How to read the table:
+How to read the table (wall times are of the shared 2-core development machine, beside other work):
 
 - *trains*: "diverged" when the last third of the iterations' return (smoothed over 5 iterations) falls below
   half its own peak, or a return or entropy is not finite (the rule the chapter-4 claims use for a diverged run).

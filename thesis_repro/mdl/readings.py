@@ -82,7 +82,7 @@ READINGS: tuple[Reading, ...] = (
     ),
     Reading(
         "kl-avg-trpo",
-        "trust region δ = 0.01",
+        "trust region, TRPO's bound",
         "783, 803, 1251",
         "the trust region of l. 783/803 with the bound the thesis gives TRPO: 'Maximum KL divergence: 0.01' "
         "(App. A, l. 1251; Eq 4.11's CG settings, 10 iterations and damping 0.1, are App. A's TRPO ones too)",
