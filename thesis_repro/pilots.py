@@ -392,7 +392,7 @@ Setting: {setting}. Kit commit(s): {made_by}.
 Pilots are not grid runs and are not shipped: they stay in the local run cache (train them again with
 `python -m thesis_repro.pilots {name}`).
 
-How to read the table (wall times are of the shared 2-core development machine, beside other work):
+How to read the table (wall times are of the shared development machine, beside other work):
 
 - *trains*: "diverged" when the last third of the iterations' return (smoothed over 5 iterations) falls below
   half its own peak, or a return or entropy is not finite (the rule the chapter-4 claims use for a diverged run).
