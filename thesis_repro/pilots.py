@@ -60,9 +60,11 @@ SERIES: tuple[str, ...] = (
 )
 #: Differences of log σ at most this (float64 rounding, amplified by CG) show as "rounding" on the page.
 ROUNDING = 1e-12
-#: A reading "reduces to params_avg" when its median step fraction or its median departure from params_avg (its KL
-#: from params_avg over the sub-policies' mean KL to params_avg) is at most this.
+#: A reading "reduces to params_avg" when its median step fraction is at most this, or when its median departure from
+#: params_avg (its KL from params_avg over the sub-policies' mean KL to params_avg) is at most
+#: :data:`SAME_AS_PARAMS_AVG`: then its aggregate is params_avg to float32 rounding, whatever fraction it took.
 REDUCES_BELOW = 0.01
+SAME_AS_PARAMS_AVG = 1e-6
 #: Diverged: the late-third mean of the 5-iteration smoothed return below this fraction of its own peak, or a
 #: non-finite return or entropy (the rule the chapter-4 claims use for a diverged run).
 DIVERGED_FRACTION = 0.5
@@ -192,7 +194,8 @@ def pilot_table(doc: Mapping[str, Any]) -> pd.DataFrame:
             spread = np.asarray([np.nan if v is None else v for v in s["eq47_params_avg"]], dtype=float)
             spread = spread / int(p["config"]["n_envs"])
             departure = _median(list(np.where(spread > 0, kl / np.where(spread > 0, spread, 1.0), np.nan)))
-        small = [v <= REDUCES_BELOW for v in (median_frac, departure) if np.isfinite(v)]
+        limits = ((median_frac, REDUCES_BELOW), (departure, SAME_AS_PARAMS_AVG))
+        small = [v <= limit for v, limit in limits if np.isfinite(v)]
         bad = diverged(s["return"], s["entropy"])
         full = p.get("full_run")
         same = None
@@ -400,8 +403,9 @@ How to read the table (wall times are of the shared development machine, beside 
   (the iteration's mean over its aggregations). The literal reading always takes the whole step (1); the line
   search's is the fraction of the Eq 4.11 correction added to params_avg (0: params_avg itself); the trust
   region's is the fraction of the step from θ_old to the Eq 4.11 aggregate (0: θ_old). The diagonal Fisher and
-  kl_exact take no fraction of an Eq 4.11 step (—). A median step fraction or departure at most
-  {_fmt(REDUCES_BELOW)} reads as *reduces to params_avg*.
+  kl_exact take no fraction of an Eq 4.11 step (—).
+- *reduces to params_avg*: a median step fraction at most {_fmt(REDUCES_BELOW)}, or a median departure from
+  params_avg (below) at most {_fmt(SAME_AS_PARAMS_AVG)}, i.e. params_avg to float32 rounding.
 - *departure from params_avg*: the median over iterations of E_s KL(π_params_avg ‖ π_aggregate), logged by the
   readings the kit added, over the sub-policies' own mean KL to params_avg (Eq 4.7 at params_avg / N): how far
   the aggregate moves from params_avg, in units of how far the sub-policies are from it (0: it is params_avg).
