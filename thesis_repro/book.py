@@ -400,16 +400,26 @@ def place_scoreboard(intro: str, board: str) -> str:
 GUIDES: tuple[str, ...] = ("kit", "runs", "learners", "cluster")
 
 
+def chapter_pages(root: Path) -> list[Path]:
+    """The chapter landing pages ``chapter-N.md`` of a book folder, in chapter order (not their static sections
+    ``chapter-N-<name>.md``)."""
+    found = [p for p in root.glob("chapter-*.md") if p.stem.split("-", 1)[1].isdigit()]
+    return sorted(found, key=lambda p: int(p.stem.split("-", 1)[1]))
+
+
 def write_toc(executed: list[str], root: Path) -> Path:
-    """Write ``<root>/_toc.yml``: each ``chapter-N.md`` with its pages (figures, tables, analyses), the protocol
-    page, then the guide notebooks among ``executed`` and the static :data:`GUIDES`."""
+    """Write ``<root>/_toc.yml``: each ``chapter-N.md`` with its pages (figures, tables, analyses, then its static
+    pages ``chapter-N-<name>.md``), the protocol page, then the guide notebooks among ``executed`` and the static
+    :data:`GUIDES`."""
     chapters = []
-    for md in sorted(root.glob("chapter-*.md"), key=lambda p: int(p.stem.split("-", 1)[1])):
+    for md in chapter_pages(root):
         num = md.stem.split("-", 1)[1]
         ids = sorted((n for n in executed if notebooks.chapter(n) == num), key=notebooks.sort_key)
         entry: dict = {"file": md.stem}
-        if ids:
-            entry["sections"] = [{"file": f"executed/{notebooks.page_id(n)}"} for n in ids]
+        sections = [{"file": f"executed/{notebooks.page_id(n)}"} for n in ids]
+        sections += [{"file": p.stem} for p in sorted(root.glob(f"chapter-{num}-*.md"))]
+        if sections:
+            entry["sections"] = sections
         chapters.append(entry)
     if (root / "claims-design-v2.md").exists():  # the claims design: what changed from v1, and why
         chapters.append({"file": "claims-design-v2"})
@@ -588,7 +598,7 @@ def build(
 
     clips.book_clips(root, scale)
     judged = [n for n in ids if notebooks.page_id(n) not in pending]
-    for md in root.glob("chapter-*.md"):
+    for md in chapter_pages(root):
         with md.open("a") as f:
             f.write(chapter_summary(md.stem.split("-", 1)[1], judged, scale, pending))
     intro = root / "intro.md"

@@ -66,8 +66,11 @@ def label(cond: Mapping[str, Any]) -> str:
     return f"c_a={cond['c_a']:g}, ξ~U({cond['wind'][0]:g},{cond['wind'][1]:g})"
 
 
-def run_config(settings: Mapping[str, Any], algo: str, cond: Mapping[str, Any], seed: int) -> dict[str, Any]:
-    """The training config of one run; depends only on the run's identity and the budget keys of ``settings``."""
+def run_config(
+    settings: Mapping[str, Any], algo: str, cond: Mapping[str, Any], seed: int, **overrides: Any
+) -> dict[str, Any]:
+    """The training config of one run; depends only on the run's identity and the budget keys of ``settings``
+    (``overrides``: further settings of :func:`~thesis_repro.learners.train_config`, e.g. a pilot's ``stop_at``)."""
     # one env per domain: n_envs = N domains, n_steps = T steps per domain (learners.multidomain)
     extra = {k: settings[s] for k, s in (("n_envs", "n_domains"), ("n_steps", "steps_per_domain")) if s in settings}
     return train_config(
@@ -80,6 +83,7 @@ def run_config(settings: Mapping[str, Any], algo: str, cond: Mapping[str, Any], 
         max_episode_steps=settings["max_episode_steps"],
         protocol=settings["protocol"],
         **extra,
+        **overrides,
     )
 
 

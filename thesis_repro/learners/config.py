@@ -38,7 +38,7 @@ CLASSES: tuple[str, ...] = (*ON_POLICY, "DDPG", "SAC")
 #: Classes that train one sub-policy / one batch per domain (one env per domain: ``n_envs`` = N domains).
 MULTI_DOMAIN_CLASSES: tuple[str, ...] = ("EPOpt", "MAMLDG", "ReptileDG", "SubPolicyAggregation")
 #: Aggregation steps of :class:`~thesis_repro.learners.multidomain.SubPolicyAggregation` (``mdl.aggregate``).
-AGGREGATES: tuple[str, ...] = ("params_avg", "kl_avg", "kl_exact")
+AGGREGATES: tuple[str, ...] = ("params_avg", "kl_avg", "kl_exact", "kl_diag")
 #: Outer updates of :class:`~thesis_repro.learners.meta.MAMLDG`: one Adam step per iteration (Alg 1 read
 #: literally) or PPO's epochs x minibatches on the post-adaptation data (the kit's default).
 META_UPDATES: tuple[str, ...] = ("step", "ppo")
@@ -56,8 +56,10 @@ RUN_DEFAULTS: dict[str, Any] = {
 }
 #: Run settings a config carries only when set to another value than this default (so adding one keeps every
 #: existing key): ``snapshot_at``, env steps after which the run saves one policy snapshot each, at the first
-#: iteration boundary (off-policy: rollout start) at or after each step; ``None``: none.
-OPTIONAL_RUN: dict[str, Any] = {"snapshot_at": None}
+#: iteration boundary (off-policy: rollout start) at or after each step; ``stop_at``: train only the first
+#: ``stop_at`` env steps of the ``timesteps``-step run (its schedules still run over ``timesteps``; SB3 finishes the
+#: iteration that crosses it). ``None``: none.
+OPTIONAL_RUN: dict[str, Any] = {"snapshot_at": None, "stop_at": None}
 #: Keys that identify the run; not overridable.
 IDENTITY = ("algorithm", "class", "env", "seed", "timesteps")
 #: Learning-rate schedules of the PPO-family learners (``lr_schedule``): OpenAI baselines ppo1's ``linear``
@@ -136,7 +138,8 @@ def train_config(
     ``overrides`` may name any top-level setting (``n_envs``, ``perturbation``, ``sigma``, ``c_a``, ``wind``,
     ``net_arch``, ``snapshot_every``, ``max_episode_steps``, ...), any key of the entry's ``sb3`` block
     (``n_steps``, ``ent_coef``, ``epsilon``, ``damping``, ...) or of its ``optional_sb3`` block, whose keys
-    enter ``sb3`` only when set to another value than their default (so adding one keeps every existing key).
+    enter ``sb3`` only when set to another value than their default (so adding one keeps every existing key),
+    and :data:`OPTIONAL_RUN`'s ``stop_at``, likewise absent unless set.
     A name that exists nowhere is an error, so typos never pass silently.
 
     >>> a = train_config("ppo-reptile-dg", "Hopper", 0, 1000)
@@ -265,6 +268,10 @@ def _validate(cfg: dict[str, Any]) -> None:
         if cfg["snapshot_every"]:
             raise ValueError("set snapshot_every or snapshot_at, not both")
         cfg["snapshot_at"] = [int(t) for t in at]
+    if "stop_at" in cfg:
+        stop = cfg["stop_at"]
+        if isinstance(stop, bool) or not isinstance(stop, int) or not 0 < stop < cfg["timesteps"]:
+            raise ValueError(f"stop_at must be an integer in (0, timesteps = {cfg['timesteps']}), got {stop!r}")
     if cfg["max_episode_steps"] is not None and (int(cfg["max_episode_steps"]) < 1):
         raise ValueError(f"max_episode_steps must be None or >= 1, got {cfg['max_episode_steps']!r}")
     if cfg["c_a"] is not None:
@@ -307,6 +314,13 @@ def _validate(cfg: dict[str, Any]) -> None:
             raise ValueError(f"domain_per_batch must be true or false, got {sb3['domain_per_batch']!r}")
         if cfg["class"] not in ("MAMLDG", "ReptileDG"):
             raise ValueError(f"domain_per_batch is implemented for MAMLDG and ReptileDG only, not {cfg['class']}")
-    for key in ("damping", "cg_rtol", "inner_lr"):
+    for key in ("line_search", "trust_region"):
+        if key in sb3 and not isinstance(sb3[key], bool):
+            raise ValueError(f"{key} must be true or false, got {sb3[key]!r}")
+    if sb3.get("trust_region") and (sb3.get("line_search") or sb3.get("aggregate") != "kl_avg"):
+        raise ValueError("trust_region is a step rule of aggregate 'kl_avg' without line_search")
+    if sb3.get("kl_bound") is not None and not sb3.get("trust_region"):
+        raise ValueError("kl_bound is the bound of trust_region; set trust_region too")
+    for key in ("damping", "cg_rtol", "inner_lr", "kl_bound"):
         if key in sb3:
             check_nonneg(sb3[key], key)

@@ -55,7 +55,7 @@ from thesis_repro.envs.vec import LeanVecEnv, LeanVecNormalize
 from thesis_repro.learners.config import AGGREGATES, EPOPT_RANKS
 from thesis_repro.learners.fast import FastPPO, RolloutTensors, ppo_epochs, rollout_tensors
 from thesis_repro.mdl import aggregate as agg
-from thesis_repro.mdl import exact
+from thesis_repro.mdl import exact, readings
 from thesis_repro.validation import check_choice, check_nonneg
 
 
@@ -330,10 +330,16 @@ class EPOpt(MultiDomainPPO):
 class SubPolicyAggregation(MultiDomainPPO):
     """Alg 3: per domain a sub-policy updated by PPO on its own column from θ_old, then aggregated.
 
-    ``aggregate``: ``params_avg`` (Eq 4.6), ``kl_avg`` (Eq 4.10/4.11: ``cg_iters``, ``cg_rtol``, ``damping``,
-    ``line_search``) or ``kl_exact`` (``exact_iters`` Newton-CG steps on the true Eq 4.7: ``cg_iters``,
-    ``cg_rtol``, ``damping``); ``aggregate_every_epoch``: aggregate after each of the ``n_epochs`` epochs (Alg 3)
-    or once after all; ``fim_states``: rollout states used for Fisher products and the logged Eq 4.7.
+    ``aggregate``: ``params_avg`` (Eq 4.6), ``kl_avg`` (Eq 4.10/4.11: ``cg_iters``, ``cg_rtol``, ``damping``;
+    ``line_search`` backtracks the correction on Eq 4.7, ``trust_region`` bounds the aggregate's KL to the
+    epoch's θ_old by ``kl_bound`` or, if None, by the largest sub-policy's own,
+    :func:`~thesis_repro.mdl.readings.kl_trust_region`), ``kl_diag`` (Eq 4.10 with diagonal
+    Fishers, ``damping``: :func:`~thesis_repro.mdl.readings.kl_diag`) or ``kl_exact`` (``exact_iters`` Newton-CG
+    steps on the true Eq 4.7: ``cg_iters``, ``cg_rtol``, ``damping``); ``aggregate_every_epoch``: aggregate
+    after each of the ``n_epochs`` epochs (Alg 3) or once after all; ``fim_states``: rollout states used for
+    Fisher products and the logged Eq 4.7. Besides Eq 4.7 (``eq47``, ``eq47_params_avg``, ``kl``), an iteration
+    of a reading other than kl_avg, kl_exact and params_avg logs ``kl_params_avg`` (E_s KL(π_params_avg ‖
+    π_aggregate): 0 when the reading reduces to params_avg) and its ``step_fraction``.
     The sub-policies learn with ``learning_rate``; value networks are averaged (Alg 3). The Fisher products
     are :class:`~thesis_repro.mdl.aggregate.FisherProducts` (closed form for the MLP policy, all N at once).
 
@@ -356,6 +362,8 @@ class SubPolicyAggregation(MultiDomainPPO):
         cg_iters: int = 10,
         damping: float = 0.1,
         line_search: bool = False,
+        trust_region: bool = False,
+        kl_bound: float | None = None,
         exact_iters: int = 10,
         cg_rtol: float = 1e-3,
         **kwargs: Any,
@@ -364,7 +372,12 @@ class SubPolicyAggregation(MultiDomainPPO):
         self.aggregate_every_epoch = bool(aggregate_every_epoch)
         self.fim_states, self.cg_iters, self.exact_iters = int(fim_states), int(cg_iters), int(exact_iters)
         self.damping, self.cg_rtol = check_nonneg(damping, "damping"), check_nonneg(cg_rtol, "cg_rtol")
-        self.line_search = bool(line_search)
+        self.line_search, self.trust_region = bool(line_search), bool(trust_region)
+        self.kl_bound = None if kl_bound is None else check_nonneg(kl_bound, "kl_bound")
+        if self.kl_bound is not None and not self.trust_region:
+            raise ValueError("kl_bound is the bound of trust_region; set trust_region too")
+        if self.trust_region and (self.line_search or self.aggregate != "kl_avg"):
+            raise ValueError("trust_region is a step rule of aggregate 'kl_avg' without line_search")
         super().__init__(*args, **kwargs)
 
     def _setup_model(self) -> None:
@@ -377,9 +390,32 @@ class SubPolicyAggregation(MultiDomainPPO):
             obs = obs[self._rng.choice(len(obs), size=self.fim_states, replace=False)]
         return th.as_tensor(obs, dtype=th.float32, device=self.device)
 
-    def _aggregate(self, view: agg.PolicyView, thetas: list[th.Tensor], states: th.Tensor, old: th.Tensor, info: dict):
+    @property
+    def _reading(self) -> bool:
+        """A reading beyond the thesis's kl_avg, the kit's kl_exact and params_avg (logs its step diagnostics)."""
+        once = not self.aggregate_every_epoch and self.aggregate != "params_avg"
+        return self.aggregate == "kl_diag" or self.line_search or self.trust_region or once
+
+    def _aggregate(
+        self, view: agg.PolicyView, thetas: list[th.Tensor], states: th.Tensor, old: th.Tensor, info: dict, start
+    ):
+        """The aggregate of ``thetas``; ``old`` is the iteration's θ_old, ``start`` this epoch's (Alg 3's θ_old)."""
         if self.aggregate == "params_avg":
             return agg.params_avg(thetas)
+        if self.aggregate == "kl_diag":
+            return readings.kl_diag(view, thetas, states, damping=self.damping)
+        if self.trust_region:
+            return readings.kl_trust_region(
+                view,
+                thetas,
+                states,
+                start,
+                cg_iters=self.cg_iters,
+                damping=self.damping,
+                cg_rtol=self.cg_rtol,
+                kl_bound=self.kl_bound,
+                info=info,
+            )
         if self.aggregate == "kl_avg":
             return agg.kl_avg(
                 view,
@@ -416,6 +452,7 @@ class SubPolicyAggregation(MultiDomainPPO):
         theta_old = view.get_flat()
         rounds, epochs = (self.n_epochs, 1) if self.aggregate_every_epoch else (1, self.n_epochs)
         info: dict[str, Any] = {}
+        fractions: list[float] = []  # a reading's step fraction at each aggregation of the iteration
         thetas: list[th.Tensor] = []
         new = theta_old
         # built once per update (the modules' tensors are updated in place): each sub-policy's (own, main)
@@ -433,7 +470,10 @@ class SubPolicyAggregation(MultiDomainPPO):
                         dst.copy_(src)
                 self._ppo(sub, sub.optimizer, column, epochs)
             thetas = [v.get_flat() for v in sub_views]
-            new = self._aggregate(view, thetas, states, theta_old, info)
+            start = view.get_flat() if self.trust_region else theta_old
+            new = self._aggregate(view, thetas, states, theta_old, info, start)
+            if self._reading and "step_fraction" in info:
+                fractions.append(float(info["step_fraction"]))
             view.set_flat(new)
             with th.no_grad():
                 for name in critic:
@@ -445,8 +485,15 @@ class SubPolicyAggregation(MultiDomainPPO):
             "kl": kls.tolist(),
             "eq47_params_avg": agg.eq47_objective(view, agg.params_avg(thetas), thetas, states),
         }
+        if self._reading:
+            with th.no_grad():
+                stats["kl_params_avg"] = float(agg.mean_kl(view, agg.params_avg(thetas), new, states))
+            if fractions:
+                stats["step_fraction_mean"] = float(np.mean(fractions))
         if self.aggregate == "kl_avg":  # of the last aggregation of the iteration
             stats.update(cg_residual=float(info["cg_residual"]), step_fraction=float(info["step_fraction"]))
+            if self.trust_region:
+                stats.update(kl_bound=float(info["kl_bound"]), kl_old=float(info["kl_old"]))
         elif self.aggregate == "kl_exact":
             stats.update(exact_iters=int(info["iters"]), cg_residual=float((info["cg_residuals"] or [math.nan])[-1]))
         self._record(stats)

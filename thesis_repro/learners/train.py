@@ -140,8 +140,10 @@ def build_model(cfg: dict[str, Any], venv: VecEnv) -> BaseAlgorithm:
         kwargs.update(actor_lr=cfg["actor_lr"], critic_lr=cfg["critic_lr"], critic_l2=cfg["critic_l2"])
     if cfg.get("lr_schedule", "constant") == "linear":
         offset = iteration_steps(cfg) / int(cfg["timesteps"])
+        horizon = int(cfg.get("stop_at") or cfg["timesteps"]) / int(cfg["timesteps"])
         for key in ("learning_rate", "clip_range"):
-            kwargs[key] = Ppo1Linear(float(kwargs.get(key, 3e-4 if key == "learning_rate" else 0.2)), offset)
+            initial = float(kwargs.get(key, 3e-4 if key == "learning_rate" else 0.2))
+            kwargs[key] = Ppo1Linear(initial, offset, horizon)
     noise = cfg.get("action_noise")
     if noise is not None:
         if noise["type"] != "ou":
@@ -167,21 +169,26 @@ class Ppo1Linear:
     """OpenAI baselines ppo1's ``schedule='linear'`` as an SB3 schedule: ``initial x max(1 - t/T, 0)`` with t the
     env steps done BEFORE the iteration (SB3 evaluates schedules after collecting it: ``progress_remaining`` =
     1 - (t + batch)/T, so ``offset`` = batch/T). The first iteration trains with ``initial``, the last with
-    ``initial x batch/T``.
+    ``initial x batch/T``. ``horizon`` = (steps SB3 learns for) / T, below 1 for a run that stops early
+    (``stop_at``): SB3's progress then runs over the shorter horizon and is mapped back onto T.
 
     >>> s = Ppo1Linear(3e-4, offset=0.25)  # 4 iterations
     >>> [round(s(p) / 3e-4, 2) for p in (0.75, 0.5, 0.25, 0.0)]
     [1.0, 0.75, 0.5, 0.25]
+    >>> [round(Ppo1Linear(3e-4, 0.25, horizon=0.5)(p) / 3e-4, 2) for p in (0.5, 0.0)]  # the first 2 of 4
+    [1.0, 0.75]
     """
 
-    def __init__(self, initial: float, offset: float):
-        self.initial, self.offset = float(initial), float(offset)
+    def __init__(self, initial: float, offset: float, horizon: float = 1.0):
+        self.initial, self.offset, self.horizon = float(initial), float(offset), float(horizon)
 
     def __call__(self, progress_remaining: float) -> float:
+        if self.horizon != 1.0:  # (only then: a full run's schedule keeps its exact float operations)
+            progress_remaining = 1.0 - (1.0 - progress_remaining) * self.horizon
         return self.initial * min(max(progress_remaining + self.offset, 0.0), 1.0)
 
     def __repr__(self) -> str:
-        return f"Ppo1Linear({self.initial:g}, offset={self.offset:g})"
+        return f"Ppo1Linear({self.initial:g}, offset={self.offset:g}, horizon={self.horizon:g})"
 
 
 def _optimizer(cfg: dict[str, Any]) -> dict[str, Any]:
@@ -463,7 +470,7 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
         if isinstance(venv, ARPLVecEnv):
             venv.policy = model.policy
     book = _Bookkeeper(cfg, workdir, state, live)
-    remaining = int(cfg["timesteps"]) - int(model.num_timesteps)
+    remaining = int(cfg.get("stop_at") or cfg["timesteps"]) - int(model.num_timesteps)
     t0, c0 = time.time(), time.process_time()
     if remaining > 0:
         cbs = [book] + ([callback] if callback is not None else [])

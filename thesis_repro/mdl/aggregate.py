@@ -474,8 +474,46 @@ class FisherProducts:
         """(1/N) Σ_i I(θ_i) v, shape (P,)."""
         return self(v).mean(0)
 
+    def diagonal(self) -> Tensor:
+        """The diagonals of I(θ_1)..I(θ_N), shape (N, P).
+
+        With an MLP view, in closed form: per parameter, (1/S) Σ_s Σ_a σ_a⁻² (∂μ_a(s)/∂θ_p)² (2 for each log σ
+        entry), by one reverse pass of all A action outputs at once through the cached activations; otherwise
+        the diagonal of :func:`fisher_matrix` (tiny networks only).
+        """
+        if not self.closed_form:
+            return torch.stack([torch.diagonal(fisher_matrix(self.view, t, self.states)) for t in self.thetas])
+        spec = self.view.mlp
+        assert spec is not None
+        n_states, n_act = self.states.shape[0], self._w[-1].shape[-2]
+        weight = self._prec.unsqueeze(-1)  # (N, 1, A, 1): σ_a⁻² / S
+        out: dict[str, Tensor] = {}
+        with torch.no_grad():
+            eye = torch.eye(n_act, dtype=self._prec.dtype)
+            g = eye.expand(self.n, n_states, n_act, n_act)  # ∂μ_a/∂z_L, (N, S, A, d_L)
+            for k in range(len(spec.linears) - 1, -1, -1):
+                wn, bn = spec.linears[k]
+                h = (weight * g * g).sum(-2)  # (N, S, d_k): Σ_a σ_a⁻² (∂μ_a/∂z_k)² / S
+                out[wn] = h.transpose(-1, -2) @ (self._x[k] * self._x[k])
+                if bn is not None:
+                    out[bn] = h.sum(-2)
+                if k > 0:
+                    g = (g @ self._w[k].unsqueeze(1)) * self._d[k - 1].unsqueeze(-2)
+            out[spec.log_std] = torch.full(self.view.params(self.thetas[0])[spec.log_std].shape, 2.0)
+        return torch.cat(
+            [
+                out[name].expand(self.n, *shape).reshape(self.n, -1)
+                for name, shape in zip(self.view.names, self.view.shapes, strict=True)
+            ],
+            dim=1,
+        )
+
 
 # ----------------------------------------------------------------------------------------- Eq 4.10/4.11
+#: Fractions of the Eq 4.11 correction that :func:`kl_avg`'s line search tries, largest first; 0 is params_avg.
+LINE_SEARCH_FRACTIONS: tuple[float, ...] = (*(2.0**-k for k in range(11)), 0.0)
+
+
 def conjugate_gradient(
     avp: Callable[[Tensor], Tensor], b: Tensor, iters: int = 10, rtol: float = 1e-6
 ) -> tuple[Tensor, float]:
@@ -532,8 +570,9 @@ def kl_avg(
     towards zero, i.e. towards :func:`params_avg` (λ → ∞ gives Eq 4.6). With λ = 0 and enough iterations
     this is Eq 4.10, the argmin of Σ_i (θ_i − θ)ᵀ I(θ_i) (θ_i − θ) (Eq 4.8).
 
-    ``line_search`` (off by default; not in the thesis) backtracks the correction (fractions 1, ½, ¼, ⅛, 0)
-    until the TRUE objective of Eq 4.7, Σ_i E_s KL(π_θi ‖ π_θ), is no larger than at the parameter mean.
+    ``line_search`` (off by default; not in the thesis) backtracks the correction (fractions
+    :data:`LINE_SEARCH_FRACTIONS`: 1, ½, ..., 2⁻¹⁰, then 0) until the TRUE objective of Eq 4.7,
+    Σ_i E_s KL(π_θi ‖ π_θ), is no larger than at the parameter mean: never worse than params_avg.
     CG stops after ``cg_iters`` products or at relative residual ``cg_rtol`` (see :func:`conjugate_gradient`).
     ``info`` (if given) receives ``cg_residual`` (‖r‖) and ``step_fraction``.
     """
@@ -554,14 +593,16 @@ def kl_avg(
     corr, res = conjugate_gradient(avp, b, cg_iters, rtol=cg_rtol)  # type: ignore[arg-type]
     frac = 1.0
     if line_search:
-        with torch.no_grad():
+        with torch.no_grad():  # the objective the learner logs (eq47_objective), so the guarantee holds there too
             ref = eq47_objective(view, mean, thetas, states)
-            for frac in (1.0, 0.5, 0.25, 0.125, 0.0):
+            for frac in LINE_SEARCH_FRACTIONS:
                 if frac == 0.0 or eq47_objective(view, mean + frac * corr, thetas, states) <= ref:
                     break
     if info is not None:
         info["cg_residual"] = res
         info["step_fraction"] = frac
+    if line_search:  # from the mean itself, so that a rejected correction (0) is params_avg to the last bit
+        return mean + frac * corr
     return base + gbar + frac * corr
 
 
