@@ -103,6 +103,8 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
             confirmation=_derived_confirmation(rows, plain),
             v2_status=v2,
             v3={"status": plain, "reason": "; ".join(gate), "derived": True},
+            # a derived claim's calibration is its parts' (each one gated on its own)
+            calibration={"parts": {x.spec.id: x.calibration for x in rows}} if with_null else {},
         )
     try:
         got = page_data(s, scale)
@@ -161,8 +163,20 @@ def _judge_v3(
     measured = measured2 if rule3 == rule2 else _measure(frames, rule3)
     try:
         groups = _units(measured)
-    except (M.NotRun, M.Inconclusive):
-        return None
+    except (M.NotRun, M.Inconclusive) as err:
+        if measured is measured2:  # v3 judges what v2 judges: the same label under both
+            return None
+        label = report.NOT_RUN if isinstance(err, M.NotRun) else report.INCONCLUSIVE
+        if scale == "smoke":
+            label = report.NOT_JUDGED
+        return {
+            "status": label,
+            "label": label,
+            "reason": "",
+            "note": str(err),
+            "conjunction": conj,
+            "ablation": _ablation(s, lv, mg, conj, measured2, label),
+        }
     run = {g: us for g, us in groups.items() if us}
     if not run:
         return None
@@ -175,17 +189,7 @@ def _judge_v3(
         return combine_bounded([x, report.INCONCLUSIVE]) if partial else x
 
     status = finish(res.status)
-    # what each v3 change moves, added one at a time (the deviations page): v3's statistics alone (v2's rule, no
-    # conjunction), then the conjunction, then v3's rule overrides (= ``status``), then the gate (= the label)
-    ablation = {"statistics": status, "conjunction": status}
-    try:
-        run2 = {g: us for g, us in _units(measured2).items() if us} if rule3 != rule2 else run
-        ablation["statistics"] = finish(J3.judge_v3(run2, lv, mg, rules, False, family, False).status)
-        ablation["conjunction"] = finish(J3.judge_v3(run2, lv, mg, rules, conj, family, False).status)
-    except (M.NotRun, M.Inconclusive) as err:
-        ablation["statistics"] = ablation["conjunction"] = (
-            report.INCONCLUSIVE if isinstance(err, M.Inconclusive) else report.NOT_RUN
-        )
+    ablation = _ablation(s, lv, mg, conj, measured2 if rule3 != rule2 else run, status, family, finish)
     effects = thesis_effects(s, rule3)
     thesis = T.thesis_excluded([u for us in run.values() for u in us], effects)
     cal: dict[str, Any] = {}
@@ -281,6 +285,33 @@ def _judge_frames(
     return _as_v3(row, v3)
 
 
+def _ablation(
+    s: Spec,
+    lv: str,
+    mg: float,
+    conj: bool,
+    measured2: Mapping[str, Sequence[Unit]] | Exception,
+    status: str,
+    family: Sequence[float] = (),
+    finish: Any = lambda x: x,
+) -> dict[str, str]:
+    """What each v3 change moves, added one at a time (the deviations page): v3's statistics alone (on v2's rule's
+    units, no conjunction), then the conjunction; v3's rule overrides then give ``status`` and the gate the label."""
+    try:
+        run2 = {g: list(us) for g, us in _units(measured2).items() if us}  # type: ignore[arg-type]
+    except (M.NotRun, M.Inconclusive) as err:
+        x = report.INCONCLUSIVE if isinstance(err, M.Inconclusive) else report.NOT_RUN
+        return {"statistics": x, "conjunction": x}
+    if not run2:
+        return {"statistics": status, "conjunction": status}
+    rule2 = design.rule(s.rule, s.v2)
+    rules = {g: J.count_rule(rule_for(s, g, rule2)[0], lv, rule2) for g in run2}
+    return {
+        "statistics": finish(J3.judge_v3(run2, lv, mg, rules, False, family, False).status),
+        "conjunction": finish(J3.judge_v3(run2, lv, mg, rules, conj, family, False).status),
+    }
+
+
 def _as_v3(row: Row, v3: dict[str, Any] | None) -> Row:
     """``row`` (design v2's, with v1's beside it) turned into design v3's: v3's label, statistic and units become
     the row's, v2's move beside them (``v2_status``, ``v2_primary``, ``v2_groups``)."""
@@ -288,6 +319,11 @@ def _as_v3(row: Row, v3: dict[str, Any] | None) -> Row:
     row.v2_calibration = row.calibration
     if v3 is None:  # v3 judges what v2 judges: a measure that cannot run is the same label under both
         row.v3 = {"status": row.status, "reason": ""}
+        return row
+    if "note" in v3:  # v3's rule leaves nothing to judge (e.g. every run of the learner diverged)
+        row.status, row.note = v3["label"], v3["note"]
+        row.primary, row.groups, row.statistic, row.calibration = {}, {}, {}, {}
+        row.v3 = {k: v3[k] for k in ("status", "reason", "conjunction", "ablation")}
         return row
     row.status = v3["label"]
     row.primary = v3["primary"]

@@ -146,8 +146,9 @@ def scoreboard(scale: str, rows: Sequence[Row]) -> str:
         "\n\nEach thesis sentence is one claim, judged once by the rule registered for it in "
         "`data/thesis/claims.yaml` (pages that repeat it show the same verdict). Kit-made checks such as the "
         "agreement of the Welch bolding are shown on their pages and not counted. `python -m thesis_repro claims "
-        f"--scale {scale} --json` prints this ledger; {{doc}}`What changed from v1, and why <claims-design-v2>` "
-        "explains the design.\n"
+        f"--scale {scale} --json` prints this ledger; {{doc}}`What changed from v2, and why <deviations>` and "
+        "{doc}`what changed from v1 <claims-design-v2>` "
+        "explain the design.\n"
     )
     if scale == "smoke":
         tail += "At `smoke` nothing is judged: the runs only exercise the plumbing.\n"

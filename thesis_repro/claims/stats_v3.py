@@ -142,23 +142,30 @@ def seed_values(c: Contrast, t: float, leave_one_out: bool = False) -> dict[int,
         a = K.series(c.a)
         if side is None:
             return {k: (c.sign * (v - c.ref) - t * sc) / sc for k, v in a.items()}
-        div = {k: _loo_scale(a, k, sc) if leave_one_out else sc for k in a}
-        return {k: (c.sign * (v - c.ref) - t * sg * v) / div[k] for k, v in a.items()}
+        div = _loo_scales(a, sc) if leave_one_out else {}
+        return {k: (c.sign * (v - c.ref) - t * sg * v) / div.get(k, sc) for k, v in a.items()}
     keys, a, b = K.joined(c.a, c.b)
     r = b if side is c.b else a if side is c.a else None
-    full = K.series(side) if side is not None and leave_one_out else {}
+    div = _loo_scales(K.series(side), sc) if side is not None and leave_one_out else {}
     out = {}
     for i, k in enumerate(keys):
         lin = c.sign * (a[i] - b[i]) - t * (sg * r[i] if r is not None else 1.0)
-        out[k] = lin / _loo_scale(full, k, sc) if full else lin / sc
+        out[k] = lin / div.get(k, sc)
     return out
 
 
-def _loo_scale(full: Mapping[int, float], seed: int, fallback: float) -> float:
-    """``|mean|`` of ``full``'s values at the seeds other than ``seed`` (``fallback`` when none is left or it is 0)."""
-    rest = [v for s, v in full.items() if s != seed]
-    m = abs(float(np.mean(rest))) if rest else 0.0
-    return m if m > 0 else fallback
+def _loo_scales(full: Mapping[int, float], fallback: float) -> dict[int, float]:
+    """Per seed, ``|mean|`` of ``full``'s values at the other seeds (``fallback`` where none is left or it is 0).
+
+    >>> _loo_scales({0: 1.0, 1: 3.0, 2: 5.0}, 1.0)
+    {0: 4.0, 1: 3.0, 2: 2.0}
+    """
+    n, total = len(full), sum(full.values())
+    out = {}
+    for k, v in full.items():
+        m = abs((total - v) / (n - 1)) if n > 1 else 0.0
+        out[k] = m if m > 0 else fallback
+    return out
 
 
 def _sides(c: Contrast, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -332,16 +339,20 @@ def _slot_test(units: Sequence[Contrast], margin: float) -> Test:
 
 
 def pooled_test(units: Sequence[Unit], margin: float) -> PooledTest:
-    """The v3 pooled test of a group: each slot (a contrast label at a group position, across the units that hold
-    it) pooled by seed (:func:`_slot_test`), the slots combined as one unit's contrasts (:func:`combine_p`).
-    Correlations in Fisher z (``margin`` in r, as v2)."""
+    """The v3 pooled test of a group: each slot pooled by seed (:func:`_slot_test`), the slots combined as one unit's
+    contrasts (:func:`combine_p`). Units of one contrast are all one slot (the claim's effect, replicated over
+    units); in a unit of several contrasts each contrast label at its group position is a slot, across the units
+    that hold it. Correlations in Fisher z (``margin`` in r, as v2)."""
     kinds = {c.kind for u in units for c in u.contrasts()}
     r = kinds == {"r"}
     slots: dict[tuple[int, str], list[Contrast]] = {}
     for u in units:
-        for gi, g in enumerate(structure(u)):
+        st = structure(u)
+        for gi, g in enumerate(st):
             for c in g:
-                slots.setdefault((gi, c.directed_label()), []).append(c)
+                # a unit of one contrast is one replicate of the claim's one effect; a unit of several names each
+                key = (0, "") if len(st) == 1 and len(g) == 1 else (gi, c.directed_label())
+                slots.setdefault(key, []).append(c)
     tests = {key: _slot_test(cs, margin) for key, cs in slots.items()}
     by_group: dict[int, list[tuple[float, float]]] = {}
     for (gi, _), t in tests.items():
