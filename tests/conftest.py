@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-import thesis_repro  # noqa: F401 - sets MUJOCO_GL before any test imports mujoco
+import thesis_repro  # noqa: F401 - sets the pinned numerics before any test imports torch
 
 
 @pytest.fixture(autouse=True)

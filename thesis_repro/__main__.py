@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import logging
 import os
 import signal
@@ -46,7 +47,19 @@ class Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one ``error:`` line (no usage block)."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"error: {message} (see `{self.prog} --help`)\n")
+        self.exit(2, f"error: {one_line(ValueError(message))} (see `{self.prog} --help`)\n")
+
+
+@contextlib.contextmanager
+def _one_line_usage_errors() -> Iterator[None]:
+    """Every argument parser of the command (also the claims ledger's own) reports a usage error as one line,
+    as :class:`Parser` does, while the command runs."""
+    saved = argparse.ArgumentParser.error
+    argparse.ArgumentParser.error = Parser.error  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        argparse.ArgumentParser.error = saved  # type: ignore[method-assign]
 
 
 def positive_int(text: str, low: int = 1) -> int:
@@ -104,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     if (nk := sys.modules.get("thesis_repro.notebook_kernel")) is not None:  # a new command: no bar of its own yet
         nk.line_ended()
     try:
-        with _signals_as_interrupts():
+        with _signals_as_interrupts(), _one_line_usage_errors():
             return _main(argv)
     except KeyboardInterrupt as err:
         # the notebook client's pending tasks die with the kernel: asyncio would log each as it is collected
@@ -169,6 +182,7 @@ def _main(argv: list[str]) -> int:
     runs_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all'")
     runs_p.add_argument("--scale", default="small", help="smoke | small | full")
     runs_p.add_argument("--json", action="store_true", help="print the rows as JSON")
+    runs_p.add_argument("--verbose", action="store_true", help="list every run (default: counts per kind)")
     runs_p.add_argument(
         "--check", action="store_true", help="report stale or corrupt shipped runs and corrupt local runs instead"
     )
@@ -361,7 +375,19 @@ def _claims(argv: list[str]) -> int:
         from thesis_repro.claims import cli
     except ImportError as err:
         raise RuntimeError(f"the claims ledger is not available ({err})") from None
-    return int(cli.main(argv) or 0)
+    if {"-h", "--help", "--json", "--verbose"} & set(argv):  # help, or the full text: as the ledger prints it
+        return int(cli.main(argv) or 0)
+    from thesis_repro import terminal
+
+    print("judging the thesis's claims from saved numbers (about 30 s) ...", file=sys.stderr, flush=True)
+    out = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out):
+            code = int(cli.main(argv) or 0)
+    finally:
+        if text := out.getvalue():  # each line cut to the terminal; --verbose or --json give the full text
+            print(terminal.fit(text.rstrip("\n")) + "\n(lines cut to the terminal; --verbose or --json: in full)")
+    return code
 
 
 def _results(argv: list[str]) -> int:
@@ -379,10 +405,10 @@ def _command(args: argparse.Namespace) -> int:
 
     check_environment()
     if args.cmd == "list":
-        print("scales:", ", ".join(scales.SCALES))
-        print("notebooks:", ", ".join(notebooks.notebook_ids(guides=True)))
+        print(list_text())
     elif args.cmd == "figure":
         scales.check_scale(args.scale)
+        notebooks.require_book()
         ids = notebooks.notebook_ids(guides=True) if args.figure == "all" else [notebooks.check_notebook(args.figure)]
         params = notebook_parameters(args.parameter, args.scale)
         for folder in (paths.runs(), paths.build(args.scale)):
@@ -428,6 +454,7 @@ def _command(args: argparse.Namespace) -> int:
         from thesis_repro import book as book_mod
 
         scales.check_scale(args.scale)
+        notebooks.require_book()
         for folder in (paths.runs(), paths.build(args.scale)):
             check_writable(folder)
         book_mod.build(args.scale, reuse=args.reuse, force=args.force, shipped_only=args.shipped_only)
@@ -448,6 +475,12 @@ def _bench_command(args: argparse.Namespace) -> int:
     return 0
 
 
+#: What "AUC" means, printed under every score (thesis Eq 3.6).
+AUC_NOTE = (
+    "AUC (thesis Eq 3.6): the area under testing return vs σ, Δσ times the sum of the testing returns over the "
+    "σ grid; higher is more robust to the perturbation"
+)
+
 #: Subcommands for your own agent (:mod:`thesis_repro.agent`).
 AGENT_COMMANDS = ("score", "train", "enjoy", "clips")
 
@@ -461,6 +494,7 @@ def _agent_parsers(sub: Any) -> None:
     sc.add_argument("--label", default="your agent", help="the models' name in the table and figure")
     sc.add_argument("--figure", default=None, metavar="PNG", help="save the Fig 3.4-style comparison here")
     sc.add_argument("--no-compare", action="store_true", help="only your scores, not the shipped learners beside")
+    sc.add_argument("--verbose", action="store_true", help="the tables in full, whatever the terminal's width")
     tr = sub.add_parser("train", help="train (or load) one chapter-3 run through the run cache")
     tr.add_argument("algo", help="a chapter-3 learner: ppo, trpo, ddpg, sac, ppo-16, ...")
     tr.add_argument("task", help="InvertedPendulum | InvertedDoublePendulum | Walker2d | Hopper | HalfCheetah")
@@ -482,7 +516,7 @@ def _agent_parsers(sub: Any) -> None:
 
 
 def _agent_command(args: argparse.Namespace) -> int:
-    from thesis_repro import agent, clips, scales
+    from thesis_repro import agent, clips, paths, scales, terminal
 
     scales.check_scale(args.scale)
     if args.cmd == "train":
@@ -525,17 +559,22 @@ def _agent_command(args: argparse.Namespace) -> int:
 
         task = short_name(args.task)
         models = [agent.load_sb3(p, args.algo) for p in args.models]
+        if not args.no_compare and (note := paths.reference_note()) is not None:
+            raise ValueError(f"{note} (or score with --no-compare)")
         scores = score_model(models, task, args.scale, label=args.label)
-        print(scores)
+        print(str(scores) if args.verbose else terminal.wrap(str(scores)))
         if not args.no_compare:
             cmp = agent.compare_with_shipped(scores)
             print()
-            print(cmp)
+            print(str(cmp) if args.verbose else terminal.wrap(f"testing AUC, {cmp.ci_label}"))
+            if not args.verbose:  # pandas wraps the columns into blocks at the terminal's width
+                print(terminal.frame(cmp.wide()))
             if args.figure:
                 cmp.figure.savefig(args.figure, dpi=120)
                 print(f"figure: {args.figure}")
         elif args.figure:
             raise ValueError("--figure shows the comparison; drop --no-compare")
+        print(terminal.wrap(AUC_NOTE))
     return 0
 
 
@@ -588,6 +627,21 @@ def check_environment() -> None:
     paths.retrain()
     backends.backend()
     check_jobs()
+
+
+def list_text(cols: int | None = None) -> str:
+    """What ``list`` prints, within ``cols`` columns (default: the terminal's): the scales, every figure and
+    table with its title, the other notebooks, and where the notebooks are when this install has none."""
+    from thesis_repro import figures, notebooks, paths, scales, terminal
+
+    lines = [f"scales: {', '.join(scales.SCALES)}", "figures and tables (python -m thesis_repro figure ID):"]
+    lines += [f"  {fid:<10} {figures.get(fid).title}" for fid in figures.ids()]
+    if paths.NOTEBOOKS.is_dir():
+        other = [n for n in notebooks.notebook_ids(guides=True) if figures.FIGURES.get(n) is None]
+        lines.append(f"other pages: {', '.join(other)}")
+    else:
+        lines.append("notebooks: none in this install (they ship with the kit's clone; `figure` and `book` need it)")
+    return terminal.fit("\n".join(lines), cols)
 
 
 def _plan_command(args: argparse.Namespace) -> int:
@@ -693,7 +747,9 @@ def _runs_command(args: argparse.Namespace) -> int:
             f"{len(runs.local_entries())} local runs ({paths.runs()}): {len(local)} corrupt"
         )
         return 1 if stale or corrupt or local else 0
-    ids = figures.ids() if args.figure == "all" else [args.figure]
+    from thesis_repro import terminal
+
+    ids = figures.ids() if args.figure == "all" else [figures.get(args.figure).id]
     for fid in ids:
         rows = runs.rows(fid, args.scale)
         if args.json:
@@ -701,8 +757,13 @@ def _runs_command(args: argparse.Namespace) -> int:
             continue
         train = [j for j in figures.jobs(fid, args.scale) if j.kind in figures.TRAINING_KINDS]
         line = runs.summary(train, verify=True) if train else "no training runs"
-        print(f"{figures.get(fid).notebook_id} ({args.scale}): {line}")
-        print(plan.table(rows) + "\n")
+        print(terminal.wrap(f"{figures.get(fid).notebook_id} ({args.scale}): {line}"))
+        if args.verbose:  # every run, in full
+            print(plan.table(rows) + "\n")
+        else:
+            print(terminal.fit(runs.rows_summary(rows)) + "\n")
+    if not (args.json or args.verbose):
+        print(terminal.wrap("every run with its key and folder: --verbose; as JSON: --json"))
     return 0
 
 

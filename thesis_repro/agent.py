@@ -179,6 +179,10 @@ def shipped_results(
                 per = auc(r, sig, axis=0)
                 auc_parts.append(pd.DataFrame({**ident, "rollout": np.arange(r.shape[1]), "value": per}))
     if not ret_parts:
+        from thesis_repro import paths
+
+        if (note := paths.reference_note()) is not None:
+            raise ValueError(note)
         raise ValueError(
             f"no shipped or cached chapter-3 evaluations of {task} at scale {scale!r} (the kit ships scale 'small'; "
             f"score with scale='small', or run the book at {scale!r} first)"

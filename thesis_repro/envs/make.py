@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -25,6 +26,7 @@ from thesis_repro.envs.wrappers import (
     ObservationNoise,
     SystematicShift,
     Wind,
+    _has_display,
 )
 from thesis_repro.validation import check_choice, check_nonneg
 
@@ -52,6 +54,35 @@ def wrap_env(env: gym.Env, perturbation: str = "none", sigma: float = 0.0, facto
     if perturbation == "dom":
         return DomainShift(env, sigma, factors)
     return env
+
+
+#: Render modes of the tasks: "human" opens a window (needs a display), the others render offscreen.
+RENDER_MODES: tuple[str, ...] = ("human", "rgb_array", "depth_array")
+
+
+def prepare_render(render_mode: str | None) -> None:
+    """Ready this process for a task that renders in ``render_mode``: an offscreen mode sets ``MUJOCO_GL=egl``
+    (MuJoCo's renderer without a display) unless ``MUJOCO_GL`` is set already; ``"human"`` without a display
+    (no ``DISPLAY``/``WAYLAND_DISPLAY``) is a one-line ``ValueError``, never MuJoCo's GLFW abort of the process.
+
+    >>> import os; os.environ.pop("DISPLAY", None); os.environ.pop("WAYLAND_DISPLAY", None)  # doctest: +ELLIPSIS
+    ...
+    >>> prepare_render("human")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: render_mode 'human' needs a display (no DISPLAY or WAYLAND_DISPLAY here); render offscreen with ...
+    """
+    if render_mode is None:
+        return
+    check_choice(render_mode, RENDER_MODES, "render_mode")
+    if render_mode == "human":
+        if not _has_display():
+            raise ValueError(
+                "render_mode 'human' needs a display (no DISPLAY or WAYLAND_DISPLAY here); render offscreen with "
+                "render_mode='rgb_array'"
+            )
+        return
+    os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def make_env(
@@ -101,6 +132,7 @@ def make_env(
             owners[n] = who
 
     kwargs: dict[str, Any] = {**model_kwargs(task), **(env_kwargs or {})}
+    prepare_render(kwargs.get("render_mode"))
     if c_a is not None:
         kwargs["ctrl_cost_weight"] = check_nonneg(c_a, "c_a")
     if max_episode_steps is not None:
