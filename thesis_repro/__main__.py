@@ -379,13 +379,16 @@ def _claims(argv: list[str]) -> int:
         return int(cli.main(argv) or 0)
     from thesis_repro import terminal
 
-    print("judging the thesis's claims from saved numbers (about 30 s) ...", file=sys.stderr, flush=True)
-    out = io.StringIO()
+    if sys.stderr.isatty():  # the ledger prints nothing until it is done
+        print("judging the thesis's claims from saved numbers (about 30 s) ...", file=sys.stderr, flush=True)
+    out, err = io.StringIO(), io.StringIO()
     try:
-        with contextlib.redirect_stdout(out):
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             code = int(cli.main(argv) or 0)
-    finally:
-        if text := out.getvalue():  # each line cut to the terminal; --verbose or --json give the full text
+    finally:  # notes wrapped, each verdict's line cut to the terminal; --verbose or --json give the full text
+        for line in err.getvalue().splitlines():  # an error stays one line
+            print(line if line.startswith("error:") else terminal.wrap(line), file=sys.stderr)
+        if text := out.getvalue():
             print(terminal.fit(text.rstrip("\n")) + "\n(lines cut to the terminal; --verbose or --json: in full)")
     return code
 
