@@ -375,8 +375,17 @@ def _claims(argv: list[str]) -> int:
         from thesis_repro.claims import cli
     except ImportError as err:
         raise RuntimeError(f"the claims ledger is not available ({err})") from None
-    if {"-h", "--help", "--json", "--verbose"} & set(argv):  # help, or the full text: as the ledger prints it
-        return int(cli.main(argv) or 0)
+    try:
+        return _ledger(cli.main, argv)
+    except SystemExit as done:  # --help, or a usage error (already printed as one `error:` line)
+        return int(done.code or 0)
+
+
+def _ledger(ledger_main: Any, argv: list[str]) -> int:
+    """Run the claims ledger's ``main``: each verdict's line cut to the terminal and its notes wrapped, unless
+    ``--verbose`` or ``--json`` asks for the full text (or ``--help``)."""
+    if {"-h", "--help", "--json", "--verbose"} & set(argv):
+        return int(ledger_main(argv) or 0)
     from thesis_repro import terminal
 
     if sys.stderr.isatty():  # the ledger prints nothing until it is done
@@ -384,7 +393,7 @@ def _claims(argv: list[str]) -> int:
     out, err = io.StringIO(), io.StringIO()
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            code = int(cli.main(argv) or 0)
+            code = int(ledger_main(argv) or 0)
     finally:  # notes wrapped, each verdict's line cut to the terminal; --verbose or --json give the full text
         for line in err.getvalue().splitlines():  # an error stays one line
             print(line if line.startswith("error:") else terminal.wrap(line), file=sys.stderr)
