@@ -512,9 +512,20 @@ def _agent_parsers(sub: Any) -> None:
     tr.add_argument("task", help="InvertedPendulum | InvertedDoublePendulum | Walker2d | Hopper | HalfCheetah")
     tr.add_argument("--seed", type=nonneg_int, default=0, help="training seed, >= 0 (default 0)")
     tr.add_argument("--scale", default="small", help="smoke | small | full (the book's budget at that scale)")
-    en = sub.add_parser("enjoy", help="watch one episode of a shipped or cached policy (offscreen video)")
-    en.add_argument("algo", help="a chapter-3 learner: ppo, trpo, ddpg, sac, ppo-16, ...")
+    tr.add_argument(
+        "--timesteps", type=positive_int, default=None, help="env steps instead of the book's budget (a run of its own)"
+    )
+    tr.add_argument(
+        "--train", action="store_true", help="train a run neither shipped nor cached (without it: its cost, no run)"
+    )
+    en = sub.add_parser("enjoy", help="watch one episode of a shipped or cached policy, or of an SB3 zip")
+    en.add_argument("algo", help="a chapter-3 learner (ppo, trpo, ddpg, sac, ppo-16, ...) or an SB3 model .zip")
     en.add_argument("task", help="InvertedPendulum | InvertedDoublePendulum | Walker2d | Hopper | HalfCheetah")
+    en.add_argument("--lean", action="store_true", help="no shadows, reflections or skybox (renders faster)")
+    en.add_argument("--size", type=positive_int, default=None, help="frames of SIZE x SIZE pixels (default 480)")
+    en.add_argument("--every", type=positive_int, default=1, help="a frame every EVERY steps (default 1)")
+    en.add_argument("--human", action="store_true", help="watch in a window instead (needs a display)")
+    en.add_argument("--sb3-algo", default=None, help="the SB3 class of a .zip (ppo, sac, ...; default: detected)")
     en.add_argument("--seed", type=nonneg_int, default=0, help="training seed, >= 0 (default 0)")
     en.add_argument("--scale", default="small", help="smoke | small | full")
     en.add_argument("--test", default="none", help="perturbation: none | obs | act | env | dom (default none)")
@@ -532,12 +543,7 @@ def _agent_command(args: argparse.Namespace) -> int:
 
     scales.check_scale(args.scale)
     if args.cmd == "train":
-        res = agent.train_run(args.algo, args.task, args.seed, args.scale)
-        import numpy as np
-
-        tr = res.get("train_return")
-        ret = "" if tr is None else f", training return {float(np.mean(tr)):.1f}"
-        print(f"{args.algo} on {args.task} (seed {args.seed}, scale {args.scale}): {res.source}{ret}\n{res.path}")
+        return _train_command(args)
     elif args.cmd == "clips":
         doc = clips.make_clips(args.scale, force=args.force)
         for c in doc["clips"]:
@@ -549,8 +555,9 @@ def _agent_command(args: argparse.Namespace) -> int:
             print(f"{c['algo']} on {doc['task']} ({doc['test']}, σ {doc['sigma']}): {what}")
         print(f"clips: {clips.clips_dir(args.scale)}")
     elif args.cmd == "enjoy":
+        zipped = args.algo.lower().endswith(".zip")
         out = clips.enjoy(
-            args.algo,
+            args.sb3_algo if zipped else args.algo,
             args.task,
             args.seed,
             args.scale,
@@ -559,11 +566,20 @@ def _agent_command(args: argparse.Namespace) -> int:
             video=args.video,
             episode_seed=args.episode_seed,
             max_steps=args.max_steps,
+            size=args.size,
+            every=args.every,
+            lean=args.lean,
+            model=args.algo if zipped else None,
+            human=args.human,
+            progress=True,
         )
         where = f"; video: {out['video']}" if out["video"] else ""
+        source = out["source"] if zipped else f"{out['source']} run"
         print(
-            f"{args.algo} on {args.task} ({args.test}, σ {args.sigma}): return {out['return']:.1f} in "
-            f"{out['length']} steps ({out['source']} run){where}"
+            terminal.wrap(
+                f"{args.algo} on {agent.match_task(args.task)} ({args.test}, σ {args.sigma}): return "
+                f"{out['return']:.1f} in {out['length']} steps ({source}){where}"
+            )
         )
     else:
         from thesis_repro.envs import short_name
@@ -587,6 +603,40 @@ def _agent_command(args: argparse.Namespace) -> int:
         elif args.figure:
             raise ValueError("--figure shows the comparison; drop --no-compare")
         print(terminal.wrap(AUC_NOTE))
+    return 0
+
+
+def _train_command(args: argparse.Namespace) -> int:
+    """``train``: load a shipped or cached run, or train it (its cost first, then a progress line with an ETA); a run
+    neither shipped nor cached needs ``--train`` (or ``--timesteps``, a budget of the user's) outside ``smoke``."""
+    import numpy as np
+
+    from thesis_repro import agent, paths, terminal
+    from thesis_repro.cache import RunCache
+
+    job = agent.train_job(args.algo, args.task, args.seed, args.scale, args.timesteps)
+    algo, task = job.config["algorithm"], agent.match_task(args.task)
+    budget = f", {args.timesteps:,} steps" if args.timesteps else ""
+    what = f"{algo} on {task} (seed {args.seed}, scale {args.scale}{budget})"
+    cache = RunCache()
+    state = cache.state(job)
+    if state not in ("shipped", "cached"):
+        steps, seconds = agent.train_cost(job)
+        status = "interrupted, resumes" if state == "partial" else "neither shipped nor cached"
+        cost = f"{steps:,} env steps, about {terminal.duration(seconds)} on one core"
+        consent = args.train or args.timesteps is not None or args.scale == "smoke" or paths.retrain()
+        if not consent:
+            raise ValueError(
+                f"{what} is {status}: training it takes {cost}; pass --train to train it, or --timesteps N for "
+                "a budget of your own"
+            )
+        print(terminal.wrap(f"{what}: {status}; training: {cost}"), flush=True)
+    with agent.showing_progress(f"train {algo} on {task}"):
+        res = cache.run(job)
+    tr = res.get("train_return")
+    ret = "" if tr is None else f", training return {float(np.mean(tr)):.1f}"
+    print(terminal.wrap(f"{what}: {res.source}{ret}"))
+    print(res.path)
     return 0
 
 

@@ -14,8 +14,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -63,14 +64,16 @@ def _learners(task: str, scale: str) -> dict[str, dict[str, Any]]:
     return out
 
 
-def _benchmark(settings: dict[str, Any], algo: str, task: str, seeds: Sequence[int]) -> Any:
+def _benchmark(
+    settings: dict[str, Any], algo: str, task: str, seeds: Sequence[int], timesteps: int | None = None
+) -> Any:
     from thesis_repro.figures import ch3, ch3_tables
 
     return ch3.benchmark(
         [algo],
         [task],
         list(seeds),
-        ch3.learner_timesteps(settings, algo),
+        ch3.learner_timesteps(settings, algo) if timesteps is None else int(timesteps),
         settings["tests"],
         sigmas=settings["sigmas"],
         n_rollouts=int(settings["test_rollouts"]),
@@ -280,27 +283,99 @@ def _figure(rets: pd.DataFrame, scores: Scores, title: str) -> Any:
 
 
 # ---------------------------------------------------------------- single runs
-def train_job(algo: str, task: str, seed: int = 0, scale: str = "small") -> Job:
+def match_task(task: str) -> str:
+    """The short name of ``task`` matched case-insensitively (a short name or a Gymnasium id); a one-line
+    ``ValueError`` with the closest name ("did you mean") and the valid ones otherwise.
+
+    >>> match_task("hopper"), match_task("walker2d-v5")
+    ('Hopper', 'Walker2d')
+    >>> match_task("Hoper")
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown env 'Hoper'; did you mean 'Hopper'? valid envs are: 'InvertedPendulum', \
+'InvertedDoublePendulum', 'Walker2d', 'Hopper', 'HalfCheetah'
+    """
+    import difflib
+
+    names = {**{k.lower(): k for k in ENVS}, **{v.lower(): k for k, v in ENVS.items()}}
+    if isinstance(task, str) and task.lower() in names:
+        return names[task.lower()]
+    close = difflib.get_close_matches(str(task).lower(), names, n=1)
+    hint = f"; did you mean {names[close[0]]!r}?" if close else ";"
+    listed = ", ".join(repr(k) for k in ENVS)
+    raise ValueError(f"unknown env {task!r}{hint} valid envs are: {listed}")
+
+
+def train_job(algo: str, task: str, seed: int = 0, scale: str = "small", timesteps: int | None = None) -> Job:
     """The chapter-3 training job of ``algo`` on ``task`` with training seed ``seed`` at ``scale``: the one the
-    book trains or loads (same config, same cache key). ``ValueError`` names the valid learners of the task."""
+    book trains or loads (same config, same cache key), or with ``timesteps`` env steps instead of the book's
+    budget (another run, cached under its own key). ``task`` and ``algo`` match case-insensitively; a
+    ``ValueError`` names the valid learners of the task."""
     from thesis_repro import scales
 
     scales.check_scale(scale)
-    task = short_name(task)
+    task = match_task(task)
+    algo = algo.lower() if isinstance(algo, str) else algo
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if timesteps is not None and (isinstance(timesteps, bool) or not isinstance(timesteps, int) or timesteps < 1):
+        raise ValueError(f"timesteps must be an integer >= 1 or None, got {timesteps!r}")
     learners = _learners(task, scale)
     check_choice(algo, list(learners), "learner")
-    return _benchmark(learners[algo], algo, task, [int(seed)]).train_jobs[0]
+    return _benchmark(learners[algo], algo, task, [int(seed)], timesteps).train_jobs[0]
 
 
-def train_run(algo: str, task: str, seed: int = 0, scale: str = "small", cache: RunCache | None = None) -> Result:
+def train_cost(job: Job) -> tuple[int, float]:
+    """The env steps of training ``job`` and its expected wall time in seconds on one core, at the pace of the
+    kit's benchmarks (``make bench``) or its documented defaults."""
+    from thesis_repro import throughput
+
+    steps = throughput.work(job)
+    rate = throughput.job_rate(job, throughput.load_rates())
+    return int(steps), steps / rate if rate else float("nan")
+
+
+def train_run(
+    algo: str,
+    task: str,
+    seed: int = 0,
+    scale: str = "small",
+    cache: RunCache | None = None,
+    timesteps: int | None = None,
+) -> Result:
     """Train (or load, when shipped or cached) one chapter-3 run through the run cache; returns its entry."""
-    job = train_job(algo, task, seed, scale)
+    job = train_job(algo, task, seed, scale, timesteps)
     return (cache or RunCache()).run(job)
 
 
-# ---------------------------------------------------------------- the chapter-3 landing page's clips
+@contextlib.contextmanager
+def showing_progress(label: str) -> Iterator[None]:
+    """While inside, every training run of this process shows a progress line with an ETA on stderr
+    (:data:`thesis_repro.learners.train.OBSERVERS`); a run loaded from the cache shows none."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from thesis_repro.learners import train as learner_train
+    from thesis_repro.terminal import Progress
+
+    bars: list[Progress] = []
+
+    class Watch(BaseCallback):
+        def __init__(self, total: int):
+            super().__init__()
+            self.bar = Progress(label, total, "env steps")
+            bars.append(self.bar)
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.num_timesteps)
+            return True
+
+    learner_train.OBSERVERS.append(Watch)
+    try:
+        yield
+    finally:
+        learner_train.OBSERVERS.remove(Watch)
+        for bar in bars:
+            bar.close()
 
 
 # ---------------------------------------------------------------- SB3 zips
@@ -349,9 +424,12 @@ __all__ = [
     "compare_with_shipped",
     "guide_settings",
     "load_sb3",
+    "match_task",
     "score_model",
     "shipped_results",
+    "showing_progress",
     "tasks",
+    "train_cost",
     "train_job",
     "train_run",
 ]

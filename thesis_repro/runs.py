@@ -111,11 +111,12 @@ def rows_summary(rows: Sequence[Mapping[str, str]], listed: int = 5) -> str:
     to compute: b
     """
     kinds = list(dict.fromkeys(r["kind"] for r in rows))
-    lines = [f"{'kind':<8}  {'shipped':>7}  {'cached':>6}  {'to compute':>10}"]
+    w = max([8, *map(len, kinds)])
+    lines = [f"{'kind':<{w}}  {'shipped':>7}  {'cached':>6}  {'to compute':>10}"]
     for kind in kinds:
         states = [r["state"] for r in rows if r["kind"] == kind]
         todo = sum(s not in ("shipped", "cached") for s in states)
-        lines.append(f"{kind:<8}  {states.count('shipped'):>7,}  {states.count('cached'):>6,}  {todo:>10,}")
+        lines.append(f"{kind:<{w}}  {states.count('shipped'):>7,}  {states.count('cached'):>6,}  {todo:>10,}")
     missing = [r["label"] for r in rows if r["state"] not in ("shipped", "cached")]
     if missing:
         more = f" and {len(missing) - listed:,} more" if len(missing) > listed else ""

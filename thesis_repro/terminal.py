@@ -99,7 +99,10 @@ class Progress:
         """The progress line: label, done/total, percent, elapsed time and the ETA."""
         elapsed = time.monotonic() - self.start
         frac = min(self.done / self.total, 1.0)
-        eta = f"ETA {duration(elapsed / frac * (1 - frac))}" if 0 < frac < 1 else ("done" if frac >= 1 else "ETA ?")
+        if frac >= 1:
+            eta = "done"
+        else:  # extrapolated once a twentieth is done (the first steps carry the set-up)
+            eta = f"ETA {duration(elapsed / frac * (1 - frac))}" if frac >= 0.05 else "ETA ?"
         unit = f" {self.unit}" if self.unit else ""
         return cut(f"{self.label}: {self.done:,}/{self.total:,}{unit} ({frac:.0%}), {duration(elapsed)}, {eta}")
 
