@@ -49,7 +49,8 @@ def test_train_with_a_budget_prints_its_cost_then_progress_with_an_eta(monkeypat
     got = capsys.readouterr()
     out, err = got.out.splitlines(), got.err.splitlines()
     assert out[0].startswith("ppo on InvertedPendulum (seed 0, scale smoke, 512 steps): neither shipped nor")
-    assert "512 env steps, about" in got.out and "computed, training return" in got.out
+    text = got.out.replace("\n  ", " ")  # lines wrapped at 80 columns, joined again
+    assert "512 env steps, about" in text and "computed, training return" in text
     assert err[0].startswith("train ppo on InvertedPendulum: ") and "ETA ?" in err[0]
     assert err[-1].startswith("train ppo on InvertedPendulum: 512/512 env steps (100%)") and err[-1].endswith("done")
     assert all(len(line) <= 80 for line in got.out.splitlines() + err[:-1] if not line.startswith("/"))
@@ -57,7 +58,7 @@ def test_train_with_a_budget_prints_its_cost_then_progress_with_an_eta(monkeypat
     assert job.config["timesteps"] == 512 and job != agent.train_job("ppo", "InvertedPendulum", 0, "smoke")
     assert main(argv) == 0  # now cached: no cost, no progress
     got = capsys.readouterr()
-    assert "cached" in got.out and got.err == ""
+    assert "smoke, 512 steps): cached" in got.out.replace("\n  ", " ") and got.err == ""
 
 
 def test_enjoy_renders_any_sb3_zip_fast_with_progress(tmp_path, capsys):

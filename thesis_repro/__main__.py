@@ -507,6 +507,9 @@ def _agent_parsers(sub: Any) -> None:
     sc.add_argument("--figure", default=None, metavar="PNG", help="save the Fig 3.4-style comparison here")
     sc.add_argument("--no-compare", action="store_true", help="only your scores, not the shipped learners beside")
     sc.add_argument("--verbose", action="store_true", help="the tables in full, whatever the terminal's width")
+    sc.add_argument(
+        "--versus", nargs="+", default=None, metavar="LEARNER", help="a paired test of your agent against each"
+    )
     tr = sub.add_parser("train", help="train (or load) one chapter-3 run through the run cache")
     tr.add_argument("algo", help="a chapter-3 learner: ppo, trpo, ddpg, sac, ppo-16, ...")
     tr.add_argument("task", help="InvertedPendulum | InvertedDoublePendulum | Walker2d | Hopper | HalfCheetah")
@@ -540,6 +543,7 @@ def _agent_parsers(sub: Any) -> None:
 
 def _agent_command(args: argparse.Namespace) -> int:
     from thesis_repro import agent, clips, paths, scales, terminal
+    from thesis_repro.validation import check_choice
 
     scales.check_scale(args.scale)
     if args.cmd == "train":
@@ -586,22 +590,29 @@ def _agent_command(args: argparse.Namespace) -> int:
         from thesis_repro.evaluation.score import score_model
 
         task = short_name(args.task)
+        if args.no_compare and (args.figure or args.versus):
+            raise ValueError("--figure and --versus show the comparison; drop --no-compare")
+        for learner in args.versus or ():  # before scoring: a typo costs no time
+            check_choice(learner, agent.learner_names(task, args.scale), "learner")
         models = [agent.load_sb3(p, args.algo) for p in args.models]
         if not args.no_compare and (note := paths.reference_note()) is not None:
             raise ValueError(f"{note} (or score with --no-compare)")
         scores = score_model(models, task, args.scale, label=args.label)
         print(str(scores) if args.verbose else terminal.wrap(str(scores)))
         if not args.no_compare:
-            cmp = agent.compare_with_shipped(scores)
+            steps = [getattr(m, "num_timesteps", 0) for m in models]
+            cmp = agent.compare_with_shipped(scores, timesteps=max(steps) if all(steps) else None)
             print()
             print(str(cmp) if args.verbose else terminal.wrap(f"testing AUC, {cmp.ci_label}"))
             if not args.verbose:  # pandas wraps the columns into blocks at the terminal's width
                 print(terminal.frame(cmp.wide()))
+            for learner in args.versus or ():
+                print()
+                text = cmp.versus_text(learner)
+                print(text if args.verbose else terminal.wrap(text, indent="      "))
             if args.figure:
                 cmp.figure.savefig(args.figure, dpi=120)
                 print(f"figure: {args.figure}")
-        elif args.figure:
-            raise ValueError("--figure shows the comparison; drop --no-compare")
         print(terminal.wrap(AUC_NOTE))
     return 0
 

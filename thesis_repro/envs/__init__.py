@@ -25,7 +25,7 @@ The same env as a registered Gymnasium id (five tasks x four test types; σ and 
 """
 
 from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE, BoundFactor, Factor, FactorSet, check_factors
-from thesis_repro.envs.make import PERTURBATIONS, RENDER_MODES, make_env, make_registered, prepare_render, wrap_env
+from thesis_repro.envs.make import PERTURBATIONS, make_env, make_registered, prepare_render, wrap_env
 from thesis_repro.envs.registry import ENV_IDS, ENVS, TESTS, env_id, register_envs, resolve_env, short_name
 from thesis_repro.envs.wrappers import (
     ActionNoise,
@@ -41,7 +41,6 @@ __all__ = [
     "FACTORS",
     "MIN_RATIO",
     "PERTURBATIONS",
-    "RENDER_MODES",
     "WIND_SCALE",
     "ActionNoise",
     "BoundFactor",
