@@ -157,3 +157,42 @@ def make_registered(
     if render_mode is not None:
         env_kwargs["render_mode"] = render_mode
     return make_env(task, test, sigma, seed=seed, env_kwargs=env_kwargs or None, **kwargs)
+
+
+#: Chapter 4's wind range of Fig 4.1 (a) (ξ ~ U(-0.5, 0.5) m/s²): the default of the registered ``-wind`` ids.
+DEFAULT_WIND: tuple[float, float] = (-0.5, 0.5)
+
+
+def make_context(
+    task: str,
+    context: str,
+    wind: tuple[float, float] | None = None,
+    ratios: Mapping[str, float] | None = None,
+    seed: int | None = None,
+    render_mode: str | None = None,
+    **kwargs: Any,
+) -> gym.Env:
+    """Entry point of the registered context ids (:data:`thesis_repro.envs.registry.CONTEXT_IDS`), as CARL
+    registers contexts: ``context="wind"`` is chapter 4's wind, ξ ~ U(``wind``) per episode (default
+    :data:`DEFAULT_WIND`); ``context="fixed"`` fixes factor values (``ratios``: factor -> ratio, wind in m/s²;
+    ``None``: the task as it is). Other keywords (``c_a``, ``max_episode_steps``, ...) go to :func:`make_env`.
+
+    >>> env = make_context("Hopper", "fixed", ratios={"body_mass": 1.5})
+    >>> env.reset(seed=0)[1]["factors"]
+    {'body_mass': 1.5}
+    >>> type(make_context("Walker2d", "wind")).__name__
+    'Wind'
+    """
+    env_kwargs = dict(kwargs.pop("env_kwargs", None) or {})
+    if render_mode is not None:
+        env_kwargs["render_mode"] = render_mode
+    if context == "wind":
+        if ratios is not None:
+            raise ValueError("the wind ids take wind=(low, high); fixed factor values go to the -fixed ids (ratios=)")
+        wind = DEFAULT_WIND if wind is None else wind
+    elif context == "fixed":
+        if wind is not None:
+            raise ValueError("the -fixed ids take ratios= (wind in m/s² among them); wind=(low, high): the -wind ids")
+    else:
+        raise ValueError(f"unknown context {context!r}; valid contexts are: 'wind', 'fixed'")
+    return make_env(task, wind=wind, ratios=ratios, seed=seed, env_kwargs=env_kwargs or None, **kwargs)
