@@ -704,7 +704,8 @@ def check_environment() -> None:
 
 def list_text(cols: int | None = None) -> str:
     """What ``list`` prints, within ``cols`` columns (default: the terminal's): the scales, every figure and
-    table with its title, the other notebooks, and where the notebooks are when this install has none."""
+    table with its title, the other notebooks, and where the notebooks and the shipped runs are when this install
+    has none."""
     from thesis_repro import figures, notebooks, paths, scales, terminal
 
     lines = [f"scales: {', '.join(scales.SCALES)}", "figures and tables (python -m thesis_repro figure ID):"]
@@ -714,7 +715,9 @@ def list_text(cols: int | None = None) -> str:
         lines.append(f"other pages: {', '.join(other)}")
     else:
         lines.append("notebooks: none in this install (they ship with the kit's clone; `figure` and `book` need it)")
-    return terminal.fit("\n".join(lines), cols)
+    if (note := paths.reference_note()) is not None:
+        lines.append(note)
+    return terminal.wrap("\n".join(lines), cols)
 
 
 def _plan_command(args: argparse.Namespace) -> int:
