@@ -14,7 +14,6 @@ import re
 import subprocess
 import sys
 import sysconfig
-import time
 import tomllib
 from pathlib import Path
 
@@ -127,7 +126,6 @@ def test_a_built_wheel_scores_against_the_checkouts_shipped_runs(tmp_path):
         pytest.skip("no shipped evaluations (data/reference/evaluate)")
     from stable_baselines3 import PPO
 
-    start = time.monotonic()
     venv = _venv_with_the_wheel(tmp_path)
     work = tmp_path / "elsewhere"  # outside the checkout: nothing of the clone on the path
     work.mkdir()
@@ -167,4 +165,3 @@ def test_a_built_wheel_scores_against_the_checkouts_shipped_runs(tmp_path):
     assert figure.returncode == 1
     assert figure.stderr.startswith("error: executing notebooks needs the book extra (papermill")
     assert len(figure.stderr.splitlines()) == 1
-    assert time.monotonic() - start < 90  # budget: under a minute on 2 idle cores

@@ -34,6 +34,8 @@ def test_width_follows_columns(monkeypatch):
     assert terminal.width() == 80
     monkeypatch.setenv("COLUMNS", "10")
     assert terminal.width() == terminal.MIN_COLUMNS
+    monkeypatch.delenv("COLUMNS")  # output captured, not a terminal: lines stay whole
+    assert terminal.width() == terminal.UNLIMITED and terminal.cut("x" * 300) == "x" * 300
 
 
 def test_progress_line_has_an_eta_and_fits():

@@ -1,10 +1,13 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
 ``reference-runs --scale small`` | ``budgets --scale small [--spread]`` | ``plan 3.3 --scale full --cores 64`` |
 ``claims ...`` | ``results [--check]`` | ``verify --scale small -n 20`` | ``bench [NAME ...] [--list]`` |
-``score model.zip --task Hopper --scale small`` | ``train ppo Hopper --seed 0 --scale small`` |
-``enjoy ppo Hopper --seed 0 --test obs --sigma 0.4 --video out.mp4``
+``score model.zip --task Hopper --scale small [--versus ppo]`` | ``train ppo Hopper --seed 0 [--timesteps N]
+[--train]`` | ``enjoy ppo Hopper --seed 0 --test obs --sigma 0.4 --video out.mp4 [--lean --size 240]``
 (your agent under the thesis's protocol, :mod:`thesis_repro.agent`) | ``--version``. Installed, the same command
 line is the ``thesis-repro`` console script.
+
+Output fits the terminal (:mod:`thesis_repro.terminal`: ``COLUMNS``); ``--verbose`` or ``--json`` give the full
+text.
 
 One file on purpose (over 600 lines): it is the one parser of every command, and each command's handler keeps the
 one error contract below (its ``error:`` line, its exit code); a handler parses and calls the module that does
@@ -637,9 +640,10 @@ def _train_command(args: argparse.Namespace) -> int:
         cost = f"{steps:,} env steps, about {terminal.duration(seconds)} on one core"
         consent = args.train or args.timesteps is not None or args.scale == "smoke" or paths.retrain()
         if not consent:
+            note = paths.reference_note()
             raise ValueError(
                 f"{what} is {status}: training it takes {cost}; pass --train to train it, or --timesteps N for "
-                "a budget of your own"
+                f"a budget of your own{f' ({note})' if note else ''}"
             )
         print(terminal.wrap(f"{what}: {status}; training: {cost}"), flush=True)
     with agent.showing_progress(f"train {algo} on {task}"):

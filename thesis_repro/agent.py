@@ -3,8 +3,10 @@
 * :func:`compare_with_shipped`: a :func:`~thesis_repro.evaluation.score.score_model` result beside every learner
   the kit ships (or has cached) on the same task, scale, σ grid and testing seeds: a table of AUCs with 95 % CIs
   across training seeds, and a Fig 3.4-style figure (testing return vs σ per test type, CI bands).
+  :meth:`Comparison.versus` tests your agent against one learner, paired by testing rollout.
 * :func:`train_run`: one chapter-3 training run (learner, task, seed, scale) through the run cache, the same
-  job the book trains or loads (``python -m thesis_repro train ppo Hopper --seed 0 --scale small``).
+  job the book trains or loads (``python -m thesis_repro train ppo Hopper --seed 0 --scale small``), or one of
+  your budget (``timesteps``); :func:`train_cost` prices it and :func:`showing_progress` shows its progress.
 * :func:`thesis_repro.clips.enjoy` (its own module, with the book's clips): one episode of a shipped or cached
   policy, optionally perturbed, rendered offscreen to a video.
 * :func:`load_sb3`: an SB3 ``.zip`` as a model (``python -m thesis_repro score model.zip --task Hopper``).

@@ -1,7 +1,7 @@
 """Output that fits the terminal: its width, lines cut or wrapped to it, and a progress line with an ETA.
 
-The command line prints what fits ``COLUMNS`` (the terminal's width; 100 columns when the output is not a
-terminal and ``COLUMNS`` is unset); ``--json`` or ``--verbose`` give the full text.
+The command line prints what fits ``COLUMNS``, else the terminal's width; output that goes to a file or another
+program without ``COLUMNS`` keeps its lines whole. ``--json`` or ``--verbose`` give the full text.
 
 >>> cut("a" * 10, 6)
 'aaaaa…'
@@ -13,21 +13,27 @@ one two
 
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 import textwrap
 import time
 from typing import Any, TextIO
 
-#: Width when neither a terminal nor ``COLUMNS`` says (output piped to a file or another program).
-FALLBACK_COLUMNS = 100
+#: Width when neither a terminal nor ``COLUMNS`` says (output to a file or another program): lines stay whole.
+UNLIMITED = 1_000_000
 #: The narrowest width the kit formats for (a smaller ``COLUMNS`` is read as this).
 MIN_COLUMNS = 40
 
 
 def width() -> int:
-    """The terminal's width in columns: ``COLUMNS`` if set, else the terminal's, else :data:`FALLBACK_COLUMNS`."""
-    return max(MIN_COLUMNS, shutil.get_terminal_size((FALLBACK_COLUMNS, 24)).columns)
+    """The width to print within: ``COLUMNS`` if set, else the terminal's when standard output is one, else
+    :data:`UNLIMITED`."""
+    if os.environ.get("COLUMNS", "").strip().isdigit():
+        return max(MIN_COLUMNS, int(os.environ["COLUMNS"]))
+    if sys.stdout.isatty():
+        return max(MIN_COLUMNS, shutil.get_terminal_size().columns)
+    return UNLIMITED
 
 
 def cut(line: str, cols: int | None = None) -> str:
