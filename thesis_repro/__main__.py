@@ -400,8 +400,9 @@ def _ledger(ledger_main: Any, argv: list[str]) -> int:
     finally:  # notes wrapped, each verdict's line cut to the terminal; --verbose or --json give the full text
         for line in err.getvalue().splitlines():  # an error stays one line
             print(line if line.startswith("error:") else terminal.wrap(line), file=sys.stderr)
-        if text := out.getvalue():
-            print(terminal.fit(text.rstrip("\n")) + "\n(lines cut to the terminal; --verbose or --json: in full)")
+        if text := out.getvalue().rstrip("\n"):
+            fitted = terminal.fit(text)
+            print(fitted + ("\n(lines cut to the terminal; --verbose or --json: in full)" if fitted != text else ""))
     return code
 
 

@@ -72,9 +72,10 @@ def reference_note() -> str | None:
     """One line saying where the shipped runs are expected and how to point at them, when that folder is missing
     (an installed kit carries no ``data/``); ``None`` when it is there.
 
-    >>> import os; os.environ[REFERENCE_ENV] = "/nowhere"; print(reference_note())
+    >>> import os; saved = os.environ.get(REFERENCE_ENV); os.environ[REFERENCE_ENV] = "/nowhere"
+    >>> print(reference_note())
     no shipped runs at /nowhere (THESIS_REPRO_REFERENCE): point it at <clone>/data/reference of a clone of the kit
-    >>> del os.environ[REFERENCE_ENV]
+    >>> _ = os.environ.pop(REFERENCE_ENV); os.environ.update({REFERENCE_ENV: saved} if saved else {})
     """
     ref = reference()
     if ref.is_dir():
