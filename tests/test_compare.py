@@ -13,6 +13,7 @@ from thesis_repro.__main__ import main
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYER = ROOT / "data" / "reference"
+pytestmark = pytest.mark.xdist_group("compare")  # one worker scores the module's agent once
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +64,7 @@ def test_a_paired_test_against_a_named_learner(comparison):
         comparison.versus("ppo2")
 
 
-def test_score_versus_on_the_command_line(tmp_path, monkeypatch, capsys):
+def test_score_versus_on_the_command_line_in_80_columns(tmp_path, monkeypatch, capsys):
     if not (LAYER / "evaluate").is_dir():
         pytest.skip("no shipped evaluations (data/reference/evaluate)")
     from stable_baselines3 import PPO
@@ -75,7 +76,9 @@ def test_score_versus_on_the_command_line(tmp_path, monkeypatch, capsys):
     assert main(argv) == 0
     out = capsys.readouterr().out
     assert "your agent minus sac, testing AUC paired by rollout" in out and "train steps" in out
-    assert all(len(line) <= 80 for line in out.splitlines())
+    assert all(len(line) <= 80 for line in out.splitlines()), max(out.splitlines(), key=len)
+    assert "AUC (thesis Eq 3.6): the area under testing return vs σ" in out
+    assert "ppo-reptile-dg" in out and "your agent" in out
     assert main([*argv[:-1], "sac2"]) == 2
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("error: unknown learner 'sac2'; valid learners are: 'ppo'")

@@ -1,5 +1,6 @@
-"""Output that fits the terminal: at ``COLUMNS=80`` every line of ``list``, ``runs``, ``score`` and ``claims`` fits
-in 80 columns, the full text stays behind ``--verbose`` / ``--json``, and every usage error is one line."""
+"""Output that fits the terminal: at ``COLUMNS=80`` every line of ``list``, ``runs`` and ``claims`` fits in 80
+columns (``score``'s: ``tests/test_compare.py``), the full text stays behind ``--verbose`` / ``--json``, and every
+usage error is one line."""
 
 from __future__ import annotations
 
@@ -68,17 +69,6 @@ def test_runs_summarises_and_lists_every_run_on_request(shipped, capsys):
     assert len(rows) == 150
     for kind, _label, key, _state, path in rows:  # the key is the one in the entry's folder name
         assert path.endswith(f"__{key}"), (kind, key, path)
-
-
-def test_score_fits_80_columns_and_explains_auc(shipped, tmp_path, capsys):
-    from stable_baselines3 import PPO
-
-    PPO("MlpPolicy", "InvertedPendulum-v5", n_steps=64, batch_size=32, seed=0, device="cpu").save(tmp_path / "m.zip")
-    assert main(["score", str(tmp_path / "m.zip"), "--task", "InvertedPendulum", "--scale", "small"]) == 0
-    out = capsys.readouterr().out
-    assert _fits(out), max(out.splitlines(), key=len)
-    assert "AUC (thesis Eq 3.6): the area under testing return vs σ" in out
-    assert "ppo-reptile-dg" in out and "your agent" in out
 
 
 def test_claims_lines_fit_80_columns_and_verbose_gives_them_in_full(shipped, capsys):
