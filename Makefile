@@ -22,6 +22,7 @@ NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
 .PHONY: venv test smoke book clips bench budgets lint clean-build figure-% table-% reference-runs seeds confirmatory runs-% plan-% verify \
+	thesis-budget \
 	verify-all chromium check-book ship-claims check-claims results
 
 venv: $(STAMP)
@@ -102,7 +103,7 @@ reference-runs: $(STAMP)
 	nice -n 10 $(BIN)/python -m thesis_repro reference-runs --scale $(SCALE) $(if $(FIGURES),--figures $(FIGURES)) \
 	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS)) \
 	  $(if $(ALGOS),--algos $(ALGOS)) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(KINDS),--kind $(KINDS)) \
-	  $(if $(UNTIL),--until $(UNTIL)) $(if $(ORDER),--order $(ORDER))
+	  $(if $(UNTIL),--until $(UNTIL)) $(if $(ORDER),--order $(ORDER)) $(if $(STUDY),--study $(STUDY))
 
 ## make seeds UNTIL=HH:MM : issue 22's regeneration, the one command a session starts in the background (nohup ... &):
 ## seeds 0-2 of every chapter 3-4 item under the thesis protocol, trained and evaluated, committed as they land, two
@@ -121,6 +122,16 @@ confirmatory:
 	  KINDS="train evaluate arm-solve arm-source arm-competitor-source arm-target arm-curriculum" \
 	  $(if $(UNTIL),UNTIL=$(UNTIL))
 
+## make thesis-budget UNTIL=HH:MM [COMMIT=0] [JOBS=1] : the thesis-budget study's one resumable command, started
+## niced in the background (nohup ... &) once the claims design it is judged under (v3) is frozen (it refuses before):
+## Fig 3.3's nine variants on Walker2d, HalfCheetah and Hopper, seeds 0-3, trained for the thesis's 4e6 steps and
+## evaluated after 1M, 2M, 3M and 4M, each committed compactly into data/reference as it lands (COMMIT=0: not
+## committed), two at a time, in the study's order (`python -m thesis_repro plan thesis-budget --rates shipped`);
+## UNTIL = the session's end. `python -m thesis_repro plan thesis-budget --missing` counts what is left (0: done)
+thesis-budget:
+	$(MAKE) reference-runs SCALE=small STUDY=thesis-budget KINDS="train evaluate" JOBS=$(or $(JOBS),2) \
+	  $(if $(filter 0,$(COMMIT)),,COMMIT=1) $(if $(UNTIL),UNTIL=$(UNTIL))
+
 ## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] [FIGURE=3.3 | ENTRY=<key or label> |
 ## CLAIM=<id>] : recompute a seeded random sample of N shipped evaluations on this machine (temporary cache) and
 ## compare: bit-identical wherever the numerics are pinned (the default; any difference is a mismatch, with its size),
@@ -128,11 +139,12 @@ confirmatory:
 ## (over 40 entries, only those not bit-identical), fails on a mismatch; TRAIN=1 also retrains the cheapest shipped
 ## training run; KINDS samples other shipped kinds too (chapter 5's arm-target, ...); FIGURE / ENTRY / CLAIM
 ## recompute every entry behind a figure, one entry, or a claim (then its pages' saved numbers too, compared with the
-## shipped claims snapshot)
+## shipped claims snapshot); STUDY=thesis-budget: that study's free integrity check instead (each learner without a
+## budget-dependent schedule, at the small budget, is the shipped small run of the same seed bit for bit)
 verify: $(STAMP)
 	$(BIN)/python -m thesis_repro verify --scale $(SCALE) $(if $(N),-n $(N)) $(if $(SEED),--seed $(SEED)) \
 	  $(if $(TRAIN),--train) $(if $(KINDS),--kind $(KINDS)) $(if $(FIGURE),--figure $(FIGURE)) \
-	  $(if $(ENTRY),--entry $(ENTRY)) $(if $(CLAIM),--claim $(CLAIM))
+	  $(if $(ENTRY),--entry $(ENTRY)) $(if $(CLAIM),--claim $(CLAIM)) $(if $(STUDY),--study $(STUDY))
 
 ## make verify-all SCALE=small : recompute every shipped evaluation (and chapter 5 entry) of the scale; prints the
 ## count and the compute they took when made before it starts

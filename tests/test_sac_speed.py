@@ -74,3 +74,23 @@ def test_fast_sac_deep_copies_and_saves_without_its_exploration_cache(tmp_path):
     assert twin._actor_cache is None and m._actor_cache is not None
     m.save(tmp_path / "m.zip")
     assert FastSAC.load(tmp_path / "m.zip")._actor_cache is None
+
+
+def test_stacked_actor_forwards_train_the_same_bits_on_the_study_tasks():
+    """One actor forward of a batch's observations and next observations (``FastSAC.stack_actor``) against two, on
+    short runs of the locomotion tasks' shapes with the shipped batch of 128 (and a batch that is no multiple of 16,
+    which keeps two forwards): the same weights, bit for bit, after 150 gradient steps."""
+    from thesis_repro.learners import train as tr
+    from thesis_repro.learners import train_config
+
+    th.set_num_threads(1)
+    for env, batch in (("Walker2d", 128), ("Hopper", 128), ("Hopper", 40)):  # HalfCheetah: Walker2d's shapes
+        cfg = train_config("sac", env, 2, 10**6, learning_starts=100, batch_size=batch, max_episode_steps=80)
+        weights = []
+        for stack in (True, False):
+            model = tr.build_model(cfg, tr._wrap(cfg, tr.make_train_venv(cfg), None))
+            model.stack_actor = stack
+            model.learn(250)
+            weights.append({k: v.clone() for k, v in model.policy.state_dict().items()})
+        assert weights[0].keys() == weights[1].keys()
+        assert all(th.equal(weights[0][k], weights[1][k]) for k in weights[0]), (env, batch)

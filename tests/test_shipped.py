@@ -61,15 +61,16 @@ def test_verify_samples_every_shipped_evaluation_the_fresh_seeds_too():
 
 
 def test_shipped_layer_is_compact():
-    """Small compact files (no tracked file over 2 MiB; the layer under 150 MB), never optimiser state."""
+    """Small compact files (no tracked file over 2 MiB; the layer under 180 MB), never optimiser state."""
     files = [p for p in LAYER.rglob("*") if p.is_file()]
     sizes = {p: p.stat().st_size for p in files}
     big = sorted(f"{p.relative_to(LAYER)} ({n / 2**20:.1f} MiB)" for p, n in sizes.items() if n > 2**21)
     assert not big, f"shipped files over 2 MiB (store arrays deflated, thin the logs): {big}"
     total = sum(sizes.values())
     # ~0.35 MB per training run: small's 3 seeds of every chapter 3-4 run (issue 22) and their evaluations.
-    # Compact files, never optimiser state.
-    assert total < 150e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is 150 MB"
+    # Compact files, never optimiser state. 150 MB until the thesis-budget study: its 108 runs at 4e6 steps with
+    # 3 snapshots each and their 1,728 evaluations add ~42 MB (`python -m thesis_repro plan thesis-budget`).
+    assert total < 180e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is 180 MB"
 
 
 def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):

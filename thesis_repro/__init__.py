@@ -16,9 +16,10 @@ The package map, layers from the bottom up. A module imports only from its own l
    above this line.
 6. **figures**: ``figures`` -- each item's jobs and numbers, no verdicts; may import every layer below.
 7. **runs**: ``throughput``, ``plan``, ``runs``, ``shipped_checks``, ``retrain_check``, ``generator``, ``order``,
-   ``study``, ``budgets`` -- what a job costs, cost plans, where the runs are and their export into the shipped
-   layer, the shipped layer's checks, a retrain against a shipped run, the reference-run generator and the order it
-   makes items in (claims settled per core-hour), the protocol studies, budgets; may import figures and below.
+   ``study``, ``budget_study``, ``budgets`` -- what a job costs, cost plans, where the runs are and their export into
+   the shipped layer, the shipped layer's checks, a retrain against a shipped run, the reference-run generator and
+   the order it makes items in (claims settled per core-hour), the protocol studies, the thesis-budget study,
+   budgets; may import figures and below.
 8. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed, in the verdict words
    of ``claims.report``; may import runs (the studies) and below, never figures.
 9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``clips``, ``verify``,

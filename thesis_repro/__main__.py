@@ -219,6 +219,12 @@ def _main(argv: list[str]) -> int:
         metavar="HH:MM",
         help="start only jobs expected to end by this clock time (at the shipped runs' pace; the session's end)",
     )
+    ref.add_argument(
+        "--study",
+        default=None,
+        help="a budget study's jobs instead of the figures' (thesis-budget: Fig 3.3's variants at the thesis's 4e6 "
+        "steps, evaluated after 1M, 2M, 3M and 4M; default kinds train evaluate), in its own order",
+    )
     bud = sub.add_parser("budgets", help="are the training runs trained? curve statistics of cached/shipped runs")
     bud.add_argument("--scale", default="small", help="smoke | small | full")
     bud.add_argument("--figures", nargs="+", default=None, help="figure ids (default: every figure)")
@@ -238,10 +244,10 @@ def _main(argv: list[str]) -> int:
         "figure",
         nargs="?",
         default="all",
-        help="figure id such as 3.3, 'all' (+ the book), or 'order' (the generator's order for --seeds: claims "
-        "settled per core-hour)",
+        help="figure id such as 3.3, 'all' (+ the book), 'order' (the generator's order for --seeds: claims "
+        "settled per core-hour), or a budget study (thesis-budget: its price and its order)",
     )
-    plan_p.add_argument("--scale", default="full", help="smoke | small | full")
+    plan_p.add_argument("--scale", default=None, help="smoke | small | full (default full; a budget study: small)")
     plan_p.add_argument(
         "--cores", type=positive_int, default=None, help="cores for the wall time, >= 1 (default: this machine's)"
     )
@@ -282,6 +288,12 @@ def _main(argv: list[str]) -> int:
     )
     ver.add_argument(
         "--all", action="store_true", help="recompute every shipped evaluation of the scale (make verify-all)"
+    )
+    ver.add_argument(
+        "--study",
+        default=None,
+        help="a budget study's free integrity check instead (thesis-budget: each learner without a budget-dependent "
+        "schedule, at the small budget, is the shipped small run bit for bit); nothing is trained",
     )
     bench_p = sub.add_parser("bench", help="throughput benchmarks, printed as ratios (make bench)")
     bench_p.add_argument("names", nargs="*", help="benchmarks to run (default: all; --list names them)")
@@ -443,6 +455,8 @@ def _command(args: argparse.Namespace) -> int:
     elif args.cmd in AGENT_COMMANDS:
         return _agent_command(args)
     elif args.cmd == "verify":
+        if args.study is not None:
+            return _prefix_command(args)
         from thesis_repro import verify
 
         return verify.main(args)
@@ -726,9 +740,18 @@ def list_text(cols: int | None = None) -> str:
 
 
 def _plan_command(args: argparse.Namespace) -> int:
-    from thesis_repro import plan, scales, throughput
+    from thesis_repro import budget_study, figures, plan, scales, throughput
 
-    scales.check_scale(args.scale)
+    study = args.figure in budget_study.STUDIES
+    args.scale = scales.check_scale(args.scale or ("small" if study else "full"))
+    if not study and args.figure not in ("all", "order") and args.figure.removeprefix("fig-") not in figures.FIGURES:
+        named = ", ".join(f"'{f}'" for f in figures.ids())
+        studies = ", ".join(f"'{s}'" for s in budget_study.STUDIES)
+        raise ValueError(
+            f"unknown figure {args.figure!r}; valid figures are: {named}; or 'all', 'order', a budget study: {studies}"
+        )
+    if study and (args.envs or args.algos or args.seeds):
+        raise ValueError(f"plan {args.figure} prices the whole study; --envs/--algos/--seeds subset a figure's jobs")
     if args.figure == "order" and (args.envs or args.algos):
         raise ValueError("plan order ranks whole items; --envs/--algos choose a subset of one figure")
     if args.figure == "order" and not args.seeds:
@@ -740,6 +763,9 @@ def _plan_command(args: argparse.Namespace) -> int:
     else:
         rates = throughput.load_rates()
     print(throughput.rates_note(rates))
+    if study:
+        print(_study_plan(args.figure, args.scale, args.cores, rates, args.missing))
+        return 0
     if args.figure == "order":
         from thesis_repro import order
 
@@ -760,17 +786,109 @@ def _plan_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _ledger_claims(scale: str) -> list[Any]:
+    """The claims as the generator's order sees them (:func:`thesis_repro.order.claims_from`), from the claims
+    ledger at ``scale`` (judged from saved numbers, calibration from the caches and the shipped snapshot)."""
+    from thesis_repro import order
+    from thesis_repro.claims import ledger, registry
+
+    rows = ledger.ledger(scale)
+    return order.claims_from({**r.as_dict(), "pages": sorted(registry.pages_read(r.spec))} for r in rows)
+
+
+def _study_order(name: str, scale: str, rates: Any, kinds: Any = ("train", "evaluate")) -> list[Any]:
+    """A budget study's jobs in the generator's order (:func:`thesis_repro.budget_study.ordered`), its items ranked
+    by the claims of the ledger at ``small`` (whose calibration the study's seeds are judged by)."""
+    from thesis_repro import budget_study
+
+    budget_study.check_study(name)
+    return budget_study.ordered(scale, rates, _ledger_claims("small"), kinds)
+
+
+#: Training runs of a study's order listed by ``plan <study>`` (the rest is counted).
+ORDER_SHOWN = 12
+
+
+def _study_plan(name: str, scale: str, cores: int | None, rates: Any, missing: bool) -> str:
+    """``plan thesis-budget``: the study's price (every job, or with ``missing`` those neither cached nor shipped,
+    and how many are left) and the first training runs of its order."""
+    from thesis_repro import budget_study, plan, throughput
+
+    budget_study.check_study(name)
+    jobs = budget_study.jobs(scale)
+    todo = plan.to_compute(jobs) if missing else jobs
+    p = plan.plan_jobs(name, todo, scale, cores or os.cpu_count() or 1, rates)
+    lines = [plan.report(p, rates), budget_study.size_line(budget_study.size_estimate(scale))]
+    if missing:
+        n_train = sum(j.kind == "train" for j in todo)
+        lines.append(
+            f"{name} ({scale}): {len(todo):,} jobs left of {len(jobs):,} ({n_train:,} training runs, "
+            f"{len(todo) - n_train:,} evaluations)"
+        )
+    ordered = [q.job for q in _study_order(name, scale, rates, ("train",))]
+    rows, total = [], 0.0
+    for i, j in enumerate(ordered[:ORDER_SHOWN], 1):
+        h = plan.core_hours(throughput.work(j), throughput.job_rate(j, rates))
+        total += h
+        rows.append({"#": str(i), "run": j.label, "core-hours": f"{h:,.2f}", "total": f"{total:,.1f}"})
+    lines.append(
+        f"the generator's order (`make {name}`): the Pareto panels' tasks first, within a task the items that read its "
+        "runs by claims settled per core-hour, each item's runs cheapest first; each run's evaluations follow it"
+    )
+    lines.append(plan.table(rows, ("#", "run", "core-hours", "total")))
+    if len(ordered) > ORDER_SHOWN:
+        lines.append(f"... {len(ordered) - ORDER_SHOWN} more training runs")
+    return "\n".join(lines)
+
+
+def _prefix_command(args: argparse.Namespace) -> int:
+    """``verify --study thesis-budget``: the study's free integrity check
+    (:func:`~thesis_repro.budget_study.prefix_checks`; exit code 1 if a run that must be bit-identical is not)."""
+    from thesis_repro import budget_study, plan, scales
+
+    budget_study.check_study(args.study)
+    scales.check_scale(args.scale)
+    checks = budget_study.prefix_checks(args.scale)
+    rows = [{"run": c.label, "status": c.status, "detail": c.detail} for c in checks]
+    print(plan.table(rows, ("run", "status", "detail")))
+    counts = {s: sum(c.status == s for c in checks) for s in dict.fromkeys(c.status for c in checks)}
+    print(f"{args.study} ({args.scale}): " + ", ".join(f"{n} {s}" for s, n in counts.items()))
+    return 1 if any(c.failed for c in checks) else 0
+
+
 def _order_plan(
     scale: str, seeds: list[int], rates: Any, missing: bool = False, figure_ids: list[str] | None = None
 ) -> Any:
     """The generator's order (:func:`thesis_repro.order.confirmatory_plan`) from the claims ledger at ``scale``
     (judged from saved numbers, calibration from the caches and the shipped snapshot)."""
     from thesis_repro import order
-    from thesis_repro.claims import ledger, registry
 
-    rows = ledger.ledger(scale)
-    claims = order.claims_from({**r.as_dict(), "pages": sorted(registry.pages_read(r.spec))} for r in rows)
-    return order.confirmatory_plan(scale, seeds, claims, rates, missing, figure_ids)
+    return order.confirmatory_plan(scale, seeds, _ledger_claims(scale), rates, missing, figure_ids)
+
+
+def _study_runs(args: argparse.Namespace) -> int:
+    """``reference-runs --study thesis-budget``: the study's jobs (default kinds: train and evaluate, each run's
+    evaluations as soon as it is shipped) in its order, through the generator (``--commit``, ``--until``, ``--jobs``
+    as for the figures). Outside ``smoke`` it refuses to start before the claims design it is judged under is frozen
+    (:func:`thesis_repro.budget_study.check_design`)."""
+    from thesis_repro import budget_study, generator, paths, throughput
+    from thesis_repro.provenance import claims_design, platform_info
+
+    budget_study.check_study(args.study)
+    given = [f"--{k}" for k in ("figures", "algos", "seeds") if getattr(args, k)]
+    if given or args.order != "seed-first":
+        drop = ", ".join(given) or "--order"
+        raise ValueError(f"--study {args.study} makes the whole study in its own order; drop {drop}")
+    if args.scale != "smoke":
+        budget_study.check_design(claims_design())
+    for folder in (paths.runs(), paths.reference()):
+        check_writable(folder)
+    kinds = args.kind or ("train", "evaluate")
+    rates = throughput.shipped_rates(by_env=True, machine=platform_info())
+    jobs = _study_order(args.study, args.scale, rates, kinds)
+    until = generator.parse_until(args.until) if args.until is not None else None
+    generator.generate(args.scale, None, kinds, commit=args.commit, n_jobs=args.jobs or 1, until=until, jobs=jobs)
+    return 0
 
 
 def _runs_command(args: argparse.Namespace) -> int:
@@ -779,6 +897,8 @@ def _runs_command(args: argparse.Namespace) -> int:
     from thesis_repro import figures, generator, paths, plan, runs, scales, shipped_checks, throughput
 
     scales.check_scale(args.scale)
+    if args.cmd == "reference-runs" and args.study is not None:
+        return _study_runs(args)
     if args.cmd == "reference-runs":
         from thesis_repro.learners.config import ALGORITHMS
         from thesis_repro.validation import check_choice
@@ -813,9 +933,11 @@ def _runs_command(args: argparse.Namespace) -> int:
         print(f"{len(done)} shipped training runs compacted: arrays {before / 1e6:.2f} MB -> {after / 1e6:.2f} MB")
         return 0
     if args.check:
+        from thesis_repro.budget_study import study_keys
         from thesis_repro.study import study_jobs
 
-        stale = shipped_checks.check_shipped(args.scale, also={j.key for j in study_jobs()})
+        also = {j.key for j in study_jobs()} | study_keys(args.scale)
+        stale = shipped_checks.check_shipped(args.scale, also=also)
         corrupt, local = shipped_checks.verify_shipped(), shipped_checks.verify_local()
         for s in stale:
             print(s.message)

@@ -28,6 +28,7 @@ BENCHMARKS: dict[str, str] = {
     "evaluation": "thesis_repro.evaluation.bench:bench_evaluation",  # chapter 3: batched evaluator vs predict/raw
     "training": "thesis_repro.learners.bench:bench_training",  # chapter 3: PPO training throughput
     "generator-path": "thesis_repro.learners.bench:bench_generator_path",  # SAC/DDPG: the training job's extras
+    "sac-stack": "thesis_repro.learners.bench:bench_sac_stack",  # SAC: one stacked actor forward vs two
     "multidomain": "thesis_repro.learners.bench:bench_multidomain",  # chapter 4: multi-domain iteration vs PPO
     "arm": "thesis_repro.arm.bench:bench_arm",  # chapter 5: vectorised arm simulator
 }

@@ -141,6 +141,15 @@ def _bind_to_layer(
     return out
 
 
+def _of_kinds(planned: Iterable[Planned], kinds: Collection[str]) -> list[Planned]:
+    """The jobs of ``kinds`` in ``planned``, in its order, each once."""
+    out: dict[str, Planned] = {}
+    for p in planned:
+        if p.job.kind in kinds:
+            out.setdefault(p.job.key, p)
+    return list(out.values())
+
+
 class _Followers:
     """Pinned jobs (evaluations) waiting for the runs they load: :meth:`ready` hands each out once, bound to the
     shipped entries of ``layer``, as soon as its every dependency is shipped (unless it is shipped itself)."""
@@ -383,6 +392,7 @@ def generate(
     eta: Callable[[Job], float] | None = None,
     order: str = "seed-first",
     item_seeds: Mapping[str, Iterable[int]] | None = None,
+    jobs: Sequence[Planned] | None = None,
 ) -> list[Exported]:
     """Produce the shipped reference runs of ``scale`` (``make reference-runs``).
 
@@ -406,6 +416,9 @@ def generate(
     command's latest trainings kept, :func:`core_share`): at the end of a session the
     generator takes the next job that fits instead of one that would be cut off, and stops starting jobs when none
     fits (an interrupted run resumes only on the machine that holds its checkpoints; a new one starts it again).
+
+    ``jobs`` replaces the figures' jobs by a list made elsewhere, in its own order (a study's,
+    :func:`thesis_repro.budget_study.ordered`): its jobs of ``kinds`` are made as the figures' would be.
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     kinds = tuple(check_choice(k, sorted(job_kinds.KINDS), "job kind") for k in kinds)
@@ -413,13 +426,17 @@ def generate(
     if pinned_kinds and len(pinned_kinds) < len(kinds):  # training and evaluation in one command: they follow
         kinds = tuple(k for k in kinds if k not in pinned_kinds)
         only = {"algos": algos, "seeds": seeds, "order": order, "item_seeds": item_seeds}
-        followers = _Followers(plan(scale, figure_ids, pinned_kinds, **only), layer, cache, log)
+        waiting = _of_kinds(jobs, pinned_kinds) if jobs is not None else plan(scale, figure_ids, pinned_kinds, **only)
+        followers = _Followers(waiting, layer, cache, log)
     else:
         followers = None
     pinned = any(job_kinds.pinned(k) for k in kinds)
     cache = cache or RunCache(reference=layer if pinned else False)  # evaluations load the shipped policies
     by_figure = figure_ids is not None
-    planned = plan(scale, figure_ids, kinds, by_figure, algos, seeds, order, item_seeds)
+    if jobs is not None:
+        planned = _of_kinds(jobs, kinds)
+    else:
+        planned = plan(scale, figure_ids, kinds, by_figure, algos, seeds, order, item_seeds)
     if pinned:
         planned = _bind_to_layer(planned, layer, cache, log)
     todo, shipped = [], 0
@@ -500,6 +517,7 @@ def generate(
 
             how = "figure by figure, each cheapest first" if figure_ids is not None else "cheapest first"
             how = "item by item, every seed of an item before the next" if order == "item" else how
+            how = "in the study's order" if jobs is not None else how
             t0, landed = time.time(), 0  # the pool's jobs landed so far (``done`` also holds the evaluations)
             try:  # from here on, Ctrl-C ends the workers (outside it, leaving the pool would wait for every run)
                 log(f"running {len(todo)} jobs, {n_jobs} at a time ({how})")

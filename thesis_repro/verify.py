@@ -60,7 +60,7 @@ from typing import Any
 import numpy as np
 
 import thesis_repro
-from thesis_repro import job_kinds, paths, plan, retrain_check, runs, scales, shipped_checks, throughput
+from thesis_repro import budget_study, job_kinds, paths, plan, retrain_check, runs, scales, shipped_checks, throughput
 from thesis_repro.cache import Result, RunCache, find_entry, read_entry
 from thesis_repro.validation import check_choice, one_line
 
@@ -213,13 +213,13 @@ def compare(
 # ---------------------------------------------------------------- which entries
 def shipped_of_scale(scale: str, layer: Path, kinds: Iterable[str] = KINDS) -> tuple[list[Path], list[Path]]:
     """Shipped entries of ``kinds`` in ``layer`` that ``scale``'s figures make (keys bound to the shipped
-    policies; the fresh seeds' too, up to :func:`~thesis_repro.plan.target_seeds`), and the other shipped entries
-    of those kinds (stale, or of another scale)."""
+    policies; the fresh seeds' too, up to :func:`~thesis_repro.plan.target_seeds`) or its budget study
+    (:mod:`thesis_repro.budget_study`), and the other shipped entries of those kinds (stale, or of another scale)."""
     kinds = tuple(kinds)
     entries = [p for p in runs.shipped_entries(layer) if p.parent.name in kinds]
     if not entries:
         return [], []
-    keys = shipped_checks.target_keys(scale, kinds, layer_root=layer)
+    keys = shipped_checks.target_keys(scale, kinds, layer_root=layer) | budget_study.study_keys(scale, layer)
     ours = [p for p in entries if p.name.rsplit("__", 1)[1] in keys]
     return ours, [p for p in entries if p not in ours]
 

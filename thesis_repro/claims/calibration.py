@@ -29,7 +29,9 @@ import numpy as np
 
 from thesis_repro.claims import stats as S
 from thesis_repro.claims.judge import judge_v2
+from thesis_repro.claims.judge_v3 import GATE_DRAWS, judge_v3
 from thesis_repro.claims.report import DOES_NOT, REPRODUCES
+from thesis_repro.claims.seeds import Seeded
 from thesis_repro.claims.stats import Contrast, CountRule, Unit
 
 #: Draws per calibration direction (Monte-Carlo SE of a 5 % rate: 0.007).
@@ -75,6 +77,8 @@ def plan(c: Contrast) -> _Plan:
         return _Plan(c, 0.0, 1.0, 0.0, 0.0, _sd(z, 0.3))
     mb = _m(c.b) if c.b is not None else c.ref
     scale = abs(mb) if c.relative and mb != 0 else S.contrast_scale(c)
+    if c.scale_by == "a" and c.b is not None and c.kind not in ("r", "share") and not c.proportion:
+        scale = abs(_m(c.a)) or scale  # v3's margin is a fraction of a's mean: draws shift b below a by it
     fb = FALLBACK_SD * scale
     sd_d = fb
     if c.b is not None and c.paired:
@@ -88,19 +92,25 @@ def draw_contrast(p: _Plan, rng: np.random.Generator, n: int, effect: float) -> 
     units) beyond its v1 bound, each side with its observed spread (correlations in Fisher z; shares as 0/1
     outcomes when the contrast is a proportion)."""
     c = p.c
+    seeds = range(n)
+
+    def sd(x: Any) -> Seeded:
+        return Seeded(x, seeds)
+
     if c.proportion:
         q = min(max(c.ref + c.sign * (effect + c.margin), 0.0), 1.0)
-        return replace(c, a=tuple((rng.random(n) < q).astype(float)))
+        return replace(c, a=sd((rng.random(n) < q).astype(float)))
     if c.kind == "r" and c.b is None:
         mu = math.atanh(c.ref) + c.sign * math.atanh(max(min(effect + c.margin, 0.999999), -0.999999))
-        return replace(c, a=tuple(np.tanh(mu + p.sd_d * rng.standard_normal(n))))
+        return replace(c, a=sd(np.tanh(mu + p.sd_d * rng.standard_normal(n))))
     shift = c.sign * (effect + c.margin) * p.scale
     if c.b is None:
-        return replace(c, a=tuple(c.ref + shift + p.sd_a * rng.standard_normal(n)))
-    bb = p.mb + p.sd_b * rng.standard_normal(n)
+        return replace(c, a=sd(c.ref + shift + p.sd_a * rng.standard_normal(n)))
+    mb = p.mb if c.scale_by != "a" else _m(c.a) - shift  # a's mean stays the observed one when it is the scale
+    bb = mb + p.sd_b * rng.standard_normal(n)
     if c.paired:
-        return replace(c, a=tuple(bb + shift + p.sd_d * rng.standard_normal(n)), b=tuple(bb))
-    return replace(c, a=tuple(p.mb + shift + p.sd_a * rng.standard_normal(n)), b=tuple(bb))
+        return replace(c, a=sd(bb + shift + p.sd_d * rng.standard_normal(n)), b=sd(bb))
+    return replace(c, a=sd(mb + shift + p.sd_a * rng.standard_normal(n)), b=sd(bb))
 
 
 def draw_unit(u: Unit, plans: Mapping[int, _Plan], rng: np.random.Generator, n: int, effect: float) -> Unit:
@@ -185,6 +195,22 @@ def power(
     """The fewest training seeds (of :data:`SEED_GRID`, bisected) at which the rule says *reproduces* in >= 80 %
     of draws when each unit's true effect is ``effects[label]`` (the thesis's; units without one: the mean of
     those given, or the margin when none is), at the observed spread. ``None`` past the grid's end."""
+
+    def judge(gs: Mapping[str, Sequence[Unit]]) -> str:
+        return judge_groups(gs, level, margin, rules)
+
+    return power_with(groups, judge, margin, effects, draws, seed)
+
+
+def power_with(
+    groups: Mapping[str, Sequence[Unit]],
+    judge: Callable[[Mapping[str, Sequence[Unit]]], str],
+    margin: float,
+    effects: Mapping[str, float] | None = None,
+    draws: int = POWER_DRAWS,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """:func:`power` of any ``judge`` (a claim's units to its status)."""
     effects = dict(effects or {})
     known = [v for v in effects.values() if math.isfinite(v)]
     fallback = float(np.mean(known)) if known else margin
@@ -192,9 +218,6 @@ def power(
     def eff(g: str, u: Unit) -> float:
         v = effects.get(u.label, fallback)
         return v if math.isfinite(v) else fallback
-
-    def judge(gs: Mapping[str, Sequence[Unit]]) -> str:
-        return judge_groups(gs, level, margin, rules)
 
     basis = "thesis" if known else "margin"
     rate = {}
@@ -206,8 +229,35 @@ def power(
 
     lo, hi = 0, len(SEED_GRID) - 1
     if at(hi) < POWER:
-        return {"seeds_for_80": None, "power_at": round(at(hi), 3), "effect": basis}
+        return {"seeds_for_80": None, "power_at": round(at(hi), 3), "effect": basis, "max_seeds": SEED_GRID[hi]}
     while lo < hi:  # the power rises with the seeds: bisect the grid
         mid = (lo + hi) // 2
         lo, hi = (lo, mid) if at(mid) >= POWER else (mid + 1, hi)
     return {"seeds_for_80": SEED_GRID[lo], "power_at": round(at(lo), 3), "effect": basis}
+
+
+def calibration_v3(
+    groups: Mapping[str, Sequence[Unit]],
+    level: str,
+    margin: float,
+    rules: Mapping[str, CountRule],
+    conjunction: bool,
+    effects: Mapping[str, float],
+    draws: int = GATE_DRAWS,
+) -> dict[str, Any]:
+    """Design v3's calibration (false R at effect 0, false D at the margin, ``draws`` each, at the observed spread
+    and seeds) and power (:func:`power_with`) of a claim judged by :func:`~thesis_repro.claims.judge_v3.judge_v3`
+    without Holm's page family (which only makes it more conservative)."""
+
+    def judge(gs: Mapping[str, Sequence[Unit]]) -> str:
+        return judge_v3(gs, level, margin, rules, conjunction, summaries=False).status
+
+    fr = _rate(groups, judge, lambda g, u: 0.0, None, REPRODUCES, draws, 0)
+    fd = _rate(groups, judge, lambda g, u: margin, None, DOES_NOT, draws, 1)
+    return {
+        "false_reproduces": fr,
+        "false_does_not": fd,
+        "draws": draws,
+        "mc_se": round(math.sqrt(0.05 * 0.95 / draws), 4),
+        **power_with(groups, judge, margin, effects),
+    }

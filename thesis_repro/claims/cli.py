@@ -113,7 +113,9 @@ def ledger_lines(rows: Sequence[ledger_row.Row], verbose: bool = False) -> list[
         if r.confirmation:
             out.append(f"    {r.confirmation.line()}")
         if verbose:
-            out.append(f"    v1: {r.v1_status or r.status}; {evidence.describe(r)}")
+            gate = f" ({r.v3['reason']})" if r.v3.get("reason") else ""
+            before = f"v2: {r.v2_status or r.status}; v1: {r.v1_status or r.status}"
+            out.append(f"    {before}{gate}; {evidence.describe(r)}")
             if r.subset:
                 out.append(f"    {r.subset['line']}")
     c = scoreboard.counts(rows)

@@ -22,7 +22,7 @@ def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any], sensitivities: 
     """Why a claim does not (fully) reproduce, from the kit's own measurements: seed spread, training regime
     (half vs final budget, :mod:`thesis_repro.budgets`), protocol sensitivity where measured (a page's
     ``meta["protocol"]``, and the claim's registered studies' results, :func:`study_result`)."""
-    widths, against = [], []
+    widths, against, short = [], [], []
     for j in judged.values():
         for u in j.units:
             for c in u["contrasts"]:
@@ -30,7 +30,10 @@ def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any], sensitivities: 
                 if lo is not None and hi is not None:
                     widths.append(hi - lo)
             if u["outcome"] == "no":
-                against.append(u["label"])
+                # a "no" whose CI lies on the claim's side excludes the margin, not the claim's direction
+                (short if u["contrasts"] and all(c.get("below_margin") for c in u["contrasts"]) else against).append(
+                    u["label"]
+                )
     bits = []
     if widths:
         ci = ci_words([j.level for j in judged.values()])
@@ -39,6 +42,12 @@ def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any], sensitivities: 
         bits.append(
             f"{len(against)} unit(s) significantly against the claim ({', '.join(against[:4])}"
             + (", ..." if len(against) > 4 else "")
+            + ")"
+        )
+    if short:
+        bits.append(
+            f"{len(short)} unit(s) on the claim's side but below its margin ({', '.join(short[:4])}"
+            + (", ..." if len(short) > 4 else "")
             + ")"
         )
     b = meta.get("budgets")

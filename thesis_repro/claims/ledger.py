@@ -31,8 +31,10 @@ import pandas as pd
 from thesis_repro import paths
 from thesis_repro.claims import calibration, design, report, snapshot
 from thesis_repro.claims import judge as J
+from thesis_repro.claims import judge_v3 as J3
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import sensitivity as subsets
+from thesis_repro.claims import stats_v3 as T
 from thesis_repro.claims.confirmatory import FIRST_FRESH, Confirmation, fresh_frames, fresh_seeds, seeds_in
 from thesis_repro.claims.diagnosis import diagnose, sensitivity_dict, study_result
 from thesis_repro.claims.evidence import no_ci_words
@@ -76,7 +78,12 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
         )
     if r.get("derived"):
         rows = [judge(spec(i), scale, with_null) for i in r["derived"]]
-        status = combine_bounded([x.status for x in rows]) if scale != "smoke" else report.NOT_JUDGED
+        plain = combine_bounded([x.v3.get("status", x.status) for x in rows])
+        gate = [f"{x.spec.id}: {x.status} ({x.v3.get('reason', '')})" for x in rows if x.v3.get("reason")]
+        status = report.NOT_CALIBRATED if gate else plain
+        if scale == "smoke":
+            status = plain = report.NOT_JUDGED
+        v2 = combine_bounded([x.v2_status or x.status for x in rows]) if scale != "smoke" else report.NOT_JUDGED
         v1 = combine_groups([x.v1_status or x.status for x in rows])
         rates = [x.null_pass_rate for x in rows if x.null_pass_rate is not None]
         return Row(
@@ -93,7 +100,9 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
             local_runs={p: u for x in rows for p, u in x.local_runs.items()},
             v1_status=v1,
             level="each",
-            confirmation=_derived_confirmation(rows, status),
+            confirmation=_derived_confirmation(rows, plain),
+            v2_status=v2,
+            v3={"status": plain, "reason": "; ".join(gate), "derived": True},
         )
     try:
         got = page_data(s, scale)
@@ -124,7 +133,7 @@ def confirm(
         return None
     seeds = fresh_seeds(frames)
     c = _judge_frames(s, scale, False, fresh, meta, seeds=seeds)
-    return Confirmation(c.status, ours_text(c), row.status, seeds)
+    return Confirmation(c.v3.get("status", c.status), ours_text(c), row.v3.get("status", row.status), seeds)
 
 
 def _derived_confirmation(parts: Sequence[Row], primary: str) -> Confirmation | None:
@@ -133,6 +142,74 @@ def _derived_confirmation(parts: Sequence[Row], primary: str) -> Confirmation | 
     if not got or any(c is None for c in got):
         return None
     return Confirmation(combine_bounded([c.status for c in got if c]), "", primary)
+
+
+def _judge_v3(
+    s: Spec,
+    scale: str,
+    with_null: bool | str,
+    frames: Mapping[str, pd.DataFrame],
+    measured2: dict[str, list[Unit]] | Exception,
+    seeds: Sequence[int] | None,
+) -> dict[str, Any] | None:
+    """Design v3's verdict of a claim with a measure (None when its measure cannot run): the statistical label, the
+    gated label a reader sees (:func:`~thesis_repro.claims.judge_v3.gated`) and why, its groups, its primary
+    statistic, calibration and power, and whether the thesis's own effect is excluded."""
+    rule2 = design.rule(s.rule, s.v2)
+    rule3 = design.rule3(s.rule, s.v2, s.v3)
+    lv, mg, conj = design.level3(s.v2, s.v3), design.margin3(s.v2, s.v3), design.conjunction(s.v3)
+    measured = measured2 if rule3 == rule2 else _measure(frames, rule3)
+    try:
+        groups = _units(measured)
+    except (M.NotRun, M.Inconclusive):
+        return None
+    run = {g: us for g, us in groups.items() if us}
+    if not run:
+        return None
+    rules = {g: J.count_rule(rule_for(s, g, rule3)[0], lv, rule3) for g in run}
+    family = family_p3(s, scale, seeds, run) if lv == "pooled" and not conj else ()
+    res = J3.judge_v3(run, lv, mg, rules, conj, family)
+    partial = any(not us for us in groups.values())  # a part the scale did not run may hold or not
+
+    def finish(x: str) -> str:
+        return combine_bounded([x, report.INCONCLUSIVE]) if partial else x
+
+    status = finish(res.status)
+    # what each v3 change moves, added one at a time (the deviations page): v3's statistics alone (v2's rule, no
+    # conjunction), then the conjunction, then v3's rule overrides (= ``status``), then the gate (= the label)
+    ablation = {"statistics": status, "conjunction": status}
+    try:
+        run2 = {g: us for g, us in _units(measured2).items() if us} if rule3 != rule2 else run
+        ablation["statistics"] = finish(J3.judge_v3(run2, lv, mg, rules, False, family, False).status)
+        ablation["conjunction"] = finish(J3.judge_v3(run2, lv, mg, rules, conj, family, False).status)
+    except (M.NotRun, M.Inconclusive) as err:
+        ablation["statistics"] = ablation["conjunction"] = (
+            report.INCONCLUSIVE if isinstance(err, M.Inconclusive) else report.NOT_RUN
+        )
+    effects = thesis_effects(s, rule3)
+    thesis = T.thesis_excluded([u for us in run.values() for u in us], effects)
+    cal: dict[str, Any] = {}
+    if with_null and scale != "smoke":
+        cal = calibration_v3_of(s, scale, run, lv, mg, rules, conj, effects, compute=with_null is True)
+    if scale == "smoke":
+        status = report.NOT_JUDGED
+    label, reason = J3.gated(status, cal) if seeds is None and scale != "smoke" else (status, "")
+    primary = {g: {k: v for k, v in info.items() if k != "units"} for g, info in res.groups.items()}
+    return {
+        "status": status,
+        "label": label,
+        "reason": reason,
+        "level": res.level,
+        "margin": mg,
+        "conjunction": conj,
+        "n_seeds": res.n_seeds,
+        "groups": {g: {"verdict": i["verdict"], "level": LEVEL, "units": i["units"]} for g, i in res.groups.items()},
+        "primary": primary if len(primary) > 1 else next(iter(primary.values())),
+        "shares": {g: _share(info) for g, info in res.groups.items()},
+        "calibration": cal,
+        "thesis_effect": thesis,
+        "ablation": ablation,
+    }
 
 
 def _corrupt(s: Spec, scale: str, err: snapshot.CorruptSnapshot) -> Row:
@@ -154,15 +231,16 @@ def _judge_frames(
     rule2, lv, mg = design.rule(s.rule, s.v2), design.level(s.v2), design.margin(s.v2)
     measured = _measure(frames, rule2)
     v1 = _judge_v1_frames(s, scale, False, frames, meta, measured if rule2 == s.rule else None)
+    v3 = _judge_v3(s, scale, with_null, frames, measured, seeds)
     try:
         groups = _units(measured)
     except (M.NotRun, M.Inconclusive):
         v1.v1_status, v1.v1_statistic, v1.level, v1.margin = v1.status, v1.statistic, lv, mg
-        return v1
+        return _as_v3(v1, v3)
     run = {g: us for g, us in groups.items() if us}
     not_run = [g for g, us in groups.items() if not us]
     if not run:
-        return v1
+        return _as_v3(v1, v3)
     rules = {g: J.count_rule(rule_for(s, g, rule2)[0], lv, rule2) for g in run}
     family = family_p(s, scale, seeds) if lv == "pooled" else ()
     res = J.judge_v2(run, lv, mg, rules, family)
@@ -200,6 +278,26 @@ def _judge_frames(
         shim = {g: _Judged(info["units"], LEVEL) for g, info in res.groups.items()}
         row.diagnosis = diagnose(shim, meta, measured)
         row.sensitivity = [sensitivity_dict(m) for m in measured]
+    return _as_v3(row, v3)
+
+
+def _as_v3(row: Row, v3: dict[str, Any] | None) -> Row:
+    """``row`` (design v2's, with v1's beside it) turned into design v3's: v3's label, statistic and units become
+    the row's, v2's move beside them (``v2_status``, ``v2_primary``, ``v2_groups``)."""
+    row.v2_status, row.v2_primary, row.v2_groups = row.status, row.primary, row.groups
+    row.v2_calibration = row.calibration
+    if v3 is None:  # v3 judges what v2 judges: a measure that cannot run is the same label under both
+        row.v3 = {"status": row.status, "reason": ""}
+        return row
+    row.status = v3["label"]
+    row.primary = v3["primary"]
+    row.groups = v3["groups"]
+    row.calibration = v3["calibration"]
+    row.statistic = v3["shares"] if len(v3["shares"]) > 1 else next(iter(v3["shares"].values()))
+    row.level, row.margin = v3["level"], v3["margin"]
+    row.n_seeds = v3["n_seeds"] or row.n_seeds
+    row.null_pass_rate = v3["calibration"].get("false_reproduces")
+    row.v3 = {k: v3[k] for k in ("status", "reason", "conjunction", "thesis_effect", "ablation")}
     return row
 
 
@@ -234,6 +332,45 @@ def family_p(s: Spec, scale: str, seeds: Sequence[int] | None = None) -> list[fl
     return out
 
 
+def family_p3(s: Spec, scale: str, seeds: Sequence[int] | None, own: Mapping[str, Sequence[Unit]]) -> list[float]:
+    """Design v3's Holm family of ``s``: the decisive p-values of the other *distinct* pooled tests that read its
+    page data (a test with the same units as one of ``s``'s own groups, or as another member, counts once)."""
+    seen = {J.units_key({"": us}, "") for us in own.values()}
+    out: list[float] = []
+    for f in specs():
+        if f.id == s.id or f.rule.get("derived") or "measure" not in f.rule:
+            continue
+        if design.level3(f.v2, f.v3) != "pooled" or design.conjunction(f.v3):
+            continue
+        if not set(f.data_pages) & set(s.data_pages):
+            continue
+        for key, p in _decisive_ps3(f, scale, None if seeds is None else tuple(seeds)):
+            if key not in seen:
+                seen.add(key)
+                out.append(p)
+    return out
+
+
+def _decisive_ps3(f: Spec, scale: str, seeds: tuple[int, ...] | None) -> list[tuple[str, float]]:
+    """Claim ``f``'s v3 decisive p-value per group of units, each with its units' content key (memoised)."""
+
+    def compute() -> list[tuple[str, float]]:
+        got = page_data(f, scale, seeds)
+        if got is None:
+            return []
+        rule3 = design.rule3(f.rule, f.v2, f.v3)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                groups = M.MEASURES[rule3["measure"]](got[0], rule3)
+        except (M.NotRun, M.Inconclusive):
+            return []
+        mg = design.margin3(f.v2, f.v3)
+        return [(J.units_key({"": us}, ""), T.decisive(T.pooled_test(us, mg))) for us in groups.values() if us]
+
+    return in_pass(("decisive3", f.id, scale, seeds), compute)
+
+
 def _decisive_ps(f: Spec, scale: str, seeds: tuple[int, ...] | None) -> list[float]:
     """Claim ``f``'s decisive p-value per group of units (memoised within a :func:`ledger` pass)."""
 
@@ -265,7 +402,39 @@ def calibration_of(
 ) -> dict[str, Any]:
     """A claim's calibration and power (:func:`thesis_repro.claims.calibration.calibration_result`), cached by the
     content of its units and rule: the build's cache first, then the shipped snapshot's."""
-    key = J.units_key(run, design.rule_hashes().get(s.id, "") + design.frozen().get("engine", ""))
+    key = J.units_key(run, design.rule_hashes(design.PREVIOUS).get(s.id, "") + design.engine_of(design.PREVIOUS))
+    return _cached_calibration(
+        scale, key, compute, lambda: calibration.calibration_result(run, lv, mg, rules, thesis_effects(s, rule2))
+    )
+
+
+def calibration_v3_of(
+    s: Spec,
+    scale: str,
+    run: Mapping[str, Sequence[Unit]],
+    lv: str,
+    mg: float,
+    rules: Mapping[str, CountRule],
+    conj: bool,
+    effects: Mapping[str, float],
+    compute: bool = True,
+) -> dict[str, Any]:
+    """A claim's v3 calibration and power (:func:`thesis_repro.claims.calibration.calibration_v3`), cached by the
+    content of its units with their seeds and its v3 rule and engine."""
+    seeds = {
+        g: [[list(getattr(c.a, "seeds", ())), list(getattr(c.b, "seeds", ()))] for u in us for c in u.contrasts()]
+        for g, us in sorted(run.items())
+    }
+    salt = json.dumps(seeds, sort_keys=True) + design.rule_hashes().get(s.id, "") + design.calibration_hash()
+    key = "v3:" + J.units_key(run, salt)
+    return _cached_calibration(
+        scale, key, compute, lambda: calibration.calibration_v3(run, lv, mg, rules, conj, effects)
+    )
+
+
+def _cached_calibration(scale: str, key: str, compute: bool, make: Any) -> dict[str, Any]:
+    """The calibration entry ``key``: the build's cache first, then the shipped snapshot's, else ``make()`` (when
+    ``compute``) written atomically into the build's cache."""
     store = paths.figures(scale) / CALIBRATION
     for p in (paths.page_output(scale, CALIBRATION), snapshot.folder(scale) / CALIBRATION):
         known = read_json(p)
@@ -274,7 +443,7 @@ def calibration_of(
             return known[key]
     if not compute:
         return {}
-    got = _USED[key] = calibration.calibration_result(run, lv, mg, rules, thesis_effects(s, rule2))
+    got = _USED[key] = make()
     known = read_json(store)
     known[key] = got
     store.parent.mkdir(parents=True, exist_ok=True)

@@ -44,6 +44,13 @@ class Row:
     calibration: dict[str, Any] = field(default_factory=dict)  # v2: false R / false D over null draws, power
     confirmation: Confirmation | None = None  # the same frozen rule on the fresh seeds alone (None: not shipped yet)
     subset: dict[str, Any] = field(default_factory=dict)  # the registered subset sensitivity check (subset_check)
+    v2_status: str = ""  # design v2's verdict (the registered analysis of seeds 0-5), shown beside v3's
+    v2_primary: dict[str, Any] = field(default_factory=dict)
+    v2_groups: dict[str, Any] = field(default_factory=dict)
+    v2_calibration: dict[str, Any] = field(default_factory=dict)
+    #: design v3: ``status`` (the statistical label before the calibration gate), ``reason`` (why the gate
+    #: changed it), ``conjunction``, ``thesis_effect`` (is the thesis's own effect excluded?)
+    v3: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         s = self.spec
@@ -62,6 +69,16 @@ class Row:
             "verdict": self.status,
             "label": self.status,
             "design": design.stamp(),
+            "v2_verdict": self.v2_status or self.status,
+            "v2_primary": self.v2_primary,
+            "v2_ours": ours_text(Row(self.spec, self.v2_status, primary=self.v2_primary)) if self.v2_primary else "",
+            "v2_calibration": self.v2_calibration,
+            "v3_statistical": self.v3.get("status", self.status),
+            "gate_reason": self.v3.get("reason", ""),
+            "conjunction": bool(self.v3.get("conjunction", False)),
+            "thesis_effect": self.v3.get("thesis_effect"),
+            "thesis_effect_text": thesis_effect_text(self),
+            "v3_ablation": self.v3.get("ablation", {}),
             "v1_verdict": self.v1_status or self.status,
             "v1_statistic": self.v1_statistic,
             "level": self.level,
@@ -131,6 +148,26 @@ def ours_text(row: Row) -> str:
     return "; ".join(out)
 
 
+def thesis_effect_text(row: Row) -> str:
+    """Whether the thesis's own effect is excluded, e.g. ``thesis's +0.21 excluded (ours -0.05 [-0.23, +0.12])``;
+    ``''`` where the thesis gives no number the claim's measure reads.
+
+    >>> row = Row(Spec("x", "p", "c", (), {}), "inconclusive", v3={"thesis_effect": {"excluded": True,
+    ...     "ours_side": "smaller", "thesis": 0.21, "ours": -0.05, "ci": [-0.23, 0.12], "kind": "value"}})
+    >>> thesis_effect_text(row)
+    "thesis's +0.21 excluded, ours smaller (ours -0.05 [-0.23, +0.12])"
+    """
+    t = row.v3.get("thesis_effect") if row.v3 else None
+    if not t:
+        return ""
+    lo, hi = t["ci"]
+    what = "r " if t.get("kind") == "r" else ""
+    if t["excluded"] is None:
+        return f"thesis's {what}{_num(t['thesis'])}, ours {_num(t['ours'])} (no CI: no replication)"
+    word = f"excluded, ours {t['ours_side']}" if t["excluded"] else "not excluded"
+    return f"thesis's {what}{_num(t['thesis'])} {word} (ours {_num(t['ours'])} [{_num(lo)}, {_num(hi)}])"
+
+
 def headline(row: Row, width: int = 160) -> str:
     """One line per claim: label · id · l. lines short claim · thesis: value · ours: key number with its CI.
 
@@ -141,7 +178,8 @@ def headline(row: Row, width: int = 160) -> str:
     s = row.spec
     where = f"l. {','.join(map(str, s.lines))} " if s.lines else ""
     short = s.v2.get("short") or " ".join(s.text.split()[:6])
-    head = [row.status, s.id, f"{where}{short}"]
+    effect = thesis_effect_text(row)
+    head = [row.status + (f" · {effect}" if effect else ""), s.id, f"{where}{short}"]
     ours = ours_text(row)
     tail = [f"ours: {ours}"] if ours else []
     thesis = str(s.v2.get("thesis_value") or "")

@@ -30,7 +30,9 @@ def verdicts(page: str, scale: str) -> list[report.Verdict]:
         tag = "[beyond the thesis] " if s.beyond else ""
         again = f" (judged on {s.page}; repeated here, counted once)" if s.page != page else ""
         claim = f"{tag}{s.text} ({where}){again}"
-        evidence = f"v1 verdict: {row.v1_status or row.status}; {describe(row)}"
+        gate = f" ({row.v3['reason']})" if row.v3.get("reason") else ""
+        before = f"design v2 verdict: {row.v2_status or row.status}; v1: {row.v1_status or row.status}"
+        evidence = f"design v3 verdict: {row.status}{gate}; {before}; {describe(row)}"
         if row.subset:  # the registered sensitivity check: its own paragraph at the top of the folded evidence
             evidence = f"{row.subset['line']}.\n\n{evidence}"
         fig = page.removeprefix("fig-")

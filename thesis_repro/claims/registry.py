@@ -14,7 +14,7 @@ True
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cache
 from typing import Any
 
@@ -38,6 +38,8 @@ class Spec:
     sensitivity: tuple[str, ...] = ()
     #: the claim's design-v2 block (level, margin, wording, rule overrides): :mod:`thesis_repro.claims.design`
     v2: Mapping[str, Any] = field(default_factory=dict)
+    #: the claim's design-v3 block (``conjunction``, rule overrides with their ``why``)
+    v3: Mapping[str, Any] = field(default_factory=dict)
     #: the registered subset sensitivity check (``sensitivity_subset``, :mod:`thesis_repro.claims.sensitivity`),
     #: outside the rule's hash; ``""`` for none
     subset: str = ""
@@ -112,29 +114,14 @@ def parse_specs(reg: Mapping[str, Any]) -> tuple[Spec, ...]:
                 if cid in out:
                     raise ValueError(f"claims.yaml: claim {cid!r} has a rule on {out[cid].page} and on {page}")
                 lines = tuple(int(n) for n in c.get("lines", []))
-                v2 = dict(c.get("v2") or {})
+                v2, v3 = dict(c.get("v2") or {}), dict(c.get("v3") or {})
                 out[cid] = Spec(
-                    cid, page, c["text"], lines, c["rule"], beyond, (), c.get("evidence", page), sens, v2, subset
+                    cid, page, c["text"], lines, c["rule"], beyond, (), c.get("evidence", page), sens, v2, v3, subset
                 )
     missing = sorted(set(repeats) - set(out))
     if missing:
         raise ValueError(f"claims.yaml: claims repeated but never given a rule: {missing}")
-    return tuple(
-        Spec(
-            s.id,
-            s.page,
-            s.text,
-            s.lines,
-            s.rule,
-            s.beyond,
-            tuple(repeats.get(s.id, [])),
-            s.evidence,
-            s.sensitivity,
-            s.v2,
-            s.subset,
-        )
-        for s in out.values()
-    )
+    return tuple(replace(s, pages=tuple(repeats.get(s.id, []))) for s in out.values())
 
 
 def data_name(page: str) -> str:

@@ -41,6 +41,9 @@ VISUAL = "not judged (visual)"  # the thesis's claim is about what a figure look
 #: design v2's labels that carry their bounds: the evidence rules out "does not" / "reproduces"
 AT_LEAST_PARTLY = "at least partly"
 AT_MOST_PARTLY = "at most partly"
+#: design v3's labels of a rule that fails its own calibration, or cannot reach a verdict at any seed count
+NOT_CALIBRATED = "not calibrated"
+CANNOT_SETTLE = "cannot be settled by this design"
 STATUSES: tuple[str, ...] = (
     REPRODUCES,
     AT_LEAST_PARTLY,
@@ -49,6 +52,8 @@ STATUSES: tuple[str, ...] = (
     DOES_NOT,
     INCONCLUSIVE,
     INDICATIVE,
+    NOT_CALIBRATED,
+    CANNOT_SETTLE,
     NOT_RUN,
     NOT_JUDGED,
     NOT_COMPUTED,
@@ -67,6 +72,8 @@ _STYLE = {
     DOES_NOT: "warning",
     INCONCLUSIVE: "note",
     INDICATIVE: "note",
+    NOT_CALIBRATED: "seealso",
+    CANNOT_SETTLE: "seealso",
     NOT_RUN: "seealso",
     NOT_JUDGED: "seealso",
     NOT_COMPUTED: "seealso",

@@ -34,7 +34,7 @@ from unittest import mock
 import yaml
 
 from thesis_repro import paths, scales
-from thesis_repro.claims import ledger, registry, scoreboard
+from thesis_repro.claims import deviations, ledger, registry, scoreboard
 from thesis_repro.claims.confirmatory import FIRST_FRESH, FRESH_WORDS, fresh_summary, fresh_verdict, seed_range
 
 #: The README's generated blocks: the results summary and the scale table.
@@ -103,6 +103,25 @@ def ours(claim: Mapping[str, Any]) -> str:
     return f"{k}/{n} units yes{interval}"
 
 
+def thesis_effect(claim: Mapping[str, Any]) -> str:
+    """Whether our 95 % CI excludes the thesis's own effect, in a few words (``-``: the thesis gives no number).
+
+    >>> thesis_effect({"thesis_effect": {"excluded": True, "ours_side": "smaller"}}), thesis_effect({})
+    ('excluded (ours smaller)', '-')
+    """
+    t = claim.get("thesis_effect")
+    if not t:
+        return "-"
+    if t.get("excluded") is None:
+        return "no CI"
+    return f"excluded (ours {t.get('ours_side')})" if t["excluded"] else "not excluded"
+
+
+def v2_label(claim: Mapping[str, Any]) -> str:
+    """The claim's design-v2 verdict (the registered analysis of seeds 0-5)."""
+    return str(claim.get("v2_verdict") or label(claim))
+
+
 def thesis_lines(claim: Mapping[str, Any]) -> str:
     """``l. 547`` (``l. 547, 555`` for several lines; ``-`` for none)."""
     lines = claim.get("thesis_lines") or []
@@ -132,6 +151,15 @@ def label_counts(claims: Sequence[Mapping[str, Any]]) -> list[tuple[str, int]]:
     """
     c = Counter(label(x) for x in claims)
     return sorted(c.items(), key=lambda kv: (-kv[1], kv[0]))
+
+
+def v2_counts(claims: Sequence[Mapping[str, Any]]) -> list[tuple[str, int]]:
+    """:func:`label_counts` of the design-v2 verdicts.
+
+    >>> v2_counts([{"v2_verdict": "b"}, {"verdict": "a"}])
+    [('a', 1), ('b', 1)]
+    """
+    return label_counts([{"verdict": v2_label(c)} for c in claims])
 
 
 def _chapter(claim: Mapping[str, Any]) -> str:
@@ -180,32 +208,24 @@ def fresh_md(ledger_json: Mapping[str, Any], scale: str) -> str:
         fresh_counts(claims),
     ]
     judged = [c for c in claims if fresh_verdict(c) is not None]
-    if judged:
-        out += [
-            "",
-            "| claim | thesis line | claim, in short | verdict (every seed) | fresh seeds | fresh seeds alone "
-            "| ours on fresh seeds |",
-            "|---|---|---|---|---|---|---|",
-        ]
+    if judged:  # one entry per claim, its evidence on its own line: the text gets the page's whole width
+        out += ["", "Each claim: its verdict on every seed, then on the fresh seeds alone, and our number on them.", ""]
     for c in judged:
-        cells = (
-            f"`{c.get('id', '?')}`",
-            thesis_lines(c),
-            short(c),
-            label(c),
-            seed_range(c["confirmatory"]["seeds"]) if c["confirmatory"].get("seeds") else "-",
-            f"**{fresh_cell(c)}**",
-            c["confirmatory"].get("ours") or "-",
+        seeds = seed_range(c["confirmatory"]["seeds"]) if c["confirmatory"].get("seeds") else "-"
+        out.append(
+            f"- `{c.get('id', '?')}` ({thesis_lines(c)}, {_cell(short(c))}): every seed **{_cell(label(c))}**; "
+            f"fresh seeds {seeds} alone **{_cell(fresh_cell(c))}**"
         )
-        out.append("| " + " | ".join(_cell(x) for x in cells) + " |")
+        out.append(f"  <br>ours on the fresh seeds: {_cell(c['confirmatory'].get('ours') or '-')}")
     return "\n".join(out) + "\n"
 
 
 def claims_table(claims: Sequence[Mapping[str, Any]]) -> str:
     """The Markdown table of RESULTS.md: one row per claim."""
     rows = [
-        "| claim | thesis line | claim, in short | thesis | ours (95 % CI) | verdict | fresh seeds alone |",
-        "|---|---|---|---|---|---|---|",
+        "| claim | thesis line | claim, in short | thesis | ours (95 % CI) | verdict | thesis's effect | v2 "
+        "| fresh seeds alone |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for c in claims:
         cells = (
@@ -215,6 +235,8 @@ def claims_table(claims: Sequence[Mapping[str, Any]]) -> str:
             thesis_value(c),
             ours(c),
             f"**{label(c)}**",
+            thesis_effect(c),
+            v2_label(c),
             fresh_cell(c),
         )
         rows.append("| " + " | ".join(_cell(x) for x in cells) + " |")
@@ -234,9 +256,14 @@ def results_md(ledger_json: Mapping[str, Any], scale: str) -> str:
         "`data/thesis/claims.yaml`, with training seeds as the unit of replication. The book's pages show the "
         "evidence; `python -m thesis_repro claims --scale " + scale + " --json` prints all of it.",
         "",
-        f"**{len(claims)} distinct thesis claims:** "
+        f"**{len(claims)} distinct thesis claims (design {ledger_json.get('design', {}).get('version', '')}):** "
         + ", ".join(f"{lab} {n}" for lab, n in label_counts(claims))
-        + ".",
+        + ". Under design v2 (the registered analysis of seeds 0-5, kept beside it): "
+        + ", ".join(f"{lab} {n}" for lab, n in v2_counts(claims))
+        + f". [What changed from v2, and why]({deviations.PAGE.as_posix()}).",
+        "",
+        "The *thesis's effect* column says whether our 95 % CI excludes the effect size the thesis itself reports "
+        "(where it gives a number the claim's measure reads).",
     ]
     out += ["", fresh_counts(claims), "", fresh_summary(claims)]
     if ledger_json.get("stale_pages"):
@@ -260,12 +287,14 @@ def results_md(ledger_json: Mapping[str, Any], scale: str) -> str:
 def readme_results(ledger_json: Mapping[str, Any], scale: str) -> str:
     """The README's results block: counts per label, and one line per thesis claim that does not reproduce."""
     claims = list(ledger_json.get("claims") or [])
+    now, old = dict(label_counts(claims)), dict(v2_counts(claims))
     out = [
         f"At scale `{scale}` the shipped runs judge **{len(claims)}** distinct claims of the thesis:",
         "",
-        "| verdict | claims |",
-        "|---|---|",
-        *(f"| {lab} | {n} |" for lab, n in label_counts(claims)),
+        "| verdict (design v3) | claims | under v2 |",
+        "|---|---|---|",
+        *(f"| {lab} | {n} | {old.get(lab, 0)} |" for lab, n in now.items()),
+        *(f"| {lab} | 0 | {n} |" for lab, n in old.items() if lab not in now),
         "",
         fresh_counts(claims) + " " + fresh_summary(claims),
         "",
@@ -354,6 +383,7 @@ def render(ledger_json: Mapping[str, Any], scale: str, readme: str, scale_rows: 
         "RESULTS.md": results_md(ledger_json, scale),
         "README.md": replace_block(text, SCALES_MARKERS, scale_rows),
         str(FRESH_PAGE): fresh_md(ledger_json, scale),
+        str(deviations.PAGE): deviations.page(ledger_json, scale),
     }
 
 
@@ -368,9 +398,10 @@ def snapshot_only() -> Iterator[None]:
 
 
 def ledger_json(scale: str) -> dict[str, Any]:
-    """The ledger's JSON at ``scale`` from the shipped snapshot (no null pass rates: they are not shown)."""
+    """The ledger's JSON at ``scale`` from the shipped snapshot, with the shipped calibration (v3's gate reads it;
+    nothing is simulated here)."""
     with snapshot_only():
-        rows = sorted((ledger.judge(s, scale, False) for s in registry.specs()), key=lambda r: r.spec.beyond)
+        rows = sorted((ledger.judge(s, scale) for s in registry.specs()), key=lambda r: r.spec.beyond)
         return scoreboard.as_json(rows, scale)
 
 

@@ -154,6 +154,9 @@ class Contrast:
     #: what one unit of the v2 margin means (:func:`contrast_scale`): ``value`` (a fraction of the reference
     #: side's mean), ``r`` (a correlation: in r, intervals through Fisher z), ``share`` (absolute)
     kind: str = "value"
+    #: design v3: the side whose mean a margin is a fraction of (``b``, the reference learner; ``a`` where the
+    #: claim's margin is stated as a fraction of ``a``'s value, e.g. 25 % of the centre's return)
+    scale_by: str = "b"
 
     def directed_label(self) -> str:
         """The label of the quantity :meth:`estimate` reports: ``-(label)`` when the claim says smaller, so a

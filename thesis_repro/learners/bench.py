@@ -226,6 +226,33 @@ def bench_generator_path(
         th.set_num_threads(threads)
 
 
+def bench_sac_stack(env: str = "Walker2d", rounds: int = 3, chunk: int = 500) -> dict[str, float]:
+    """SAC with its two actor forwards per gradient step stacked into one (``FastSAC.stack_actor``, the same bits)
+    against two, the shipped config (batch 128) on ``env``, in steps per CPU-second measured alternately in one
+    process (:func:`interleaved`); prints the ratio."""
+    check_positive(chunk, "chunk")
+    threads = th.get_num_threads()
+    th.set_num_threads(1)
+    try:
+        chunks = {}
+        for stack in (True, False):
+            model = kit_model("sac", env, learning_starts=100, buffer_size=100_000)
+            model.stack_actor = stack  # type: ignore[attr-defined]
+            model.set_logger(Logger(None, []))
+            model.learn(1000, reset_num_timesteps=False)
+            chunks["stacked" if stack else "two"] = _learn_chunk(model, chunk)
+        r = interleaved(chunks, rounds)
+        ratio = r["stacked"] / r["two"]
+        print(
+            f"  SAC {env}: one stacked actor forward {r['stacked']:,.0f} vs two {r['two']:,.0f} steps/CPU-s = "
+            f"{ratio:.3f}x (the same bits)",
+            flush=True,
+        )
+        return {"sac stacked steps/s": r["stacked"], "sac two-forward steps/s": r["two"], "sac stack ratio": ratio}
+    finally:
+        th.set_num_threads(threads)
+
+
 # ---------------------------------------------------------------- chapter 4: the multi-domain learners
 MULTIDOMAIN_ALGOS: tuple[str, ...] = ("joint", "params-avg", "kl-avg", "kl-exact")
 

@@ -54,6 +54,10 @@ RUN_DEFAULTS: dict[str, Any] = {
     "snapshot_every": 0,  # env steps between policy snapshots in out/snapshots (0: none)
     "curve_every": 0,  # env steps between training-curve points (0: one per on-policy iteration, 1000 off-policy)
 }
+#: Run settings a config carries only when set to another value than this default (so adding one keeps every
+#: existing key): ``snapshot_at``, env steps after which the run saves one policy snapshot each, at the first
+#: iteration boundary (off-policy: rollout start) at or after each step; ``None``: none.
+OPTIONAL_RUN: dict[str, Any] = {"snapshot_at": None}
 #: Keys that identify the run; not overridable.
 IDENTITY = ("algorithm", "class", "env", "seed", "timesteps")
 #: Learning-rate schedules of the PPO-family learners (``lr_schedule``): OpenAI baselines ppo1's ``linear``
@@ -166,8 +170,12 @@ def train_config(
         elif key in optional:
             if value != optional[key]:  # the default stays absent, so configs without it keep their keys
                 cfg["sb3"][key] = value
+        elif key in OPTIONAL_RUN:
+            if value != OPTIONAL_RUN[key]:  # as optional_sb3: absent at its default
+                cfg[key] = value
         else:
-            check_choice(key, sorted(top) + sorted(cfg["sb3"]) + sorted(optional), f"hyperparameter of {algo!r}")
+            valid = sorted(top) + sorted(OPTIONAL_RUN) + sorted(cfg["sb3"]) + sorted(optional)
+            check_choice(key, valid, f"hyperparameter of {algo!r}")
     if cfg["wind"] is not None:
         cfg["wind"] = [float(w) for w in cfg["wind"]] if isinstance(cfg["wind"], list | tuple) else cfg["wind"]
     _validate(cfg)
@@ -196,6 +204,42 @@ def n_iterations(cfg: Mapping[str, Any]) -> int:
     return -(-int(cfg["timesteps"]) // iteration_steps(cfg))
 
 
+def rollout_steps(cfg: Mapping[str, Any]) -> int:
+    """Env steps between two rollout starts of a training config (where its callbacks snapshot): one iteration
+    on-policy (:func:`iteration_steps`), ``train_freq`` x ``n_envs`` off-policy (``train_freq`` in steps).
+
+    >>> [rollout_steps(train_config(a, "Hopper", 0, 1)) for a in ("ppo", "trpo", "sac", "ddpg")]
+    [2048, 1024, 50, 100]
+    """
+    if cfg["class"] in ON_POLICY:
+        return iteration_steps(cfg)
+    freq = cfg["sb3"].get("train_freq", 1)
+    if isinstance(freq, bool) or not isinstance(freq, int):
+        raise ValueError(f"snapshots of {cfg['class']} need train_freq in env steps (an integer), got {freq!r}")
+    return int(freq) * int(cfg["n_envs"])
+
+
+def snapshot_at_steps(cfg: Mapping[str, Any]) -> list[int]:
+    """The env steps at which a run with ``snapshot_at`` saves its snapshots: the first rollout start at or after
+    each listed step (:func:`rollout_steps`), those before the run's last rollout start (the final policy is the
+    run's own).
+
+    >>> cfg = train_config("ppo", "Hopper", 0, 4_000_000, snapshot_at=[1_000_000, 2_000_000, 3_000_000])
+    >>> snapshot_at_steps(cfg)
+    [1001472, 2000896, 3000320]
+    >>> snapshot_at_steps(train_config("sac", "Hopper", 0, 4_000_000, snapshot_at=[1_000_000, 4_000_000]))
+    [1000000]
+    """
+    every = rollout_steps(cfg)
+    done = -(-int(cfg["timesteps"]) // every) * every  # learn() ends after the rollout crossing the budget
+    out: list[int] = []
+    for t in cfg.get("snapshot_at") or ():
+        step = -(-int(t) // every) * every
+        if step < done and (not out or step > out[-1]):
+            out.append(step)
+    return out
+
+
 def _validate(cfg: dict[str, Any]) -> None:
     check_choice(cfg["class"], CLASSES, "learner class")
     check_choice(cfg["perturbation"], PERTURBATIONS, "perturbation")
@@ -212,6 +256,15 @@ def _validate(cfg: dict[str, Any]) -> None:
     for key in ("checkpoint_every", "snapshot_every", "curve_every"):
         if int(cfg[key]) != cfg[key] or cfg[key] < 0:
             raise ValueError(f"{key} must be an integer >= 0, got {cfg[key]!r}")
+    if "snapshot_at" in cfg:
+        at = cfg["snapshot_at"]
+        if not isinstance(at, list) or not at or any(isinstance(t, bool) or not isinstance(t, int) for t in at):
+            raise ValueError(f"snapshot_at must be a non-empty list of env steps (integers), got {at!r}")
+        if any(t <= 0 for t in at) or at != sorted(set(at)):
+            raise ValueError(f"snapshot_at must hold increasing env steps > 0, got {at!r}")
+        if cfg["snapshot_every"]:
+            raise ValueError("set snapshot_every or snapshot_at, not both")
+        cfg["snapshot_at"] = [int(t) for t in at]
     if cfg["max_episode_steps"] is not None and (int(cfg["max_episode_steps"]) < 1):
         raise ValueError(f"max_episode_steps must be None or >= 1, got {cfg['max_episode_steps']!r}")
     if cfg["c_a"] is not None:

@@ -270,6 +270,9 @@ class _Bookkeeper(BaseCallback):
         last = self.state["last_snapshot"]
         if every > 0 and (last is None or t - last >= every):
             self.snapshot()
+        at = self.cfg.get("snapshot_at")  # a snapshot at the first rollout start at or after each listed step
+        if at and any((-1 if last is None else last) < step <= t for step in at):
+            self.snapshot()
         if self.cfg["checkpoint_every"] > 0 and t - self.state["last_checkpoint"] >= self.cfg["checkpoint_every"]:
             self.checkpoint()
 

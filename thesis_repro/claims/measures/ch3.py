@@ -17,7 +17,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro.claims.measures.common import Data, Groups, Inconclusive, NotRun, _needs, measure, per_seed
+from thesis_repro.claims.measures.common import (
+    Data,
+    Groups,
+    Inconclusive,
+    NotRun,
+    _needs,
+    from_series,
+    measure,
+    per_seed,
+)
+from thesis_repro.claims.seeds import Seeded, seeded
 from thesis_repro.claims.stats import Contrast, Unit
 
 #: The learner trained under each test's noise (Tables 3.3-3.7).
@@ -239,8 +249,10 @@ def _obs(data: Data, spec: Mapping[str, Any]) -> Groups:
             w = sub.pivot_table(index="seed", columns="test", values="value")
             if not {"obs", "act", "env"} <= set(w.columns):
                 continue
-            a = tuple(np.minimum(w["act"], w["env"]).astype(float))
-            units.append(Unit(f"{env}/{m}", (Contrast("min(act, env) - obs AUC", a, tuple(w["obs"]), paired=True),)))
+            a = from_series(np.minimum(w["act"], w["env"]).astype(float))
+            units.append(
+                Unit(f"{env}/{m}", (Contrast("min(act, env) - obs AUC", a, from_series(w["obs"]), paired=True),))
+            )
     return {"": units}
 
 
@@ -253,8 +265,9 @@ def _heat(data: Data, spec: Mapping[str, Any]) -> Groups:
     for m in _methods(heat):
         h = heat[heat["method"] == m]
         d = max(h["row_shift"].abs().max(), h["col_shift"].abs().max())
-        rows = []
-        for _, g in h.groupby("seed"):
+        rows, seeds = [], []
+        for seed, g in h.groupby("seed"):
+            seeds.append(seed)
             c = g.groupby(["row_shift", "col_shift"])["return"].mean()
             centre = c.get((0.0, 0.0), np.nan)
             ring = c[[i for i in c.index if max(abs(i[0]), abs(i[1])) == d]].mean()
@@ -262,10 +275,14 @@ def _heat(data: Data, spec: Mapping[str, Any]) -> Groups:
             col = c[[i for i in c.index if i[0] == 0.0 and abs(i[1]) == d]].mean()
             rows.append((centre, ring, centre - row, centre - col))
         r = np.array(rows, dtype=float)
+
+        def col(i: int, r: np.ndarray = r, seeds: list = seeds) -> Seeded:
+            return Seeded(r[:, i], seeds)
+
         if spec["kind"] == "ring":
-            c = Contrast("centre - outer ring", tuple(r[:, 0]), tuple(r[:, 1]), paired=True)
+            c = Contrast("centre - outer ring", col(0), col(1), paired=True, scale_by="a")
         else:
-            c = Contrast("row-factor drop - column-factor drop", tuple(r[:, 2]), tuple(r[:, 3]), paired=True)
+            c = Contrast("row-factor drop - column-factor drop", col(2), col(3), paired=True)
         units.append(Unit(m, (c,)))
     return {"": units}
 
@@ -277,14 +294,16 @@ def _overfit(data: Data, spec: Mapping[str, Any]) -> Groups:
     picking): AUC and training return rise early -> middle; AUC falls middle -> late while the training
     return does not fall by more than 5 %."""
     cur = data["curve"]
-    vals: dict[str, list[list[float]]] = {k: [] for k in ("ae", "am", "al", "te", "tm", "tl")}
-    for _, g in cur.sort_values("iteration").groupby("seed"):
+    vals: dict[str, list[float]] = {k: [] for k in ("ae", "am", "al", "te", "tm", "tl")}
+    seeds: list[int] = []
+    for seed, g in cur.sort_values("iteration").groupby("seed"):
         g = g.dropna(subset=["train_return", "test_auc"])
         n = len(g)
         if n < 4:
             continue
         q = max(1, n // 4)
         mid = slice(max(0, n // 2 - q // 2), max(0, n // 2 - q // 2) + q)
+        seeds.append(int(seed))
         for tag, col in (("a", "test_auc"), ("t", "train_return")):
             v = g[col].to_numpy(float)
             vals[tag + "e"].append(float(v[:q].mean()))
@@ -292,7 +311,7 @@ def _overfit(data: Data, spec: Mapping[str, Any]) -> Groups:
             vals[tag + "l"].append(float(v[-q:].mean()))
     if not vals["ae"]:
         raise Inconclusive("fewer than 4 usable snapshots per seed")
-    t = {k: tuple(v) for k, v in vals.items()}
+    t = {k: Seeded(v, seeds) for k, v in vals.items()}
     return {
         "in tandem at first": [
             Unit("AUC rises early -> middle", (Contrast("AUC middle - early", t["am"], t["ae"], paired=True),)),
@@ -308,13 +327,15 @@ def _overfit(data: Data, spec: Mapping[str, Any]) -> Groups:
     }
 
 
-def _corr_per_seed(points: pd.DataFrame, env: str, test: str) -> tuple[float, ...]:
-    out = []
-    for _, g in points[(points["env"] == env) & (points["test"] == test)].groupby("seed"):
+def _corr_per_seed(points: pd.DataFrame, env: str, test: str) -> Seeded:
+    """Per seed, r across variants of AUC vs training return; a seed whose r is undefined (fewer than 3 variants,
+    or every variant at one value) is a missing seed."""
+    out = {}
+    for seed, g in points[(points["env"] == env) & (points["test"] == test)].groupby("seed"):
         g = g.dropna(subset=["train_return", "auc"])
         if len(g) >= 3 and g["train_return"].std() > 0 and g["auc"].std() > 0:
-            out.append(float(np.corrcoef(g["train_return"], g["auc"])[0, 1]))
-    return tuple(out)
+            out[int(seed)] = float(np.corrcoef(g["train_return"], g["auc"])[0, 1])
+    return seeded(out)
 
 
 def _cells(points: pd.DataFrame) -> list[tuple[str, str]]:
@@ -362,12 +383,12 @@ def _least_robust(data: Data, spec: Mapping[str, Any]) -> Groups:
     points = data["points"]
     units = []
     for env, test in _cells(points):
-        pct = []
-        for _, g in points[(points["env"] == env) & (points["test"] == test)].groupby("seed"):
+        pct = {}
+        for seed, g in points[(points["env"] == env) & (points["test"] == test)].groupby("seed"):
             g = g.dropna(subset=["train_return", "auc"])
             if len(g) >= 3:
                 top = g["train_return"].idxmax()
-                pct.append(float((g["auc"] < g.loc[top, "auc"]).sum() / (len(g) - 1)))
+                pct[int(seed)] = float((g["auc"] < g.loc[top, "auc"]).sum() / (len(g) - 1))
         if pct:
             units.append(
                 Unit(
@@ -375,7 +396,7 @@ def _least_robust(data: Data, spec: Mapping[str, Any]) -> Groups:
                     (
                         Contrast(
                             "AUC percentile of the top-training variant - 0.5",
-                            tuple(pct),
+                            seeded(pct),
                             sign=-1,
                             ref=0.5,
                             kind="share",
@@ -386,7 +407,7 @@ def _least_robust(data: Data, spec: Mapping[str, Any]) -> Groups:
     return {"": units}
 
 
-def _t33_test(ret: pd.DataFrame, test: str, method: str, sigma: float) -> tuple[float, ...]:
+def _t33_test(ret: pd.DataFrame, test: str, method: str, sigma: float) -> Seeded:
     sub = ret[(ret["test"] == test) & (ret["method"] == method) & np.isclose(ret["sigma"], sigma)]
     return per_seed(sub, "return")
 
@@ -423,8 +444,12 @@ def _table33(data: Data, spec: Mapping[str, Any]) -> Groups:
         for test in ("obs", "act"):
             kept = {}
             for m in (NOISY[test], "ppo"):
-                a, b = np.array(_t33_test(ret, test, m, hi)), np.array(_t33_test(ret, test, m, lo))
-                kept[m] = tuple(a / np.where(b > 0, b, np.nan)) if a.size and a.size == b.size else ()
+                a, b = _t33_test(ret, test, m, hi), _t33_test(ret, test, m, lo)
+                if a and len(a) == len(b):  # design v2's rule: the ratio where both sides hold every seed
+                    ratio = {s: x / y if y > 0 else float("nan") for s, x, y in zip(a.seeds, a, b, strict=True)}
+                    kept[m] = seeded(ratio)
+                else:
+                    kept[m] = Seeded((), ())
             units.append(
                 Unit(
                     test,

@@ -14,6 +14,9 @@ from thesis_repro.claims.stats import Contrast, Unit
 
 BASELINES = ("params_avg", "joint")
 
+#: The one wording of a learner whose every run diverged, for every chapter-4 claim (design v3).
+DIVERGED = "diverged, not judged"
+
 
 def _vs_baselines(
     frame: pd.DataFrame,
@@ -115,8 +118,8 @@ def learned_only(retained: pd.DataFrame, curves: pd.DataFrame | None, ours: str 
     if ours is not None and mine.any() and out.loc[mine, "retained"].isna().all():
         n = len(out.loc[mine, ["panel", "seed"]].drop_duplicates())
         raise Inconclusive(
-            f"every {ours} run ({n}) diverged in training (late return below half its peak) or has no positive "
-            "nominal return: how much of it a policy keeps off its nominal point is not judged"
+            f"{DIVERGED}: every {ours} run ({n}) diverged in training (late return below half its peak) or has no "
+            "positive nominal return: how much of it a policy keeps off its nominal point is not judged"
         )
     return out
 
@@ -153,10 +156,35 @@ def _ours(frame: pd.DataFrame, spec: Mapping[str, Any]) -> str:
     return ours
 
 
+def learned_curves(curves: pd.DataFrame, ours: str) -> pd.DataFrame:
+    """``curves`` without the runs that diverged in training (:func:`diverged`, Fig 4.7's rule), for every learner:
+    a claim reads no diverged run (design v3's ``drop_diverged``). Inconclusive, worded :data:`DIVERGED`, when no
+    run of ``ours`` is left.
+
+    >>> c = pd.DataFrame({"algo": ["a"] * 9 + ["b"] * 9, "panel": "p", "seed": 0, "iteration": [*range(9)] * 2,
+    ...                   "return": [100.0, 500] + [1000] * 7 + [900] * 3 + [-5] * 6, "entropy": 1.0})
+    >>> sorted(set(learned_curves(c, "a")["algo"]))
+    ['a']
+    """
+    div = diverged(curves)
+    ok = div.loc[~div["diverged"], ["algo", "panel", "seed"]]
+    out = curves.merge(ok, on=["algo", "panel", "seed"])
+    if ours not in set(out["algo"]):
+        n = int(div[div["algo"] == ours]["diverged"].sum())
+        raise Inconclusive(f"{DIVERGED}: all {n} {ours} run(s) diverged in training (late return below half its peak)")
+    return out
+
+
+def _curves(data: Data, spec: Mapping[str, Any]) -> pd.DataFrame:
+    """Fig 4.1's curves, without diverged runs when the rule says ``drop_diverged``."""
+    cur = data["curves"]
+    return learned_curves(cur, spec.get("ours", "kl_avg")) if spec.get("drop_diverged") else cur
+
+
 @measure("ch4_training")
 def _ch4_training(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Fig 4.1: late training return, similar (>= -10 %) in the easy panel (a), above the baselines in the others."""
-    late = _late(data["curves"])
+    late = _late(_curves(data, spec))
     return _panel_groups(late, "return", _ours(late, spec), spec.get("easy", ["a"]), 0.10)
 
 
@@ -164,10 +192,13 @@ def _ch4_training(data: Data, spec: Mapping[str, Any]) -> Groups:
 def _ch4_insensitive(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Fig 4.1: spread of the late return over the training conditions ((max - min) / |mean|, per seed index)
     below each baseline's."""
-    late = _late(data["curves"])
+    late = _late(_curves(data, spec))
     ours = _ours(late, spec)
     if late["panel"].nunique() < 2:
         raise Inconclusive("needs two training conditions or more")
+    if spec.get("drop_diverged"):  # a spread over conditions needs every condition's run of that seed
+        full = late.groupby(["algo", "seed"])["panel"].transform("nunique") == late["panel"].nunique()
+        late = late[full]
     spread = late.groupby(["algo", "seed"])["return"].agg(lambda r: (r.max() - r.min()) / max(abs(r.mean()), 1e-9))
     spread = spread.rename("spread").reset_index()
     return {"": [_vs_baselines(spread, "spread", ours, "spread over conditions", sign=-1)]}
@@ -237,7 +268,7 @@ def _ch4_entropy(data: Data, spec: Mapping[str, Any]) -> Groups:
     final = cur[cur["iteration"] == cur["iteration"].max()].merge(ok, on=["algo", "panel", "seed"])
     if ours not in set(final["algo"]):
         n = int(div[div["algo"] == ours]["diverged"].sum())
-        raise Inconclusive(f"all {n} {ours} run(s) diverged (late return below half its peak): not judged")
+        raise Inconclusive(f"{DIVERGED}: all {n} {ours} run(s) diverged in training (late return below half its peak)")
     return {"": [_vs_baselines(final, "entropy", ours, "final entropy (non-diverged runs)")]}
 
 
@@ -252,6 +283,8 @@ def _contribution4(data: Data, spec: Mapping[str, Any]) -> Groups:
         ("Hopper", "curves@fig-4.4", "wind@fig-4.4"),
     ):
         curves = data.get(cur_key)
+        if curves is not None and spec.get("drop_diverged"):
+            curves = learned_curves(curves, ours)
         if curves is not None:
             late = _late(curves).groupby(["algo", "seed"], as_index=False)["return"].mean()
             if ours in set(late["algo"]):

@@ -9,10 +9,11 @@ import numpy as np
 import pandas as pd
 
 from thesis_repro.claims.measures.common import Data, Groups, NotRun, _needs, measure, per_seed
+from thesis_repro.claims.seeds import Seeded
 from thesis_repro.claims.stats import Contrast, Unit
 
 
-def _succ(summary: pd.DataFrame, **where: Any) -> tuple[float, ...]:
+def _succ(summary: pd.DataFrame, **where: Any) -> Seeded:
     return per_seed(summary, "success_rate", **where)
 
 
@@ -20,7 +21,7 @@ def _succ(summary: pd.DataFrame, **where: Any) -> tuple[float, ...]:
 def _catch(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Fig 5.3: share of CMA-ES seeds whose movement catches the ball after taut and slack phases (> 0)."""
     c = data["catch"]
-    ok = tuple(float(s and t) for s, t in zip(c["success"], c["taut_and_slack"], strict=True))
+    ok = Seeded((float(s and t) for s, t in zip(c["success"], c["taut_and_slack"], strict=True)), c["seed"])
     return {"": [Unit("seeds catching", (Contrast("share of seeds", ok, proportion=True, kind="share"),))]}
 
 
@@ -53,12 +54,13 @@ def _reach_bic(data: Data, spec: Mapping[str, Any]) -> Groups:
     if sub.empty:
         raise NotRun("the Reach -> BIC tensor pair is not run at this scale")
     if spec.get("proportion"):  # v2: the share of seeds with any success, Clopper-Pearson (as Fig 5.3's)
-        ok = tuple(float(x > 0) for x in _succ(sub))
+        got = _succ(sub)
+        ok = Seeded((float(x > 0) for x in got), got.seeds)
         return {"": [Unit("reach→bic", (Contrast("share of seeds succeeding", ok, proportion=True, kind="share"),))]}
     return {"": [Unit("reach→bic", (Contrast("success rate", _succ(sub)),))]}
 
 
-def _cost_means(s: pd.DataFrame, strategies: Sequence[str]) -> dict[str, tuple[float, ...]]:
+def _cost_means(s: pd.DataFrame, strategies: Sequence[str]) -> dict[str, Seeded]:
     return {m: per_seed(s, "total_cost", strategy=m) for m in strategies}
 
 

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from thesis_repro.claims.seeds import Seeded
 from thesis_repro.claims.stats import Unit
 
 Data = Mapping[str, pd.DataFrame]
@@ -57,15 +58,22 @@ def measure(name: str) -> Callable[[Measure], Measure]:
     return deco
 
 
-def per_seed(frame: pd.DataFrame, value: str = "value", **where: Any) -> tuple[float, ...]:
-    """One value per seed (mean inside the seed) of the rows matching ``where``, by increasing seed."""
+def per_seed(frame: pd.DataFrame, value: str = "value", **where: Any) -> Seeded:
+    """One value per seed (mean inside the seed) of the rows matching ``where``, by increasing seed, each with its
+    seed (:class:`~thesis_repro.claims.seeds.Seeded`)."""
     sel = np.ones(len(frame), dtype=bool)
     for k, v in where.items():
         sel &= (frame[k].isin(v) if isinstance(v, (list, tuple)) else frame[k] == v).to_numpy()
     sub = frame[sel]
     if sub.empty:
-        return ()
-    return tuple(float(x) for x in sub.groupby("seed")[value].mean().sort_index())
+        return Seeded((), ())
+    return from_series(sub.groupby("seed")[value].mean())
+
+
+def from_series(s: pd.Series) -> Seeded:
+    """A :class:`~thesis_repro.claims.seeds.Seeded` from a series indexed by training seed (sorted by seed)."""
+    s = s.sort_index()
+    return Seeded((float(x) for x in s.to_numpy(float)), (int(k) for k in s.index))
 
 
 def _needs(frame: pd.DataFrame, col: str, names: Sequence[str]) -> None:
