@@ -397,8 +397,8 @@ def _claims(argv: list[str]) -> int:
 
 
 def _ledger(ledger_main: Any, argv: list[str]) -> int:
-    """Run the claims ledger's ``main``: each verdict's line cut to the terminal and its notes wrapped, unless
-    ``--verbose`` or ``--json`` asks for the full text (or ``--help``)."""
+    """Run the claims ledger's ``main``: its lines and notes wrapped at the terminal's width, unless ``--verbose``
+    or ``--json`` asks for the full text as the ledger prints it (or ``--help``)."""
     if {"-h", "--help", "--json", "--verbose"} & set(argv):
         return int(ledger_main(argv) or 0)
     from thesis_repro import terminal
@@ -409,12 +409,11 @@ def _ledger(ledger_main: Any, argv: list[str]) -> int:
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             code = int(ledger_main(argv) or 0)
-    finally:  # notes wrapped, each verdict's line cut to the terminal; --verbose or --json give the full text
+    finally:  # wrapped at the terminal's width; --verbose or --json give the full text as it is
         for line in err.getvalue().splitlines():  # an error stays one line
             print(line if line.startswith("error:") else terminal.wrap(line), file=sys.stderr)
         if text := out.getvalue().rstrip("\n"):
-            fitted = terminal.fit(text)
-            print(fitted + ("\n(lines cut to the terminal; --verbose or --json: in full)" if fitted != text else ""))
+            print(terminal.wrap(text, indent="    "))
     return code
 
 
