@@ -33,13 +33,13 @@ PIP := $(BIN)/pip install -q --disable-pip-version-check -c constraints.txt
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(PIP) torch==2.13.0 2>&1 | { grep -v "is ignored: it is neither" || true; }
-	$(PIP) -e ".[dev,video]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	$(PIP) -e ".[dev,video,book]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
 	$(BIN)/python -m ipykernel install --sys-prefix --name python3 >/dev/null
 	touch $(STAMP)
 
 # the optional Ray extra (pyproject's [ray]): installed only for BACKEND=ray and for make test (its Ray tests)
 $(RAY_STAMP): $(STAMP)
-	$(PIP) -e ".[dev,video,ray]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
+	$(PIP) -e ".[dev,video,book,ray]" 2>&1 | { grep -v "is ignored: it is neither" || true; }
 	touch $(RAY_STAMP)
 
 ## make chromium : the browser test's headless Chromium (Debian's package), installed with apt-get when missing;

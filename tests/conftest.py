@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-import thesis_repro  # noqa: F401 - sets MUJOCO_GL before any test imports mujoco
+import thesis_repro  # noqa: F401 - sets the pinned numerics before any test imports torch
 
 
 @pytest.fixture(autouse=True)
@@ -16,6 +16,9 @@ def _isolated_dirs(tmp_path_factory, monkeypatch):
     monkeypatch.delenv("THESIS_REPRO_RETRAIN", raising=False)
     # SB3's default logger makes an SB3-<timestamp> folder in the system temp dir per learn(); keep them in pytest's
     monkeypatch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3-log")))
+    # pytest-xdist's workers set COLUMNS=80: each test starts without it, its output not a terminal's (lines whole,
+    # thesis_repro.terminal); the tests of the terminal's width set COLUMNS themselves
+    monkeypatch.delenv("COLUMNS", raising=False)
 
 
 @pytest.fixture(autouse=True)

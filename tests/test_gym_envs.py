@@ -13,6 +13,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from thesis_repro.envs import (
+    CONTEXT_IDS,
     ENV_IDS,
     ENVS,
     TESTS,
@@ -54,6 +55,37 @@ def test_every_registered_id_passes_the_full_env_checker(name):
     env = gym.make(name, sigma=0.2, seed=0)
     full_check(env)
     env.close()
+
+
+@pytest.mark.parametrize(
+    ("name", "kwargs", "factors"),
+    [
+        ("thesis_repro/Hopper-wind-v0", {"wind": (-2.0, 2.0)}, ["wind"]),
+        ("thesis_repro/Walker2d-wind-v0", {}, ["wind"]),  # chapter 4's Fig 4.1 (a) range by default
+        ("thesis_repro/Walker2d-fixed-v0", {"ratios": {"friction": 0.5, "wind": 1.0}}, ["friction", "wind"]),
+        ("thesis_repro/HalfCheetah-fixed-v0", {"ratios": {"body_mass": 1.2}, "c_a": 0.1}, ["body_mass"]),
+    ],
+)
+def test_context_ids_pass_the_full_env_checker(name, kwargs, factors):
+    """Wind and fixed-factor tasks as registered ids (as CARL registers contexts)."""
+    assert name in CONTEXT_IDS and name in gym.registry
+    env = gym.make(name, seed=0, **kwargs)
+    full_check(env)
+    got = env.reset(seed=1)[1]["factors"]
+    assert sorted(got) == sorted(factors)
+    if "ratios" in kwargs:
+        assert got == kwargs["ratios"]
+    low, high = kwargs.get("wind", (-0.5, 0.5))
+    assert "wind" not in got or "ratios" in kwargs or low <= got["wind"] <= high
+    env.close()
+
+
+def test_context_ids_bad_input_is_one_line():
+    assert len(CONTEXT_IDS) == 7  # wind on Walker2d and Hopper, fixed factors on all five tasks
+    with pytest.raises(ValueError, match="^the wind ids take wind=\\(low, high\\); fixed factor values go to"):
+        gym.make("thesis_repro/Hopper-wind-v0", ratios={"body_mass": 1.5})
+    with pytest.raises(ValueError, match="valid factors of InvertedPendulum are: .cart_mass., .pole_mass.$"):
+        gym.make("thesis_repro/InvertedPendulum-fixed-v0", ratios={"wind": 1.0})
 
 
 @pytest.mark.parametrize(

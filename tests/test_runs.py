@@ -351,6 +351,9 @@ def test_runs_command(fake_figures, capsys):
     assert main(["runs", "9.2", "--scale", "smoke"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("fig-9.2 (smoke): 2 training runs: 0 shipped, 0 cached, 2 to compute")
+    assert "to compute: b__Toy__s0, a__Toy__s0" in out
+    assert main(["runs", "9.2", "--scale", "smoke", "--verbose"]) == 0
+    out = capsys.readouterr().out
     assert "a__Toy__s0" in out and "missing" in out
     assert main(["runs", "9.9", "--scale", "smoke"]) == 2
     assert "valid figures are: '9.1', '9.2'" in capsys.readouterr().err

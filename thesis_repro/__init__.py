@@ -4,9 +4,9 @@ The package map, layers from the bottom up. A module imports only from its own l
 (``tests/test_layers.py`` reads this list and enforces it; ``tests/test_imports.py`` forbids import circles):
 
 1. **core**: ``thesis_repro``, ``paths``, ``validation``, ``provenance``, ``scales``, ``thesis_numbers``,
-   ``job_kinds``, ``bench`` -- locations, checks, where and in which numerics an entry was made, the scale table, the
-   thesis's numbers, the job registry and the timing helpers; they import the standard library, third-party
-   packages and each other only.
+   ``job_kinds``, ``bench``, ``terminal`` -- locations, checks, where and in which numerics an entry was made, the
+   scale table, the thesis's numbers, the job registry, the timing helpers and output that fits the terminal; they
+   import the standard library, third-party packages and each other only.
 2. **store and backends**: ``cache``, ``backends`` -- the run cache and where jobs run; may import core (a job
    function is resolved by name through ``job_kinds``, never imported).
 3. **envs**: ``envs`` -- the MuJoCo tasks and their perturbations; may import core.
@@ -30,9 +30,8 @@ The package map, layers from the bottom up. A module imports only from its own l
 
 import os
 
-# The one place the kit chooses MuJoCo's offscreen renderer (EGL: no display needed); a user's own
-# MUJOCO_GL wins. Set before anything imports mujoco; papermill kernels inherit it.
-os.environ.setdefault("MUJOCO_GL", "egl")
+# MuJoCo's offscreen renderer (MUJOCO_GL) is chosen where a task is made to render
+# (thesis_repro.envs.make.prepare_render), never on import.
 
 #: Portable numerics (issue 19 item 6): the same float kernels on every x86-64 CPU, so a run or an evaluation
 #: gives the same numbers on Intel and AMD. Measured on an AVX-512 Xeon: MKL's CPU dispatch (the sgemm of every

@@ -1,10 +1,13 @@
 """Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
 ``reference-runs --scale small`` | ``budgets --scale small [--spread]`` | ``plan 3.3 --scale full --cores 64`` |
 ``claims ...`` | ``results [--check]`` | ``verify --scale small -n 20`` | ``bench [NAME ...] [--list]`` |
-``score model.zip --task Hopper --scale small`` | ``train ppo Hopper --seed 0 --scale small`` |
-``enjoy ppo Hopper --seed 0 --test obs --sigma 0.4 --video out.mp4``
+``score model.zip --task Hopper --scale small [--versus ppo]`` | ``train ppo Hopper --seed 0 [--timesteps N]
+[--train]`` | ``enjoy ppo Hopper --seed 0 --test obs --sigma 0.4 --video out.mp4 [--lean --size 240]``
 (your agent under the thesis's protocol, :mod:`thesis_repro.agent`) | ``--version``. Installed, the same command
 line is the ``thesis-repro`` console script.
+
+Output fits the terminal (:mod:`thesis_repro.terminal`: ``COLUMNS``); ``--verbose`` or ``--json`` give the full
+text.
 
 One file on purpose (over 600 lines): it is the one parser of every command, and each command's handler keeps the
 one error contract below (its ``error:`` line, its exit code); a handler parses and calls the module that does
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import logging
 import os
 import signal
@@ -46,7 +50,19 @@ class Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one ``error:`` line (no usage block)."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"error: {message} (see `{self.prog} --help`)\n")
+        self.exit(2, f"error: {one_line(ValueError(message))} (see `{self.prog} --help`)\n")
+
+
+@contextlib.contextmanager
+def _one_line_usage_errors() -> Iterator[None]:
+    """Every argument parser of the command (also the claims ledger's own) reports a usage error as one line,
+    as :class:`Parser` does, while the command runs."""
+    saved = argparse.ArgumentParser.error
+    argparse.ArgumentParser.error = Parser.error  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        argparse.ArgumentParser.error = saved  # type: ignore[method-assign]
 
 
 def positive_int(text: str, low: int = 1) -> int:
@@ -104,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     if (nk := sys.modules.get("thesis_repro.notebook_kernel")) is not None:  # a new command: no bar of its own yet
         nk.line_ended()
     try:
-        with _signals_as_interrupts():
+        with _signals_as_interrupts(), _one_line_usage_errors():
             return _main(argv)
     except KeyboardInterrupt as err:
         # the notebook client's pending tasks die with the kernel: asyncio would log each as it is collected
@@ -169,6 +185,7 @@ def _main(argv: list[str]) -> int:
     runs_p.add_argument("figure", nargs="?", default="all", help="figure id such as 3.3, or 'all'")
     runs_p.add_argument("--scale", default="small", help="smoke | small | full")
     runs_p.add_argument("--json", action="store_true", help="print the rows as JSON")
+    runs_p.add_argument("--verbose", action="store_true", help="list every run (default: counts per kind)")
     runs_p.add_argument(
         "--check", action="store_true", help="report stale or corrupt shipped runs and corrupt local runs instead"
     )
@@ -373,7 +390,31 @@ def _claims(argv: list[str]) -> int:
         from thesis_repro.claims import cli
     except ImportError as err:
         raise RuntimeError(f"the claims ledger is not available ({err})") from None
-    return int(cli.main(argv) or 0)
+    try:
+        return _ledger(cli.main, argv)
+    except SystemExit as done:  # --help, or a usage error (already printed as one `error:` line)
+        return int(done.code or 0)
+
+
+def _ledger(ledger_main: Any, argv: list[str]) -> int:
+    """Run the claims ledger's ``main``: its lines and notes wrapped at the terminal's width, unless ``--verbose``
+    or ``--json`` asks for the full text as the ledger prints it (or ``--help``)."""
+    if {"-h", "--help", "--json", "--verbose"} & set(argv):
+        return int(ledger_main(argv) or 0)
+    from thesis_repro import terminal
+
+    if sys.stderr.isatty():  # the ledger prints nothing until it is done
+        print("judging the thesis's claims from saved numbers (about 30 s) ...", file=sys.stderr, flush=True)
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = int(ledger_main(argv) or 0)
+    finally:  # wrapped at the terminal's width; --verbose or --json give the full text as it is
+        for line in err.getvalue().splitlines():  # an error stays one line
+            print(line if line.startswith("error:") else terminal.wrap(line), file=sys.stderr)
+        if text := out.getvalue().rstrip("\n"):
+            print(terminal.wrap(text, indent="    "))
+    return code
 
 
 def _results(argv: list[str]) -> int:
@@ -391,10 +432,10 @@ def _command(args: argparse.Namespace) -> int:
 
     check_environment()
     if args.cmd == "list":
-        print("scales:", ", ".join(scales.SCALES))
-        print("notebooks:", ", ".join(notebooks.notebook_ids(guides=True)))
+        print(list_text())
     elif args.cmd == "figure":
         scales.check_scale(args.scale)
+        notebooks.require_book()
         ids = notebooks.notebook_ids(guides=True) if args.figure == "all" else [notebooks.check_notebook(args.figure)]
         params = notebook_parameters(args.parameter, args.scale)
         for folder in (paths.runs(), paths.build(args.scale)):
@@ -442,6 +483,7 @@ def _command(args: argparse.Namespace) -> int:
         from thesis_repro import book as book_mod
 
         scales.check_scale(args.scale)
+        notebooks.require_book()
         for folder in (paths.runs(), paths.build(args.scale)):
             check_writable(folder)
         book_mod.build(args.scale, reuse=args.reuse, force=args.force, shipped_only=args.shipped_only)
@@ -462,6 +504,12 @@ def _bench_command(args: argparse.Namespace) -> int:
     return 0
 
 
+#: What "AUC" means, printed under every score (thesis Eq 3.6).
+AUC_NOTE = (
+    "AUC (thesis Eq 3.6): the area under testing return vs σ, Δσ times the sum of the testing returns over the "
+    "σ grid; higher is more robust to the perturbation"
+)
+
 #: Subcommands for your own agent (:mod:`thesis_repro.agent`).
 AGENT_COMMANDS = ("score", "train", "enjoy", "clips")
 
@@ -475,14 +523,29 @@ def _agent_parsers(sub: Any) -> None:
     sc.add_argument("--label", default="your agent", help="the models' name in the table and figure")
     sc.add_argument("--figure", default=None, metavar="PNG", help="save the Fig 3.4-style comparison here")
     sc.add_argument("--no-compare", action="store_true", help="only your scores, not the shipped learners beside")
+    sc.add_argument("--verbose", action="store_true", help="the tables in full, whatever the terminal's width")
+    sc.add_argument(
+        "--versus", nargs="+", default=None, metavar="LEARNER", help="a paired test of your agent against each"
+    )
     tr = sub.add_parser("train", help="train (or load) one chapter-3 run through the run cache")
     tr.add_argument("algo", help="a chapter-3 learner: ppo, trpo, ddpg, sac, ppo-16, ...")
     tr.add_argument("task", help="InvertedPendulum | InvertedDoublePendulum | Walker2d | Hopper | HalfCheetah")
     tr.add_argument("--seed", type=nonneg_int, default=0, help="training seed, >= 0 (default 0)")
     tr.add_argument("--scale", default="small", help="smoke | small | full (the book's budget at that scale)")
-    en = sub.add_parser("enjoy", help="watch one episode of a shipped or cached policy (offscreen video)")
-    en.add_argument("algo", help="a chapter-3 learner: ppo, trpo, ddpg, sac, ppo-16, ...")
+    tr.add_argument(
+        "--timesteps", type=positive_int, default=None, help="env steps instead of the book's budget (a run of its own)"
+    )
+    tr.add_argument(
+        "--train", action="store_true", help="train a run neither shipped nor cached (without it: its cost, no run)"
+    )
+    en = sub.add_parser("enjoy", help="watch one episode of a shipped or cached policy, or of an SB3 zip")
+    en.add_argument("algo", help="a chapter-3 learner (ppo, trpo, ddpg, sac, ppo-16, ...) or an SB3 model .zip")
     en.add_argument("task", help="InvertedPendulum | InvertedDoublePendulum | Walker2d | Hopper | HalfCheetah")
+    en.add_argument("--lean", action="store_true", help="no shadows, reflections or skybox (renders faster)")
+    en.add_argument("--size", type=positive_int, default=None, help="frames of SIZE x SIZE pixels (default 480)")
+    en.add_argument("--every", type=positive_int, default=1, help="a frame every EVERY steps (default 1)")
+    en.add_argument("--human", action="store_true", help="watch in a window instead (needs a display)")
+    en.add_argument("--sb3-algo", default=None, help="the SB3 class of a .zip (ppo, sac, ...; default: detected)")
     en.add_argument("--seed", type=nonneg_int, default=0, help="training seed, >= 0 (default 0)")
     en.add_argument("--scale", default="small", help="smoke | small | full")
     en.add_argument("--test", default="none", help="perturbation: none | obs | act | env | dom (default none)")
@@ -496,16 +559,12 @@ def _agent_parsers(sub: Any) -> None:
 
 
 def _agent_command(args: argparse.Namespace) -> int:
-    from thesis_repro import agent, clips, scales
+    from thesis_repro import agent, clips, paths, scales, terminal
+    from thesis_repro.validation import check_choice
 
     scales.check_scale(args.scale)
     if args.cmd == "train":
-        res = agent.train_run(args.algo, args.task, args.seed, args.scale)
-        import numpy as np
-
-        tr = res.get("train_return")
-        ret = "" if tr is None else f", training return {float(np.mean(tr)):.1f}"
-        print(f"{args.algo} on {args.task} (seed {args.seed}, scale {args.scale}): {res.source}{ret}\n{res.path}")
+        return _train_command(args)
     elif args.cmd == "clips":
         doc = clips.make_clips(args.scale, force=args.force)
         for c in doc["clips"]:
@@ -517,8 +576,9 @@ def _agent_command(args: argparse.Namespace) -> int:
             print(f"{c['algo']} on {doc['task']} ({doc['test']}, σ {doc['sigma']}): {what}")
         print(f"clips: {clips.clips_dir(args.scale)}")
     elif args.cmd == "enjoy":
+        zipped = args.algo.lower().endswith(".zip")
         out = clips.enjoy(
-            args.algo,
+            args.sb3_algo if zipped else args.algo,
             args.task,
             args.seed,
             args.scale,
@@ -527,29 +587,85 @@ def _agent_command(args: argparse.Namespace) -> int:
             video=args.video,
             episode_seed=args.episode_seed,
             max_steps=args.max_steps,
+            size=args.size,
+            every=args.every,
+            lean=args.lean,
+            model=args.algo if zipped else None,
+            human=args.human,
+            progress=True,
         )
         where = f"; video: {out['video']}" if out["video"] else ""
+        source = out["source"] if zipped else f"{out['source']} run"
         print(
-            f"{args.algo} on {args.task} ({args.test}, σ {args.sigma}): return {out['return']:.1f} in "
-            f"{out['length']} steps ({out['source']} run){where}"
+            terminal.wrap(
+                f"{args.algo} on {agent.match_task(args.task)} ({args.test}, σ {args.sigma}): return "
+                f"{out['return']:.1f} in {out['length']} steps ({source}){where}"
+            )
         )
     else:
         from thesis_repro.envs import short_name
         from thesis_repro.evaluation.score import score_model
 
         task = short_name(args.task)
+        if args.no_compare and (args.figure or args.versus):
+            raise ValueError("--figure and --versus show the comparison; drop --no-compare")
+        for learner in args.versus or ():  # before scoring: a typo costs no time
+            check_choice(learner, agent.learner_names(task, args.scale), "learner")
         models = [agent.load_sb3(p, args.algo) for p in args.models]
+        if not args.no_compare and (note := paths.reference_note()) is not None:
+            raise ValueError(f"{note} (or score with --no-compare)")
         scores = score_model(models, task, args.scale, label=args.label)
-        print(scores)
+        print(str(scores) if args.verbose else terminal.wrap(str(scores)))
         if not args.no_compare:
-            cmp = agent.compare_with_shipped(scores)
+            steps = [getattr(m, "num_timesteps", 0) for m in models]
+            cmp = agent.compare_with_shipped(scores, timesteps=max(steps) if all(steps) else None)
             print()
-            print(cmp)
+            print(str(cmp) if args.verbose else terminal.wrap(f"testing AUC, {cmp.ci_label}"))
+            if not args.verbose:  # pandas wraps the columns into blocks at the terminal's width
+                print(terminal.frame(cmp.wide()))
+            for learner in args.versus or ():
+                print()
+                text = cmp.versus_text(learner)
+                print(text if args.verbose else terminal.wrap(text, indent="      "))
             if args.figure:
                 cmp.figure.savefig(args.figure, dpi=120)
                 print(f"figure: {args.figure}")
-        elif args.figure:
-            raise ValueError("--figure shows the comparison; drop --no-compare")
+        print(terminal.wrap(AUC_NOTE))
+    return 0
+
+
+def _train_command(args: argparse.Namespace) -> int:
+    """``train``: load a shipped or cached run, or train it (its cost first, then a progress line with an ETA); a run
+    neither shipped nor cached needs ``--train`` (or ``--timesteps``, a budget of the user's) outside ``smoke``."""
+    import numpy as np
+
+    from thesis_repro import agent, paths, terminal
+    from thesis_repro.cache import RunCache
+
+    job = agent.train_job(args.algo, args.task, args.seed, args.scale, args.timesteps)
+    algo, task = job.config["algorithm"], agent.match_task(args.task)
+    budget = f", {args.timesteps:,} steps" if args.timesteps else ""
+    what = f"{algo} on {task} (seed {args.seed}, scale {args.scale}{budget})"
+    cache = RunCache()
+    state = cache.state(job)
+    if state not in ("shipped", "cached"):
+        steps, seconds = agent.train_cost(job)
+        status = "interrupted, resumes" if state == "partial" else "neither shipped nor cached"
+        cost = f"{steps:,} env steps, about {terminal.duration(seconds)} on one core"
+        consent = args.train or args.timesteps is not None or args.scale == "smoke" or paths.retrain()
+        if not consent:
+            note = paths.reference_note()
+            raise ValueError(
+                f"{what} is {status}: training it takes {cost}; pass --train to train it, or --timesteps N for "
+                f"a budget of your own{f' ({note})' if note else ''}"
+            )
+        print(terminal.wrap(f"{what}: {status}; training: {cost}"), flush=True)
+    with agent.showing_progress(f"train {algo} on {task}"):
+        res = cache.run(job)
+    tr = res.get("train_return")
+    ret = "" if tr is None else f", training return {float(np.mean(tr)):.1f}"
+    print(terminal.wrap(f"{what}: {res.source}{ret}"))
+    print(res.path)
     return 0
 
 
@@ -602,6 +718,24 @@ def check_environment() -> None:
     paths.retrain()
     backends.backend()
     check_jobs()
+
+
+def list_text(cols: int | None = None) -> str:
+    """What ``list`` prints, within ``cols`` columns (default: the terminal's): the scales, every figure and
+    table with its title, the other notebooks, and where the notebooks and the shipped runs are when this install
+    has none."""
+    from thesis_repro import figures, notebooks, paths, scales, terminal
+
+    lines = [f"scales: {', '.join(scales.SCALES)}", "figures and tables (python -m thesis_repro figure ID):"]
+    lines += [f"  {fid:<10} {figures.get(fid).title}" for fid in figures.ids()]
+    if paths.NOTEBOOKS.is_dir():
+        other = [n for n in notebooks.notebook_ids(guides=True) if figures.FIGURES.get(n) is None]
+        lines.append(f"other pages: {', '.join(other)}")
+    else:
+        lines.append("notebooks: none in this install (they ship with the kit's clone; `figure` and `book` need it)")
+    if (note := paths.reference_note()) is not None:
+        lines.append(note)
+    return terminal.wrap("\n".join(lines), cols)
 
 
 def _plan_command(args: argparse.Namespace) -> int:
@@ -815,7 +949,9 @@ def _runs_command(args: argparse.Namespace) -> int:
             f"{len(runs.local_entries())} local runs ({paths.runs()}): {len(local)} corrupt"
         )
         return 1 if stale or corrupt or local else 0
-    ids = figures.ids() if args.figure == "all" else [args.figure]
+    from thesis_repro import terminal
+
+    ids = figures.ids() if args.figure == "all" else [figures.get(args.figure).id]
     for fid in ids:
         rows = runs.rows(fid, args.scale)
         if args.json:
@@ -823,8 +959,13 @@ def _runs_command(args: argparse.Namespace) -> int:
             continue
         train = [j for j in figures.jobs(fid, args.scale) if j.kind in figures.TRAINING_KINDS]
         line = runs.summary(train, verify=True) if train else "no training runs"
-        print(f"{figures.get(fid).notebook_id} ({args.scale}): {line}")
-        print(plan.table(rows) + "\n")
+        print(terminal.wrap(f"{figures.get(fid).notebook_id} ({args.scale}): {line}"))
+        if args.verbose:  # every run, in full
+            print(plan.table(rows) + "\n")
+        else:
+            print(terminal.fit(runs.rows_summary(rows)) + "\n")
+    if not (args.json or args.verbose):
+        print(terminal.wrap("every run with its key and folder: --verbose; as JSON: --json"))
     return 0
 
 

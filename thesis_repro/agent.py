@@ -3,8 +3,10 @@
 * :func:`compare_with_shipped`: a :func:`~thesis_repro.evaluation.score.score_model` result beside every learner
   the kit ships (or has cached) on the same task, scale, σ grid and testing seeds: a table of AUCs with 95 % CIs
   across training seeds, and a Fig 3.4-style figure (testing return vs σ per test type, CI bands).
+  :meth:`Comparison.versus` tests your agent against one learner, paired by testing rollout.
 * :func:`train_run`: one chapter-3 training run (learner, task, seed, scale) through the run cache, the same
-  job the book trains or loads (``python -m thesis_repro train ppo Hopper --seed 0 --scale small``).
+  job the book trains or loads (``python -m thesis_repro train ppo Hopper --seed 0 --scale small``), or one of
+  your budget (``timesteps``); :func:`train_cost` prices it and :func:`showing_progress` shows its progress.
 * :func:`thesis_repro.clips.enjoy` (its own module, with the book's clips): one episode of a shipped or cached
   policy, optionally perturbed, rendered offscreen to a video.
 * :func:`load_sb3`: an SB3 ``.zip`` as a model (``python -m thesis_repro score model.zip --task Hopper``).
@@ -14,9 +16,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import zipfile
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -63,14 +66,25 @@ def _learners(task: str, scale: str) -> dict[str, dict[str, Any]]:
     return out
 
 
-def _benchmark(settings: dict[str, Any], algo: str, task: str, seeds: Sequence[int]) -> Any:
+def learner_names(task: str, scale: str = "small") -> list[str]:
+    """The chapter-3 learners the book runs on ``task`` at ``scale`` (those :func:`compare_with_shipped` can draw).
+
+    >>> learner_names("Hopper")[:4]
+    ['ppo', 'trpo', 'ddpg', 'sac']
+    """
+    return list(_learners(match_task(task), scale))
+
+
+def _benchmark(
+    settings: dict[str, Any], algo: str, task: str, seeds: Sequence[int], timesteps: int | None = None
+) -> Any:
     from thesis_repro.figures import ch3, ch3_tables
 
     return ch3.benchmark(
         [algo],
         [task],
         list(seeds),
-        ch3.learner_timesteps(settings, algo),
+        ch3.learner_timesteps(settings, algo) if timesteps is None else int(timesteps),
         settings["tests"],
         sigmas=settings["sigmas"],
         n_rollouts=int(settings["test_rollouts"]),
@@ -120,35 +134,121 @@ def guide_settings(scale: str, task: str = "InvertedPendulum", timesteps: int | 
 
 
 # ---------------------------------------------------------------- comparison with the shipped learners
+#: The thesis's plain learners (Table 3.4): drawn in colour beside your agent, with the best of the others.
+PLAIN: tuple[str, ...] = ("ppo", "trpo", "ddpg", "sac")
+
+
 @dataclass
 class Comparison:
     """Your agent beside the shipped learners: ``table`` (one row per test and learner: ``env, test, method,
     seed_mean, ci_lo, ci_hi, n_seeds``, the AUC across training seeds), the tidy ``returns`` behind it, what the
-    intervals are (``ci_label``) and a Fig 3.4-style ``figure``; ``str()`` / :meth:`wide` give the table as text."""
+    intervals are (``ci_label``) and a Fig 3.4-style ``figure``; ``str()`` / :meth:`wide` give the table as text,
+    with each learner's training budget (``budgets``: env steps per run); :meth:`versus` tests your agent against
+    one learner. ``aucs`` holds the per-rollout AUCs behind ``table``."""
 
     table: pd.DataFrame
     returns: pd.DataFrame
     ci_label: str
     scores: Scores
     title: str
+    aucs: pd.DataFrame | None = None
+    budgets: dict[str, int | None] = field(default_factory=dict)
+
+    @property
+    def learners(self) -> list[str]:
+        """The shipped learners beside your agent, in the table's order."""
+        return [m for m in dict.fromkeys(self.table["method"]) if m != self.scores.label]
+
+    def best_other(self) -> str | None:
+        """The learner outside :data:`PLAIN` with the highest AUC averaged over the tests (``None``: no such one)."""
+        others = self.table[self.table["method"].isin([m for m in self.learners if m not in PLAIN])]
+        return None if others.empty else str(others.groupby("method")["seed_mean"].mean().idxmax())
 
     @cached_property
     def figure(self) -> Any:
-        """The Fig 3.4-style figure (drawn on first access): testing return vs σ per test type, one line per
-        learner (mean over training seeds), band the 95 % t-interval across seeds."""
-        return _figure(self.returns, self.scores, self.title)
+        """The Fig 3.4-style figure (drawn on first access): testing return vs σ per test type, your agent in black,
+        the plain learners (:data:`PLAIN`) and the best of the others in colour, the rest faded; line: mean over
+        training seeds, band: the 95 % t-interval across seeds."""
+        best = self.best_other()
+        highlight = [m for m in self.learners if m in PLAIN or m == best]
+        return _figure(self.returns, self.scores, self.title, highlight, self.budgets)
 
     def wide(self) -> pd.DataFrame:
-        """AUC mean [95 % CI] (seeds) per learner (rows) and test (columns), as text."""
+        """AUC mean [95 % CI] (seeds) per learner (rows) and test (columns), as text, and each learner's training
+        budget (``train steps``) where known."""
         t = self.table.assign(
             text=[tables.fmt_ci(r.seed_mean, r.ci_lo, r.ci_hi, r.n_seeds) for r in self.table.itertuples()]
         )
-        return t.pivot(index="method", columns="test", values="text").reindex(
+        out = t.pivot(index="method", columns="test", values="text").reindex(
             index=list(dict.fromkeys(self.table["method"])), columns=list(dict.fromkeys(self.table["test"]))
         )
+        if self.budgets:
+            out["train steps"] = [_steps(self.budgets.get(m)) for m in out.index]
+        return out
+
+    def versus(self, learner: str) -> pd.DataFrame:
+        """Your agent against ``learner``, per test: each side's AUC averaged over its training seeds, paired by
+        testing rollout (both are scored on the same σ grid and episode seeds, so rollout i meets the same
+        perturbations), the mean difference (yours minus theirs) with its 95 % t-interval over the rollouts, and
+        Welch's p across training seeds (NaN below two seeds a side). The interval holds the testing noise; the
+        p-value the spread of training."""
+        check_choice(learner, self.learners, "learner")
+        if self.aucs is None:
+            raise ValueError("this comparison has no per-rollout AUCs (made by compare_with_shipped)")
+        rows = []
+        for test in dict.fromkeys(self.table["test"]):
+            side = {}
+            for who in (self.scores.label, learner):
+                a = self.aucs[(self.aucs["method"] == who) & (self.aucs["test"] == test)]
+                side[who] = a
+            mine = side[self.scores.label].groupby("rollout")["value"].mean()
+            theirs = side[learner].groupby("rollout")["value"].mean()
+            diff = (mine - theirs).dropna()
+            if diff.empty:
+                continue
+            m, lo, hi, n = tables.t_interval(diff.to_numpy())
+            p = tables.welch_p(*(side[w].groupby("seed")["value"].mean().to_numpy() for w in side))
+            rows.append(
+                {
+                    "test": test,
+                    "yours": float(mine.mean()),
+                    learner: float(theirs.mean()),
+                    "difference": m,
+                    "ci_lo": lo,
+                    "ci_hi": hi,
+                    "rollouts": n,
+                    "welch_p": p,
+                }
+            )
+        return pd.DataFrame(rows)
+
+    def versus_text(self, learner: str) -> str:
+        """:meth:`versus` as text: one line per test."""
+        lines = [f"{self.scores.label} minus {learner}, testing AUC paired by rollout (95 % CI over rollouts):"]
+        for r in self.versus(learner).to_dict("records"):
+            ci = f"[{r['ci_lo']:+.1f}, {r['ci_hi']:+.1f}]" if np.isfinite(r["ci_lo"]) else "(no interval)"
+            p = f"; Welch p across training seeds {r['welch_p']:.3f}" if np.isfinite(r["welch_p"]) else ""
+            lines.append(
+                f"  {r['test']:4s} {r['yours']:8.1f} vs {r[learner]:8.1f}: {r['difference']:+.1f} {ci}"
+                f" over {r['rollouts']} rollouts{p}"
+            )
+        return "\n".join(lines)
 
     def __str__(self) -> str:
         return f"testing AUC, {self.ci_label}\n{self.wide().to_string()}"
+
+
+def _steps(n: int | None) -> str:
+    """Env steps as a short count: ``2M``, ``300k``, ``512``; ``?`` when unknown.
+
+    >>> _steps(2_000_000), _steps(300_000), _steps(512), _steps(None)
+    ('2M', '300k', '512', '?')
+    """
+    if n is None:
+        return "?"
+    if n >= 1_000_000:
+        return f"{n / 1e6:.3g}M"
+    return f"{n / 1e3:.3g}k" if n >= 1000 else str(n)
 
 
 def shipped_results(
@@ -179,6 +279,10 @@ def shipped_results(
                 per = auc(r, sig, axis=0)
                 auc_parts.append(pd.DataFrame({**ident, "rollout": np.arange(r.shape[1]), "value": per}))
     if not ret_parts:
+        from thesis_repro import paths
+
+        if (note := paths.reference_note()) is not None:
+            raise ValueError(note)
         raise ValueError(
             f"no shipped or cached chapter-3 evaluations of {task} at scale {scale!r} (the kit ships scale 'small'; "
             f"score with scale='small', or run the book at {scale!r} first)"
@@ -193,12 +297,14 @@ def compare_with_shipped(
     cache: RunCache | None = None,
     title: str | None = None,
     compute_missing: bool = False,
+    timesteps: int | None = None,
 ) -> Comparison:
     """Your agent's :class:`~thesis_repro.evaluation.score.Scores` beside every learner shipped on ``task``
     (default: the scores' task) at the scores' scale, with 95 % CIs across training seeds, and a Fig 3.4-style
     figure. The scores must use that scale's book grid (``score_model(..., scale=...)`` without overrides), so
     that every number comes from the same σ grid, rollouts and testing seeds. ``compute_missing`` trains and
     evaluates the learners neither shipped nor cached first (:func:`shipped_results`; for ``smoke``).
+    ``timesteps``: your agent's training steps, shown beside the shipped learners' budgets.
 
     >>> cmp = compare_with_shipped(score_model(model, "Hopper", "small"))  # doctest: +SKIP
     >>> print(cmp); cmp.figure.savefig("hopper.png")  # doctest: +SKIP
@@ -226,48 +332,71 @@ def compare_with_shipped(
     table = tables.seed_ci(aucs)
     label = tables.ci_label(table["n_seeds"])
     title = title or f"{scores.label} beside the shipped learners on {task}"
-    return Comparison(table=table, returns=rets, ci_label=label, scores=scores, title=title)
+    budgets: dict[str, int | None] = {scores.label: timesteps}
+    for algo, s in _learners(task, scores.scale).items():
+        if algo in set(table["method"]):  # the budget of the runs compared: their training job's env steps
+            budgets[algo] = int(_benchmark(s, algo, task, [0]).train_jobs[0].config["timesteps"])
+    return Comparison(table=table, returns=rets, ci_label=label, scores=scores, title=title, aucs=aucs, budgets=budgets)
 
 
-def _figure(rets: pd.DataFrame, scores: Scores, title: str) -> Any:
+def _figure(
+    rets: pd.DataFrame,
+    scores: Scores,
+    title: str,
+    highlight: Sequence[str] | None = None,
+    budgets: dict[str, int | None] | None = None,
+) -> Any:
     """Fig 3.4's top row for this task: testing return vs σ, one panel per test type, a line per learner (the
     mean over training seeds of each seed's mean over its rollouts) with its 95 % t-interval band across seeds;
-    your agent in black, on top."""
+    your agent in black, on top; the learners of ``highlight`` (default: all) in colour, the others faded grey;
+    each name in the legend with its training budget in env steps where ``budgets`` has it."""
     import matplotlib.pyplot as plt
     import seaborn as sns
 
     per_seed = tables.seed_means(rets, "return", ["env", "method", "test", "sigma"])
     order = list(dict.fromkeys(rets["method"]))
     others = order[1:]
-    palette = dict(zip(others, sns.color_palette("husl", len(others)), strict=True))
+    shown = [m for m in others if highlight is None or m in highlight]
+    faded = [m for m in others if m not in shown]
+    palette = dict(zip(shown, sns.color_palette("tab10", len(shown)), strict=True))
+    palette.update({m: (0.6, 0.6, 0.6) for m in faded})
     palette[scores.label] = (0.0, 0.0, 0.0)
     tests = scores.tests
+
+    def named(method: str) -> str:
+        steps = (budgets or {}).get(method)
+        return method if steps is None else f"{method} ({_steps(steps)} steps)"
+
     fig, axes = plt.subplots(1, len(tests), figsize=(3.2 * len(tests) + 2.0, 3.6), squeeze=False, sharey=True)
     for j, test in enumerate(tests):
         ax = axes[0, j]
         d = per_seed[per_seed["test"] == test]
-        for method in [*others, scores.label]:
+        for method in [*faded, *shown, scores.label]:
             m = d[d["method"] == method]
-            mine = method == scores.label
+            mine, dim = method == scores.label, method in faded
             sns.lineplot(
                 m,
                 x="sigma",
                 y="return",
-                errorbar=tables.t_errorbar,
+                errorbar=None if dim else tables.t_errorbar,
                 color=palette[method],
-                linewidth=2.4 if mine else 1.0,
-                marker="o",
+                alpha=0.35 if dim else 1.0,
+                linewidth=2.4 if mine else (0.7 if dim else 1.2),
+                marker=None if dim else "o",
                 markersize=4 if mine else 2.5,
-                label=method if j == 0 else None,
+                label=(f"others ({len(faded)}, faded)" if method == faded[0] else "_") if dim else named(method),
                 ax=ax,
-                zorder=3 if mine else 2,
+                zorder=3 if mine else (1 if dim else 2),
             )
         ax.set_title(f"{scores.task} — {test}", fontsize=9)
         ax.set(xlabel="σ (Σ for dom)", ylabel="testing return" if j == 0 else "")
         if ax.get_legend() is not None:
             ax.get_legend().remove()
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="center left", bbox_to_anchor=(0.87, 0.5), fontsize=7, frameon=False)
+    keep = [(h, lab) for h, lab in zip(handles, labels, strict=True) if not lab.startswith("_")]
+    dims = [k for k in keep if k[1].startswith("others (")]
+    keep = keep[-1:] + [k for k in keep[:-1] if k not in dims] + dims  # your agent, the highlighted, the faded
+    fig.legend(*zip(*keep, strict=True), loc="center left", bbox_to_anchor=(0.87, 0.5), fontsize=7, frameon=False)
     n = per_seed.groupby(["method", "test", "sigma"])["seed"].nunique()
     band = f"band: {tables.ci_label(n)}" if n.max() > 1 else "no band: 1 training seed"
     fig.suptitle(f"{title} (scale {scores.scale})\nline: mean over training seeds; {band}", fontsize=9)
@@ -276,27 +405,99 @@ def _figure(rets: pd.DataFrame, scores: Scores, title: str) -> Any:
 
 
 # ---------------------------------------------------------------- single runs
-def train_job(algo: str, task: str, seed: int = 0, scale: str = "small") -> Job:
+def match_task(task: str) -> str:
+    """The short name of ``task`` matched case-insensitively (a short name or a Gymnasium id); a one-line
+    ``ValueError`` with the closest name ("did you mean") and the valid ones otherwise.
+
+    >>> match_task("hopper"), match_task("walker2d-v5")
+    ('Hopper', 'Walker2d')
+    >>> match_task("Hoper")
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown env 'Hoper'; did you mean 'Hopper'? valid envs are: 'InvertedPendulum', \
+'InvertedDoublePendulum', 'Walker2d', 'Hopper', 'HalfCheetah'
+    """
+    import difflib
+
+    names = {**{k.lower(): k for k in ENVS}, **{v.lower(): k for k, v in ENVS.items()}}
+    if isinstance(task, str) and task.lower() in names:
+        return names[task.lower()]
+    close = difflib.get_close_matches(str(task).lower(), names, n=1)
+    hint = f"; did you mean {names[close[0]]!r}?" if close else ";"
+    listed = ", ".join(repr(k) for k in ENVS)
+    raise ValueError(f"unknown env {task!r}{hint} valid envs are: {listed}")
+
+
+def train_job(algo: str, task: str, seed: int = 0, scale: str = "small", timesteps: int | None = None) -> Job:
     """The chapter-3 training job of ``algo`` on ``task`` with training seed ``seed`` at ``scale``: the one the
-    book trains or loads (same config, same cache key). ``ValueError`` names the valid learners of the task."""
+    book trains or loads (same config, same cache key), or with ``timesteps`` env steps instead of the book's
+    budget (another run, cached under its own key). ``task`` and ``algo`` match case-insensitively; a
+    ``ValueError`` names the valid learners of the task."""
     from thesis_repro import scales
 
     scales.check_scale(scale)
-    task = short_name(task)
+    task = match_task(task)
+    algo = algo.lower() if isinstance(algo, str) else algo
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if timesteps is not None and (isinstance(timesteps, bool) or not isinstance(timesteps, int) or timesteps < 1):
+        raise ValueError(f"timesteps must be an integer >= 1 or None, got {timesteps!r}")
     learners = _learners(task, scale)
     check_choice(algo, list(learners), "learner")
-    return _benchmark(learners[algo], algo, task, [int(seed)]).train_jobs[0]
+    return _benchmark(learners[algo], algo, task, [int(seed)], timesteps).train_jobs[0]
 
 
-def train_run(algo: str, task: str, seed: int = 0, scale: str = "small", cache: RunCache | None = None) -> Result:
+def train_cost(job: Job) -> tuple[int, float]:
+    """The env steps of training ``job`` and its expected wall time in seconds on one core, at the pace of the
+    kit's benchmarks (``make bench``) or its documented defaults."""
+    from thesis_repro import throughput
+
+    steps = throughput.work(job)
+    rate = throughput.job_rate(job, throughput.load_rates())
+    return int(steps), steps / rate if rate else float("nan")
+
+
+def train_run(
+    algo: str,
+    task: str,
+    seed: int = 0,
+    scale: str = "small",
+    cache: RunCache | None = None,
+    timesteps: int | None = None,
+) -> Result:
     """Train (or load, when shipped or cached) one chapter-3 run through the run cache; returns its entry."""
-    job = train_job(algo, task, seed, scale)
+    job = train_job(algo, task, seed, scale, timesteps)
     return (cache or RunCache()).run(job)
 
 
-# ---------------------------------------------------------------- the chapter-3 landing page's clips
+@contextlib.contextmanager
+def showing_progress(label: str) -> Iterator[None]:
+    """While inside, every training run of this process shows a progress line with an ETA on stderr
+    (:data:`thesis_repro.learners.train.OBSERVERS`); a run loaded from the cache shows none."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from thesis_repro.learners import train as learner_train
+    from thesis_repro.terminal import Progress
+
+    bars: list[Progress] = []
+
+    class Watch(BaseCallback):
+        def __init__(self, total: int):
+            super().__init__()
+            self.bar = Progress(label, total, "env steps")
+            bars.append(self.bar)
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.num_timesteps)
+            return True
+
+    learner_train.OBSERVERS.append(Watch)
+    try:
+        yield
+    finally:
+        learner_train.OBSERVERS.remove(Watch)
+        for bar in bars:
+            bar.close()
 
 
 # ---------------------------------------------------------------- SB3 zips
@@ -344,10 +545,14 @@ __all__ = [
     "Comparison",
     "compare_with_shipped",
     "guide_settings",
+    "learner_names",
     "load_sb3",
+    "match_task",
     "score_model",
     "shipped_results",
+    "showing_progress",
     "tasks",
+    "train_cost",
     "train_job",
     "train_run",
 ]

@@ -22,10 +22,11 @@ import mujoco
 import numpy as np
 
 from thesis_repro import paths, scales
-from thesis_repro.agent import train_job
+from thesis_repro.agent import load_sb3, match_task, train_job
 from thesis_repro.cache import RunCache
-from thesis_repro.envs import PERTURBATIONS, make_env, short_name
+from thesis_repro.envs import PERTURBATIONS, make_env, prepare_render
 from thesis_repro.learners import load_policy
+from thesis_repro.terminal import Progress
 from thesis_repro.validation import check_choice, check_nonneg
 
 
@@ -45,13 +46,18 @@ def enjoy(
     size: int | None = None,
     every: int = 1,
     lean: bool = False,
+    model: str | Path | None = None,
+    human: bool = False,
+    progress: bool = False,
 ) -> dict[str, Any]:
-    """One episode of the shipped or cached policy of (``algo``, ``task``, ``seed``, ``scale``) under ``test`` at
-    ``sigma``, rendered offscreen (``MUJOCO_GL``, EGL by default) to ``video`` (.mp4 or .gif) if given.
+    """One episode of the shipped or cached policy of (``algo``, ``task``, ``seed``, ``scale``) -- or of the SB3
+    ``.zip`` ``model`` (then ``algo`` is its SB3 class or ``None``: detected) -- under ``test`` at ``sigma``,
+    rendered offscreen (``MUJOCO_GL``, EGL by default) to ``video`` (.mp4 or .gif) if given, or in a window
+    with ``human`` (needs a display; without one a one-line ``ValueError``).
 
     ``size``: frames of ``size`` x ``size`` pixels (default: the task's 480 x 480); ``every``: keep every n-th
     step's frame (the video plays in real time); ``lean``: no shadows, reflections or skybox (a third of the
-    rendering time with a software renderer).
+    rendering time with a software renderer); ``progress``: a progress line with an ETA on stderr.
 
     Returns ``{"return", "length", "video", "source"}``. A run neither shipped nor cached is a ``ValueError``
     naming the ``train`` command that makes it.
@@ -60,29 +66,52 @@ def enjoy(
     sigma = check_nonneg(sigma, "sigma")
     if isinstance(every, bool) or not isinstance(every, int | np.integer) or every < 1:
         raise ValueError(f"every must be an integer >= 1, got {every!r}")
+    if size is not None and (isinstance(size, bool) or not isinstance(size, int | np.integer) or size < 16):
+        raise ValueError(f"size must be an integer >= 16 (pixels) or None, got {size!r}")
     if video is not None and Path(video).suffix.lower() not in (".mp4", ".gif"):
         raise ValueError(f"video must end in .mp4 or .gif, got {str(video)!r}")
+    if video is not None and human:
+        raise ValueError("choose one of video (offscreen) and human (a window)")
+    if human:
+        prepare_render("human")  # no display: one line now, not MuJoCo's abort later
     if video is not None:
         _check_video_writer(Path(video))
-    job = train_job(algo, task, seed, scale)
-    run = (cache or RunCache()).load(job)
-    if run is None:
-        raise ValueError(
-            f"{algo} on {short_name(task)} (seed {seed}, scale {scale}) is neither shipped nor cached; train it with "
-            f"`python -m thesis_repro train {algo} {short_name(task)} --seed {seed} --scale {scale}`"
-        )
-    policy = load_policy(run)
-    render = {"render_mode": "rgb_array", **({"width": int(size), "height": int(size)} if size else {})}
-    env = make_env(task, test, sigma, seed=int(episode_seed), env_kwargs=render if video else None)
+    task = match_task(task)
+    if model is not None:
+        sb3 = load_sb3(model, algo)
+
+        def policy(obs: np.ndarray) -> np.ndarray:
+            return sb3.predict(obs, deterministic=True)[0]
+
+        source = f"SB3 zip {Path(model).name}"
+    else:
+        job = train_job(algo, task, seed, scale)
+        run = (cache or RunCache()).load(job)
+        if run is None:
+            raise ValueError(
+                f"{algo} on {task} (seed {seed}, scale {scale}) is neither shipped nor cached; train it with "
+                f"`python -m thesis_repro train {algo} {task} --seed {seed} --scale {scale}`"
+            )
+        policy, source = load_policy(run), run.source
+    if human:
+        render: dict[str, Any] | None = {"render_mode": "human"}
+    elif video:
+        render = {"render_mode": "rgb_array", **({"width": int(size), "height": int(size)} if size else {})}
+    else:
+        render = None
+    env = make_env(task, test, sigma, seed=int(episode_seed), env_kwargs=render)
     frames: list[np.ndarray] = []
     total, steps = 0.0, 0
+    limit = max_steps or 1000
+    bar = None
     try:
         obs, _ = env.reset(seed=int(episode_seed))
         if video:
             _follow_camera(env)
         if video and lean:
             _lean_rendering(env)
-        limit = max_steps or 1000
+        if progress:
+            bar = Progress(f"enjoy {Path(model).name if model else algo} on {task}", limit, "steps")
         while steps < limit:
             if video and steps % every == 0:
                 frames.append(env.render())
@@ -90,6 +119,8 @@ def enjoy(
             obs, reward, terminated, truncated, _ = env.step(action)
             total += float(reward)
             steps += 1
+            if bar is not None:
+                bar.update(steps)
             if terminated or truncated:
                 break
         if video:
@@ -97,7 +128,11 @@ def enjoy(
             _write_video(Path(video), frames, fps or max(1, int(round(1.0 / (env.unwrapped.dt * every)))))
     finally:
         env.close()
-    return {"return": total, "length": steps, "video": None if video is None else str(video), "source": run.source}
+        if bar is not None:
+            bar.total = max(steps, 1)  # an episode that ended early is done
+            bar.update(steps)
+            bar.close()
+    return {"return": total, "length": steps, "video": None if video is None else str(video), "source": source}
 
 
 def _follow_camera(env: Any) -> None:

@@ -52,14 +52,6 @@ from typing import Any
 from thesis_repro import paths
 from thesis_repro.cache import pid_alive
 from thesis_repro.claims import report
-from thesis_repro.notebook_kernel import (
-    KERNEL_PREFIX,
-    TRACKED_STDERR,
-    QuietKernelManager,
-    kill_kernels,
-    noting_interrupts,
-    owner_pid,
-)
 from thesis_repro.scales import check_scale
 from thesis_repro.validation import check_choice
 
@@ -204,6 +196,8 @@ def is_current(nid: str, scale: str, parameters: dict[str, Any] | None = None) -
 def clean_stale(build_root: Path | None = None) -> list[Path]:
     """Remove kernel files (temp folder) and staging folders (``build_root``, default the build folder) left
     by processes that are dead (killed before they could clean up); returns what was removed."""
+    from thesis_repro.notebook_kernel import KERNEL_PREFIX, owner_pid  # local: the [book] extra's jupyter_client
+
     removed = []
     tmp = Path(tempfile.gettempdir())
     for p in tmp.glob(f"{KERNEL_PREFIX}*"):
@@ -318,6 +312,25 @@ def outputs_of(nid: str, scale: str, since: float = 0.0) -> list[Path]:
     return found
 
 
+#: The [book] extra's packages that executing a notebook needs (import names).
+BOOK_PACKAGES: tuple[str, ...] = ("papermill", "jupytext", "nbclient", "ipykernel")
+
+
+def require_book() -> None:
+    """A one-line ``RuntimeError`` naming the install command when the ``[book]`` extra is missing (a lean
+    ``pip install thesis_repro`` scores, trains and renders, but executes no notebook)."""
+    import importlib.util
+
+    missing = [name for name in BOOK_PACKAGES if importlib.util.find_spec(name) is None]
+    if missing:
+        raise RuntimeError(
+            f"executing notebooks needs the book extra ({', '.join(missing)} missing): "
+            "pip install 'thesis_repro[book]' (make venv installs it)"
+        )
+    if not paths.NOTEBOOKS.is_dir():
+        raise RuntimeError(f"no notebooks at {paths.NOTEBOOKS}: they ship with the kit's clone, not with pip install")
+
+
 def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log: bool = True) -> Path:
     """Execute notebook ``nid`` at ``scale`` and return the path of the executed ``.ipynb``.
 
@@ -326,12 +339,16 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     Outputs are staged and swapped in on success (module docstring); a failing cell raises
     :class:`NotebookError`; a ``SCALE`` parameter other than ``scale`` is a ``ValueError``.
     """
-    # local: papermill and jupytext take seconds to import; only executing a notebook needs them
+    require_book()
+    # local: papermill and jupytext take seconds to import (and come with the [book] extra); only executing a
+    # notebook needs them
     import jupytext
     import nbformat
     import papermill as pm
     from jupyter_client.kernelspec import NoSuchKernel
     from papermill.exceptions import PapermillExecutionError
+
+    from thesis_repro.notebook_kernel import TRACKED_STDERR, QuietKernelManager, kill_kernels, noting_interrupts
 
     nid = check_notebook(nid)
     check_scale(scale)

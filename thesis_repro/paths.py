@@ -4,6 +4,10 @@ Override the run cache with ``THESIS_REPRO_DATA`` (tests point it at a temporary
 reference runs with ``THESIS_REPRO_REFERENCE`` and the build folder with ``THESIS_REPRO_BUILD``;
 ``THESIS_REPRO_RETRAIN=1`` (``make ... RETRAIN=1``) ignores the shipped runs.
 
+Run from its clone (:func:`in_clone`), the kit keeps everything in the clone (``data/runs``, ``build``). Installed
+without it (``pip install``: the code alone, no ``data/`` or ``notebooks/``), new runs and builds go to
+``~/.cache/thesis_repro`` (``XDG_CACHE_HOME``) and :func:`reference_note` says where the shipped runs are expected.
+
 >>> from thesis_repro import paths
 >>> paths.notebook("3.3").name
 'fig-3.3.py'
@@ -38,15 +42,50 @@ def shown(path: str | Path) -> str:
         return str(path)
 
 
+def in_clone() -> bool:
+    """Whether the kit runs from its clone (``pyproject.toml`` beside the package), not from an installed wheel."""
+    return (ROOT / "pyproject.toml").is_file() and (ROOT / "data").is_dir()
+
+
+def _user_cache() -> Path:
+    """``~/.cache/thesis_repro`` (``XDG_CACHE_HOME``): an installed kit's runs and builds, never site-packages."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "thesis_repro"
+
+
 def runs() -> Path:
-    """Root of the content-addressed run cache (``data/runs`` unless ``THESIS_REPRO_DATA`` is set)."""
-    return Path(os.environ.get("THESIS_REPRO_DATA", ROOT / "data" / "runs"))
+    """Root of the content-addressed run cache: ``THESIS_REPRO_DATA``, else ``data/runs`` in the clone, else
+    ``~/.cache/thesis_repro/runs``."""
+    default = ROOT / "data" / "runs" if in_clone() else _user_cache() / "runs"
+    return Path(os.environ.get("THESIS_REPRO_DATA", default))
+
+
+REFERENCE_ENV = "THESIS_REPRO_REFERENCE"
 
 
 def reference() -> Path:
     """Shipped read-only layer of finished ``small`` runs: training runs and chapter 5's results
     (``data/reference`` unless ``THESIS_REPRO_REFERENCE`` is set); consulted after the local run cache."""
-    return Path(os.environ.get("THESIS_REPRO_REFERENCE", ROOT / "data" / "reference"))
+    return Path(os.environ.get(REFERENCE_ENV, ROOT / "data" / "reference"))
+
+
+def reference_note() -> str | None:
+    """One line saying where the shipped runs are expected and how to point at them, when that folder is missing
+    (an installed kit carries no ``data/``); ``None`` when it is there.
+
+    >>> import os; saved = os.environ.get(REFERENCE_ENV); os.environ[REFERENCE_ENV] = "/nowhere"
+    >>> print(reference_note())
+    no shipped runs at /nowhere (THESIS_REPRO_REFERENCE): point it at <clone>/data/reference of a clone of the kit
+    >>> _ = os.environ.pop(REFERENCE_ENV); os.environ.update({REFERENCE_ENV: saved} if saved else {})
+    """
+    ref = reference()
+    if ref.is_dir():
+        return None
+    if REFERENCE_ENV in os.environ:
+        return f"no shipped runs at {ref} ({REFERENCE_ENV}): point it at <clone>/data/reference of a clone of the kit"
+    return (
+        f"no shipped runs in this install (pip installs the code alone): clone the kit and set "
+        f"{REFERENCE_ENV}=<clone>/data/reference"
+    )
 
 
 #: Values of ``THESIS_REPRO_RETRAIN`` (``make ... RETRAIN=...``): yes, then no.
@@ -75,8 +114,10 @@ def retrain() -> bool:
 
 
 def build(scale: str) -> Path:
-    """Root of generated artefacts for one scale: executed notebooks and figures."""
-    return Path(os.environ.get("THESIS_REPRO_BUILD", ROOT / "build")) / scale
+    """Root of generated artefacts for one scale (executed notebooks, figures): ``THESIS_REPRO_BUILD``, else
+    ``build`` in the clone, else ``~/.cache/thesis_repro/build``."""
+    default = ROOT / "build" if in_clone() else _user_cache() / "build"
+    return Path(os.environ.get("THESIS_REPRO_BUILD", default)) / scale
 
 
 PUBLISHED_ENV = "THESIS_REPRO_PUBLISHED_BUILD"

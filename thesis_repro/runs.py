@@ -25,7 +25,7 @@ import fnmatch
 import json
 import os
 import shutil
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -90,9 +90,38 @@ def job_state(job: Job, cache: RunCache, verify: bool = True) -> tuple[str, Path
 
 
 def job_row(job: Job, cache: RunCache, verify: bool = True) -> dict[str, str]:
-    """``kind``, ``label``, ``key``, ``state`` and ``path`` of one job (see :func:`job_state`; no computing)."""
+    """``kind``, ``label``, ``key``, ``state`` and ``path`` of one job (see :func:`job_state`; no computing). The
+    key is the one in the entry's folder name: the job's with its dependencies pinned to the runs it loads (an
+    evaluation's key names the training run it evaluates)."""
     state, path = job_state(job, cache, verify)
-    return {"kind": job.kind, "label": job.label, "key": job.key, "state": state, "path": shown(path)}
+    bound = cache.bind(job)
+    key = (bound if bound is not None else job).key
+    return {"kind": job.kind, "label": job.label, "key": key, "state": state, "path": shown(path)}
+
+
+def rows_summary(rows: Sequence[Mapping[str, str]], listed: int = 5) -> str:
+    """How many of ``rows`` (:func:`job_row`) are in each state, one line per job kind, and the labels of the
+    first ``listed`` runs still to compute (what ``python -m thesis_repro runs`` prints without ``--verbose``).
+
+    >>> print(rows_summary([{"kind": "train", "label": "a", "state": "shipped"},
+    ...                     {"kind": "evaluate", "label": "b", "state": "missing"}]))
+    kind      shipped  cached  to compute
+    train           1       0           0
+    evaluate        0       0           1
+    to compute: b
+    """
+    kinds = list(dict.fromkeys(r["kind"] for r in rows))
+    w = max([8, *map(len, kinds)])
+    lines = [f"{'kind':<{w}}  {'shipped':>7}  {'cached':>6}  {'to compute':>10}"]
+    for kind in kinds:
+        states = [r["state"] for r in rows if r["kind"] == kind]
+        todo = sum(s not in ("shipped", "cached") for s in states)
+        lines.append(f"{kind:<{w}}  {states.count('shipped'):>7,}  {states.count('cached'):>6,}  {todo:>10,}")
+    missing = [r["label"] for r in rows if r["state"] not in ("shipped", "cached")]
+    if missing:
+        more = f" and {len(missing) - listed:,} more" if len(missing) > listed else ""
+        lines.append(f"to compute: {', '.join(missing[:listed])}{more}")
+    return "\n".join(lines)
 
 
 def rows(figure_id: str, scale: str, cache: RunCache | None = None, verify: bool = True) -> list[dict[str, str]]:

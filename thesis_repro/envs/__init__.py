@@ -25,8 +25,17 @@ The same env as a registered Gymnasium id (five tasks x four test types; σ and 
 """
 
 from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE, BoundFactor, Factor, FactorSet, check_factors
-from thesis_repro.envs.make import PERTURBATIONS, make_env, make_registered, wrap_env
-from thesis_repro.envs.registry import ENV_IDS, ENVS, TESTS, env_id, register_envs, resolve_env, short_name
+from thesis_repro.envs.make import PERTURBATIONS, make_context, make_env, make_registered, prepare_render, wrap_env
+from thesis_repro.envs.registry import (
+    CONTEXT_IDS,
+    ENV_IDS,
+    ENVS,
+    TESTS,
+    env_id,
+    register_envs,
+    resolve_env,
+    short_name,
+)
 from thesis_repro.envs.wrappers import (
     ActionNoise,
     DomainShift,
@@ -53,10 +62,13 @@ __all__ = [
     "Wind",
     "check_factors",
     "make_env",
+    "prepare_render",
     "resolve_env",
     "short_name",
     "wrap_env",
     "ENV_IDS",
+    "CONTEXT_IDS",
+    "make_context",
     "TESTS",
     "env_id",
     "make_registered",

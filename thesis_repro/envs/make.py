@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -25,6 +26,7 @@ from thesis_repro.envs.wrappers import (
     ObservationNoise,
     SystematicShift,
     Wind,
+    _has_display,
 )
 from thesis_repro.validation import check_choice, check_nonneg
 
@@ -52,6 +54,24 @@ def wrap_env(env: gym.Env, perturbation: str = "none", sigma: float = 0.0, facto
     if perturbation == "dom":
         return DomainShift(env, sigma, factors)
     return env
+
+
+def prepare_render(render_mode: str | None) -> None:
+    """Ready this process for a task that renders in ``render_mode``: an offscreen mode (``rgb_array``,
+    ``depth_array``, ...; the task checks the name) sets ``MUJOCO_GL=egl``
+    (MuJoCo's renderer without a display) unless ``MUJOCO_GL`` is set already; ``"human"`` without a display
+    (no ``DISPLAY``/``WAYLAND_DISPLAY``) is a one-line ``ValueError``, never MuJoCo's GLFW abort of the process
+    (``tests/test_install.py``)."""
+    if render_mode is None:
+        return
+    if render_mode == "human":
+        if not _has_display():
+            raise ValueError(
+                "render_mode 'human' needs a display (no DISPLAY or WAYLAND_DISPLAY here); render offscreen with "
+                "render_mode='rgb_array'"
+            )
+        return
+    os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def make_env(
@@ -101,6 +121,7 @@ def make_env(
             owners[n] = who
 
     kwargs: dict[str, Any] = {**model_kwargs(task), **(env_kwargs or {})}
+    prepare_render(kwargs.get("render_mode"))
     if c_a is not None:
         kwargs["ctrl_cost_weight"] = check_nonneg(c_a, "c_a")
     if max_episode_steps is not None:
@@ -136,3 +157,42 @@ def make_registered(
     if render_mode is not None:
         env_kwargs["render_mode"] = render_mode
     return make_env(task, test, sigma, seed=seed, env_kwargs=env_kwargs or None, **kwargs)
+
+
+#: Chapter 4's wind range of Fig 4.1 (a) (ξ ~ U(-0.5, 0.5) m/s²): the default of the registered ``-wind`` ids.
+DEFAULT_WIND: tuple[float, float] = (-0.5, 0.5)
+
+
+def make_context(
+    task: str,
+    context: str,
+    wind: tuple[float, float] | None = None,
+    ratios: Mapping[str, float] | None = None,
+    seed: int | None = None,
+    render_mode: str | None = None,
+    **kwargs: Any,
+) -> gym.Env:
+    """Entry point of the registered context ids (:data:`thesis_repro.envs.registry.CONTEXT_IDS`), as CARL
+    registers contexts: ``context="wind"`` is chapter 4's wind, ξ ~ U(``wind``) per episode (default
+    :data:`DEFAULT_WIND`); ``context="fixed"`` fixes factor values (``ratios``: factor -> ratio, wind in m/s²;
+    ``None``: the task as it is). Other keywords (``c_a``, ``max_episode_steps``, ...) go to :func:`make_env`.
+
+    >>> env = make_context("Hopper", "fixed", ratios={"body_mass": 1.5})
+    >>> env.reset(seed=0)[1]["factors"]
+    {'body_mass': 1.5}
+    >>> type(make_context("Walker2d", "wind")).__name__
+    'Wind'
+    """
+    env_kwargs = dict(kwargs.pop("env_kwargs", None) or {})
+    if render_mode is not None:
+        env_kwargs["render_mode"] = render_mode
+    if context == "wind":
+        if ratios is not None:
+            raise ValueError("the wind ids take wind=(low, high); fixed factor values go to the -fixed ids (ratios=)")
+        wind = DEFAULT_WIND if wind is None else wind
+    elif context == "fixed":
+        if wind is not None:
+            raise ValueError("the -fixed ids take ratios= (wind in m/s² among them); wind=(low, high): the -wind ids")
+    else:
+        raise ValueError(f"unknown context {context!r}; valid contexts are: 'wind', 'fixed'")
+    return make_env(task, wind=wind, ratios=ratios, seed=seed, env_kwargs=env_kwargs or None, **kwargs)

@@ -56,11 +56,20 @@ def env_id(task: str, test: str) -> str:
 
 #: Every registered id: five tasks x four test types.
 ENV_IDS: tuple[str, ...] = tuple(f"{NAMESPACE}/{t}-{p}-v0" for t in ENVS for p in TESTS)
+#: The tasks with chapter 4's wind (a horizontal force on the torso).
+WIND_TASKS: tuple[str, ...] = ("Walker2d", "Hopper")
+#: The registered context ids, as CARL registers contexts: chapter 4's wind (``-wind``, ``wind=(low, high)``) and
+#: fixed factor values (``-fixed``, ``ratios={...}``); :func:`thesis_repro.envs.make.make_context` builds them.
+CONTEXT_IDS: tuple[str, ...] = tuple(f"{NAMESPACE}/{t}-wind-v0" for t in WIND_TASKS) + tuple(
+    f"{NAMESPACE}/{t}-fixed-v0" for t in ENVS
+)
 
 
 def register_envs() -> None:
     """Register :data:`ENV_IDS` with Gymnasium (idempotent): ``gymnasium.make(id, sigma=..., seed=...)`` builds
-    :func:`thesis_repro.envs.make_env` (task, test type, σ; any other ``make_env`` keyword passes through)."""
+    :func:`thesis_repro.envs.make_env` (task, test type, σ; any other ``make_env`` keyword passes through); and
+    :data:`CONTEXT_IDS` (``gymnasium.make("thesis_repro/Hopper-wind-v0", wind=(-2, 2))``,
+    ``gymnasium.make("thesis_repro/Hopper-fixed-v0", ratios={"body_mass": 1.5})``)."""
     import gymnasium as gym
 
     for task in ENVS:
@@ -73,6 +82,15 @@ def register_envs() -> None:
                     kwargs={"task": task, "test": test},
                     max_episode_steps=None,  # make_env's own time limit (the task's 1,000 steps)
                 )
+    for name in CONTEXT_IDS:
+        task, context = name.removeprefix(f"{NAMESPACE}/").removesuffix("-v0").rsplit("-", 1)
+        if name not in gym.registry:
+            gym.register(
+                name,
+                entry_point="thesis_repro.envs.make:make_context",
+                kwargs={"task": task, "context": context},
+                max_episode_steps=None,
+            )
 
 
 def short_name(env: str) -> str:

@@ -29,7 +29,7 @@ import os
 import pickle
 import shutil
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -58,6 +58,9 @@ from thesis_repro.learners.policy_file import save_policy
 from thesis_repro.learners.resume import ResumeMismatch, capture, global_rng_state, restore, set_global_rng_state
 
 RETURN_WINDOW = 100  # training episodes averaged into train_return and the curve
+#: Makers of SB3 callbacks that watch every training run of this process, called with the run's total env steps
+#: (``python -m thesis_repro train`` adds its progress line here); they only read the run, never change it.
+OBSERVERS: list[Callable[[int], BaseCallback]] = []
 #: Algorithm class of each ``class`` name of ``hyperparams.yaml``.
 ALGORITHM_CLASSES: dict[str, type[BaseAlgorithm]] = {
     "PPO": FastPPO,
@@ -473,7 +476,8 @@ def train_job(config: dict[str, Any], workdir: Path, *, callback: BaseCallback |
     remaining = int(cfg.get("stop_at") or cfg["timesteps"]) - int(model.num_timesteps)
     t0, c0 = time.time(), time.process_time()
     if remaining > 0:
-        cbs = [book] + ([callback] if callback is not None else [])
+        watchers = [make(int(cfg["timesteps"])) for make in OBSERVERS]
+        cbs = [book] + ([callback] if callback is not None else []) + watchers
         model.learn(total_timesteps=remaining, callback=CallbackList(cbs), reset_num_timesteps=not ckpts)
     else:
         book.init_callback(model)
