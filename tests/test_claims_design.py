@@ -30,7 +30,10 @@ def test_a_changed_rule_without_a_new_version_is_caught(monkeypatch):
     spec = next(s for s in registry.specs() if s.id == "3.3-negative-correlation")
     changed = [dataclasses.replace(s, v2={**s.v2, "margin": 0.05}) if s.id == spec.id else s for s in registry.specs()]
     monkeypatch.setattr(registry, "specs", lambda: tuple(changed))
-    assert design.check_frozen() == ["claim 3.3-negative-correlation: rule changed"]
+    assert design.check_frozen() == [
+        "claim 3.3-negative-correlation: rule changed",
+        "a v2 rule changed: the previous version is shown as frozen",
+    ]
     assert reg is registry.registry()
 
 

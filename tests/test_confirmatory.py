@@ -44,8 +44,9 @@ def test_three_seeds_have_no_confirmatory_verdict(rows):
 @pytest.fixture(scope="module")
 def holding(rows):
     """The page's claims that reproduce on six seeds with the effect in every seed."""
-    ids = [i for i, r in rows["agree"].items() if r.status == report.REPRODUCES]
-    assert ids, {i: r.status for i, r in rows["agree"].items()}
+    # the statistical label: these numbers are synthetic, never calibrated (the gate is tested apart)
+    ids = [i for i, r in rows["agree"].items() if r.v3.get("status", r.status) == report.REPRODUCES]
+    assert ids, {i: r.v3.get("status", r.status) for i, r in rows["agree"].items()}
     return ids
 
 

@@ -32,18 +32,24 @@ def test_the_fallbacks_word_todays_ledger_keys():
     row = results.claims_table([CLAIM]).splitlines()[2]
     cut = "There is a clear trade-off between training performance and generalisation across all ..."
     assert row.startswith(f"| `3.3-pareto` | l. 547 | {cut} |")
-    assert row.endswith("| - | 0/2 units yes, yes-share [0.00, 0.00] | **does not reproduce** | - |")
+    # ... thesis, ours, verdict, the thesis's effect, v2's verdict (none given: the verdict), fresh seeds
+    assert row.endswith(
+        "| - | 0/2 units yes, yes-share [0.00, 0.00] | **does not reproduce** | - | does not reproduce | - |"
+    )
     assert len(results.short(CLAIM).removesuffix(" ...").split()) == results.SHORT_WORDS
 
 
 def test_the_ledgers_new_keys_win_over_the_fallbacks():
     new = {**CLAIM, "short": "Training return trades off against generalisation", "thesis_value": "r < 0"}
-    new |= {"ours": "r = 0.71 [0.02, 1.39]", "label": "contradicted"}
+    new |= {"ours": "r = 0.71 [0.02, 1.39]", "label": "contradicted", "v2_verdict": "does not reproduce"}
+    new |= {"thesis_effect": {"excluded": True, "ours_side": "larger"}}
     row = results.claims_table([new]).splitlines()[2]
     assert "| Training return trades off against generalisation | r < 0 | r = 0.71 [0.02, 1.39] |" in row
-    assert row.endswith("**contradicted** | - |")  # no fresh seeds judged
+    assert row.endswith("**contradicted** | excluded (ours larger) | does not reproduce | - |")  # no fresh seeds
+    assert results.v2_counts([new]) == [("does not reproduce", 1)]
     block = results.readme_results({"claims": [new, {**CLAIM, "id": "x", "verdict": "inconclusive"}]}, "small")
-    assert "| contradicted | 1 |" in block and "| inconclusive | 1 |" in block
+    assert "| contradicted | 1 | 0 |" in block and "| inconclusive | 1 | 1 |" in block
+    assert "| does not reproduce | 0 | 1 |" in block  # v2's count of a label v3 no longer gives
     line = "- `3.3-pareto` (l. 547): Training return trades off against generalisation; ours: r = 0.71 [0.02, 1.39]"
     assert line + "\n" in block
     assert "`x`" not in block  # only the claims that do not reproduce get a line
@@ -53,7 +59,8 @@ def test_results_md_counts_every_claim_once_and_groups_by_chapter():
     ledger = {"claims": [CLAIM, {**CLAIM, "id": "5.6-curriculum", "page": "fig-5.6", "verdict": "reproduces"}]}
     ledger |= {"beyond_the_thesis": [{**CLAIM, "id": "4.1-kl-exact", "page": "fig-4.1"}]}
     text = results.results_md(ledger, "small")
-    assert "**2 distinct thesis claims:** does not reproduce 1, reproduces 1." in text
+    assert "**2 distinct thesis claims (design ):** does not reproduce 1, reproduces 1." in text
+    assert "Under design v2 (the registered analysis of seeds 0-5, kept beside it): does not reproduce 1, " in text
     assert text.index("## Chapter 3") < text.index("## Chapter 5") < text.index("## Beyond the thesis")
     assert text.count("`3.3-pareto`") == 1 and "`4.1-kl-exact`" in text
 

@@ -19,6 +19,7 @@ True
 from __future__ import annotations
 
 import json
+import math
 import os
 import warnings
 from collections.abc import Mapping, Sequence
@@ -191,7 +192,7 @@ def _judge_v3(
     status = finish(res.status)
     ablation = _ablation(s, lv, mg, conj, measured2 if rule3 != rule2 else run, status, family, finish)
     effects = thesis_effects(s, rule3)
-    thesis = T.thesis_excluded([u for us in run.values() for u in us], effects)
+    thesis = _finite(T.thesis_excluded([u for us in run.values() for u in us], effects))
     cal: dict[str, Any] = {}
     if with_null and scale != "smoke":
         cal = calibration_v3_of(s, scale, run, lv, mg, rules, conj, effects, compute=with_null is True)
@@ -283,6 +284,15 @@ def _judge_frames(
         row.diagnosis = diagnose(shim, meta, measured)
         row.sensitivity = [sensitivity_dict(m) for m in measured]
     return _as_v3(row, v3)
+
+
+def _finite(x: Any) -> Any:
+    """``x`` with every non-finite float (a CI that does not exist) as None, so equal rows compare equal (JSON)."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite(v) for v in x]
+    return None if isinstance(x, float) and not math.isfinite(x) else x
 
 
 def _ablation(

@@ -162,6 +162,8 @@ def thesis_effect_text(row: Row) -> str:
         return ""
     lo, hi = t["ci"]
     what = "r " if t.get("kind") == "r" else ""
+    lo = float("nan") if lo is None else lo
+    hi = float("nan") if hi is None else hi
     if t["excluded"] is None:
         return f"thesis's {what}{_num(t['thesis'])}, ours {_num(t['ours'])} (no CI: no replication)"
     word = f"excluded, ours {t['ours_side']}" if t["excluded"] else "not excluded"
