@@ -76,7 +76,8 @@ def test_the_check_is_the_rule_on_the_trained_rows_only():
     row = _judge("3.3-least-robust", "fig-3.3", {"points": p})
     sub = row.subset
     alone = _judge("3.3-least-robust", "fig-3.3", {"points": p[p["trained"]].drop(columns="trained")})
-    assert sub["available"] and sub["verdict"] == alone.status and sub["primary"] == alone.primary
+    # the check is design v2's rule on the subset (the registered sensitivity analysis of seeds 0-5)
+    assert sub["available"] and sub["verdict"] == alone.v2_status and sub["primary"] == alone.v2_primary
     assert alone.subset["available"] is False  # that page saved no column
     n_runs = p[["algo", "env", "seed"]].drop_duplicates().shape[0]
     assert (sub["runs"], sub["runs_total"]) == (n_runs - 5 * 3, n_runs)  # the untrained variant's 5 tasks x 3 seeds
@@ -146,7 +147,7 @@ def test_json_verbose_and_page_carry_the_check():
     vs = {v.claim.split(" (thesis")[0]: v for v in page_verdicts.verdicts("fig-3.3", "small")}
     first = vs[registry.spec("3.3-negative-correlation").text].evidence.split("\n\n")[0]
     assert first.startswith("sensitivity, trained runs only (90/105 runs") and "\n" not in first
-    assert vs[registry.spec("3.3-not-valid-metric").text].evidence.startswith("v1 verdict:")
+    assert vs[registry.spec("3.3-not-valid-metric").text].evidence.startswith("design v3 verdict:")
     assert "**Subset sensitivity**" in scoreboard.method([])
 
 

@@ -32,7 +32,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scale", default="small", choices=list(SCALES))
     ap.add_argument("--json", action="store_true", help="the whole ledger as JSON")
     ap.add_argument("--ids", nargs="*", help="only these claim ids")
-    ap.add_argument("--no-null", action="store_true", help="skip the null pass rates (faster)")
+    ap.add_argument(
+        "--no-null",
+        action="store_true",
+        help="skip calibration (faster): design v3's statistical labels, before its calibration gate",
+    )
     ap.add_argument(
         "--ship",
         action="store_true",

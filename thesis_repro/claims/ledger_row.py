@@ -180,10 +180,14 @@ def headline(row: Row, width: int = 160) -> str:
     s = row.spec
     where = f"l. {','.join(map(str, s.lines))} " if s.lines else ""
     short = s.v2.get("short") or " ".join(s.text.split()[:6])
-    effect = thesis_effect_text(row)
-    head = [row.status + (f" · {effect}" if effect else ""), s.id, f"{where}{short}"]
+    head = [row.status, s.id, f"{where}{short}"]
     ours = ours_text(row)
+    t = row.v3.get("thesis_effect") if row.v3 else None
+    # last and short (ours is already on the line): whether our CI excludes the thesis's own effect
+    effect = f"thesis's {_num(t['thesis'])} {'excluded' if t['excluded'] else 'not excluded'}" if t else ""
+    effect = effect if not t or t["excluded"] is not None else ""
     tail = [f"ours: {ours}"] if ours else []
+    tail += [effect] if effect else []
     thesis = str(s.v2.get("thesis_value") or "")
     room = width - len(" · ".join([*head, *tail])) - len(" · thesis: ")
     if thesis and len(thesis) > room:  # too long for one line: the thesis's value gives way before ours
