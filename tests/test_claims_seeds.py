@@ -76,11 +76,11 @@ SCALE = "small"
 DECIDED_STATUSES = {report.REPRODUCES, report.AT_LEAST_PARTLY, report.PARTLY, report.AT_MOST_PARTLY, report.DOES_NOT}
 
 
-
 def plain(row) -> str:
     """The row's statistical label (design v3 before its calibration gate: these numbers are synthetic, never
     calibrated; the gate is tested in tests/test_claims_v3.py)."""
     return row.v3.get("status", row.status)
+
 
 def is_comparative(s: registry.Spec) -> bool:
     """A measured rule whose measure is comparative, or a derived rule with a comparative part."""
