@@ -353,7 +353,8 @@ def layout_problems(m: dict[str, Any], page: str, verdict: bool = True) -> list[
 
 def has_verdicts(page: Path) -> bool:
     """Whether a book page shows verdicts: the landing page, a chapter page and a notebook's page."""
-    return page.name == "intro.html" or page.name.startswith("chapter-") or page.parent.name == "executed"
+    chapter = re.fullmatch(r"chapter-\d+\.html", page.name)  # a chapter's own page (not its static sections)
+    return page.name == "intro.html" or bool(chapter) or page.parent.name == "executed"
 
 
 _FIXTURE = """<!DOCTYPE html><html><head><style>body {{ margin: 0; }} article {{ width: 400px; padding: 0 20px; }}
