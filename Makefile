@@ -22,7 +22,7 @@ NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
 .PHONY: venv test smoke book clips bench budgets lint clean-build figure-% table-% reference-runs seeds confirmatory runs-% plan-% verify \
-	thesis-budget \
+	thesis-budget ch4-readings-grid \
 	verify-all chromium check-book ship-claims check-claims results
 
 venv: $(STAMP)
@@ -131,6 +131,14 @@ confirmatory:
 thesis-budget:
 	$(MAKE) reference-runs SCALE=small STUDY=thesis-budget KINDS="train evaluate" JOBS=$(or $(JOBS),2) \
 	  $(if $(filter 0,$(COMMIT)),,COMMIT=1) $(if $(UNTIL),UNTIL=$(UNTIL))
+
+## make ch4-readings-grid UNTIL=HH:MM [COMMIT=0] [JOBS=1] : chapter 4's readings that train and differ from params_avg
+## in their pilots (kl-avg-trpo, kl-avg-once), on every chapter-4 item at `small`'s seeds, each committed into
+## data/reference as it lands (resumable; `python -m thesis_repro.pilots ch4-readings --grid --price`: its cost);
+## started niced in the background like `make thesis-budget`. Cheaper (about 8 core-hours): make it first
+ch4-readings-grid: $(STAMP)
+	nice -n 10 $(BIN)/python -m thesis_repro.pilots ch4-readings --grid --jobs $(or $(JOBS),2) \
+	  $(if $(filter 0,$(COMMIT)),,--commit) $(if $(UNTIL),--until $(UNTIL))
 
 ## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] [FIGURE=3.3 | ENTRY=<key or label> |
 ## CLAIM=<id>] : recompute a seeded random sample of N shipped evaluations on this machine (temporary cache) and

@@ -53,7 +53,7 @@ from typing import Any
 import yaml
 
 from thesis_repro import notebooks, paths, protocol
-from thesis_repro.claims import ledger, registry, report, results
+from thesis_repro.claims import ledger, readings, registry, report, results
 from thesis_repro.claims import scoreboard as claims_scoreboard
 from thesis_repro.scales import check_scale
 
@@ -367,12 +367,30 @@ def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[s
     return head + "\n".join(rows) + note
 
 
-def scoreboard(executed: list[str], scale: str) -> str:
+#: The chapter whose page opens with the answer over the readings of its method (:func:`readings.answer`).
+READINGS_CHAPTER = "4"
+
+
+def open_with(page: str, line: str) -> str:
+    """``page`` (markdown) with ``line`` as its first paragraph, under its title.
+
+    >>> open_with("# Title\\n\\nText.\\n", "**Answer.**")
+    '# Title\\n\\n**Answer.**\\n\\nText.\\n'
+    >>> open_with("# Title\\n", "")
+    '# Title\\n'
+    """
+    if not line:
+        return page
+    title, _, rest = page.partition("\n")
+    return "\n\n".join((title, line, rest.lstrip("\n")))
+
+
+def scoreboard(executed: list[str], scale: str, rows: list[Any] | None = None) -> str:
     """The scoreboard of distinct thesis claims at ``scale``, read from the claims ledger (issue 21:
     :func:`thesis_repro.claims.scoreboard.scoreboard`, the same ledger as ``python -m thesis_repro claims``),
     with the beyond-the-thesis count and the method section (each rule's null pass rate). ``executed`` is
     kept for the caller; the ledger judges every registered claim from the numbers the pages saved."""
-    rows = ledger.ledger(scale)
+    rows = ledger.ledger(scale) if rows is None else rows
     head, sep, method = claims_scoreboard.scoreboard(scale, rows).partition(_METHOD)
     return f"{head}\n\n{results.verdict_lists(claims_scoreboard.as_json(rows, scale))}\n{sep}{method}"
 
@@ -600,12 +618,16 @@ def build(
 
     clips.book_clips(root, scale)
     judged = [n for n in ids if notebooks.page_id(n) not in pending]
+    rows = ledger.ledger(scale)
     for md in chapter_pages(root):
+        chapter = md.stem.split("-", 1)[1]
+        if chapter == READINGS_CHAPTER and scale != "smoke":
+            md.write_text(open_with(md.read_text(), readings.answer([r.as_dict() for r in rows])))
         with md.open("a") as f:
-            f.write(chapter_summary(md.stem.split("-", 1)[1], judged, scale, pending))
+            f.write(chapter_summary(chapter, judged, scale, pending))
     intro = root / "intro.md"
     built = f"\n_Built at scale `{scale}` from commit `{_git_rev()}` on {time.strftime('%Y-%m-%d %H:%M')}._\n"
-    intro.write_text(place_scoreboard(intro.read_text(), scoreboard(judged, scale)) + built)
+    intro.write_text(place_scoreboard(intro.read_text(), scoreboard(judged, scale, rows)) + built)
     write_toc(ids, root)
     jb = Path(sys.executable).parent / "jupyter-book"
     done = subprocess.run([str(jb), "build", str(root), "--quiet"], capture_output=True, text=True)

@@ -13,6 +13,12 @@ per-iteration diagnostics. :func:`pilot_table` turns it into the book's table.
 
     python -m thesis_repro.pilots ch4-readings [--steps 300000] [--algos kl-avg-ls ...]  # train what is missing
     python -m thesis_repro.pilots ch4-readings --summary                                # only write the summary
+    python -m thesis_repro.pilots ch4-readings --grid [--price] [--until HH:MM] [--jobs 2] [--commit]
+
+``--grid`` makes the readings' grid runs (:func:`grid_jobs`): every reading whose pilot trains and differs from
+params_avg (:func:`grid_algos`), on every chapter-4 item that judges the readings, at `small`'s seeds, through the
+reference-run generator (resumable, shipped as they land); ``--price`` prints their cost instead. The items list
+them once they are shipped (``algos`` in ``config/scales.yaml``), so no page trains them.
 
 >>> [c["algorithm"] for c in pilot_configs("ch4-readings", 300_000)][:2]
 ['kl-avg', 'kl-avg-ls']
@@ -36,6 +42,7 @@ import pandas as pd
 from thesis_repro import figures, paths
 from thesis_repro.cache import Job, RunCache
 from thesis_repro.figures import ch4
+from thesis_repro.generator import Planned
 from thesis_repro.learners import hyperparams
 from thesis_repro.mdl.aggregate import LINE_SEARCH_FRACTIONS
 from thesis_repro.mdl.readings import READINGS, Reading, reading_ids
@@ -79,6 +86,29 @@ def pilot_configs(name: str, steps: int, algos: Sequence[str] | None = None) -> 
     settings = figures.settings(figure, scale)
     (cond,) = ch4.conditions(figure, [panel])
     return [ch4.run_config(settings, a, cond, seed, stop_at=int(steps)) for a in (algos or all_algos)]
+
+
+#: The chapter-4 items whose claims are judged per reading (Fig 4.2's claim is visual).
+GRID_ITEMS: tuple[str, ...] = ("4.1", "4.3", "4.4", "4.5", "4.6", "4.7")
+
+
+def grid_algos(doc: Mapping[str, Any]) -> list[str]:
+    """The readings of pilot summary ``doc`` that go to the grid: those that train and do not reduce to params_avg
+    (:func:`pilot_table`), less the learners the chapter-4 items already train."""
+    table = pilot_table(doc)
+    have = {a for fid in GRID_ITEMS for a in figures.get(fid).settings("small").get("algos", ())}
+    keep = table[(table["trains"] == "yes") & (table["reduces to params_avg"] == False)]  # noqa: E712 (None: n/a)
+    return [a for a in keep["learner"] if a in reading_ids() and a not in have]
+
+
+def grid_jobs(scale: str, algos: Sequence[str]) -> list[Planned]:
+    """The jobs of ``algos`` on every :data:`GRID_ITEMS` item at ``scale`` (the item's own settings and seeds, so
+    each is the job the item makes once it lists the learner), deduplicated, training runs cheapest first."""
+    out: dict[str, Planned] = {}
+    for fid in GRID_ITEMS:
+        for job in figures.jobs(fid, scale, algos=list(algos)):
+            out.setdefault(job.key, Planned(job)).figures.append(figures.get(fid).notebook_id)
+    return sorted(out.values(), key=lambda p: (p.job.kind != "train", p.cost, p.job.label))
 
 
 def summary_path(name: str) -> Path:
@@ -440,7 +470,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=300_000, help="env steps of each pilot (default 300000)")
     parser.add_argument("--algos", nargs="+", default=None, help="only these learners of the set")
     parser.add_argument("--summary", action="store_true", help="write the summary of the finished pilots only")
+    parser.add_argument("--grid", action="store_true", help="make the stable, distinct readings' grid runs instead")
+    parser.add_argument("--price", action="store_true", help="with --grid: print the grid's cost, train nothing")
+    parser.add_argument("--until", default=None, help="with --grid: start only jobs expected to end by HH:MM")
+    parser.add_argument("--jobs", type=int, default=1, help="with --grid: jobs at a time (default 1)")
+    parser.add_argument("--commit", action="store_true", help="with --grid: commit each run as it lands")
     args = parser.parse_args(argv)
+    if args.grid:
+        return _grid(args)
     try:
         configs = pilot_configs(args.name, args.steps, args.algos)
     except ValueError as err:
@@ -457,6 +494,29 @@ def main(argv: list[str] | None = None) -> int:
     print(paths.shown(write_summary(args.name, everything, cache)))
     if args.name in PAGES:
         print(paths.shown(write_page(args.name)))
+    return 0
+
+
+def _grid(args: argparse.Namespace) -> int:
+    """``--grid``: price or make the readings' grid runs (:func:`grid_jobs`) at `small`."""
+    from thesis_repro import generator, plan, throughput
+    from thesis_repro.budget_study import check_design
+    from thesis_repro.provenance import claims_design, platform_info
+
+    check_choice(args.name, tuple(PILOTS), "pilot set")
+    if not args.price:
+        check_design(claims_design())  # judged under design v3, frozen before the first grid run
+    algos = grid_algos(load_summary(args.name))
+    planned = grid_jobs("small", algos)
+    rates = throughput.shipped_rates(by_env=True, machine=platform_info())
+    if args.price:
+        todo = plan.to_compute([p.job for p in planned])
+        print(f"readings to the grid (stable and distinct in their pilots): {', '.join(algos) or 'none'}")
+        print(plan.report(plan.plan_jobs(f"{args.name} grid", todo, "small", 2, rates), rates))
+        return 0
+    until = generator.parse_until(args.until) if args.until is not None else None
+    kinds = ("train", "evaluate")
+    generator.generate("small", None, kinds, commit=args.commit, n_jobs=args.jobs, until=until, jobs=planned)
     return 0
 
 
