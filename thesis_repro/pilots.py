@@ -103,12 +103,17 @@ def grid_algos(doc: Mapping[str, Any]) -> list[str]:
 
 def grid_jobs(scale: str, algos: Sequence[str]) -> list[Planned]:
     """The jobs of ``algos`` on every :data:`GRID_ITEMS` item at ``scale`` (the item's own settings and seeds, so
-    each is the job the item makes once it lists the learner), deduplicated, training runs cheapest first."""
+    each is the job the item makes once it lists the learner), deduplicated; the training runs item by item, the
+    items with the fewest runs first (an item is judged once all its runs are shipped), each item's runs cheapest
+    first; then the evaluations."""
     out: dict[str, Planned] = {}
     for fid in GRID_ITEMS:
         for job in figures.jobs(fid, scale, algos=list(algos)):
             out.setdefault(job.key, Planned(job)).figures.append(figures.get(fid).notebook_id)
-    return sorted(out.values(), key=lambda p: (p.job.kind != "train", p.cost, p.job.label))
+    items = [figures.get(f).notebook_id for f in GRID_ITEMS]
+    runs = {f: sum(p.job.kind == "train" and p.figures[0] == f for p in out.values()) for f in items}
+    first = {f: (n, i) for i, (f, n) in enumerate(runs.items())}
+    return sorted(out.values(), key=lambda p: (p.job.kind != "train", first[p.figures[0]], p.cost, p.job.label))
 
 
 def summary_path(name: str) -> Path:
