@@ -622,7 +622,11 @@ def build(
     for md in chapter_pages(root):
         chapter = md.stem.split("-", 1)[1]
         if chapter == READINGS_CHAPTER and scale != "smoke":
-            md.write_text(open_with(md.read_text(), readings.answer([r.as_dict() for r in rows])))
+            judged_rows = [r.as_dict() for r in rows]
+            line = readings.answer(judged_rows)
+            if line:
+                line += "\n\n" + readings.verdict_list(judged_rows)
+            md.write_text(open_with(md.read_text(), line))
         with md.open("a") as f:
             f.write(chapter_summary(chapter, judged, scale, pending))
     intro = root / "intro.md"

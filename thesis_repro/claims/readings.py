@@ -203,6 +203,23 @@ parameter averaging.** `kl-avg-ls` (line search): none of 1. Diverged, not judge
     return lead + " " + ". ".join(tail) + "."
 
 
+def verdict_list(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown: per claim judged by reading, one line with each reading's verdict and its key number (what the
+    chapter-4 page shows under its answer). ``rows``: ``claims --json``'s rows.
+
+    >>> e = {"reading": "kl-diag", "verdict": "inconclusive", "ours": "0/4 units yes", "judged_on": "params_avg"}
+    >>> print(verdict_list([{"id": "4.3-wind", "readings": [e]}]))
+    - **4.3-wind**: `kl-diag` (on params_avg's runs) *inconclusive*, 0/4 units yes
+    """
+
+    def one(e: Mapping[str, Any]) -> str:
+        on = " (on params_avg's runs)" if e.get("judged_on") == COMPARATOR else ""
+        num = f", {e['ours']}" if e.get("ours") else ""
+        return f"`{e['reading']}`{on} *{e['verdict']}*{num}"
+
+    return "\n".join(f"- **{r['id']}**: " + "; ".join(one(e) for e in r["readings"]) for r in rows if r.get("readings"))
+
+
 def _order(algo: str) -> int:
     ids = reading_ids()
     return ids.index(algo) if algo in ids else len(ids)
