@@ -195,18 +195,3 @@ def files_hash(files: list[Path]) -> str:
         h.update(str(p.relative_to(ROOT) if p.is_relative_to(ROOT) else p).encode())
         h.update(p.read_bytes() if p.exists() else b"<missing>")
     return h.hexdigest()
-
-
-def code_stamp(page: str, modules: list[str] | None) -> str:
-    """Short hash of what a page's saved numbers depend on besides its runs: the kit ``modules`` that wrote them
-    (repository-relative, as :func:`imported_modules` lists them; ``None``: every module), the configuration and
-    thesis data (:func:`data_files`) and the page's notebook. Saved with the numbers, so numbers written by other
-    kit code are reported as stale instead of judged silently; the same dependencies as the book's up-to-date
-    check (:func:`thesis_repro.notebooks.execution_key`), so a page the book keeps is never called stale.
-
-    >>> s = code_stamp("table-3.4", imported_modules())
-    >>> len(s) == 12 and s == code_stamp("table-3.4", imported_modules()) != code_stamp("table-3.3", imported_modules())
-    True
-    """
-    mods = all_modules() if modules is None else [ROOT / m for m in modules]
-    return files_hash([*mods, *data_files(), notebook(page)])[:12]

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from thesis_repro import paths
+from thesis_repro import paths, stamps
 from thesis_repro.claims import registry, report
 
 #: The code-stamp keys of a saved file, kept in the index (not in the data file) so that a refresh after a code
@@ -129,7 +129,7 @@ def ship(scale: str) -> list[str]:
     src = {n: paths.figures(scale) / n for n in files()}
     missing = sorted(page_of(n) for n, p in src.items() if not p.exists())
     blobs = {n: json.loads(p.read_text()) for n, p in src.items() if p.exists()}
-    stale = sorted(page_of(n) for n, b in blobs.items() if report.is_stale(page_of(n), b))
+    stale = sorted(page_of(n) for n, b in blobs.items() if stamps.is_stale(page_of(n), b))
     if missing or stale:
         what = "; ".join(f"{label}: {', '.join(ps)}" for label, ps in (("not run", missing), ("stale", stale)) if ps)
         raise ValueError(f"cannot ship the claims snapshot at {scale} ({what}); run `make book SCALE={scale}` first")
@@ -168,7 +168,7 @@ def check(scale: str) -> dict[str, str]:
             out[name] = "not run here"
             continue
         built = json.loads(p.read_text())
-        if report.is_stale(page_of(name), built):
+        if stamps.is_stale(page_of(name), built):
             out[name] = "stale here"
             continue
         try:
@@ -196,7 +196,7 @@ def refresh_hint(scale: str) -> str:
     if not idx:
         return ""
     differ = [n for n, v in check(scale).items() if v not in ("identical", "not run here", "stale here")]
-    stale = [n for n, e in idx.get("files", {}).items() if report.is_stale(page_of(n), e)]
+    stale = [n for n, e in idx.get("files", {}).items() if stamps.is_stale(page_of(n), e)]
     if not differ and not stale:
         return ""
     parts = [f"{len(differ)} differ from this build's numbers"] if differ else []
