@@ -28,7 +28,8 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, figures, pages
+from thesis_repro import claims, figures
+from thesis_repro.book import pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.1", SCALE)

@@ -30,7 +30,8 @@ SCALE = "small"
 # %%
 import pandas as pd
 
-from thesis_repro import claims, figures, pages
+from thesis_repro import claims, figures
+from thesis_repro.book import pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.6", SCALE)

@@ -32,7 +32,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import seaborn as sns
 
-from thesis_repro import claims, figures, pages
+from thesis_repro import claims, figures
+from thesis_repro.book import pages
 from thesis_repro.evaluation import tables
 from thesis_repro.figures import ch4, plot
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import agent, clips
-from thesis_repro.__main__ import main
+from thesis_repro.book import agent, clips
+from thesis_repro.cli.commands import main
 from thesis_repro.evaluation import score as sc
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -162,7 +162,7 @@ def test_version_flag(capsys):
 
 def readme_example() -> str:
     """The README's "your own agent" example if the README has one (the first python block after a heading
-    naming "own agent"), else :data:`thesis_repro.agent.README_EXAMPLE`."""
+    naming "own agent"), else :data:`thesis_repro.book.agent.README_EXAMPLE`."""
     text = (ROOT / "README.md").read_text()
     m = re.search(r"^#+ .*own agent.*$\n(?:.*\n)*?```python\n(.*?)```", text, re.M | re.I)
     return m.group(1) if m else agent.README_EXAMPLE
@@ -204,7 +204,8 @@ GUIDE = "guide-score-agent"
 def test_the_guide_page_is_a_book_page_the_claims_ledger_ignores(tmp_path):
     import yaml
 
-    from thesis_repro import book, notebooks
+    from thesis_repro.book import builder as book
+    from thesis_repro.book import notebooks
     from thesis_repro.claims import registry
 
     assert GUIDE in notebooks.notebook_ids(guides=True) and GUIDE not in notebooks.notebook_ids()
@@ -221,7 +222,7 @@ def test_the_guide_page_is_a_book_page_the_claims_ledger_ignores(tmp_path):
 
 
 def test_a_guide_page_shows_its_code_and_no_thesis_block():
-    from thesis_repro import book
+    from thesis_repro.book import builder as book
 
     nb = {
         "cells": [

@@ -12,11 +12,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import paths
 from thesis_repro.claims import evidence, ledger, ledger_row, page_verdicts, registry, report, rules, scoreboard
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import synthetic as S
 from thesis_repro.claims.stats import Contrast, CountRule, Unit, null_pass_rate
+from thesis_repro.core import paths
 
 #: The 14 claims issue 21 found never judged, by their registry ids.
 NEVER_JUDGED = [

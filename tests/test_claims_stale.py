@@ -7,9 +7,9 @@ import json
 
 import pytest
 
-from thesis_repro import paths, stamps
 from thesis_repro.claims import cli, ledger, registry, report, store
 from thesis_repro.claims import synthetic as S
+from thesis_repro.core import paths, stamps
 
 SCALE = "small"
 

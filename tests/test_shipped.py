@@ -11,9 +11,12 @@ import re
 
 import pytest
 
-from thesis_repro import paths, provenance, retrain_check, runs, shipped_checks, throughput, verify
-from thesis_repro.cache import RunCache, read_entry
 from thesis_repro.claims import ledger, report, snapshot
+from thesis_repro.cli import verify
+from thesis_repro.core import paths, provenance
+from thesis_repro.core.cache import RunCache, read_entry
+from thesis_repro.runs import layer as runs
+from thesis_repro.runs import retrain_check, shipped_checks, throughput
 
 LAYER = paths.ROOT / "data" / "reference"
 
@@ -22,7 +25,7 @@ def test_every_shipped_run_is_current_and_intact():
     entries = runs.shipped_entries(LAYER)
     if not entries:
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
-    from thesis_repro.study import study_jobs
+    from thesis_repro.runs.study import study_jobs
 
     # the studies' runs are current
     stale = shipped_checks.check_shipped("small", LAYER, also={j.key for j in study_jobs()})

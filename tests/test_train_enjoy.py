@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from thesis_repro import agent
-from thesis_repro.__main__ import main
+from thesis_repro.book import agent
+from thesis_repro.cli.commands import main
 
 
 def test_an_unshipped_run_names_its_cost_and_asks_for_train(monkeypatch, capsys):

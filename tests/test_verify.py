@@ -12,9 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import backends, figures, generator, job_kinds, retrain_check, runs, shipped_checks, verify
-from thesis_repro.__main__ import main
-from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry, save_arrays, write_manifest
+from thesis_repro import figures
+from thesis_repro.cli import verify
+from thesis_repro.cli.commands import main
+from thesis_repro.core import backends, job_kinds
+from thesis_repro.core.cache import Job, Result, RunCache, find_entry, read_entry, save_arrays, write_manifest
+from thesis_repro.runs import generator, retrain_check, shipped_checks
+from thesis_repro.runs import layer as runs
 
 
 # ---------------------------------------------------------------- toy kinds (importable by path: the worker imports us)

@@ -4,7 +4,7 @@ The claims layer (:func:`thesis_repro.claims.judge_page`, the last call of every
 notebook) judges a page's numbers into :class:`Verdict` objects and hands them to ``report(figure, scale,
 verdicts)``, which prints one line per claim (the terminal and the executed notebook), displays each as a
 visible admonition in the book, and writes ``build/<scale>/figures/<figure>.verdicts.json`` for the chapter
-summaries (:mod:`thesis_repro.book`). The figure layer computes numbers only and builds no verdict.
+summaries (:mod:`thesis_repro.book.builder`). The figure layer computes numbers only and builds no verdict.
 
 >>> v = Verdict("3.3", "Training return and testing AUC are negatively correlated",
 ...             REPRODUCES, "15/20 cells negative (thesis: 18/20)")
@@ -25,9 +25,9 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from thesis_repro import paths, stamps
-from thesis_repro.scales import NOT_RUN  # the words a figure's table uses too
-from thesis_repro.validation import check_choice
+from thesis_repro.core import paths, stamps
+from thesis_repro.core.scales import NOT_RUN  # the words a figure's table uses too
+from thesis_repro.core.validation import check_choice
 
 REPRODUCES = "reproduces"
 PARTLY = "partly reproduces"
@@ -184,7 +184,7 @@ def report(figure: str, scale: str, verdicts: Sequence[Verdict], display: bool =
 
 def load(figure: str, scale: str) -> list[Verdict]:
     """Verdicts saved by :func:`report` (empty if the figure was not run at ``scale``); inside a notebook, also
-    those of finished pages (:func:`~thesis_repro.paths.page_output`)."""
+    those of finished pages (:func:`~thesis_repro.core.paths.page_output`)."""
     p = paths.page_output(scale, verdicts_path(figure, scale).name)
     if not p.exists():
         return []
@@ -192,6 +192,7 @@ def load(figure: str, scale: str) -> list[Verdict]:
 
 
 def stale(figure: str, scale: str) -> bool:
-    """Whether the verdicts :func:`load` reads were saved by other kit code (:func:`~thesis_repro.stamps.is_stale`)."""
+    """Whether the verdicts :func:`load` reads were saved by other kit code
+    (:func:`~thesis_repro.core.stamps.is_stale`)."""
     p = paths.page_output(scale, verdicts_path(figure, scale).name)
     return p.exists() and stamps.is_stale(figure, json.loads(p.read_text()))

@@ -45,8 +45,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from thesis_repro import thesis_numbers
-from thesis_repro.validation import check_choice
+from thesis_repro.core import thesis_numbers
+from thesis_repro.core.validation import check_choice
 
 #: Columns that identify one row of a chapter-3 table (a testing condition).
 ROW: tuple[str, ...] = ("env", "test")

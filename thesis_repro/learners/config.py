@@ -27,10 +27,10 @@ from typing import Any
 
 import yaml
 
-from thesis_repro import paths
+from thesis_repro.core import paths
+from thesis_repro.core.validation import check_choice, check_nonneg
 from thesis_repro.envs.make import PERTURBATIONS
 from thesis_repro.envs.registry import short_name
-from thesis_repro.validation import check_choice, check_nonneg
 
 #: Algorithm classes (the ``class`` of an entry): SB3's, and the multi-domain PPOs of ``learners.multidomain``.
 ON_POLICY: tuple[str, ...] = ("PPO", "TRPO", "EPOpt", "MAMLDG", "ReptileDG", "SubPolicyAggregation")
