@@ -128,7 +128,7 @@ def test_agent_commands_give_one_line_errors(argv, expected, capsys, monkeypatch
 
 def test_train_runs_one_job_through_the_cache(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "runs"))
-    job = agent.train_job("ppo", "InvertedPendulum", 0, "smoke")
+    job = agent.training_job("ppo", "InvertedPendulum", 0, "smoke")
     from thesis_repro import figures
 
     assert job in figures.training_jobs("table-3.4", "smoke")  # the book's own job (same key)

@@ -428,7 +428,7 @@ def match_task(task: str) -> str:
     raise ValueError(f"unknown env {task!r}{hint} valid envs are: {listed}")
 
 
-def train_job(algo: str, task: str, seed: int = 0, scale: str = "small", timesteps: int | None = None) -> Job:
+def training_job(algo: str, task: str, seed: int = 0, scale: str = "small", timesteps: int | None = None) -> Job:
     """The chapter-3 training job of ``algo`` on ``task`` with training seed ``seed`` at ``scale``: the one the
     book trains or loads (same config, same cache key), or with ``timesteps`` env steps instead of the book's
     budget (another run, cached under its own key). ``task`` and ``algo`` match case-insensitively; a
@@ -466,7 +466,7 @@ def train_run(
     timesteps: int | None = None,
 ) -> Result:
     """Train (or load, when shipped or cached) one chapter-3 run through the run cache; returns its entry."""
-    job = train_job(algo, task, seed, scale, timesteps)
+    job = training_job(algo, task, seed, scale, timesteps)
     return (cache or RunCache()).run(job)
 
 
@@ -553,6 +553,6 @@ __all__ = [
     "showing_progress",
     "tasks",
     "train_cost",
-    "train_job",
+    "training_job",
     "train_run",
 ]

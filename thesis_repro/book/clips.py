@@ -21,7 +21,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from thesis_repro.book.agent import load_sb3, match_task, train_job
+from thesis_repro.book.agent import load_sb3, match_task, training_job
 from thesis_repro.core import paths, scales
 from thesis_repro.core.cache import RunCache
 from thesis_repro.core.terminal import Progress
@@ -85,7 +85,7 @@ def enjoy(
 
         source = f"SB3 zip {Path(model).name}"
     else:
-        job = train_job(algo, task, seed, scale)
+        job = training_job(algo, task, seed, scale)
         run = (cache or RunCache()).load(job)
         if run is None:
             raise ValueError(
@@ -211,7 +211,7 @@ def clips_key(scale: str, cache: RunCache | None = None) -> str:
     cache = cache or RunCache()
     runs = []
     for algo in CLIPS["learners"]:
-        job = train_job(algo, CLIPS["task"], CLIPS["seed"], scale)
+        job = training_job(algo, CLIPS["task"], CLIPS["seed"], scale)
         runs.append([algo, job.key, cache.state(job)])
     payload = {"clips": CLIPS, "steps": CLIP_STEPS[scale], "runs": runs}
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=list).encode()).hexdigest()[:16]
@@ -245,7 +245,7 @@ def make_clips(scale: str = "small", force: bool = False, cache: RunCache | None
     task, seed = CLIPS["task"], CLIPS["seed"]
     rows: list[dict[str, Any]] = []
     for algo in CLIPS["learners"]:
-        if cache.load(train_job(algo, task, seed, scale)) is None:
+        if cache.load(training_job(algo, task, seed, scale)) is None:
             cmd = f"python -m thesis_repro train {algo} {task} --seed {seed} --scale {scale}"
             rows.append({"algo": algo, "missing": cmd})
             continue
@@ -336,7 +336,7 @@ def book_clips(root: Path, scale: str) -> str:
         return ""
     doc, error = current_clips(scale), None
     cache = RunCache()
-    jobs = [train_job(algo, CLIPS["task"], CLIPS["seed"], scale) for algo in CLIPS["learners"]]
+    jobs = [training_job(algo, CLIPS["task"], CLIPS["seed"], scale) for algo in CLIPS["learners"]]
     if doc is None and all(cache.state(job) in ("missing", "partial") for job in jobs):
         doc = make_clips(scale, cache=cache)  # no policy to render: no renderer, no subprocess
     if doc is None:

@@ -1,15 +1,13 @@
 """What a notebook page prints beside its numbers: where its runs come from and what it hands the claims layer.
 
-The figure layer (:mod:`thesis_repro.figures`) computes numbers only and imports neither
-:mod:`thesis_repro.runs.layer` nor :mod:`thesis_repro.runs.budgets` nor the claims layer (issue 21); both of those
-import
-the figure registry. This module sits above all of them, so imports run one way::
+The figure layer (:mod:`thesis_repro.figures`) computes numbers only and imports no run, claims or book module;
+what a figure needs is asked of :mod:`thesis_repro.runs.needs`, below the generator. This module sits above all of
+them, so imports run one way::
 
-    figures -> (cache, scales, reference, evaluation, learners, ...)
-    runs    -> figures
-    budgets -> figures, runs
+    figures -> (core, evaluation, learners, ...)
+    runs    -> figures (needs, budgets, layer; never the generator on a page's path)
     claims  -> (never figures)
-    pages   -> figures, runs, budgets
+    pages   -> figures, runs.layer, runs.budgets
 
 Every notebook calls ``pages.runs_summary(...)`` after its settings and ``pages.claim_meta(...)`` in its
 verdict cell; pages whose claims carry the trained-runs sensitivity check (Fig 3.3, Table 3.3) pass their frames

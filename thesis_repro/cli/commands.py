@@ -647,7 +647,7 @@ def _train_command(args: argparse.Namespace) -> int:
     from thesis_repro.core import paths, terminal
     from thesis_repro.core.cache import RunCache
 
-    job = agent.train_job(args.algo, args.task, args.seed, args.scale, args.timesteps)
+    job = agent.training_job(args.algo, args.task, args.seed, args.scale, args.timesteps)
     algo, task = job.config["algorithm"], agent.match_task(args.task)
     budget = f", {args.timesteps:,} steps" if args.timesteps else ""
     what = f"{algo} on {task} (seed {args.seed}, scale {args.scale}{budget})"

@@ -1,4 +1,4 @@
-"""The order the reference-run generator makes items in: claims settled per core-hour (issue 46).
+"""The order the reference-run generator makes items in: claims settled per core-hour.
 
 An item (a figure or a table) is worth the claims its runs can settle: a claim whose power figure (design v2's
 calibration, ``seeds_for_80``: the training seeds that give 80 % power) is at most the seeds the item is made to.
@@ -7,7 +7,8 @@ calibration, ``seeds_for_80``: the training seeds that give 80 % power) is at mo
 cheapest first. The order decides only what runs first, never what is judged: every item in the plan is made to
 its target seed count, whatever its early seeds show.
 
-:func:`confirmatory_plan` is issue 46's plan: every chapter-3 item to the requested seeds, chapter 5's CMA-ES
+:func:`confirmatory_plan` is the confirmatory replication's plan: every chapter-3 item to the requested seeds, chapter
+5's CMA-ES
 items to :data:`CH5_TARGET_SEEDS`, and the chapter-4 items only where one of their claims can be settled at the
 requested seed count; a claim no seed was judged on (such as one resting only on kl_avg, whose every run
 diverged) is skipped with the ledger's own reason. ``python -m thesis_repro plan order --scale small --seeds 3 4 5``
@@ -130,7 +131,7 @@ def rank(items: Sequence[Item], claims: Iterable[Claim]) -> list[Ranked]:
     return out
 
 
-# ---------------------------------------------------------------- issue 46's plan
+# ---------------------------------------------------------------- the confirmatory replication's plan
 def chapter(figure_id: str) -> int:
     """The thesis chapter of an item.
 
@@ -276,7 +277,9 @@ def report(p: OrderPlan) -> str:
             f"(or `make book SCALE={p.scale}`), `make ship-claims SCALE={p.scale}` and `make results`"
         )
     if p.left_out:
-        lines.append(f"left out (issue 46 item 1): {'; '.join(f'{f}: {why}' for f, why in p.left_out.items())}")
+        lines.append(
+            f"left out (no claim settled at these seeds): {'; '.join(f'{f}: {why}' for f, why in p.left_out.items())}"
+        )
     if p.skipped:
         lines.append("claims skipped, no seed judged on them: " + "; ".join(f"{c} ({w})" for c, w in p.skipped.items()))
     if p.unsettled:
