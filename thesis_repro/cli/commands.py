@@ -1,4 +1,8 @@
-"""Command line: ``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
+"""Command line, one file on purpose (over 800 lines): the one parser of every command, each handler keeping the one
+error contract below (its ``error:`` line, its exit code) and calling the module that does the work, so nothing
+here is shared with another module.
+
+``python -m thesis_repro figure 3.3 --scale small`` | ``book`` | ``list`` | ``runs 3.3`` |
 ``reference-runs --scale small`` | ``budgets --scale small [--spread]`` | ``plan 3.3 --scale full --cores 64`` |
 ``claims ...`` | ``results [--check]`` | ``verify --scale small -n 20`` | ``bench [NAME ...] [--list]`` |
 ``score model.zip --task Hopper --scale small [--versus ppo]`` | ``train ppo Hopper --seed 0 [--timesteps N]
@@ -8,10 +12,6 @@ line is the ``thesis-repro`` console script.
 
 Output fits the terminal (:mod:`thesis_repro.core.terminal`: ``COLUMNS``); ``--verbose`` or ``--json`` give the full
 text.
-
-One file on purpose (over 600 lines): it is the one parser of every command, and each command's handler keeps the
-one error contract below (its ``error:`` line, its exit code); a handler parses and calls the module that does
-the work, so nothing here is shared with another module.
 
 Every failure a user can cause ends in one ``error: ...`` line on stderr and a non-zero exit code, never a
 traceback: a bad argument or setting (2), a notebook that failed (its own exception, 1), a folder that cannot

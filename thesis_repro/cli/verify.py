@@ -1,7 +1,6 @@
-"""``make verify SCALE=small [N=20] [SEED=...] [TRAIN=1]``: are the shipped numbers real on this machine?
-
-One file on purpose (over 600 lines): it is one command, and each of its parts (which entries, recomputing them
-in a worker, comparing the values, the report) serves only that command.
+"""``make verify SCALE=small [N=20] [SEED=...] [TRAIN=1]``: are the shipped numbers real on this machine? One file
+on purpose (over 800 lines): it is one command, and each of its parts (which entries, recomputing them in a worker,
+comparing the values, the report) serves only that command.
 
 Picks a seeded random sample (seed printed, so a run can be repeated) of ``N`` shipped evaluation entries of a
 scale (``data/reference/evaluate/``, keys made by that scale's figures; ``--kind`` picks other shipped kinds of
