@@ -1,4 +1,4 @@
-"""Your agent under the thesis's protocol (issue 45): score_model with CIs on the book grid, beside the shipped
+"""Your agent under the thesis's protocol: score_model with CIs on the book grid, beside the shipped
 learners, the `score` / `train` / `enjoy` commands and their one-line errors, and the README's example."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Protocol sensitivity in the claims ledger (issue 21 item 6): a protocol study's measured effect (issue 20's
+"""Protocol sensitivity in the claims ledger: a protocol study's measured effect (the thesis protocol's
 lr-schedule study, :mod:`thesis_repro.runs.study`) in the "why" of the claims the registry declares it on."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The registered trained-runs sensitivity check (issue 42 item 5): the same frozen rule on the runs `budgets` calls
+"""The registered trained-runs sensitivity check: the same frozen rule on the runs `budgets` calls
 trained, beside the primary verdict, with the units and runs that remain."""
 
 from __future__ import annotations

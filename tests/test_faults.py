@@ -1,6 +1,6 @@
 """Failures a user can cause: one ``error:`` line (never a traceback) and a non-zero exit code; Ctrl-C exits
 130 with "interrupted; rerun to resume"; a failed or interrupted run leaves the previous outputs intact and
-no kernel files behind; ``runs --check`` and ``runs X.Y`` catch corrupt entries (issue 19, items 2-5).
+no kernel files behind; ``runs --check`` and ``runs X.Y`` catch corrupt entries.
 
 The notebook runs use a toy notebook (``fig-9.1``, seconds each) in a temporary notebooks folder.
 """

@@ -1,4 +1,4 @@
-"""No import circles inside ``thesis_repro`` (issue 47): an AST walk over every module's imports (nested ones too,
+"""No import circles inside ``thesis_repro``: an AST walk over every module's imports (nested ones too,
 as :func:`tests.test_layers.imported` reads them) finds every set of modules that import each other in a circle.
 
 A submodule's import of its own package (``figures/ch3.py``: ``from thesis_repro.figures import register``) is not

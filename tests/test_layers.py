@@ -1,4 +1,4 @@
-"""Imports run one way (issue 21): figures compute numbers, the claims layer judges them.
+"""Imports run one way: figures compute numbers, the claims layer judges them.
 
 An AST scan of the sources (every import, also those inside functions): no figure module imports the claims
 layer or defines a verdict function; the claims layer never imports the figure layer; ``runs.py`` and its siblings

@@ -1,4 +1,4 @@
-"""Workers die with their parent (issue 43 item 3): a run killed with SIGKILL leaves no pool worker behind."""
+"""Workers die with their parent: a run killed with SIGKILL leaves no pool worker behind."""
 
 from __future__ import annotations
 

@@ -136,7 +136,7 @@ def test_plan_of_what_is_missing_leaves_out_finished_runs():
 
 
 def test_plan_reports_cost_per_training_seed():
-    """Issue 22: `plan` reports per seed. Every job counts for its policy's training seed, and the per-seed
+    """The seed regeneration: `plan` reports per seed. Every job counts for its policy's training seed, and the per-seed
     totals add up to the plan's."""
     jobs = figures.jobs("3.3", "smoke", train_seeds=2)
     p = plan.plan_jobs("fig-3.3", jobs, "smoke", cores=2, rates=RATES)

@@ -1,4 +1,4 @@
-"""The training protocol (issue 20): baselines ppo1's linear annealing, the thesis protocol as the only one, and
+"""The training protocol: baselines ppo1's linear annealing, the thesis protocol as the only one, and
 the invariant that a fresh clone's small figure never trains for hours."""
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def test_every_shipped_ppo_run_anneals_or_names_its_schedule():
 def test_each_scale_states_its_seeds_and_rollouts_once():
     """`defaults` of scales.yaml give each scale's seeds and rollouts; a figure block of `small` restates neither
     (Fig 3.2 counts 3 like the rest), but for an item raised to the confirmatory seed count once its fresh seeds
-    are shipped (issue 46), and the caller's explicit override is the last word."""
+    are shipped, and the caller's explicit override is the last word."""
     from thesis_repro.runs.costs import CONFIRMATORY_SEEDS
 
     table = scales._table()
@@ -125,7 +125,7 @@ def test_each_scale_states_its_seeds_and_rollouts_once():
 
 
 def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
-    """Issue 20's invariant while runs change: every training run of every small figure is shipped (a fresh
+    """The thesis protocol's invariant while runs change: every training run of every small figure is shipped (a fresh
     clone, i.e. an empty local cache, evaluates and plots only)."""
     from thesis_repro.core import paths
     from thesis_repro.core.cache import RunCache
@@ -140,7 +140,7 @@ def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
 
 
 def test_small_has_3_seeds_10_rollouts_and_every_learner():
-    """Issue 22's evidence at small: 3 training seeds (6 for an item whose fresh seeds are shipped, issue 46) x 10
+    """The seed regeneration's evidence at small: 3 training seeds (6 for an item whose fresh seeds are shipped) x 10
     test rollouts for every chapter 3-4 item, no learner skipped; chapter 5 keeps its own seeds."""
     small = {fid: scales.figure_settings(fid, "small") for fid in scales.figures()}
     assert {s["protocol"] for s in small.values()} == {"thesis"}
@@ -168,7 +168,8 @@ FRESH_CLONE_EVAL_STEPS = 10_000_000
 
 
 def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
-    """Issue 22: every small evaluation is shipped, so a fresh clone's book loads rather than evaluates for hours;
+    """The seed regeneration: every small evaluation is shipped, so a fresh clone's book loads rather than evaluates
+    for hours;
     no more than :data:`FRESH_CLONE_EVAL_STEPS`."""
     from thesis_repro.core import paths
     from thesis_repro.runs import costs as plan
@@ -191,8 +192,9 @@ def test_a_seed_past_the_confirmatory_target_is_stale(tmp_path):
     from thesis_repro.core import scales
     from thesis_repro.runs import generator, shipped_checks
 
-    at_three = sorted(  # an item with a learner grid the scale table still reads at 3 seeds (issue 46 raises them
-        # one by one): a chapter-3 table first (cheapest to plan), else a figure (issue 46 leaves chapter 4's at 3)
+    # an item with a learner grid the scale table still reads at 3 seeds (the confirmatory replication raises them
+    # one by one): a chapter-3 table first (cheapest to plan), else a figure (it leaves chapter 4's at 3)
+    at_three = sorted(
         (
             f
             for f in scales.figures()

@@ -1,4 +1,4 @@
-"""The protocol page (issue 20, "One table of every deviation"): one row per setting, no setting without a row."""
+"""The protocol page ("One table of every deviation"): one row per setting, no setting without a row."""
 
 from __future__ import annotations
 

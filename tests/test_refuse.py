@@ -1,4 +1,4 @@
-"""Say it, or refuse (issue 43 item 4): a figure whose training runs are neither shipped nor cached refuses with one
+"""Say it, or refuse: a figure whose training runs are neither shipped nor cached refuses with one
 line naming what would train and its cost, unless asked to train; local runs used over shipped ones are said."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Seed spread of the training return beside published numbers (``budgets --spread``, issue 22), and the book
+"""Seed spread of the training return beside published numbers (``budgets --spread``), and the book
 page's block that shows it (``book/runs.md``): every row of that block is recomputed here from the shipped runs,
 restricted to its seeds."""
 

@@ -1,4 +1,4 @@
-"""The storage layer (issue 19): the cache stores, the backends run, job kinds register themselves; evaluations
+"""The storage layer: the cache stores, the backends run, job kinds register themselves; evaluations
 pin their policy's identity; identical computations give identical result files; no temporary leftovers."""
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ import os
 # MuJoCo's offscreen renderer (MUJOCO_GL) is chosen where a task is made to render
 # (thesis_repro.envs.make.prepare_render), never on import.
 
-#: Portable numerics (issue 19 item 6): the same float kernels on every x86-64 CPU, so a run or an evaluation
+#: Portable numerics: the same float kernels on every x86-64 CPU, so a run or an evaluation
 #: gives the same numbers on Intel and AMD. Measured on an AVX-512 Xeon: MKL's CPU dispatch (the sgemm of every
 #: policy forward and PPO update) changes an evaluation's returns in the 7th digit and a training run's weights;
 #: MKL's COMPATIBLE branch is the only one its documentation promises identical on Intel and compatible

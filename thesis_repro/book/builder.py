@@ -369,7 +369,7 @@ def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[s
 
 
 def scoreboard(executed: list[str], scale: str) -> str:
-    """The scoreboard of distinct thesis claims at ``scale``, read from the claims ledger (issue 21:
+    """The scoreboard of distinct thesis claims at ``scale``, read from the claims ledger (the claims ledger:
     :func:`thesis_repro.claims.scoreboard.scoreboard`, the same ledger as ``python -m thesis_repro claims``),
     with the beyond-the-thesis count and the method section (each rule's null pass rate). ``executed`` is
     kept for the caller; the ledger judges every registered claim from the numbers the pages saved."""

@@ -1,4 +1,4 @@
-"""Registered subset sensitivity (issue 42, item 5): a claim's frozen v2 rule judged again on a subset of its runs.
+"""Registered subset sensitivity: a claim's frozen v2 rule judged again on a subset of its runs.
 
 A claim entry may carry ``sensitivity_subset: trained`` in ``data/thesis/claims.yaml`` (outside its ``rule:`` and
 ``v2:`` blocks, so outside the design's hashes: :func:`thesis_repro.claims.design.rule_hashes`). Its page saves a

@@ -92,7 +92,7 @@ def run(names: Iterable[str] | None = None) -> dict[str, Mapping[str, Any] | Non
             print(f"  {name}.{key} = {text}")
         print(f"[{name}] done in {time.perf_counter() - t0:.1f}s\n", flush=True)
     if TARGET_LINES:
-        print("Targets (issue 7; steps per CPU-second, ratios):")
+        print("Targets (steps per CPU-second, ratios):")
         for line in TARGET_LINES:
             print(f"  {line}")
     return results

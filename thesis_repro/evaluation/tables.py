@@ -17,7 +17,7 @@
   baseline), or ``(AUC_method − AUC_baseline) / max_m |AUC_m|`` over the methods of the row (``how="max"``),
   then average over tasks.
 
-* **Confidence intervals across training seeds** (issue 21: the training seed is the unit of replication,
+* **Confidence intervals across training seeds** (the training seed is the unit of replication,
   never the testing rollout): per seed, the mean over its rollouts; then the two-sided t-interval of the mean
   over the seeds (:func:`t_interval`, ``scipy.stats.t.interval`` with ``n_seeds − 1`` degrees of freedom, level
   :data:`CI_LEVEL`) — :func:`seed_ci` for table cells, :func:`seed_change_ci` for the bars of Figs 3.5/3.6,

@@ -7,7 +7,7 @@ every :class:`~thesis_repro.core.cache.Job` it runs for given settings (training
 runs without executing its notebook. Settings always come from the one scale table
 (:func:`thesis_repro.core.scales.figure_settings`).
 
-Imports run one way (issue 21): :mod:`thesis_repro.runs.layer` and :mod:`thesis_repro.runs.budgets` import this
+Imports run one way: :mod:`thesis_repro.runs.layer` and :mod:`thesis_repro.runs.budgets` import this
 registry, so no figure module imports them (nor the claims layer), not even at call time; what a notebook
 page prints about its runs and hands the claims layer lives in :mod:`thesis_repro.book.pages`
 (``tests/test_layers.py`` enforces both).

@@ -1,6 +1,6 @@
 """Chapter 4, Figures 4.1-4.7 (kl_avg, kl_exact vs params_avg, joint): job grids and tidy frames.
 
-Every figure trains the thesis's kl_avg (Eq 4.11) and our kl_exact (the exact Eq 4.7 minimiser, issue 12)
+Every figure trains the thesis's kl_avg (Eq 4.11) and our kl_exact (the exact Eq 4.7 minimiser)
 beside the baselines params_avg and joint; the claims layer (:mod:`thesis_repro.claims`) judges each claim
 for each of the two aggregates, against params_avg and joint only.
 

@@ -1,6 +1,6 @@
 """Training throughput (env steps per CPU-second, gradient updates included) of the kit's learners vs SB3.
 
-One line per target of issue 7, each ``measured value, ratio, target, met/not met``:
+One line per throughput target, each ``measured value, ratio, target, met/not met``:
 
 * **PPO** (Appendix-A settings: 8 envs × 256 steps, batch 64, 10 epochs, 64-64 tanh; the kit's
   :class:`~thesis_repro.learners.fast.FastPPO` + lean stepping) vs SB3's 1-env default
@@ -52,7 +52,7 @@ from thesis_repro.envs.registry import resolve_env
 from thesis_repro.learners import train as tr
 from thesis_repro.learners.config import train_config
 
-#: issue 7's throughput targets (ratios)
+#: the throughput targets (ratios)
 TARGETS: dict[str, float] = {"ppo": 3.0, "sac": 2.0, "ddpg": 2.0, "multidomain": 0.8}
 
 _clock = time.process_time

@@ -1,6 +1,6 @@
 """Are a scale's training runs in the trained regime? Learning-curve statistics of every training run.
 
-Issue 7's rule: at ``small`` a policy should be near its plateau, i.e. its training return at least ~70 %
+The trained-regime rule: at ``small`` a policy should be near its plateau, i.e. its training return at least ~70 %
 of what the same learner reaches at the thesis's 4e6 steps, or of the thesis's own reported training
 return where it gives one (Table 3.3a: Walker2d, PPO and its noise-trained variants). Where the thesis
 gives no training return we cannot afford 4e6-step runs to compare with, so the return at 4e6 is
@@ -43,7 +43,7 @@ TABLE_3_3A_ALGOS: dict[str, str] = {
     "env": "ppo-envnoise",
     "mdl": "ppo-mdl",
 }
-#: Fraction of the thesis's training return that counts as trained (issue 7).
+#: Fraction of the thesis's training return that counts as trained.
 TRAINED_FRACTION = 0.7
 #: Largest reward of one step where the task bounds it (Gymnasium v5): InvertedPendulum +1 per step alive;
 #: InvertedDoublePendulum its alive bonus 10 minus non-negative distance/velocity penalties. An episode
@@ -271,7 +271,7 @@ def render(frame: pd.DataFrame) -> str:
     return f"{text}\n{len(frame)} training runs: {summary}, {missing} not trained yet"
 
 
-# ---------------------------------------------------------------- seed spread (issue 22)
+# ---------------------------------------------------------------- seed spread
 #: Episodes averaged for the training return at ``at`` env steps in :func:`spread`: the last 100 training
 #: episodes finished by then (:func:`thesis_repro.figures.ch3.training_return_at`), the window openrlbenchmark
 #: averages per seed for CleanRL's published table (``data/public``).
@@ -425,7 +425,7 @@ def aggregate_seeds(runs_frame: pd.DataFrame) -> pd.DataFrame:
 
 
 def spread(runs: pd.DataFrame) -> pd.DataFrame:
-    """Seed spread of the training return of every learner and task (issue 22) of the per-run frame ``runs`` of
+    """Seed spread of the training return of every learner and task of the per-run frame ``runs`` of
     :func:`seed_runs` (cached or shipped runs only, nothing is trained): one row per setting
     (:data:`SPREAD_GROUP`) with the seeds found, ``n`` and mean ± sd (ddof 1) of the final training return
     (episodes ending in the last 10 % of the budget) and, where ``runs`` has it, of the return at ``at`` steps

@@ -48,7 +48,7 @@ def training_seed(job: Job) -> int | None:
     return None
 
 
-#: The confirmatory replication (issue 46) makes chapters 3-4 to this many training seeds...
+#: The confirmatory replication makes chapters 3-4 to this many training seeds...
 CONFIRMATORY_SEEDS = 6
 #: ... and chapter 5's CMA-ES items to this many (they cost minutes per seed).
 CH5_TARGET_SEEDS = 10

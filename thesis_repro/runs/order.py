@@ -197,7 +197,8 @@ def claims_from(rows: Iterable[Mapping[str, Any]]) -> list[Claim]:
 
 @dataclass
 class OrderPlan:
-    """Issue 46's plan in order: the ranked items, the items left out and the skipped claims (with why)."""
+    """The confirmatory replication's plan in order: the ranked items, the items left out and the skipped claims (with
+    why)."""
 
     scale: str
     seeds: list[int]
@@ -216,7 +217,7 @@ def confirmatory_plan(
     missing: bool = False,
     figure_ids: Iterable[str] | None = None,
 ) -> OrderPlan:
-    """Issue 46's plan for ``seeds`` at ``scale`` in the order of :func:`rank`: every item of
+    """The confirmatory replication's plan for ``seeds`` at ``scale`` in the order of :func:`rank`: every item of
     :data:`EVERY_ITEM_CHAPTERS` (chapter 5's to :data:`CH5_TARGET_SEEDS`), the other items only where one of their
     claims can be settled at their target; ``figure_ids``: those items instead, every one of them ranked; ``missing``
     prices only what is not made yet. Pure but for the pricing (:func:`priced_runs`)."""
