@@ -111,7 +111,7 @@ def test_each_scale_states_its_seeds_and_rollouts_once():
     """`defaults` of scales.yaml give each scale's seeds and rollouts; a figure block of `small` restates neither
     (Fig 3.2 counts 3 like the rest), but for an item raised to the confirmatory seed count once its fresh seeds
     are shipped, and the caller's explicit override is the last word."""
-    from thesis_repro.runs.costs import CONFIRMATORY_SEEDS
+    from thesis_repro.runs.needs import CONFIRMATORY_SEEDS
 
     table = scales._table()
     assert (table["defaults"]["small"]["train_seeds"], table["defaults"]["small"]["test_rollouts"]) == (3, 10)

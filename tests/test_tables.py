@@ -205,7 +205,7 @@ def test_items_share_runs_with_fig_3_3_and_each_other():
 def test_budgets_are_fig_3_3s():
     """Every chapter-3 item trains with Fig 3.3's budgets; at small an item whose fresh seeds are shipped reads
     the confirmatory seed count instead of Fig 3.3's."""
-    from thesis_repro.runs.costs import CONFIRMATORY_SEEDS
+    from thesis_repro.runs.needs import CONFIRMATORY_SEEDS
 
     for item in ITEMS:
         for scale in ("smoke", "small", "full"):
