@@ -29,7 +29,6 @@ from typing import Any
 
 import pandas as pd
 
-from thesis_repro import paths
 from thesis_repro.claims import calibration, design, report, snapshot
 from thesis_repro.claims import judge as J
 from thesis_repro.claims import judge_v3 as J3
@@ -45,6 +44,7 @@ from thesis_repro.claims.registry import Spec, spec, specs
 from thesis_repro.claims.rules import rule_for, thesis_effects
 from thesis_repro.claims.stats import LEVEL, CountRule, Unit, combine_bounded, combine_groups, null_pass_rate, pooled
 from thesis_repro.claims.store import in_pass, make_target, one_pass, page_data, read_json, saved_blob
+from thesis_repro.core import paths
 
 NULL_DRAWS = 60
 

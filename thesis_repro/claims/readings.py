@@ -37,7 +37,7 @@ from thesis_repro.claims.registry import Spec
 
 #: A pilot's outcome: it trains and differs from params_avg, it reduces to params_avg, or it diverged.
 DISTINCT, PARAMS_AVG, PILOT_DIVERGED = "distinct", "reduces to params_avg", "diverged in its pilot"
-#: The pilot summary the outcomes come from (``python -m thesis_repro.pilots ch4-readings`` writes it).
+#: The pilot summary the outcomes come from (``python -m thesis_repro.runs.pilots ch4-readings`` writes it).
 PILOTS = "ch4-readings"
 #: The learner whose runs a reading that reduces to parameter averaging is judged on.
 COMPARATOR = "params_avg"
@@ -52,7 +52,7 @@ def column(algo: str) -> str:
 def outcomes() -> dict[str, str]:
     """Each reading's pilot outcome (:data:`DISTINCT`, :data:`PARAMS_AVG` or :data:`PILOT_DIVERGED`), in the order
     of the readings table, from the shipped pilot summary ({} when none is shipped)."""
-    from thesis_repro import pilots  # local: the pilots load the learners (torch) only when asked
+    from thesis_repro.runs import pilots  # local: the pilots load the learners (torch) only when asked
 
     try:
         table = pilots.pilot_table(pilots.load_summary(PILOTS))
