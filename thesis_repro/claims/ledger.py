@@ -133,7 +133,7 @@ def judge_readings(
     gated label with its primary statistic, *diverged, not judged* where the reading diverged, *not computed*
     where it is stable and distinct but not trained on the claim's pages."""
     out = []
-    for algo, outcome, how in R.plan(frames):
+    for algo, outcome, how in R.routes(frames):
         if how == "diverged":
             out.append(R.entry(algo, outcome, how, R.DIVERGED, note=R.diverged_note(how)))
             continue

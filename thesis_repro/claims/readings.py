@@ -108,7 +108,7 @@ def applies(s: Spec) -> bool:
     return s.id in design.READING_CLAIMS
 
 
-def plan(frames: Mapping[str, pd.DataFrame]) -> list[tuple[str, str, str]]:
+def routes(frames: Mapping[str, pd.DataFrame]) -> list[tuple[str, str, str]]:
     """Per reading: ``(algo, outcome, how)`` where ``how`` is ``"judge"`` (its runs are on the pages),
     ``"params_avg"`` (judged on params_avg's runs), ``"diverged"`` (its pilot diverged) or ``"not trained"``."""
     have = {a for f in frames.values() if isinstance(f, pd.DataFrame) and "algo" in f.columns for a in f["algo"]}
