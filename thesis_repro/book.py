@@ -175,18 +175,33 @@ def clean_outputs(outputs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return kept
 
 
+def verdict_line(v: report.Verdict) -> str:
+    """A verdict's one line for a page: design v3's label with design v2's beside it, then the rest of its
+    headline (id · claim · thesis · ours with its CI), or its claim when it was saved without one.
+
+    >>> v = report.Verdict("3.3", "c", report.INCONCLUSIVE, headline="inconclusive · 3.3-x · l. 5 c", v2="reproduces")
+    >>> verdict_line(v)
+    '**inconclusive** (v2: reproduces) · 3.3-x · l. 5 c'
+    """
+    rest = v.headline.partition(" · ")[2] if v.headline else v.claim
+    beside = f" ({v.v2_text()})" if v.v2 else ""
+    return f"**{v.status}**{beside} · {_escape_md(rest)}"
+
+
 def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
-    """The page's verdicts first, one line per claim (label · claim · thesis · ours with its CI; a verdict saved
-    without that line: its status and claim), each with its confirmatory line under it when the fresh seeds are
-    judged, or None when the page saved none; each verdict's evidence stays at the end of the page."""
+    """The page's verdicts first, one line per claim (:func:`verdict_line`), each with its confirmatory line under
+    it when the fresh seeds are judged, or None when the page saved none; each verdict's evidence stays at the end
+    of the page."""
     lines = [
-        f"- {_escape_md(v.headline or f'{v.status} · {v.claim}')}"
-        + (f"\n  - *{_escape_md(v.confirmatory)}*" if v.confirmatory else "")
+        f"- {verdict_line(v)}" + (f"\n  - *{_escape_md(v.confirmatory)}*" if v.confirmatory else "")
         for v in report.load(page, scale)
     ]
     if not lines:
         return None
-    head = "**Verdicts** (claims design v2; each one's evidence is at the end of the page):\n\n"
+    head = (
+        "**Verdicts** (claims design v3, design v2's verdict beside each; each one's evidence is at the end of the "
+        "page):\n\n"
+    )
     return md_cell(head + "\n".join(lines))
 
 
@@ -340,31 +355,35 @@ def _escape(text: str) -> str:
 
 
 def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[str, str] | None = None) -> str:
-    """Markdown table of the verdicts of a chapter's pages at ``scale``, each with its one line (its evidence when it
-    has none; the full evidence is on its page); pages without one are listed too, with ``notes[page]`` as the
-    reason, else "not in this build"."""
+    """The verdicts of a chapter's pages at ``scale``: per page, one line per claim (:func:`verdict_line`: design
+    v3's label with v2's beside it; the saved evidence for a verdict without a one-line headline; the full evidence
+    is on its page), a list rather than a table so the line keeps the text column's width; pages without a verdict
+    are listed too, with ``notes[page]`` as the reason, else "not in this build"."""
     pages = [notebooks.page_id(n) for n in executed if notebooks.chapter(n) == chapter]
     known = [p for p in claims() if p.split("-", 1)[1].split("-")[0].split(".")[0] == chapter]
-    rows = ["| page | claim | verdict | evidence |", "|---|---|---|---|"]
+    items = []
     for page in pages:
         verdicts = report.load(page, scale)
         link = f"{{doc}}`{title(page)} <executed/{page}>`"
         if not verdicts:
-            rows.append(f"| {link} | (no verdict written) | {NO_VERDICT} | |")
-        for v in verdicts:  # the verdict's one line (thesis · ours with its CI); its full evidence is on the page
-            shown = v.headline.partition(" · ")[2] if v.headline else v.evidence
-            rows.append(f"| {link} | {_escape(v.claim)} | **{v.status}** | {_escape(shown)} |")
-    missing = [p for p in known if p not in pages]
-    for page in missing:
+            items.append(f"- {link}: {NO_VERDICT} (no verdict written)")
+            continue
+        lines = [  # each verdict's one line; a verdict saved without one shows its evidence (escaped: one line)
+            f"  - {verdict_line(v)}" + ("" if v.headline or not v.evidence else f": {_escape_md(_escape(v.evidence))}")
+            for v in verdicts
+        ]
+        items.append(f"- {link}\n" + "\n".join(lines))
+    for page in (p for p in known if p not in pages):
         why = _escape((notes or {}).get(page, "not in this build"))
-        rows.append(f"| {title(page)} | {_escape(claims()[page]['title'])} | {NO_VERDICT} | {why} |")
+        items.append(f"- {title(page)} ({_escape(claims()[page]['title'])}): {NO_VERDICT}: {why}")
     head = f"\n\n## Verdicts at scale `{scale}`\n\n"
-    note = (
-        "\n\nOne row per claim judged by the kit; *thesis* numbers come from `data/thesis/`, *reproduced* "
-        "ones from this build's runs. Pages of the thesis with no notebook (or not executed) are listed "
-        "as *no verdict*.\n"
+    lead = (
+        "One line per claim judged by the kit: design v3's verdict, design v2's beside it (*v2: same* when they "
+        "agree), then the claim, the thesis's number and ours with its 95 % CI. *Thesis* numbers come from "
+        "`data/thesis/`, ours from this build's runs; each page holds the evidence. Pages of the thesis with no "
+        "notebook (or not executed) are listed as *no verdict*.\n\n"
     )
-    return head + "\n".join(rows) + note
+    return head + lead + "\n".join(items) + "\n"
 
 
 def scoreboard(executed: list[str], scale: str) -> str:
