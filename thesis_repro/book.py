@@ -1,7 +1,7 @@
 """Build the Jupyter Book (1.x, offline) of one scale: the thesis's claims, each page with its verdict.
 
 One file on purpose (over 600 lines): every part serves :func:`build` alone (the command line is its only caller)
-and changes with the book's layout: staging, the reader's copy of each executed page, the chapter tables and the
+and changes with the book's layout: staging, the reader's copy of each executed page, the chapter verdict lists and the
 scoreboard, the table of contents, the progress lines and the pending / failed pages. What other commands share
 lives in their own modules (:mod:`thesis_repro.notebooks`: execution keys; :mod:`thesis_repro.pages`: a page's
 runs; :mod:`thesis_repro.clips`: the clips; :mod:`thesis_repro.claims`: the verdicts).
@@ -11,7 +11,7 @@ runs; :mod:`thesis_repro.clips`: the clips; :mod:`thesis_repro.claims`: the verd
 * one page per executed notebook (``executed/<page id>.ipynb``), *cleaned for readers*: progress bars,
   stderr and log lines removed, the parameters cells dropped, code inputs collapsed, and the thesis's
   caption and claims (``data/thesis/claims.yaml``) inserted under the page title;
-* at the end of each ``chapter-N.md`` a table of the chapter's verdicts (from the notebooks'
+* at the end of each ``chapter-N.md`` a list of the chapter's verdicts, one line each (from the notebooks'
   ``build/<scale>/figures/<page id>.verdicts.json``), and at the end of ``intro.md`` a scoreboard of the
   whole thesis at that scale;
 * the table of contents (``_toc.yml``): chapter pages, each with its figures, then tables, then analyses;
