@@ -293,15 +293,19 @@ LAYOUT_JS = r"""
       if (el.tagName === 'IMG') {
         item.natural = [el.naturalWidth, el.naturalHeight];
         item.linked = !!el.closest('a[href]');
-      } else {  // per column: its width in ems and the most lines any of its cells wraps to
+      } else {  // per column: its width in ems and the most lines any of its cells' text wraps to
         const cols = [];
         el.querySelectorAll('tr').forEach(function (tr) {
           Array.from(tr.children).forEach(function (c, i) {
             const st = getComputedStyle(c), em = parseFloat(st.fontSize) || 16;
-            const line = parseFloat(st.lineHeight) || 1.5 * em;
-            const inner = c.clientHeight - parseFloat(st.paddingTop) - parseFloat(st.paddingBottom);
             const w = (c.clientWidth - parseFloat(st.paddingLeft) - parseFloat(st.paddingRight)) / em;
-            const lines = Math.round(inner / line);
+            // the text's own lines (distinct line tops), not the cell's height: a row made tall by another cell
+            // does not wrap this one
+            const range = document.createRange();
+            range.selectNodeContents(c);
+            const tops = Array.from(range.getClientRects()).filter(function (r) { return r.width > 0; })
+              .map(function (r) { return r.top; }).sort(function (a, b) { return a - b; });
+            const lines = tops.filter(function (t, k) { return k === 0 || t - tops[k - 1] > 0.6 * em; }).length;
             if (!cols[i]) cols[i] = {em: w, lines: lines};
             else { cols[i].em = Math.min(cols[i].em, w); cols[i].lines = Math.max(cols[i].lines, lines); }
           });
