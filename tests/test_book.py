@@ -294,9 +294,16 @@ LAYOUT_JS = r"""
         item.natural = [el.naturalWidth, el.naturalHeight];
         item.linked = !!el.closest('a[href]');
       } else {  // per column: its width in ems and the most lines any of its cells' text wraps to
-        const cols = [];
-        el.querySelectorAll('tr').forEach(function (tr) {
-          Array.from(tr.children).forEach(function (c, i) {
+        const cols = [], taken = [];  // taken[row][column]: a cell above spans into it (rowspan)
+        el.querySelectorAll('tr').forEach(function (tr, r) {
+          let k = 0;
+          Array.from(tr.children).forEach(function (c) {
+            while (taken[r] && taken[r][k]) k++;
+            const cs = c.colSpan || 1, i = k;
+            for (let dr = 0; dr < (c.rowSpan || 1); dr++)
+              for (let dc = 0; dc < cs; dc++) (taken[r + dr] = taken[r + dr] || [])[k + dc] = true;
+            k += cs;
+            if (cs > 1) return;  // a cell spanning columns says nothing of one column's width
             const st = getComputedStyle(c), em = parseFloat(st.fontSize) || 16;
             const w = (c.clientWidth - parseFloat(st.paddingLeft) - parseFloat(st.paddingRight)) / em;
             // the text's own lines (distinct line tops), not the cell's height: a row made tall by another cell

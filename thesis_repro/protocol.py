@@ -160,6 +160,11 @@ def counts(table: Sequence[Mapping[str, Any]] | None = None) -> Counter:
     return Counter(r["status"] for r in (table or rows()))
 
 
+def _nowrap(text: Any) -> str:
+    """A short cell kept to one line (no-break spaces), so the long columns of its table get the width."""
+    return _cell(text).replace(" ", "\u00a0")
+
+
 def _row(cells: Iterable[Any]) -> str:
     return "| " + " | ".join(_cell(c) for c in cells) + " |"
 
@@ -201,7 +206,7 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
             "",
             "| Group | Item | Thesis | Kit | Why |",
             "|---|---|---|---|---|",
-            *(_row([r["group"], r["item"], r["thesis"], r["kit"], r.get("reason", "")]) for r in deviations),
+            *(_row([_nowrap(r["group"]), r["item"], r["thesis"], r["kit"], r.get("reason", "")]) for r in deviations),
             "",
         ]
     else:
@@ -220,7 +225,7 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
             "|---|---|---|---|---|",
         ]
         for r in members:
-            status = f"**{r['status']}**" if r["status"] == "deviation" else r["status"]
+            status = f"**{r['status']}**" if r["status"] == "deviation" else _nowrap(r["status"])
             lines.append(_row([r["item"], r["thesis"], r["kit"], status, r.get("reason", "")]))
         lines += ["", "</details>", ""]
     return "\n".join(lines)
