@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import html
+import re
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from fnmatch import fnmatchcase
@@ -152,7 +153,8 @@ def unused_patterns(ids: Iterable[str] | None = None, table: Sequence[Mapping[st
 
 # ---------------------------------------------------------------------------------------- the page
 def _cell(text: Any) -> str:
-    return " ".join(str(text or "").split()).replace("|", "\\|")
+    """One table cell: its text on one line (runs of ASCII whitespace as one space; a no-break space stays)."""
+    return re.sub(r"[ \t\r\n]+", " ", str(text or "")).strip(" ").replace("|", "\\|")
 
 
 def counts(table: Sequence[Mapping[str, Any]] | None = None) -> Counter:

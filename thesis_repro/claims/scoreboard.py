@@ -228,9 +228,9 @@ def method(rows: Sequence[Row]) -> str:
         fr = "n/a" if c.get("false_reproduces") is None else f"{c['false_reproduces']:.3f}"
         fd = "n/a" if c.get("false_does_not") is None else f"{c['false_does_not']:.3f}"
         seeds = c.get("seeds_for_80", "n/a") if c else "n/a"
-        seeds = "> 128" if c and seeds is None else seeds
+        seeds = ">\u00a0128" if c and seeds is None else seeds
         tag = " (beyond)" if r.spec.beyond else ""
-        level = ", ".join(x for x in (r.level, "" if r.margin is None else f"{r.margin:g}") if x) or "-"
+        level = ",\u00a0".join(x for x in (r.level, "" if r.margin is None else f"{r.margin:g}") if x) or "-"
         v2 = r.v2_status or r.status
         out.append(
             f"| {r.spec.id}{tag} | {level} | {SHORT.get(r.status, r.status)} | {SHORT.get(v2, v2)} | {fr} | {fd} "

@@ -238,12 +238,12 @@ def thesis_label(item: str) -> str:
 
 
 def bars_text(b: pd.DataFrame, item: str) -> pd.DataFrame:
-    """The bars of :func:`bars` as a table for the page: rows panel × method, columns test × source (the thesis's
-    bars labelled by :func:`thesis_label`), changes to 3 decimals."""
+    """The bars of :func:`bars` as a table for the page: rows panel × method, columns source × test (the thesis's
+    bars labelled by :func:`thesis_label`, over its tests: the long label spans them), changes to 3 decimals."""
     labels = {"thesis": thesis_label(item), "reproduced": "reproduced"}
     return (
         b.assign(source=b["source"].map(labels))
-        .pivot_table(index=["panel", "method"], columns=["test", "source"], values="change", sort=False)
+        .pivot_table(index=["panel", "method"], columns=["source", "test"], values="change", sort=False)
         .round(3)
     )
 
