@@ -94,7 +94,8 @@ def test_an_under_trained_variant_turning_the_pooled_correlation_is_shown():
     alone = _judge("3.3-negative-correlation", "fig-3.3", {"points": p[p["trained"]]})
     for key in ("estimate", "ci", "n_seeds", "units"):
         assert sub["primary"]["pooled"][key] == alone.primary["pooled"][key]
-    assert sub["line"].startswith("sensitivity, trained runs only (90/105 runs, 20/20 units): reproduces (v2: same) · pooled r -")
+    head = "sensitivity, trained runs only (90/105 runs, 20/20 units): reproduces (v2: same) · pooled r -"
+    assert sub["line"].startswith(head)
 
 
 def test_units_that_lose_their_runs_are_counted():
