@@ -52,10 +52,10 @@ def test_one_seed_has_no_sd_and_a_missing_value_stays_missing():
     assert np.isnan(out.loc["Hopper", "at_mean"]) and out.loc["Hopper", "final_mean"] == 2100.0  # not the mean of one
     text = budgets.render_spread(budgets.aggregate_seeds(frame), at=AT, published=thesis_numbers.published())
     text = text.replace(budgets.NBSP, " ")  # short cells keep to one line: no-break spaces
-    assert "| ppo | Walker2d | thesis | 0 | 1M | 3,000 (1 seed) | 2,500 (1 seed) |" in text
-    assert "| ppo | Hopper | thesis | 0, 1 | 1M | 2,100 ± 141 | - |" in text
+    assert "| ppo, Walker2d | thesis | 0 | 1M | 3,000 (1 seed) | 2,500 (1 seed) |" in text
+    assert "| ppo, Hopper | thesis | 0, 1 | 1M | 2,100 ± 141 | - |" in text
     # the published numbers: a second table, beside ours at equal steps
-    assert "| ppo | Walker2d | 1M | 2,288 ± 572 (CleanRL, v4, 1M) |" in text.split("\n\n", 1)[1]
+    assert "| ppo, Walker2d | 1M | 2,288 ± 572 (CleanRL, v4, 1M) |" in text.split("\n\n", 1)[1]
 
 
 def test_two_runs_of_one_seed_in_a_row_are_an_error():
@@ -146,7 +146,8 @@ def _readme_block() -> tuple[str, list[str], list[str]]:
 
 def _parse(line: str) -> dict:
     cells = [c.strip() for c in line.strip().strip("|").split("|")]
-    learner, task, protocol, seeds, steps = cells[:5]
+    who, protocol, seeds, steps = cells[:4]
+    learner, _, task = who.rpartition(", ")
     algorithm, _, setting = learner.partition(" ")
     return {
         "algorithm": algorithm,

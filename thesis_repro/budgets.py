@@ -489,14 +489,14 @@ def published_cell(algorithm: str, env: str, table: pd.DataFrame, steps: Iterabl
 
 
 def render_spread(frame: pd.DataFrame, at: int | None = None, published: pd.DataFrame | None = None) -> str:
-    """:func:`spread` as markdown tables: learner (with its ``[setting]``), task, protocol, seeds, steps, final
-    training return mean ± sd, with ``at`` the return at ``at`` steps; then, for the rows with one, the published
-    results of the same learner on the task at equal steps (:func:`published_cell`; ``published`` defaults to
-    :func:`thesis_repro.thesis_numbers.published`) in a second table (learner, task, steps, published): two short
-    tables read at a laptop's width, one wide one squeezes its columns. ``(1 seed)`` marks a row without spread,
-    ``-`` a missing value."""
+    """:func:`spread` as markdown tables: learner (with its ``[setting]``) and task in one cell (``ppo, Hopper``),
+    protocol, seeds, steps, final training return mean ± sd, with ``at`` the return at ``at`` steps; then, for the
+    rows with one, the published results of the same learner on the task at equal steps (:func:`published_cell`;
+    ``published`` defaults to :func:`thesis_repro.thesis_numbers.published`) in a second table (learner and task,
+    steps, published): two short tables read at a laptop's width, one wide one squeezes its columns. ``(1 seed)``
+    marks a row without spread, ``-`` a missing value."""
     published = thesis_numbers.published() if published is None else published
-    head = ["learner", "task", "protocol", "seeds", "steps", "final return"]
+    head = ["learner, task", "protocol", "seeds", "steps", "final return"]
     if at is not None:
         head.append(f"at {steps_label(at)}")
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -504,7 +504,7 @@ def render_spread(frame: pd.DataFrame, at: int | None = None, published: pd.Data
     for _, r in frame.iterrows():
         learner = r["algorithm"] + (f" [{r['setting']}]" if r["setting"] else "")
         seeds = f",{NBSP}".join(str(s) for s in r["seeds"])
-        cells = [learner, r["env"], r["protocol"], seeds, steps_label(r["timesteps"])]
+        cells = [f"{learner}, {r['env']}", r["protocol"], seeds, steps_label(r["timesteps"])]
         cells.append(_mean_sd(r["final_mean"], r["final_sd"], r["n"]))
         if at is not None:
             cells.append(_mean_sd(r["at_mean"], r["at_sd"], r["n"]))
@@ -512,7 +512,7 @@ def render_spread(frame: pd.DataFrame, at: int | None = None, published: pd.Data
         equal = [int(r["timesteps"])] + ([int(at)] if at is not None and np.isfinite(r["at_mean"]) else [])
         cell = published_cell(r["algorithm"], r["env"], published, steps=equal)
         if cell:
-            beside.append(f"| {learner} | {r['env']} | {steps_label(r['timesteps'])} | {cell} |")
+            beside.append(f"| {learner}, {r['env']} | {steps_label(r['timesteps'])} | {cell} |")
     if beside:
-        lines += ["", "| learner | task | steps | published (source, version, steps) |", "|---|---|---|---|", *beside]
+        lines += ["", "| learner, task | steps | published (source, version, steps) |", "|---|---|---|", *beside]
     return "\n".join(lines)

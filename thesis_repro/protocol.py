@@ -206,9 +206,9 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
         lines += [
             f"The {len(deviations)} settings where the kit departs from the thesis, each with its reason:",
             "",
-            "| Group | Item | Thesis | Kit | Why |",
-            "|---|---|---|---|---|",
-            *(_row([_nowrap(r["group"]), r["item"], r["thesis"], r["kit"], r.get("reason", "")]) for r in deviations),
+            "| Setting (group) | Thesis | Kit | Why |",
+            "|---|---|---|---|",
+            *(_row([f"{r['item']} ({r['group']})", r["thesis"], r["kit"], r.get("reason", "")]) for r in deviations),
             "",
         ]
     else:

@@ -220,7 +220,7 @@ def method(rows: Sequence[Row]) -> str:
         "One row per claim: its level and margin, its verdict under design v3 and v2, v3's calibration (the share "
         "of null draws judged *reproduces*, false R, and of draws at the margin judged *does not*, false D) and the "
         "training seeds at which 80 % of draws at the thesis's effect reproduce.\n",
-        "| claim | level, margin | verdict | v2 | false\u00a0R | false\u00a0D | seeds (80\u00a0%) |",
+        "| claim | level, margin | verdict | v2 | false\u00a0R | false\u00a0D | seeds\u00a0(80\u00a0%) |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in rows:
