@@ -249,6 +249,9 @@ WINDOW = (1280, 900)
 FIRST_SCREEN = 1400
 #: A figure shown at under this fraction of the width it was drawn at is too small to read unless it enlarges.
 MIN_SHOWN = 0.5
+#: A table column whose text wraps must be at least this many ems wide (about 12 characters): narrower, words
+#: break mid-word and a row grows tall.
+MIN_COLUMN_EM = 6.0
 #: Titles that open a verdict: a claim's admonition, the page's verdict list, a chapter's or the book's summary.
 VERDICT_TITLE = (
     r"^((" + "|".join(re.escape(s.capitalize()) for s in report.STATUSES) + r")( ·|:)"
@@ -293,6 +296,31 @@ LAYOUT_JS = r"""
       if (el.tagName === 'IMG') {
         item.natural = [el.naturalWidth, el.naturalHeight];
         item.linked = !!el.closest('a[href]');
+      } else {  // per column: its width in ems and the most lines any of its cells' text wraps to
+        const cols = [], taken = [];  // taken[row][column]: a cell above spans into it (rowspan)
+        el.querySelectorAll('tr').forEach(function (tr, r) {
+          let k = 0;
+          Array.from(tr.children).forEach(function (c) {
+            while (taken[r] && taken[r][k]) k++;
+            const cs = c.colSpan || 1, i = k;
+            for (let dr = 0; dr < (c.rowSpan || 1); dr++)
+              for (let dc = 0; dc < cs; dc++) (taken[r + dr] = taken[r + dr] || [])[k + dc] = true;
+            k += cs;
+            if (cs > 1) return;  // a cell spanning columns says nothing of one column's width
+            const st = getComputedStyle(c), em = parseFloat(st.fontSize) || 16;
+            const w = (c.clientWidth - parseFloat(st.paddingLeft) - parseFloat(st.paddingRight)) / em;
+            // the text's own lines (distinct line tops), not the cell's height: a row made tall by another cell
+            // does not wrap this one
+            const range = document.createRange();
+            range.selectNodeContents(c);
+            const tops = Array.from(range.getClientRects()).filter(function (r) { return r.width > 0; })
+              .map(function (r) { return r.top; }).sort(function (a, b) { return a - b; });
+            const lines = tops.filter(function (t, k) { return k === 0 || t - tops[k - 1] > 0.6 * em; }).length;
+            if (!cols[i]) cols[i] = {em: w, lines: lines};
+            else { cols[i].em = Math.min(cols[i].em, w); cols[i].lines = Math.max(cols[i].lines, lines); }
+          });
+        });
+        item.cols = cols;
       }
       items.push(item);
     });
@@ -317,13 +345,17 @@ def measure_layout(browser: Browser, page: Path) -> dict[str, Any]:
 def layout_problems(m: dict[str, Any], page: str, verdict: bool = True) -> list[str]:
     """What a reader would find wrong in ``page``'s layout ``m`` (:func:`measure_layout`): a table or image that
     runs past the text column, or is cut off by a box that does not scroll; a figure shown at under
-    :data:`MIN_SHOWN` of its drawn width that is not click-to-enlarge; the page wider than the window; and, when
-    the page has verdicts (``verdict``), none, or the first starting below :data:`FIRST_SCREEN` px.
+    :data:`MIN_SHOWN` of its drawn width that is not click-to-enlarge; a table column whose text wraps in under
+    :data:`MIN_COLUMN_EM` ems; the page wider than the window; and, when the page has verdicts (``verdict``), none,
+    or the first starting below :data:`FIRST_SCREEN` px.
 
     >>> col = {"left": 0, "right": 100}
     >>> wide = {"kind": "table", "name": "a", "box": {"left": 0, "right": 150}, "clip": None, "clipKind": None}
     >>> layout_problems({"column": col, "items": [wide], "firstVerdict": 10, "pageWidth": 100}, "p")
     ['p: table a overflows its column by 50 px']
+    >>> squeezed = {**wide, "box": {"left": 0, "right": 90}, "cols": [{"em": 2.5, "lines": 3}, {"em": 2, "lines": 1}]}
+    >>> layout_problems({"column": col, "items": [squeezed], "firstVerdict": 10, "pageWidth": 100}, "p")
+    ['p: table a column 1 wraps at 2.5 em (under 6)']
     >>> scrolls = {**wide, "clip": {"left": 0, "right": 100}, "clipKind": "auto"}
     >>> layout_problems({"column": col, "items": [scrolls], "firstVerdict": 2000, "pageWidth": 100}, "p")
     ['p: first verdict at y = 2000 px, below the first 1400 px']
@@ -340,6 +372,9 @@ def layout_problems(m: dict[str, Any], page: str, verdict: bool = True) -> list[
         over = max(visible["right"] - col["right"], col["left"] - visible["left"])
         if over > 1:
             out.append(f"{page}: {what} overflows its column by {over:.0f} px")
+        for i, column in enumerate(it.get("cols") or []):
+            if column and column["lines"] > 1 and column["em"] < MIN_COLUMN_EM:
+                out.append(f"{page}: {what} column {i + 1} wraps at {column['em']:.1f} em (under {MIN_COLUMN_EM:g})")
         if it["kind"] == "img" and it.get("natural") and it["natural"][0] > 0:
             shown = (it["box"]["right"] - it["box"]["left"]) / it["natural"][0]
             if shown < MIN_SHOWN and not it.get("linked"):
@@ -369,6 +404,8 @@ _FIXTURE = """<!DOCTYPE html><html><head><style>body {{ margin: 0; }} article {{
 <img src="{small}"><div style="height: {gap}px"></div>
 <div class="admonition"><p class="admonition-title">Reproduces · x · l. 1 claim</p></div>
 <details><table style="width: 500px"><tr><td>folded</td></tr></table></details>
+<table style="width: 380px; table-layout: fixed"><tr><td style="width: 40px">squeezed into a column</td><td>x</td></tr>
+</table>
 </article></body></html>"""
 
 
@@ -384,8 +421,8 @@ def _png(path: Path, width: int, height: int) -> Path:
 
 @pytest.mark.slow
 def test_layout_checker_finds_overflow_small_figures_and_a_late_verdict(tmp_path):
-    """The checker itself, on a tiny page: each fault is found once, and a table that scrolls inside a box, a
-    linked figure and a figure at its own size pass."""
+    """The checker itself, on a tiny page: each fault is found once (a squeezed table column too), and a table that
+    scrolls inside a box, a linked figure and a figure at its own size pass."""
     exe = chromium()
     strip, small = _png(tmp_path / "strip.png", 2000, 200), _png(tmp_path / "small.png", 300, 100)
     page = tmp_path / "page.html"
@@ -399,7 +436,8 @@ def test_layout_checker_finds_overflow_small_figures_and_a_late_verdict(tmp_path
         "page: img strip.png is shown at 20% of its size and is not click-to-enlarge",
         "page: table folded overflows its column by 100 px",
     ], found
-    assert len(found) == 5 and re.fullmatch(r"page: first verdict at y = \d+ px, below the first 1400 px", found[4])
+    assert re.fullmatch(r"page: table squeezed into a column column 1 wraps at \d\.\d em \(under 6\)", found[4])
+    assert len(found) == 6 and re.fullmatch(r"page: first verdict at y = \d+ px, below the first 1400 px", found[5])
     page.write_text(_FIXTURE.format(strip=strip.name, small=small.name, gap=100))
     with Browser(exe) as browser:
         assert not any("verdict" in p for p in layout_problems(measure_layout(browser, page), "page"))

@@ -286,7 +286,8 @@ def test_the_page_prints_the_ci_next_to_the_statistic(capsys):
     saved = report.load("table-3.6", SCALE)
     assert any(effect in x.evidence for x in saved)
     table = evidence.units_table(row)
-    assert table["CI"].iloc[0] == f"[{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]" and table["CI level"].iloc[0] == "95 %"
+    ci = evidence.nowrap(f"[{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]")  # short cells keep to one line
+    assert table["CI"].iloc[0] == ci and table["CI\u00a0level"].iloc[0] == "95\u00a0%"
 
 
 # ---------------------------------------------------------------- 3 seeds, ambiguous: inconclusive

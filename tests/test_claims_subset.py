@@ -76,8 +76,9 @@ def test_the_check_is_the_rule_on_the_trained_rows_only():
     row = _judge("3.3-least-robust", "fig-3.3", {"points": p})
     sub = row.subset
     alone = _judge("3.3-least-robust", "fig-3.3", {"points": p[p["trained"]].drop(columns="trained")})
-    # the check is design v2's rule on the subset (the registered sensitivity analysis of seeds 0-5)
-    assert sub["available"] and sub["verdict"] == alone.v2_status and sub["primary"] == alone.v2_primary
+    # the check is design v3's rule on the subset (seed-keyed, as the primary verdict), with v2's beside it
+    assert sub["available"] and sub["verdict"] == alone.v3["status"] and sub["primary"] == alone.primary
+    assert sub["v2_verdict"] == alone.v2_status and sub["v2_primary"] == alone.v2_primary
     assert alone.subset["available"] is False  # that page saved no column
     n_runs = p[["algo", "env", "seed"]].drop_duplicates().shape[0]
     assert (sub["runs"], sub["runs_total"]) == (n_runs - 5 * 3, n_runs)  # the untrained variant's 5 tasks x 3 seeds
@@ -93,7 +94,8 @@ def test_an_under_trained_variant_turning_the_pooled_correlation_is_shown():
     alone = _judge("3.3-negative-correlation", "fig-3.3", {"points": p[p["trained"]]})
     for key in ("estimate", "ci", "n_seeds", "units"):
         assert sub["primary"]["pooled"][key] == alone.primary["pooled"][key]
-    assert sub["line"].startswith("sensitivity, trained runs only (90/105 runs, 20/20 units): reproduces · pooled r -")
+    head = "sensitivity, trained runs only (90/105 runs, 20/20 units): reproduces (v2: same) · pooled r -"
+    assert sub["line"].startswith(head)
 
 
 def test_units_that_lose_their_runs_are_counted():

@@ -304,3 +304,21 @@ def test_v2_still_gives_its_registered_verdicts_on_seeds_0_to_5(shipped):
     assert record["design"]["hash"] == design.previous()["hash"]
     got = {r.spec.id: r.v2_status or r.status for r in ledger.ledger("small")}
     assert got == record["verdicts"]
+
+
+def test_pages_show_design_v2_s_verdict_beside_v3_s(tmp_path, monkeypatch):
+    """A page's verdict list and its chapter's list give design v3's label with v2's beside it, in a few words."""
+    from thesis_repro.book import builder as book
+
+    monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path))
+    line = "inconclusive · 3.3-x · l. 555 claim · thesis: r -0.43 · ours: r +0.79 [+0.50, +0.92]"
+    moved = report.Verdict("3.3", "claim", report.INCONCLUSIVE, "e", line, v2=report.AT_LEAST_PARTLY)
+    kept = report.Verdict("3.3", "other", report.REPRODUCES, "e", line.replace("inconclusive", "reproduces"))
+    kept = report.Verdict(**{**kept.__dict__, "v2": report.REPRODUCES})
+    report.report("fig-3.3", "small", [moved, kept], display=False)
+    listed = book.chapter_summary("3", ["3.3"], "small")
+    assert "**inconclusive** (v2: at least partly) · 3.3-x · l. 555 claim" in listed
+    assert "**reproduces** (v2: same) · 3.3-x" in listed and "\n| " not in listed  # a list, not a table
+    cell = book.verdicts_cell("fig-3.3", "small")["source"]
+    assert "design v3" in cell and "(v2: at least partly)" in cell
+    assert "*(design v2: at least partly)*" in moved._repr_markdown_()

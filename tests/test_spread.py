@@ -52,10 +52,11 @@ def test_one_seed_has_no_sd_and_a_missing_value_stays_missing():
     assert np.isnan(out.loc["Walker2d", "final_sd"]) and np.isnan(out.loc["Walker2d", "at_sd"])
     assert np.isnan(out.loc["Hopper", "at_mean"]) and out.loc["Hopper", "final_mean"] == 2100.0  # not the mean of one
     text = budgets.render_spread(budgets.aggregate_seeds(frame), at=AT, published=thesis_numbers.published())
-    assert (
-        "| ppo | Walker2d | thesis | 0 | 1M | 3,000 (1 seed) | 2,500 (1 seed) | 2,288 ± 572 (CleanRL, v4, 1M) |" in text
-    )
-    assert "| ppo | Hopper | thesis | 0, 1 | 1M | 2,100 ± 141 | - | 2,383 ± 272 (CleanRL, v4, 1M) |" in text
+    text = text.replace(budgets.NBSP, " ")  # short cells keep to one line: no-break spaces
+    assert "| ppo, Walker2d | thesis | 0 | 1M | 3,000 (1 seed) | 2,500 (1 seed) |" in text
+    assert "| ppo, Hopper | thesis | 0, 1 | 1M | 2,100 ± 141 | - |" in text
+    # the published numbers: a second table, beside ours at equal steps
+    assert "| ppo, Walker2d | 1M | 2,288 ± 572 (CleanRL, v4, 1M) |" in text.split("\n\n", 1)[1]
 
 
 def test_two_runs_of_one_seed_in_a_row_are_an_error():
@@ -131,16 +132,23 @@ def test_final_and_at_returns_read_from_the_curves():
 
 
 # ---------------------------------------------------------------- the book page's block
-def _readme_block() -> tuple[str, list[str]]:
+def _readme_block() -> tuple[str, list[str], list[str]]:
+    """The page, its spread table's lines and its published table's lines."""
     text = PAGE.read_text()
     assert text.count(BEGIN) == 1 and text.count(END) == 1, f"{PAGE.name} needs one {BEGIN} ... {END} block"
     block = text.split(BEGIN, 1)[1].split(END, 1)[0]
-    return text, [line for line in block.strip().splitlines() if line.startswith("|")]
+    ours, _, theirs = block.strip().partition("\n\n")
+
+    def table(part: str) -> list[str]:
+        return [x for x in part.splitlines() if x.startswith("|")]
+
+    return text, table(ours), table(theirs)
 
 
 def _parse(line: str) -> dict:
     cells = [c.strip() for c in line.strip().strip("|").split("|")]
-    learner, task, protocol, seeds, steps = cells[:5]
+    who, protocol, seeds, steps = cells[:4]
+    learner, _, task = who.rpartition(", ")
     algorithm, _, setting = learner.partition(" ")
     return {
         "algorithm": algorithm,
@@ -154,7 +162,7 @@ def _parse(line: str) -> dict:
 
 def test_book_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the real shipped layer
-    text, lines = _readme_block()
+    text, lines, published_lines = _readme_block()
     assert COMMAND in text, f"{PAGE.name} must name the command that regenerates its spread block"
     header, rows = lines[:2], lines[2:]
     assert rows, "the spread block has no rows"
@@ -163,6 +171,7 @@ def test_book_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
     empty = budgets.aggregate_seeds(per_run.iloc[:0])
     assert header == budgets.render_spread(empty, at=AT, published=published).splitlines()
     labels = per_run["timesteps"].map(budgets.steps_label)
+    beside: list[str] = []
     for line in rows:
         row = _parse(line)
         mine = per_run[
@@ -175,7 +184,9 @@ def test_book_spread_block_is_recomputed_from_the_shipped_runs(monkeypatch):
         assert mine["timesteps"].nunique() <= 1, f"ambiguous spread row: {line}"
         mine = mine[mine["seed"].isin(row["seeds"])]
         assert tuple(sorted(mine["seed"])) == row["seeds"], f"spread row not (all) shipped: {line}"
-        recomputed = budgets.render_spread(budgets.aggregate_seeds(mine), at=AT, published=published).splitlines()[2]
-        assert recomputed == line.strip(), f"spread row in {PAGE.name} is stale; rerun `{COMMAND}`"
+        recomputed = budgets.render_spread(budgets.aggregate_seeds(mine), at=AT, published=published).splitlines()
+        assert recomputed[2] == line.strip(), f"spread row in {PAGE.name} is stale; rerun `{COMMAND}`"
+        beside += recomputed[6:]  # its published row, if any
+    assert published_lines[2:] == beside, f"published rows in {PAGE.name} are stale; rerun `{COMMAND}`"
     keys = [tuple(v for k, v in _parse(line).items() if k != "seeds") for line in rows]
     assert len(set(keys)) == len(keys), "a setting has two rows in the spread block"

@@ -1,7 +1,7 @@
 """Build the Jupyter Book (1.x, offline) of one scale: the thesis's claims, each page with its verdict.
 
 One file on purpose (over 600 lines): every part serves :func:`build` alone (the command line is its only caller)
-and changes with the book's layout: staging, the reader's copy of each executed page, the chapter tables and the
+and changes with the book's layout: staging, the reader's copy of each executed page, the chapter verdict lists and the
 scoreboard, the table of contents, the progress lines and the pending / failed pages. What other commands share
 lives in their own modules (:mod:`thesis_repro.book.notebooks`: execution keys; :mod:`thesis_repro.book.pages`: a page's
 runs; :mod:`thesis_repro.book.clips`: the clips; :mod:`thesis_repro.claims`: the verdicts).
@@ -11,7 +11,7 @@ runs; :mod:`thesis_repro.book.clips`: the clips; :mod:`thesis_repro.claims`: the
 * one page per executed notebook (``executed/<page id>.ipynb``), *cleaned for readers*: progress bars,
   stderr and log lines removed, the parameters cells dropped, code inputs collapsed, and the thesis's
   caption and claims (``data/thesis/claims.yaml``) inserted under the page title;
-* at the end of each ``chapter-N.md`` a table of the chapter's verdicts (from the notebooks'
+* at the end of each ``chapter-N.md`` a list of the chapter's verdicts, one line each (from the notebooks'
   ``build/<scale>/figures/<page id>.verdicts.json``), and at the end of ``intro.md`` a scoreboard of the
   whole thesis at that scale;
 * the table of contents (``_toc.yml``): chapter pages, each with its figures, then tables, then analyses;
@@ -176,18 +176,33 @@ def clean_outputs(outputs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return kept
 
 
+def verdict_line(v: report.Verdict) -> str:
+    """A verdict's one line for a page: design v3's label with design v2's beside it, then the rest of its
+    headline (id · claim · thesis · ours with its CI), or its claim when it was saved without one.
+
+    >>> v = report.Verdict("3.3", "c", report.INCONCLUSIVE, headline="inconclusive · 3.3-x · l. 5 c", v2="reproduces")
+    >>> verdict_line(v)
+    '**inconclusive** (v2: reproduces) · 3.3-x · l. 5 c'
+    """
+    rest = v.headline.partition(" · ")[2] if v.headline else v.claim
+    beside = f" ({v.v2_text()})" if v.v2 else ""
+    return f"**{v.status}**{beside} · {_escape_md(rest)}"
+
+
 def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
-    """The page's verdicts first, one line per claim (label · claim · thesis · ours with its CI; a verdict saved
-    without that line: its status and claim), each with its confirmatory line under it when the fresh seeds are
-    judged, or None when the page saved none; each verdict's evidence stays at the end of the page."""
+    """The page's verdicts first, one line per claim (:func:`verdict_line`), each with its confirmatory line under
+    it when the fresh seeds are judged, or None when the page saved none; each verdict's evidence stays at the end
+    of the page."""
     lines = [
-        f"- {_escape_md(v.headline or f'{v.status} · {v.claim}')}"
-        + (f"\n  - *{_escape_md(v.confirmatory)}*" if v.confirmatory else "")
+        f"- {verdict_line(v)}" + (f"\n  - *{_escape_md(v.confirmatory)}*" if v.confirmatory else "")
         for v in report.load(page, scale)
     ]
     if not lines:
         return None
-    head = "**Verdicts** (claims design v2; each one's evidence is at the end of the page):\n\n"
+    head = (
+        "**Verdicts** (claims design v3, design v2's verdict beside each; each one's evidence is at the end of the "
+        "page):\n\n"
+    )
     return md_cell(head + "\n".join(lines))
 
 
@@ -341,31 +356,35 @@ def _escape(text: str) -> str:
 
 
 def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[str, str] | None = None) -> str:
-    """Markdown table of the verdicts of a chapter's pages at ``scale``, each with its one line (its evidence when it
-    has none; the full evidence is on its page); pages without one are listed too, with ``notes[page]`` as the
-    reason, else "not in this build"."""
+    """The verdicts of a chapter's pages at ``scale``: per page, one line per claim (:func:`verdict_line`: design
+    v3's label with v2's beside it; the saved evidence for a verdict without a one-line headline; the full evidence
+    is on its page), a list rather than a table so the line keeps the text column's width; pages without a verdict
+    are listed too, with ``notes[page]`` as the reason, else "not in this build"."""
     pages = [notebooks.page_id(n) for n in executed if notebooks.chapter(n) == chapter]
     known = [p for p in claims() if p.split("-", 1)[1].split("-")[0].split(".")[0] == chapter]
-    rows = ["| page | claim | verdict | evidence |", "|---|---|---|---|"]
+    items = []
     for page in pages:
         verdicts = report.load(page, scale)
         link = f"{{doc}}`{title(page)} <executed/{page}>`"
         if not verdicts:
-            rows.append(f"| {link} | (no verdict written) | {NO_VERDICT} | |")
-        for v in verdicts:  # the verdict's one line (thesis · ours with its CI); its full evidence is on the page
-            shown = v.headline.partition(" · ")[2] if v.headline else v.evidence
-            rows.append(f"| {link} | {_escape(v.claim)} | **{v.status}** | {_escape(shown)} |")
-    missing = [p for p in known if p not in pages]
-    for page in missing:
+            items.append(f"- {link}: {NO_VERDICT} (no verdict written)")
+            continue
+        lines = [  # each verdict's one line; a verdict saved without one shows its evidence (escaped: one line)
+            f"  - {verdict_line(v)}" + ("" if v.headline or not v.evidence else f": {_escape_md(_escape(v.evidence))}")
+            for v in verdicts
+        ]
+        items.append(f"- {link}\n" + "\n".join(lines))
+    for page in (p for p in known if p not in pages):
         why = _escape((notes or {}).get(page, "not in this build"))
-        rows.append(f"| {title(page)} | {_escape(claims()[page]['title'])} | {NO_VERDICT} | {why} |")
+        items.append(f"- {title(page)} ({_escape(claims()[page]['title'])}): {NO_VERDICT}: {why}")
     head = f"\n\n## Verdicts at scale `{scale}`\n\n"
-    note = (
-        "\n\nOne row per claim judged by the kit; *thesis* numbers come from `data/thesis/`, *reproduced* "
-        "ones from this build's runs. Pages of the thesis with no notebook (or not executed) are listed "
-        "as *no verdict*.\n"
+    lead = (
+        "One line per claim judged by the kit: design v3's verdict, design v2's beside it (*v2: same* when they "
+        "agree), then the claim, the thesis's number and ours with its 95 % CI. *Thesis* numbers come from "
+        "`data/thesis/`, ours from this build's runs; each page holds the evidence. Pages of the thesis with no "
+        "notebook (or not executed) are listed as *no verdict*.\n\n"
     )
-    return head + "\n".join(rows) + note
+    return head + lead + "\n".join(items) + "\n"
 
 
 #: The chapter whose page opens with the answer over the readings of its method (:func:`readings.answer`).

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import html
+import re
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from fnmatch import fnmatchcase
@@ -152,12 +153,18 @@ def unused_patterns(ids: Iterable[str] | None = None, table: Sequence[Mapping[st
 
 # ---------------------------------------------------------------------------------------- the page
 def _cell(text: Any) -> str:
-    return " ".join(str(text or "").split()).replace("|", "\\|")
+    """One table cell: its text on one line (runs of ASCII whitespace as one space; a no-break space stays)."""
+    return re.sub(r"[ \t\r\n]+", " ", str(text or "")).strip(" ").replace("|", "\\|")
 
 
 def counts(table: Sequence[Mapping[str, Any]] | None = None) -> Counter:
     """Rows per status."""
     return Counter(r["status"] for r in (table or rows()))
+
+
+def _nowrap(text: Any) -> str:
+    """A short cell kept to one line (no-break spaces), so the long columns of its table get the width."""
+    return _cell(text).replace(" ", "\u00a0")
 
 
 def _row(cells: Iterable[Any]) -> str:
@@ -199,9 +206,9 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
         lines += [
             f"The {len(deviations)} settings where the kit departs from the thesis, each with its reason:",
             "",
-            "| Group | Item | Thesis | Kit | Why |",
-            "|---|---|---|---|---|",
-            *(_row([r["group"], r["item"], r["thesis"], r["kit"], r.get("reason", "")]) for r in deviations),
+            "| Setting (group) | Thesis | Kit | Why |",
+            "|---|---|---|---|",
+            *(_row([f"{r['item']} ({r['group']})", r["thesis"], r["kit"], r.get("reason", "")]) for r in deviations),
             "",
         ]
     else:
@@ -220,7 +227,7 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
             "|---|---|---|---|---|",
         ]
         for r in members:
-            status = f"**{r['status']}**" if r["status"] == "deviation" else r["status"]
+            status = f"**{r['status']}**" if r["status"] == "deviation" else _nowrap(r["status"])
             lines.append(_row([r["item"], r["thesis"], r["kit"], status, r.get("reason", "")]))
         lines += ["", "</details>", ""]
     return "\n".join(lines)

@@ -1,13 +1,15 @@
-"""The confirmatory check: a claim's frozen v2 rule on the fresh training seeds alone.
+"""The confirmatory check: a claim's frozen rule (design v3's, seed-keyed; v2's beside it) on the fresh training seeds
+alone.
 
 Design v2 was frozen (``data/thesis/claims-design.json``) while only seeds 0-2 existed: those are the seeds the
-rules were designed on. Every seed from :data:`FIRST_FRESH` on was generated after the freeze (3-5 in chapters 3-4,
-3-9 for chapter 5's CMA-ES figures). A claim's primary verdict judges every seed its pages saved; beside it, the
-confirmatory verdict judges the fresh seeds alone with the same rule, once the pages hold at least
-:data:`FRESH_SEEDS`, so a reader sees whether a verdict also holds on data the rules never saw. The two *disagree*
-when they lean opposite ways (:func:`disagrees`): one on the side of "reproduces" (*reproduces*, *at least partly*),
-the other on the side of "does not" (*does not reproduce*, *at most partly*). A weaker confirmatory verdict on the
-same side (e.g. *inconclusive* beside *reproduces*) is not a disagreement: three seeds say less than six.
+rules were designed on (v3 changes how v2's levels and margins are tested, not what they are). Every seed from
+:data:`FIRST_FRESH` on was generated after the freeze (3-5 in chapters 3-4, 3-9 for chapter 5's CMA-ES figures). A
+claim's primary verdict judges every seed its pages saved; beside it, the confirmatory verdict judges the fresh
+seeds alone with the same rule, once the pages hold at least :data:`FRESH_SEEDS`, so a reader sees whether a verdict
+also holds on data the rules never saw. The two *disagree* when they lean opposite ways (:func:`disagrees`): one on
+the side of "reproduces" (*reproduces*, *at least partly*), the other on the side of "does not" (*does not
+reproduce*, *at most partly*). A weaker confirmatory verdict on the same side (e.g. *inconclusive* beside
+*reproduces*) is not a disagreement: three seeds say less than six.
 
 >>> frames = {"aucs": pd.DataFrame({"seed": [0, 1, 2, 3, 4, 5, 6], "value": range(7)})}
 >>> fresh_frames(frames)["aucs"]["seed"].tolist()
@@ -80,26 +82,44 @@ def disagrees(primary: str, confirmatory: str) -> bool:
 
 @dataclass
 class Confirmation:
-    """A claim's confirmatory verdict: its label on :data:`FRESH_SEEDS` alone, the key number, and whether it
-    disagrees with the primary verdict on every seed."""
+    """A claim's confirmatory verdict: its label on :data:`FRESH_SEEDS` alone (design v3's statistical label, v2's
+    beside it), the key number, and whether it disagrees with the primary verdict on every seed."""
 
     status: str
     ours: str
     primary: str
     seeds: tuple[int, ...] = FRESH_SEEDS  # the fresh seeds judged
+    v2: str = ""  # design v2's label on the same seeds ("" when not judged by it)
 
     @property
     def disagrees(self) -> bool:
         return disagrees(self.primary, self.status)
 
     def line(self) -> str:
-        """One line for the page and the terminal, e.g. ``fresh seeds 3-5: reproduces · ours: 4/5 units yes``."""
+        """One line for the page and the terminal, e.g. ``fresh seeds 3-5: reproduces (v2: same) · ours: 4/5 units
+        yes``."""
         flag = " (DISAGREES with the primary verdict)" if self.disagrees else ""
+        beside = f" ({v2_words(self.status, self.v2)})" if self.v2 else ""
         ours = f" · ours: {self.ours}" if self.ours else ""
-        return f"fresh seeds {seed_range(self.seeds)}: {self.status}{flag}{ours}"
+        return f"fresh seeds {seed_range(self.seeds)}: {self.status}{beside}{flag}{ours}"
 
     def as_dict(self) -> dict[str, Any]:
-        return {"seeds": list(self.seeds), "verdict": self.status, "ours": self.ours, "disagrees": self.disagrees}
+        return {
+            "seeds": list(self.seeds),
+            "verdict": self.status,
+            "v2_verdict": self.v2 or self.status,
+            "ours": self.ours,
+            "disagrees": self.disagrees,
+        }
+
+
+def v2_words(v3: str, v2: str) -> str:
+    """Design v2's label beside v3's, in a few words.
+
+    >>> v2_words("reproduces", "reproduces"), v2_words("inconclusive", "at least partly")
+    ('v2: same', 'v2: at least partly')
+    """
+    return "v2: same" if v2 == v3 else f"v2: {v2}"
 
 
 # ---------------------------------------------------------------- wording over the ledger's JSON claims

@@ -186,9 +186,23 @@ def effects_text(row: Row, limit: int = CI_SHOWN) -> str:
     return f"{head}: " + "; ".join(items[:limit]) + tail
 
 
+#: A no-break space: a table's short cells keep to one line.
+NBSP = "\u00a0"
+
+
+def nowrap(text: str) -> str:
+    """``text`` with its spaces as no-break spaces (:data:`NBSP`).
+
+    >>> nowrap("95 %") == "95" + NBSP + "%"
+    True
+    """
+    return str(text).replace(" ", NBSP)
+
+
 def units_table(row: Row) -> pd.DataFrame:
     """Per contrast: group, unit, the unit's outcome (its contrasts combined by the rule), the contrast, its
-    estimate, its CI across seeds with the CI's level, the contrast's own outcome and its seeds."""
+    estimate, its CI across seeds with the CI's level, the contrast's own outcome and its seeds. Short cells keep
+    to one line (no-break spaces: :data:`NBSP`) so the unit and the contrast get the page's width."""
     recs = []
     for g, u, c, level in _contrast_rows(row):
         lo, hi = c["ci"]
@@ -196,12 +210,12 @@ def units_table(row: Row) -> pd.DataFrame:
             {
                 "group": g,
                 "unit": u["label"],
-                "unit outcome": u["outcome"],
+                "unit\u00a0outcome": nowrap(u["outcome"]),
                 "contrast": c["label"],
                 "estimate": "" if c["estimate"] is None else f"{c['estimate']:.3g}",
-                "CI": "" if lo is None else f"[{lo:.3g}, {hi:.3g}]",
-                "CI level": f"{level * 100:.3g} %",
-                "contrast outcome": c.get("outcome", ""),
+                "CI": "" if lo is None else nowrap(f"[{lo:.3g}, {hi:.3g}]"),
+                "CI\u00a0level": nowrap(f"{level * 100:.3g} %"),
+                "contrast\u00a0outcome": nowrap(c.get("outcome", "")),
                 "seeds": c["n"],
             }
         )

@@ -170,7 +170,8 @@ def confirm(
         return None
     seeds = fresh_seeds(frames)
     c = _judge_frames(s, scale, False, fresh, meta, seeds=seeds)
-    return Confirmation(c.v3.get("status", c.status), ours_text(c), row.v3.get("status", row.status), seeds)
+    v3 = c.v3.get("status", c.status)
+    return Confirmation(v3, ours_text(c), row.v3.get("status", row.status), seeds, c.v2_status or v3)
 
 
 def _derived_confirmation(parts: Sequence[Row], primary: str) -> Confirmation | None:
@@ -178,7 +179,8 @@ def _derived_confirmation(parts: Sequence[Row], primary: str) -> Confirmation | 
     got = [r.confirmation for r in parts]
     if not got or any(c is None for c in got):
         return None
-    return Confirmation(combine_bounded([c.status for c in got if c]), "", primary)
+    v2 = combine_bounded([c.v2 or c.status for c in got if c])
+    return Confirmation(combine_bounded([c.status for c in got if c]), "", primary, v2=v2)
 
 
 def _judge_v3(
@@ -309,7 +311,7 @@ def _judge_frames(
     )
     row.pooled_seeds = v1.pooled_seeds
     if s.subset and seeds is None:  # the confirmatory check (seeds given) keeps only its verdict
-        row.subset = subset_check(s, frames, rule2, lv, mg, family, scale != "smoke")
+        row.subset = subset_check(s, scale, frames)
     if with_null and scale != "smoke":
         row.calibration = calibration_of(s, scale, run, lv, mg, rules, rule2, compute=with_null is True)
         row.null_pass_rate = row.calibration.get("false_reproduces")
@@ -634,23 +636,32 @@ def _judge_v1_frames(
     return row
 
 
-def subset_check(
-    s: Spec,
-    frames: Mapping[str, pd.DataFrame],
-    rule2: Mapping[str, Any],
-    lv: str,
-    mg: float,
-    family: Sequence[float],
-    judged: bool = True,
-) -> dict[str, Any]:
-    """The claim's registered subset sensitivity check (:func:`thesis_repro.claims.sensitivity.check`: the same v2
-    rule, count rules and Holm family as its primary verdict, on the subset's rows), with ``ours`` (its number, as
-    :func:`ours_text`) and ``line`` (the one line its page folds under the verdict)."""
-    info = subsets.check(
-        s.subset, frames, rule2, lv, mg, lambda g: J.count_rule(rule_for(s, g, rule2)[0], lv, rule2), family, judged
-    )
+def subset_check(s: Spec, scale: str, frames: Mapping[str, pd.DataFrame]) -> dict[str, Any]:
+    """The claim's registered subset sensitivity check (:func:`thesis_repro.claims.sensitivity.check`) on the
+    subset's rows: design v3's seed-keyed rule, count rules and Holm family, as its primary verdict (the statistical
+    label: no calibration gate, as the fresh seeds' check), with design v2's beside it (``v2_verdict``,
+    ``v2_primary``, ``v2_ours``); ``ours`` is its number (:func:`ours_text`) and ``line`` the one line its page folds
+    under the verdict."""
+    rule2, lv2, mg2 = design.rule(s.rule, s.v2), design.level(s.v2), design.margin(s.v2)
+    rule3 = design.rule3(s.rule, s.v2, s.v3)
+    lv3, mg3, conj = design.level3(s.v2, s.v3), design.margin3(s.v2, s.v3), design.conjunction(s.v3)
+    family2 = family_p(s, scale) if lv2 == "pooled" else ()
+
+    def v2(run: Mapping[str, Sequence[Unit]]) -> Any:
+        return J.judge_v2(run, lv2, mg2, {g: J.count_rule(rule_for(s, g, rule2)[0], lv2, rule2) for g in run}, family2)
+
+    def v3(run: Mapping[str, Sequence[Unit]]) -> Any:
+        rules = {g: J.count_rule(rule_for(s, g, rule3)[0], lv3, rule3) for g in run}
+        family = family_p3(s, scale, None, run) if lv3 == "pooled" and not conj else ()
+        return J3.judge_v3(run, lv3, mg3, rules, conj, family)
+
+    judged = scale != "smoke"
+    info = subsets.check(s.subset, frames, rule3, v3, judged)
+    before = subsets.check(s.subset, frames, rule2, v2, judged)
+    info["v2_verdict"], info["v2_primary"] = before["verdict"], before.get("primary", {})
     ours = ours_text(Row(s, str(info["verdict"]), primary=info["primary"])) if info.get("primary") else ""
-    return {**info, "ours": ours, "line": subsets.text(info, ours)}
+    v2_ours = ours_text(Row(s, str(before["verdict"]), primary=before["primary"])) if before.get("primary") else ""
+    return {**info, "ours": ours, "v2_ours": v2_ours, "line": subsets.text(info, ours)}
 
 
 def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]], versions: Sequence[str]) -> float:

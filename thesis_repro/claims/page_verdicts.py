@@ -38,7 +38,7 @@ def verdicts(page: str, scale: str) -> list[report.Verdict]:
         fig = page.removeprefix("fig-")
         line = headline(row, width=report.LINE - len(f"[{fig}] "))  # the terminal's line is the page's first line
         fresh = row.confirmation.line() if row.confirmation else ""
-        out.append(report.Verdict(fig, claim, row.status, evidence, line, fresh))
+        out.append(report.Verdict(fig, claim, row.status, evidence, line, fresh, row.v2_status or row.status))
     return out
 
 

@@ -93,9 +93,20 @@ class Verdict:
     headline: str = ""
     #: the confirmatory check's line (the same frozen rule on the fresh seeds alone), ``""`` before they exist
     confirmatory: str = ""
+    #: design v2's verdict (the registered analysis of seeds 0-5), shown beside ``status`` (design v3's); ``""``
+    #: for a verdict no design judges (a kit check, a page's own rule)
+    v2: str = ""
 
     def __post_init__(self) -> None:
         check_choice(self.status, STATUSES, "verdict status")
+
+    def v2_text(self) -> str:
+        """Design v2's verdict in a few words beside v3's: ``v2: same``, ``v2: at least partly``, or ``""``.
+
+        >>> Verdict("3.3", "c", INCONCLUSIVE, v2=AT_LEAST_PARTLY).v2_text(), Verdict("3.3", "c", REPRODUCES).v2_text()
+        ('v2: at least partly', '')
+        """
+        return "" if not self.v2 else "v2: same" if self.v2 == self.status else f"v2: {self.v2}"
 
     def __str__(self) -> str:
         if self.headline:
@@ -113,7 +124,8 @@ class Verdict:
         if self.headline:
             label, _, rest = self.headline.partition(" · ")
             fresh = f"\n\n{self.confirmatory}" if self.confirmatory else ""
-            body = f"{self.claim}{fresh}\n\n<details><summary>evidence</summary>\n\n{self.evidence}\n\n</details>"
+            v2 = f" *(design {self.v2_text()})*" if self.v2 else ""
+            body = f"{self.claim}{v2}{fresh}\n\n<details><summary>evidence</summary>\n\n{self.evidence}\n\n</details>"
             return f"```{{admonition}} {label.capitalize()} · {rest}\n:class: {_STYLE[self.status]}\n{body}\n```\n"
         title = f"{self.status.capitalize()}: {self.claim}"
         body = self.evidence or ""

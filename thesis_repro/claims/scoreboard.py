@@ -90,10 +90,10 @@ def as_json(rows: Sequence[Row], scale: str = "") -> dict[str, Any]:
 
 
 def scoreboard(scale: str, rows: Sequence[Row]) -> str:
-    """Markdown scoreboard of distinct thesis claims: the counts under design v2 (v1's beside them), which claims
-    reproduce and which do not (one line each), per chapter, the beyond-the-thesis count, and the method."""
+    """Markdown scoreboard of distinct thesis claims: the counts under design v3 (v2's and v1's beside them), which
+    claims reproduce and which do not (one line each), a table of verdicts by chapter (one row per verdict, one
+    short column per chapter: it reads at a laptop's width), the beyond-the-thesis count, and the method."""
     cols = [c for c in COUNTED if any(r.status == c for r in rows if not r.spec.beyond)]
-    head = ["| chapter | " + " | ".join(SHORT[c] for c in cols) + " |", "|---|" + "---|" * len(cols)]
     total: Counter = Counter()
     by_ch: dict[str, Counter] = {}
     for r in rows:
@@ -102,11 +102,14 @@ def scoreboard(scale: str, rows: Sequence[Row]) -> str:
         ch = r.spec.page.split("-", 1)[1].split("-")[0].split(".")[0]
         by_ch.setdefault(ch, Counter())[r.status] += 1
         total[r.status] += 1
-    for ch in sorted(by_ch, key=int):
-        head.append(
-            f"| {{doc}}`Chapter {ch} <chapter-{ch}>` | " + " | ".join(str(by_ch[ch].get(c, 0)) for c in cols) + " |"
-        )
-    head.append("| **all** | " + " | ".join(f"**{total.get(c, 0)}**" for c in cols) + " |")
+    chapters = sorted(by_ch, key=int)
+    head = [
+        "| verdict | " + " | ".join(f"{{doc}}`Chapter\u00a0{ch} <chapter-{ch}>`" for ch in chapters) + " | **all** |",
+        "|---|" + "---|" * (len(chapters) + 1),
+    ]
+    for c in cols:
+        counts_ = " | ".join(str(by_ch[ch].get(c, 0)) for ch in chapters)
+        head.append(f"| {SHORT[c]} | {counts_} | **{total.get(c, 0)}** |")
     extra = counts(rows, beyond=True)
     v1 = Counter(r.v1_status or r.status for r in rows if not r.spec.beyond)
     v2 = Counter(r.v2_status or r.status for r in rows if not r.spec.beyond)
@@ -214,19 +217,23 @@ def method(rows: Sequence[Row]) -> str:
         RULE_WORDS_V3 + "\n",
         sensitivity_method(),
         subsets.method_text(specs()),
-        "| claim | level | margin | verdict | v2 | false R | false D | seeds for 80 % |",
-        "|---|---|---|---|---|---|---|---|",
+        "One row per claim: its level and margin, its verdict under design v3 and v2, v3's calibration (the share "
+        "of null draws judged *reproduces*, false R, and of draws at the margin judged *does not*, false D) and the "
+        "training seeds at which 80 % of draws at the thesis's effect reproduce.\n",
+        "| claim | level, margin | verdict | v2 | false\u00a0R | false\u00a0D | seeds\u00a0(80\u00a0%) |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         c = r.calibration
         fr = "n/a" if c.get("false_reproduces") is None else f"{c['false_reproduces']:.3f}"
         fd = "n/a" if c.get("false_does_not") is None else f"{c['false_does_not']:.3f}"
         seeds = c.get("seeds_for_80", "n/a") if c else "n/a"
-        seeds = "> 128" if c and seeds is None else seeds
+        seeds = ">\u00a0128" if c and seeds is None else seeds
         tag = " (beyond)" if r.spec.beyond else ""
-        mg = "" if r.margin is None else f"{r.margin:g}"
+        level = ",\u00a0".join(x for x in (r.level, "" if r.margin is None else f"{r.margin:g}") if x) or "-"
+        v2 = r.v2_status or r.status
         out.append(
-            f"| {r.spec.id}{tag} | {r.level or '-'} | {mg} | {r.status} | {r.v2_status or r.status} | {fr} | {fd} "
+            f"| {r.spec.id}{tag} | {level} | {SHORT.get(r.status, r.status)} | {SHORT.get(v2, v2)} | {fr} | {fd} "
             f"| {seeds} |"
         )
     return "\n".join(out) + "\n"

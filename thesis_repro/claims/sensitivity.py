@@ -1,13 +1,14 @@
-"""Registered subset sensitivity: a claim's frozen v2 rule judged again on a subset of its runs.
+"""Registered subset sensitivity: a claim's frozen rule (design v3's, v2's beside it) judged again on a subset of its
+runs.
 
 A claim entry may carry ``sensitivity_subset: trained`` in ``data/thesis/claims.yaml`` (outside its ``rule:`` and
 ``v2:`` blocks, so outside the design's hashes: :func:`thesis_repro.claims.design.rule_hashes`). Its page saves a
-bool column of that name on every per-seed row (``trained``: :mod:`thesis_repro.runs.budgets` calls the row's training
-run trained, :func:`thesis_repro.book.pages.claim_frames`). :func:`check` keeps the rows where the column is True in
-every
-frame that carries it, runs the claim's measure and v2 judgement unchanged on them (the judging code is not
-touched: the data are filtered before the measure) and reports the label, the primary statistic and the units and
-runs that remain, beside the primary verdict. A page saved before the column existed gives *not available*.
+bool column of that name on every per-seed row (``trained``: :mod:`thesis_repro.runs.budgets` calls the row's
+training run trained, :func:`thesis_repro.book.pages.claim_frames`). :func:`check` keeps the rows where the column
+is True in every frame that carries it, runs the claim's measure and a judgement handed to it unchanged on them (the
+judging code is not touched: the data are filtered before the measure; the ledger hands it design v3's seed-keyed
+judgement, and v2's for the label beside it) and reports the label, the primary statistic and the units and runs
+that remain, beside the primary verdict. A page saved before the column existed gives *not available*.
 
 >>> import pandas as pd
 >>> f = pd.DataFrame({"env": "Hopper", "algo": ["a", "a", "b"], "seed": [0, 1, 0], "trained": [True, False, True]})
@@ -24,10 +25,9 @@ from typing import Any
 
 import pandas as pd
 
-from thesis_repro.claims import judge as J
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import report
-from thesis_repro.claims.stats import CountRule, combine_bounded
+from thesis_repro.claims.stats import Unit, combine_bounded
 
 #: Registered subsets: the saved bool column each keeps, and what its rows are (the words a reader sees).
 SUBSETS: dict[str, str] = {
@@ -110,17 +110,15 @@ def check(
     subset: str,
     frames: Mapping[str, pd.DataFrame],
     rule: Mapping[str, Any],
-    level: str,
-    margin: float,
-    rule_of: Callable[[str], CountRule],
-    family: Sequence[float] = (),
+    judge: Callable[[Mapping[str, Sequence[Unit]]], Any],
     judged: bool = True,
 ) -> dict[str, Any]:
-    """The claim's v2 judgement (``rule``, ``level``, ``margin``, each group's count rule from ``rule_of`` and the
-    Holm ``family`` of the primary verdict) on the ``subset`` rows of ``frames``: ``verdict``, ``primary`` (the
-    shape of the ledger row's), ``units`` / ``units_total`` and ``runs`` / ``runs_total`` remaining, ``n_seeds``;
-    ``available`` False with the reason in ``note`` when the page did not save the column. ``judged`` False (the
-    ``smoke`` scale): the label is *not judged*."""
+    """The claim's judgement ``judge`` (its units by group -> a result with ``status``, ``groups`` and ``n_seeds``:
+    :func:`thesis_repro.claims.judge_v3.judge_v3` or :func:`thesis_repro.claims.judge.judge_v2` with the claim's
+    level, margin, count rules and Holm family bound) of ``rule``'s measure on the ``subset`` rows of ``frames``:
+    ``verdict``, ``primary`` (the shape of the ledger row's), ``units`` / ``units_total`` and ``runs`` /
+    ``runs_total`` remaining, ``n_seeds``; ``available`` False with the reason in ``note`` when the page did not save
+    the column. ``judged`` False (the ``smoke`` scale): the label is *not judged*."""
     out: dict[str, Any] = {"subset": subset, "of": SUBSETS[subset], "available": False, "verdict": None}
     try:
         sub, kept, total = subset_frames(frames, subset)
@@ -144,7 +142,7 @@ def check(
     out["units"] = sum(len(us) for us in run.values())
     if not run:
         return {**out, "verdict": report.NOT_COMPUTED, "note": left}
-    res = J.judge_v2(run, level, margin, {g: rule_of(g) for g in run}, family)
+    res = judge(run)
     status = res.status
     if len(run) < len(groups):  # a part with no unit left may hold or not
         status = combine_bounded([status, report.INCONCLUSIVE])
@@ -158,11 +156,15 @@ def check(
 
 
 def text(info: Mapping[str, Any], ours: str = "") -> str:
-    """One short line for a claim's page and ``claims --verbose``: the subset's label, what remains, its number.
+    """One short line for a claim's page and ``claims --verbose``: the subset's label (design v2's beside it when
+    ``info`` carries it), what remains, its number.
 
     >>> text({"subset": "trained", "available": True, "verdict": "does not reproduce", "runs": 109,
     ...       "runs_total": 135, "units": 20, "units_total": 20}, "pooled r +0.75 [+0.60, +0.85]")
     'sensitivity, trained runs only (109/135 runs, 20/20 units): does not reproduce · pooled r +0.75 [+0.60, +0.85]'
+    >>> text({"subset": "trained", "available": True, "verdict": "inconclusive", "v2_verdict": "reproduces",
+    ...       "runs": 9, "runs_total": 9, "units": 2, "units_total": 2})
+    'sensitivity, trained runs only (9/9 runs, 2/2 units): inconclusive (v2: reproduces)'
     >>> text({"subset": "trained", "available": False, "note": "not available: page saved before the trained column"})
     'sensitivity, trained runs only: not available: page saved before the trained column'
     """
@@ -171,7 +173,9 @@ def text(info: Mapping[str, Any], ours: str = "") -> str:
         return f"{head}: {info.get('note', 'not available')}"
     counts = f"{info['runs']}/{info['runs_total']} runs, {info['units']}/{info['units_total']} units"
     tail = f" · {ours}" if ours else (f" ({info['note']})" if info.get("note") else "")
-    return f"{head} ({counts}): {info['verdict']}{tail}"
+    v2 = info.get("v2_verdict")
+    beside = "" if not v2 else " (v2: same)" if v2 == info["verdict"] else f" (v2: {v2})"
+    return f"{head} ({counts}): {info['verdict']}{beside}{tail}"
 
 
 def method_text(specs: Sequence[Any]) -> str:
@@ -179,7 +183,7 @@ def method_text(specs: Sequence[Any]) -> str:
 
     >>> from types import SimpleNamespace as NS
     >>> t = method_text([NS(id="a", subset="trained"), NS(id="b", subset="")])
-    >>> "on a: the same frozen v2 rule" in t, "on a, b" in t
+    >>> "on a: the same frozen v3 rule" in t, "on a, b" in t
     (True, False)
     """
     carriers: dict[str, list[str]] = {}
@@ -190,7 +194,9 @@ def method_text(specs: Sequence[Any]) -> str:
     return (
         "**Subset sensitivity** (`sensitivity_subset:` in the registry, outside the frozen rules): "
         + (declared or "no claim declares one")
-        + ": the same frozen v2 rule (measure, level, margin, count rule, Holm family) judged again on the rows of "
-        "that subset only, shown beside the primary verdict with the runs and units that remain; it never changes "
-        "the primary verdict. A page saved before it saved the subset's column says *not available*.\n"
+        + ": the same frozen v3 rule (measure, level, margin, count rule, Holm family; seed-keyed) judged again on "
+        "the rows of that subset only, with design v2's label beside it (*v2: same* when they agree), shown beside "
+        "the primary verdict with the runs and units that remain; it never changes the primary verdict. Like the "
+        "fresh seeds' check it reads the statistical label (no calibration gate). A page saved before it saved the "
+        "subset's column says *not available*.\n"
     )

@@ -238,12 +238,12 @@ def thesis_label(item: str) -> str:
 
 
 def bars_text(b: pd.DataFrame, item: str) -> pd.DataFrame:
-    """The bars of :func:`bars` as a table for the page: rows panel × method, columns test × source (the thesis's
-    bars labelled by :func:`thesis_label`), changes to 3 decimals."""
+    """The bars of :func:`bars` as a table for the page: rows panel × method, columns source × test (the thesis's
+    bars labelled by :func:`thesis_label`, over its tests: the long label spans them), changes to 3 decimals."""
     labels = {"thesis": thesis_label(item), "reproduced": "reproduced"}
     return (
         b.assign(source=b["source"].map(labels))
-        .pivot_table(index=["panel", "method"], columns=["test", "source"], values="change", sort=False)
+        .pivot_table(index=["panel", "method"], columns=["source", "test"], values="change", sort=False)
         .round(3)
     )
 
@@ -285,16 +285,17 @@ def bars(
     return out[cols]
 
 
+#: The column of :func:`bars_ci_text`.
+BAR_CI_COLUMN = "reproduced change [95 % CI] (seeds)"
+
+
 def bars_ci_text(b: pd.DataFrame) -> pd.DataFrame:
-    """The reproduced bars with their interval, ``"change [lo, hi] (n seeds)"``: rows panel × method, columns
-    the tests (a small table for the page)."""
+    """The reproduced bars with their interval, ``"change [lo, hi] (n seeds)"``: one row per panel, method and
+    test, one column (a small table for the page: an interval per cell needs more width than a column per test
+    leaves at a laptop's width)."""
     r = b[b["source"] == "reproduced"]
     cells = [tables.fmt_ci(*x, digits=3) for x in r[["change", *BAR_CI]].itertuples(index=False)]
-    w = r.assign(cell=cells).pivot_table(
-        index=["panel", "method"], columns="test", values="cell", aggfunc="first", sort=False
-    )
-    w.columns.name = "reproduced"
-    return w.fillna("")
+    return r.assign(**{BAR_CI_COLUMN: cells}).set_index(["panel", "method", "test"])[[BAR_CI_COLUMN]]
 
 
 def bar_note(b: pd.DataFrame) -> str:

@@ -456,11 +456,19 @@ def steps_label(steps: float) -> str:
 
 
 def _mean_sd(mean: float, sd: float, n: int) -> str:
+    """``mean ± sd`` across seeds on one line (no-break spaces: a short cell of a table), ``(1 seed)`` without
+    spread, ``-`` when missing."""
     if not np.isfinite(mean):
         return "-"
     if n == 1 or not np.isfinite(sd):
-        return f"{mean:,.0f} (1 seed)" if n == 1 else f"{mean:,.0f}"
-    return f"{mean:,.0f} ± {sd:,.0f}"
+        text = f"{mean:,.0f} (1 seed)" if n == 1 else f"{mean:,.0f}"
+    else:
+        text = f"{mean:,.0f} ± {sd:,.0f}"
+    return text.replace(" ", NBSP)
+
+
+#: A no-break space: the short cells of the spread tables keep to one line.
+NBSP = "\u00a0"
 
 
 def published_cell(algorithm: str, env: str, table: pd.DataFrame, steps: Iterable[int] | None = None) -> str:
@@ -487,24 +495,30 @@ def published_cell(algorithm: str, env: str, table: pd.DataFrame, steps: Iterabl
 
 
 def render_spread(frame: pd.DataFrame, at: int | None = None, published: pd.DataFrame | None = None) -> str:
-    """:func:`spread` as a markdown table: learner (with its ``[setting]``), task, protocol, seeds, steps, final
-    training return mean ± sd, with ``at`` the return at ``at`` steps, and the published results of the same
-    learner on the task (:func:`published_cell`; ``published`` defaults to
-    :func:`thesis_repro.core.thesis_numbers.published`). ``(1 seed)`` marks a row without spread, ``-`` a missing
-    value."""
+    """:func:`spread` as markdown tables: learner (with its ``[setting]``) and task in one cell (``ppo, Hopper``),
+    protocol, seeds, steps, final training return mean ± sd, with ``at`` the return at ``at`` steps; then, for the
+    rows with one, the published results of the same learner on the task at equal steps (:func:`published_cell`;
+    ``published`` defaults to :func:`thesis_repro.core.thesis_numbers.published`) in a second table (learner and task,
+    steps, published): two short tables read at a laptop's width, one wide one squeezes its columns. ``(1 seed)``
+    marks a row without spread, ``-`` a missing value."""
     published = thesis_numbers.published() if published is None else published
-    head = ["learner", "task", "protocol", "seeds", "steps", "final return, mean ± sd"]
+    head = ["learner, task", "protocol", "seeds", "steps", "final return"]
     if at is not None:
-        head.append(f"at {steps_label(at)} (last {AT_WINDOW} episodes), mean ± sd")
-    head.append("published (source, version, steps)")
+        head.append(f"at {steps_label(at)}")
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    beside = []
     for _, r in frame.iterrows():
         learner = r["algorithm"] + (f" [{r['setting']}]" if r["setting"] else "")
-        cells = [learner, r["env"], r["protocol"], ", ".join(str(s) for s in r["seeds"]), steps_label(r["timesteps"])]
+        seeds = f",{NBSP}".join(str(s) for s in r["seeds"])
+        cells = [f"{learner}, {r['env']}", r["protocol"], seeds, steps_label(r["timesteps"])]
         cells.append(_mean_sd(r["final_mean"], r["final_sd"], r["n"]))
         if at is not None:
             cells.append(_mean_sd(r["at_mean"], r["at_sd"], r["n"]))
-        equal = [int(r["timesteps"])] + ([int(at)] if at is not None and np.isfinite(r["at_mean"]) else [])
-        cells.append(published_cell(r["algorithm"], r["env"], published, steps=equal))
         lines.append("| " + " | ".join(cells) + " |")
+        equal = [int(r["timesteps"])] + ([int(at)] if at is not None and np.isfinite(r["at_mean"]) else [])
+        cell = published_cell(r["algorithm"], r["env"], published, steps=equal)
+        if cell:
+            beside.append(f"| {learner}, {r['env']} | {steps_label(r['timesteps'])} | {cell} |")
+    if beside:
+        lines += ["", "| learner, task | steps | published (source, version, steps) |", "|---|---|---|", *beside]
     return "\n".join(lines)
