@@ -22,7 +22,7 @@ NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
 .PHONY: venv test test-verify smoke book clips bench budgets lint clean-build figure-% table-% reference-runs seeds confirmatory runs-% plan-% verify \
-	thesis-budget \
+	thesis-budget ch4-readings-grid \
 	verify-all chromium check-book ship-claims check-claims results
 
 venv: $(STAMP)
@@ -117,7 +117,7 @@ reference-runs: $(STAMP)
 	  $(if $(ALGOS),--algos $(ALGOS)) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(KINDS),--kind $(KINDS)) \
 	  $(if $(UNTIL),--until $(UNTIL)) $(if $(ORDER),--order $(ORDER)) $(if $(STUDY),--study $(STUDY))
 
-## make seeds UNTIL=HH:MM : issue 22's regeneration, the one command a session starts in the background (nohup ... &):
+## make seeds UNTIL=HH:MM : the seed regeneration (every item to more training seeds), the one command a session starts in the background (nohup ... &):
 ## seeds 0-2 of every chapter 3-4 item under the thesis protocol, trained and evaluated, committed as they land, two
 ## at a time, item by item in SEED_ORDER (cheap, many-claim items first); UNTIL = the session's end
 SEED_ORDER := table-3.3 4.4 4.7 4.2 3.4 table-3.6 table-3.4 3.3 3.7 table-3.5 3.5 table-3.7 3.6 3.8 4.1 4.3 4.5 4.6 3.2
@@ -125,7 +125,7 @@ seeds:
 	$(MAKE) reference-runs SCALE=small SEEDS="0 1 2" KINDS="train evaluate" COMMIT=1 JOBS=2 \
 	  FIGURES="$(SEED_ORDER)" $(if $(UNTIL),UNTIL=$(UNTIL))
 
-## make confirmatory UNTIL=HH:MM : issue 46's one resumable command, started niced in the background (nohup ... &):
+## make confirmatory UNTIL=HH:MM : the confirmatory replication's one resumable command, started niced in the background (nohup ... &):
 ## seeds 3-5 of every chapter-3 item and the chapter-4 items 6 seeds can settle, chapter 5's CMA-ES items to seed 9,
 ## trained, evaluated and committed as they land, item by item in the order of claims settled per core-hour
 ## (`make plan-order SCALE=small SEEDS="3 4 5"`); UNTIL = the session's end
@@ -143,6 +143,14 @@ confirmatory:
 thesis-budget:
 	$(MAKE) reference-runs SCALE=small STUDY=thesis-budget KINDS="train evaluate" JOBS=$(or $(JOBS),2) \
 	  $(if $(filter 0,$(COMMIT)),,COMMIT=1) $(if $(UNTIL),UNTIL=$(UNTIL))
+
+## make ch4-readings-grid UNTIL=HH:MM [COMMIT=0] [JOBS=1] : chapter 4's readings that train and differ from params_avg
+## in their pilots (kl-avg-trpo, kl-avg-once), on every chapter-4 item at `small`'s seeds, each committed into
+## data/reference as it lands (resumable; `python -m thesis_repro.runs.pilots ch4-readings --grid --price`: its cost);
+## started niced in the background like `make thesis-budget`. Cheaper (about 8 core-hours): make it first
+ch4-readings-grid: $(STAMP)
+	nice -n 10 $(BIN)/python -m thesis_repro.runs.pilots ch4-readings --grid --jobs $(or $(JOBS),2) \
+	  $(if $(filter 0,$(COMMIT)),,--commit) $(if $(UNTIL),--until $(UNTIL))
 
 ## make verify SCALE=small [N=20] [SEED=...] [TRAIN=1] [KINDS="evaluate arm-target"] [FIGURE=3.3 | ENTRY=<key or label> |
 ## CLAIM=<id>] : recompute a seeded random sample of N shipped evaluations on this machine (temporary cache) and

@@ -41,10 +41,10 @@ import matplotlib.pyplot as plt
 import pandas as pd
 import torch
 
-from thesis_repro import paths
 from thesis_repro.claims import analysis_4_kl, judge_page
+from thesis_repro.core import paths
+from thesis_repro.core.scales import figure_settings
 from thesis_repro.mdl import kl_analysis as ka
-from thesis_repro.scales import figure_settings
 
 torch.set_num_threads(1)
 pd.set_option("display.width", 160)

@@ -31,7 +31,8 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import claims, figures, pages
+from thesis_repro import claims, figures
+from thesis_repro.book import pages
 from thesis_repro.figures import ch3, plot
 from thesis_repro.learners import iteration_steps
 

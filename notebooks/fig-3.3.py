@@ -28,8 +28,10 @@ SELECTION = "best"  # "best": best-training seed per variant (the thesis); "mean
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import budgets, claims, figures, pages
+from thesis_repro import claims, figures
+from thesis_repro.book import pages
 from thesis_repro.figures import ch3, plot
+from thesis_repro.runs import budgets
 
 settings = figures.settings("3.3", SCALE)
 print(pages.runs_summary("3.3", SCALE))

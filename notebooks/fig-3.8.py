@@ -25,7 +25,8 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, pages
+from thesis_repro import claims
+from thesis_repro.book import pages
 from thesis_repro.figures import ch3_curves, ch3_tables, plot
 
 settings = ch3_tables.settings("3.8", SCALE)

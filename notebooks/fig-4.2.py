@@ -17,7 +17,7 @@
 # angle) offscreen with MuJoCo and report the **reproduced** testing return at ξ = 0 of the best seeds, the
 # measurable proxy.
 #
-# Learners: the thesis's kl_avg (Eq 4.11) and kl_exact (ours, issue 12: the exact minimiser of Eq 4.7), each
+# Learners: the thesis's kl_avg (Eq 4.11) and kl_exact (ours: the exact minimiser of Eq 4.7), each
 # judged against params_avg, the thesis's comparison for this figure.
 
 # %% tags=["parameters"]
@@ -26,7 +26,8 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import claims, figures, pages
+from thesis_repro import claims, figures
+from thesis_repro.book import pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.2", SCALE)

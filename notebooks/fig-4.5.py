@@ -15,7 +15,7 @@
 #
 # Policies: the cached runs of Fig 4.1 (wind off at test). All numbers are **reproduced**.
 #
-# Learners: the thesis's kl_avg (Alg 3 with Eq 4.11), kl_exact (ours, issue 12: the exact minimiser of Eq 4.7
+# Learners: the thesis's kl_avg (Alg 3 with Eq 4.11), kl_exact (ours: the exact minimiser of Eq 4.7
 # from params_avg), params_avg (Eq 4.6) and joint (PPO on the merged batch). Each claim is judged twice, for
 # kl_avg and for kl_exact (counted beyond the thesis), each against params_avg and joint only (`claims.yaml`).
 #
@@ -28,7 +28,8 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import claims, figures, pages
+from thesis_repro import claims, figures
+from thesis_repro.book import pages
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.5", SCALE)

@@ -25,9 +25,10 @@ SCALE = "small"
 # %%
 import matplotlib.pyplot as plt
 
-from thesis_repro import claims, figures, pages
+from thesis_repro import claims, figures
 from thesis_repro.arm import ArmConfig
-from thesis_repro.backends import run_jobs
+from thesis_repro.book import pages
+from thesis_repro.core.backends import run_jobs
 from thesis_repro.figures import ch5, plot
 
 settings = figures.settings("5.3", SCALE)

@@ -28,7 +28,8 @@ SCALE = "small"
 import matplotlib.pyplot as plt
 import seaborn as sns
 
-from thesis_repro import claims, figures, pages
+from thesis_repro import claims, figures
+from thesis_repro.book import pages
 from thesis_repro.evaluation import tables
 from thesis_repro.figures import ch5, plot
 

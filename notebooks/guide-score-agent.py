@@ -20,21 +20,21 @@
 # computed by the kit (*reproduced*); this is a guide, not a thesis item, so it has no verdict.
 #
 # For your own agent, replace the training cell by your models, one per training seed (`PPO.load("seed0.zip")`
-# or `thesis_repro.agent.load_sb3`). From the command line:
+# or `thesis_repro.book.agent.load_sb3`). From the command line:
 # `python -m thesis_repro score seed0.zip seed1.zip --task InvertedPendulum --scale small --figure cmp.png`.
 
 # %% tags=["parameters"]
 SCALE = "small"
 TASK = "InvertedPendulum"  # any of the five tasks
 SEEDS = 2  # training seeds of your agent (one model each; two or more give a confidence interval)
-TIMESTEPS = None  # PPO's training steps per seed; None: this scale's (thesis_repro.agent.GUIDE_PPO)
+TIMESTEPS = None  # PPO's training steps per seed; None: this scale's (thesis_repro.book.agent.GUIDE_PPO)
 
 # %%
 import torch
 from stable_baselines3 import PPO
 
-from thesis_repro import paths
-from thesis_repro.agent import compare_with_shipped, guide_settings, score_model
+from thesis_repro.book.agent import compare_with_shipped, guide_settings, score_model
+from thesis_repro.core import paths
 
 torch.set_num_threads(1)  # one thread, as the kit's own runs: small networks train faster that way on a CPU
 guide = guide_settings(SCALE, TASK, TIMESTEPS)

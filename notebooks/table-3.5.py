@@ -27,7 +27,8 @@
 SCALE = "small"
 
 # %%
-from thesis_repro import claims, pages
+from thesis_repro import claims
+from thesis_repro.book import pages
 from thesis_repro.figures import ch3_tables
 
 settings = ch3_tables.settings("table-3.5", SCALE)

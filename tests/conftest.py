@@ -25,7 +25,7 @@ def _isolated_dirs(tmp_path_factory, monkeypatch):
     # SB3's default logger makes an SB3-<timestamp> folder in the system temp dir per learn(); keep them in pytest's
     monkeypatch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3-log")))
     # pytest-xdist's workers set COLUMNS=80: each test starts without it, its output not a terminal's (lines whole,
-    # thesis_repro.terminal); the tests of the terminal's width set COLUMNS themselves
+    # thesis_repro.core.terminal); the tests of the terminal's width set COLUMNS themselves
     monkeypatch.delenv("COLUMNS", raising=False)
 
 

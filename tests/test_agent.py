@@ -1,4 +1,4 @@
-"""Your agent under the thesis's protocol (issue 45): score_model with CIs on the book grid, beside the shipped
+"""Your agent under the thesis's protocol: score_model with CIs on the book grid, beside the shipped
 learners, the `score` / `train` / `enjoy` commands and their one-line errors, and the README's example."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import agent, clips
-from thesis_repro.__main__ import main
+from thesis_repro.book import agent, clips
+from thesis_repro.cli.commands import main
 from thesis_repro.evaluation import score as sc
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -128,7 +128,7 @@ def test_agent_commands_give_one_line_errors(argv, expected, capsys, monkeypatch
 
 def test_train_runs_one_job_through_the_cache(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "runs"))
-    job = agent.train_job("ppo", "InvertedPendulum", 0, "smoke")
+    job = agent.training_job("ppo", "InvertedPendulum", 0, "smoke")
     from thesis_repro import figures
 
     assert job in figures.training_jobs("table-3.4", "smoke")  # the book's own job (same key)
@@ -162,7 +162,7 @@ def test_version_flag(capsys):
 
 def readme_example() -> str:
     """The README's "your own agent" example if the README has one (the first python block after a heading
-    naming "own agent"), else :data:`thesis_repro.agent.README_EXAMPLE`."""
+    naming "own agent"), else :data:`thesis_repro.book.agent.README_EXAMPLE`."""
     text = (ROOT / "README.md").read_text()
     m = re.search(r"^#+ .*own agent.*$\n(?:.*\n)*?```python\n(.*?)```", text, re.M | re.I)
     return m.group(1) if m else agent.README_EXAMPLE
@@ -204,7 +204,8 @@ GUIDE = "guide-score-agent"
 def test_the_guide_page_is_a_book_page_the_claims_ledger_ignores(tmp_path):
     import yaml
 
-    from thesis_repro import book, notebooks
+    from thesis_repro.book import builder as book
+    from thesis_repro.book import notebooks
     from thesis_repro.claims import registry
 
     assert GUIDE in notebooks.notebook_ids(guides=True) and GUIDE not in notebooks.notebook_ids()
@@ -221,7 +222,7 @@ def test_the_guide_page_is_a_book_page_the_claims_ledger_ignores(tmp_path):
 
 
 def test_a_guide_page_shows_its_code_and_no_thesis_block():
-    from thesis_repro import book
+    from thesis_repro.book import builder as book
 
     nb = {
         "cells": [

@@ -1,4 +1,4 @@
-"""Fig 5.6's curriculum stage as the thesis describes it (issue 20 item 5): constructive MTL from scratch, then
+"""Fig 5.6's curriculum stage as the thesis describes it: constructive MTL from scratch, then
 Algorithm 5's alternation of s and L (σ0 = 0.01, §5.3.2) on every family learned from a pre-trained one."""
 
 from __future__ import annotations

@@ -222,7 +222,7 @@ def test_curriculum_job_shapes_and_conditions():
 
 
 def test_source_and_target_jobs_through_the_run_cache():
-    from thesis_repro.cache import Job, RunCache
+    from thesis_repro.core.cache import Job, RunCache
 
     src = learn.source_config("reach", n_tasks=3, generations=4, mtl_generations=3, popsize=6, ranks=[4, 2, 3])
     assert src["sim_version"] >= 1 and src["algo_version"] == learn.ALGO_VERSION

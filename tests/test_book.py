@@ -34,8 +34,11 @@ from urllib.parse import unquote, urlparse
 import pytest
 import yaml
 
-from thesis_repro import book, figures, notebooks, paths, protocol
+from thesis_repro import figures
+from thesis_repro.book import builder as book
+from thesis_repro.book import notebooks, protocol
 from thesis_repro.claims import report
+from thesis_repro.core import paths
 
 #: `make test` runs pytest in two processes (`-n 2 --dist loadgroup`): every test that shares the smoke
 #: notebooks' session folder runs in the same one, so they execute once.

@@ -8,7 +8,9 @@ import sys
 
 import yaml
 
-from thesis_repro import book, notebooks, paths
+from thesis_repro.book import builder as book
+from thesis_repro.book import notebooks
+from thesis_repro.core import paths
 
 
 class _Tty(io.StringIO):

@@ -1,4 +1,4 @@
-"""The thesis-budget study (:mod:`thesis_repro.budget_study`): its job list, its order, the keys it leaves alone,
+"""The thesis-budget study (:mod:`thesis_repro.runs.budget_study`): its job list, its order, the keys it leaves alone,
 its one-line errors, the snapshots its runs save and the bit-identity of a budget-free learner's prefix."""
 
 from __future__ import annotations
@@ -9,15 +9,17 @@ import pytest
 import torch as th
 
 from tests.interrupt import Interrupt
-from thesis_repro import budget_study as bs
-from thesis_repro import figures, paths, plan
-from thesis_repro.__main__ import main
-from thesis_repro.cache import Job, RunCache, find_entry
+from thesis_repro import figures
+from thesis_repro.cli.commands import main
+from thesis_repro.core import paths
+from thesis_repro.core.cache import Job, RunCache, find_entry
 from thesis_repro.learners import train_config, train_job
 from thesis_repro.learners.config import snapshot_at_steps
 from thesis_repro.learners.policy_file import read_state_dict
-from thesis_repro.order import Claim
-from thesis_repro.throughput import Rates
+from thesis_repro.runs import budget_study as bs
+from thesis_repro.runs import costs as plan
+from thesis_repro.runs.order import Claim
+from thesis_repro.runs.throughput import Rates
 
 VARIANTS = ["ppo", "trpo", "ddpg", "sac", "ppo-16", "ppo-scn", "ppo-scn-16", "ppo-ent", "ppo-arpl"]
 RATES = Rates({"ppo": 4000.0, "trpo": 4000.0, "sac": 450.0, "ddpg": 1400.0, "evaluate": 5000.0}, {})
@@ -123,7 +125,7 @@ def test_bad_names_are_one_line_errors(capsys):
 
 
 def test_the_study_refuses_to_start_before_the_design_it_is_judged_under_is_frozen(capsys, monkeypatch):
-    monkeypatch.setattr("thesis_repro.provenance.claims_design", lambda: {"version": "v2", "hash": "x"})
+    monkeypatch.setattr("thesis_repro.core.provenance.claims_design", lambda: {"version": "v2", "hash": "x"})
     assert main(["reference-runs", "--study", "thesis-budget"]) == 2
     assert "freeze v3 first" in capsys.readouterr().err
 

@@ -1,12 +1,12 @@
-"""Learning-curve statistics behind the trained-regime budgets (thesis_repro.budgets)."""
+"""Learning-curve statistics behind the trained-regime budgets (thesis_repro.runs.budgets)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from thesis_repro import budgets
-from thesis_repro.__main__ import main
+from thesis_repro.cli.commands import main
+from thesis_repro.runs import budgets
 
 
 def test_thesis_training_returns_are_table_3_3a():

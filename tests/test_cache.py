@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import job_kinds
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import CACHE_VERSION, CorruptEntryWarning, Job, RunCache, canonical_json
+from thesis_repro.core import job_kinds
+from thesis_repro.core.backends import run_jobs
+from thesis_repro.core.cache import CACHE_VERSION, CorruptEntryWarning, Job, RunCache, canonical_json
 
 
 def _counting(config: dict, workdir: Path) -> dict:

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from thesis_repro import pilots
 from thesis_repro.learners import train_config, train_job
 from thesis_repro.learners.train import Ppo1Linear
 from thesis_repro.mdl import aggregate as agg
 from thesis_repro.mdl import exact, readings
+from thesis_repro.runs import pilots
 
 SHORT = dict(
     n_envs=2,
@@ -161,7 +161,7 @@ def test_pilot_table_reads_a_summary():
 def test_the_readings_page_is_a_section_of_chapter_4_in_the_contents(tmp_path):
     import yaml
 
-    from thesis_repro import book
+    from thesis_repro.book import builder as book
 
     for name in ["intro", "chapter-3", "chapter-4", "chapter-4-readings"]:
         (tmp_path / f"{name}.md").write_text(f"# {name}\n")
@@ -172,7 +172,7 @@ def test_the_readings_page_is_a_section_of_chapter_4_in_the_contents(tmp_path):
 
 def test_the_readings_page_is_rendered_from_the_pilot_summary(monkeypatch):
     """The shipped page is what the shipped summary renders to: no number on it is typed in."""
-    from thesis_repro import paths
+    from thesis_repro.core import paths
 
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the shipped summary
     page = paths.BOOK / pilots.PAGES["ch4-readings"]

@@ -1,4 +1,4 @@
-"""The claims ledger (issue 21): pre-registered rules, null calibration, inconclusive / indicative verdicts."""
+"""The claims ledger: pre-registered rules, null calibration, inconclusive / indicative verdicts."""
 
 from __future__ import annotations
 
@@ -12,13 +12,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import paths
 from thesis_repro.claims import evidence, ledger, ledger_row, page_verdicts, registry, report, rules, scoreboard
 from thesis_repro.claims import measures as M
 from thesis_repro.claims import synthetic as S
 from thesis_repro.claims.stats import Contrast, CountRule, Unit, null_pass_rate
+from thesis_repro.core import paths
 
-#: The 14 claims issue 21 found never judged, by their registry ids.
+#: The 14 claims the claims ledger found never judged, by their registry ids.
 NEVER_JUDGED = [
     "3.3-mean-selection",  # §3.3 l.547
     "3.3-least-robust",  # l.555
@@ -133,7 +133,7 @@ _NOMINAL = {"wind": lambda f: f["value"] == 0.0, "noise": lambda f: f["value"] =
 
 @pytest.mark.parametrize(("measure", "name"), [("ch4_wind", "wind"), ("ch4_heat", "heat"), ("ch4_noise", "noise")])
 def test_a_diverged_policy_is_not_judged_on_what_it_keeps(measure, name):
-    """Issue 21 item 4: kl_avg returns 5 at its nominal point and 10 off it, so it "keeps" 200 % of its
+    """The claims ledger: kl_avg returns 5 at its nominal point and 10 off it, so it "keeps" 200 % of its
     return; judged on that alone every unit says yes. Its training curves say it diverged (peak 1,000, then
     -5), so the measure answers inconclusive instead."""
     f = S.frames_for(measure)

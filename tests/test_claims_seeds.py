@@ -1,4 +1,4 @@
-"""Issue 21, "Done when": at ``small`` with 3 training seeds every comparative verdict carries a CI across seeds
+"""At ``small`` with 3 training seeds every comparative verdict carries a CI across seeds
 (in the ledger row, its ``claims --json`` form and the text the book prints), one seed is at most indicative,
 and data built to be ambiguous is *inconclusive*.
 

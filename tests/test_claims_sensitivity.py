@@ -1,5 +1,5 @@
-"""Protocol sensitivity in the claims ledger (issue 21 item 6): a protocol study's measured effect (issue 20's
-lr-schedule study, :mod:`thesis_repro.study`) in the "why" of the claims the registry declares it on."""
+"""Protocol sensitivity in the claims ledger: a protocol study's measured effect (the thesis protocol's
+lr-schedule study, :mod:`thesis_repro.runs.study`) in the "why" of the claims the registry declares it on."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import study
-from thesis_repro.cache import RunCache
 from thesis_repro.claims import diagnosis, evidence, ledger, ledger_row, registry, report, scoreboard, store
 from thesis_repro.claims import synthetic as S
+from thesis_repro.core.cache import RunCache
+from thesis_repro.runs import study
 
-#: The study's result as measured (README / `python -m thesis_repro.study lr-schedule --summary`).
+#: The study's result as measured (README / `python -m thesis_repro.runs.study lr-schedule --summary`).
 FAKE = study.Sensitivity(
     study="lr-schedule",
     setting="lr schedule",

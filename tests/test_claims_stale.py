@@ -7,9 +7,9 @@ import json
 
 import pytest
 
-from thesis_repro import paths
 from thesis_repro.claims import cli, ledger, registry, report, store
 from thesis_repro.claims import synthetic as S
+from thesis_repro.core import paths, stamps
 
 SCALE = "small"
 
@@ -31,8 +31,9 @@ def _restamp(path, stamp):
 
 def test_numbers_saved_by_this_kit_are_fresh(saved):
     blob = json.loads(saved.read_text())
-    assert blob["kit"] == paths.code_stamp("fig-3.3", blob["kit_modules"])
-    assert "thesis_repro/claims/ledger.py" in blob["kit_modules"]
+    assert blob["kit"] == stamps.code_stamp("fig-3.3", blob["kit_modules"])
+    ledger_py = "thesis_repro/claims/ledger.py"
+    assert blob["kit_modules"][ledger_py] == stamps.module_hash(paths.ROOT / ledger_py)
     row = ledger.judge(registry.spec("3.3-negative-correlation"), SCALE, with_null=False)
     assert row.stale == [] and row.as_dict()["stale_pages"] == []
 
@@ -87,17 +88,18 @@ def test_the_stamp_covers_what_the_page_imported_its_config_and_notebook_and_not
         "own notebook": nbs / "table-3.4.py",
         "other notebook": nbs / "table-3.3.py",
     }
-    for f in files.values():
-        f.write_text("x = 1\n")
+    for name, f in files.items():
+        f.write_text(f"NAME = {name!r}\nx = 1\n")  # each file its own content (a module's identity)
     for name, value in (("ROOT", tmp_path), ("PACKAGE", pkg), ("NOTEBOOKS", nbs), ("THESIS_DATA", thesis)):
         monkeypatch.setattr(paths, name, value)
 
-    blob = {"kit": paths.code_stamp("table-3.4", ["thesis_repro/used.py"]), "kit_modules": ["thesis_repro/used.py"]}
+    modules = stamps.kit_modules(["thesis_repro/used.py"])
+    blob = {"kit": stamps.code_stamp("table-3.4", modules), "kit_modules": modules}
     changed = {}
     for name, f in files.items():
-        f.write_text("x = 2\n")
-        changed[name] = report.is_stale("table-3.4", blob)
-        f.write_text("x = 1\n")
+        f.write_text(f"NAME = {name!r}\nx = 2\n")
+        changed[name] = stamps.is_stale("table-3.4", blob)
+        f.write_text(f"NAME = {name!r}\nx = 1\n")
     assert changed == {
         "used": True,
         "unused": False,
@@ -107,9 +109,51 @@ def test_the_stamp_covers_what_the_page_imported_its_config_and_notebook_and_not
         "other notebook": False,
     }
     # saved without its module list (older numbers): every module counts
-    old = {"kit": paths.code_stamp("table-3.4", None)}
-    files["unused"].write_text("x = 2\n")
-    assert report.is_stale("table-3.4", old) is True
+    old = {"kit": stamps.code_stamp("table-3.4", None)}
+    files["unused"].write_text("NAME = 'unused'\nx = 2\n")
+    assert stamps.is_stale("table-3.4", old) is True
+
+
+def _kit(tmp_path, monkeypatch):
+    """A kit of its own in ``tmp_path``: a numeric module, a module importing it, a page's notebook."""
+    pkg, nbs, thesis = tmp_path / "thesis_repro", tmp_path / "notebooks", tmp_path / "data" / "thesis"
+    for d in (pkg / "maths", nbs, thesis):
+        d.mkdir(parents=True)
+    (pkg / "maths" / "auc.py").write_text('"""Area under a curve."""\n\n\ndef auc(y):\n    return sum(y) / len(y)\n')
+    (pkg / "page.py").write_text("from thesis_repro.maths.auc import auc\n\nVALUE = auc([1, 2])\n")
+    (nbs / "table-3.4.py").write_text("# %% [markdown]\n# Table 3.4\n# %%\nfrom thesis_repro.page import VALUE\n")
+    for name, value in (("ROOT", tmp_path), ("PACKAGE", pkg), ("NOTEBOOKS", nbs), ("THESIS_DATA", thesis)):
+        monkeypatch.setattr(paths, name, value)
+    modules = stamps.kit_modules(["thesis_repro/maths/auc.py", "thesis_repro/page.py"])
+    return pkg, {"kit": stamps.code_stamp("table-3.4", modules), "kit_modules": modules}
+
+
+def test_a_move_a_rename_or_a_docstring_keeps_the_stamp_and_a_numeric_line_does_not(tmp_path, monkeypatch):
+    """Numbers depend on what the code computes, not on where a module lives or on its prose: the shipped
+    claims snapshot stays fresh across a module move or rename and a docstring or comment edit."""
+    pkg, blob = _kit(tmp_path, monkeypatch)
+    auc, page = pkg / "maths" / "auc.py", pkg / "page.py"
+    assert not stamps.is_stale("table-3.4", blob)
+
+    (pkg / "metrics").mkdir()
+    moved = pkg / "metrics" / "area.py"  # moved to another folder and renamed; its importer follows
+    auc.rename(moved)
+    page.write_text("from thesis_repro.metrics.area import auc  # moved\n\nVALUE = auc([1, 2])\n")
+    assert not stamps.is_stale("table-3.4", blob)
+
+    moved.write_text('"""The mean height of a curve: its area over its length."""\n\n\ndef auc(y):\n'
+                     '    """Area under ``y``."""\n    return sum(y) / len(y)  # exact\n')  # fmt: skip
+    (tmp_path / "notebooks" / "table-3.4.py").write_text(
+        "# %% [markdown]\n# Table 3.4: reworded\n# %%\nfrom thesis_repro.page import VALUE\n"
+    )
+    assert not stamps.is_stale("table-3.4", blob)
+
+    moved.write_text("def auc(y):\n    return sum(y) / max(len(y), 1)\n")  # a numeric line
+    assert stamps.is_stale("table-3.4", blob)
+    moved.write_text("def auc(y):\n    return sum(y) / len(y)\n")
+    assert not stamps.is_stale("table-3.4", blob)
+    page.write_text("from thesis_repro.metrics.area import auc\n\nVALUE = auc([1, 3])\n")
+    assert stamps.is_stale("table-3.4", blob)
 
 
 def test_a_ledger_without_saved_pages_says_how_to_compute_them(tmp_path, monkeypatch, capsys):

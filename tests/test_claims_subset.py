@@ -1,4 +1,4 @@
-"""The registered trained-runs sensitivity check (issue 42 item 5): the same frozen rule on the runs `budgets` calls
+"""The registered trained-runs sensitivity check: the same frozen rule on the runs `budgets` calls
 trained, beside the primary verdict, with the units and runs that remain."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import budgets
 from thesis_repro.claims import cli, design, ledger, ledger_row, page_verdicts, registry, report, scoreboard, store
 from thesis_repro.claims import synthetic as S
+from thesis_repro.runs import budgets
 
 #: The claims registered with the check (chosen by wording: see the registry's header comment).
 CHECKED = {

@@ -24,7 +24,7 @@ from thesis_repro.claims.stats import Contrast, CountRule, Unit
 @pytest.fixture
 def shipped(monkeypatch):
     """The ledger reads the real shipped layer (its claims snapshot and calibration), as a fresh clone does."""
-    from thesis_repro import paths
+    from thesis_repro.core import paths
 
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
 

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import paths
-from thesis_repro.cache import entry_identity, read_entry, same_computation, write_manifest
-from thesis_repro.compact import CODEC, CompactError, is_compact, read_arrays, write_compact
-from thesis_repro.runs import compact_entry, compact_shipped, export
+from thesis_repro.core import paths
+from thesis_repro.core.cache import entry_identity, read_entry, same_computation, write_manifest
+from thesis_repro.core.compact import CODEC, CompactError, is_compact, read_arrays, write_compact
+from thesis_repro.runs.layer import compact_entry, compact_shipped, export
 
 
 def _shipped_train(n: int) -> list[Path]:
@@ -118,7 +118,7 @@ def test_compact_command_keeps_numbers_and_identity(tmp_path: Path) -> None:
 
 
 def test_runs_compact_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
-    from thesis_repro.__main__ import main
+    from thesis_repro.cli.commands import main
 
     entry = _shipped_train(1)[0]
     shutil.copytree(entry, tmp_path / "train" / entry.name)
@@ -176,15 +176,15 @@ def test_the_generator_evaluates_a_run_whose_shipped_copy_has_an_identity_of_its
     """The generating machine's local run and its compact shipped copy (committed with the copy's own identity):
     the evaluation is bound to the shipped identity and the local run adopts it, so the job that loads the local
     run finds the identity it was bound to."""
-    from thesis_repro.cache import Job, RunCache
-    from thesis_repro.generator import Planned, _bind_to_layer
+    from thesis_repro.core.cache import Job, RunCache
+    from thesis_repro.runs.generator import Queued, _bind_to_layer
 
     local, shipped = _run_and_old_export(tmp_path / "runs", tmp_path / "layer")
     train = json.loads((local / "config.json").read_text())["config"]
     job = Job("evaluate", {"train": train, "test": {"perturbation": "obs", "sigmas": [0.0], "n_rollouts": 1}})
     assert local.name.endswith(Job("train", train).key)
     lines: list[str] = []
-    bound = _bind_to_layer([Planned(job)], tmp_path / "layer", RunCache(tmp_path / "runs"), lines.append)
+    bound = _bind_to_layer([Queued(job)], tmp_path / "layer", RunCache(tmp_path / "runs"), lines.append)
     assert len(bound) == 1 and bound[0].job.config["policy"] == entry_identity(shipped) and not lines
     assert entry_identity(local) == entry_identity(shipped)
     read_entry(local)  # its manifest still verifies

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import agent
-from thesis_repro.__main__ import main
+from thesis_repro.book import agent
+from thesis_repro.cli.commands import main
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYER = ROOT / "data" / "reference"

@@ -1,4 +1,5 @@
-"""Issue 46: every claim's primary verdict judges seeds 0-5, and beside it the confirmatory check judges the fresh
+"""The confirmatory replication: every claim's primary verdict judges seeds 0-5, and beside it the confirmatory check
+judges the fresh
 seeds 3-5 alone with the same frozen rule; a confirmatory verdict that leans the other way is flagged in the
 ledger row, ``claims --json`` and the page's verdict line."""
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from thesis_repro import evaluation as ev
-from thesis_repro import job_kinds
-from thesis_repro.cache import Job, RunCache
+from thesis_repro.core import job_kinds
+from thesis_repro.core.cache import Job, RunCache
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation import jobs as jobs_mod
 
@@ -338,7 +338,7 @@ def test_evaluate_job_with_the_real_learner():
 
 
 def test_bench_registry_reports_missing_and_rejects_unknown(monkeypatch, capsys):
-    from thesis_repro import bench
+    from thesis_repro.core import bench
 
     monkeypatch.setitem(bench.BENCHMARKS, "ghost", "thesis_repro.no_such_module:bench_ghost")
     assert bench.resolve("ghost") is None
@@ -351,7 +351,7 @@ def test_bench_registry_reports_missing_and_rejects_unknown(monkeypatch, capsys)
 
 
 def test_make_bench_lists_and_rejects_an_unknown_benchmark_in_one_line(capsys):
-    from thesis_repro.__main__ import main
+    from thesis_repro.cli.commands import main
 
     assert main(["bench", "--list"]) == 0
     assert "evaluation     thesis_repro.evaluation.bench:bench_evaluation" in capsys.readouterr().out
@@ -422,7 +422,9 @@ def test_evaluate_rejects_actions_of_the_wrong_shape():
 
 
 def _bad_calls():
-    from thesis_repro import figures, notebooks, scales
+    from thesis_repro import figures
+    from thesis_repro.book import notebooks
+    from thesis_repro.core import scales
     from thesis_repro.learners import train_config
 
     return {
@@ -448,7 +450,7 @@ def test_public_entry_points_give_one_line_naming_the_valid_choices(case):
 
 
 def test_cli_reports_bad_input_in_one_line(capsys):
-    from thesis_repro.__main__ import main
+    from thesis_repro.cli.commands import main
 
     assert main(["figure", "3.99", "--scale", "smoke"]) == 2
     assert main(["figure", "3.3", "--scale", "medium"]) == 2
@@ -466,8 +468,8 @@ def test_cli_reports_bad_input_in_one_line(capsys):
 )
 def test_cli_rejects_bad_make_variables_before_any_notebook_runs(var, value, expected, monkeypatch, capsys):
     # make figure-3.3 RETRAIN=maybe / BACKEND=slurm: one line, exit 2, no kernel started (else a traceback in it)
-    from thesis_repro import notebooks
-    from thesis_repro.__main__ import main
+    from thesis_repro.book import notebooks
+    from thesis_repro.cli.commands import main
 
     monkeypatch.setenv(var, value)
     monkeypatch.setattr(notebooks, "execute", lambda *a, **k: pytest.fail("a notebook ran"))

@@ -1,6 +1,6 @@
 """Failures a user can cause: one ``error:`` line (never a traceback) and a non-zero exit code; Ctrl-C exits
 130 with "interrupted; rerun to resume"; a failed or interrupted run leaves the previous outputs intact and
-no kernel files behind; ``runs --check`` and ``runs X.Y`` catch corrupt entries (issue 19, items 2-5).
+no kernel files behind; ``runs --check`` and ``runs X.Y`` catch corrupt entries.
 
 The notebook runs use a toy notebook (``fig-9.1``, seconds each) in a temporary notebooks folder.
 """
@@ -23,9 +23,13 @@ from pathlib import Path
 
 import pytest
 
-from thesis_repro import backends, figures, notebook_kernel, notebooks, paths, runs, shipped_checks
-from thesis_repro.__main__ import INTERRUPTED, main
-from thesis_repro.cache import Job, RunCache
+from thesis_repro import figures
+from thesis_repro.book import notebook_kernel, notebooks
+from thesis_repro.cli.commands import INTERRUPTED, main
+from thesis_repro.core import backends, paths
+from thesis_repro.core.cache import Job, RunCache
+from thesis_repro.runs import layer as runs
+from thesis_repro.runs import shipped_checks
 
 TOY = """# %% tags=["parameters"]
 SCALE = "small"
@@ -36,7 +40,7 @@ MARKER = ""
 import time
 from pathlib import Path
 
-from thesis_repro import paths
+from thesis_repro.core import paths
 from thesis_repro.claims import report
 
 out = paths.figures(SCALE) / "fig-9.1.png"
@@ -54,10 +58,10 @@ if MODE == "slow":
 DRIVER = """import sys
 from pathlib import Path
 
-from thesis_repro import paths
+from thesis_repro.core import paths
 
 paths.NOTEBOOKS = Path(sys.argv[1])
-from thesis_repro.__main__ import main
+from thesis_repro.cli.commands import main
 
 sys.exit(main(sys.argv[2:]))
 """
@@ -274,7 +278,7 @@ def test_an_interrupted_run_kills_its_kernel_instead_of_asking_it_to_shut_down(m
     and, exiting, wrote asyncio's "Task was destroyed but it is pending!" onto the shared terminal."""
     from jupyter_client import AsyncKernelManager
 
-    from thesis_repro.__main__ import _signals_as_interrupts
+    from thesis_repro.cli.commands import _signals_as_interrupts
 
     async def polite(*args, **kwargs):
         pytest.fail("the interrupted kernel was asked to shut down")
@@ -344,8 +348,8 @@ import signal
 import sys
 
 from thesis_repro import figures
-from thesis_repro import job_kinds
-from thesis_repro.cache import Job
+from thesis_repro.core import job_kinds
+from thesis_repro.core.cache import Job
 
 job_kinds.register("sleepy", "sleepy_jobs:sleepy")
 
@@ -355,7 +359,7 @@ if __name__ == "__main__":
     figures.TRAINING_KINDS = ("sleepy",)
     grid = [Job("sleepy", {"seed": i, "marker": sys.argv[1]}) for i in range(3)]
     figures.register("9.1", "toy", kinds=["sleepy"], settings_id="_example")(lambda scale: grid)
-    from thesis_repro.__main__ import main
+    from thesis_repro.cli.commands import main
 
     sys.exit(main(["reference-runs", "--scale", "smoke", "--kind", "sleepy", "--jobs", "2", "--figures", "9.1"]))
 """
@@ -557,8 +561,8 @@ def test_full_disk(monkeypatch, capsys):
 
 
 def test_a_full_disk_during_a_commit_names_the_entry(monkeypatch, capsys):
-    from thesis_repro import cache as cache_mod
-    from thesis_repro.__main__ import _guarded
+    from thesis_repro.cli.commands import _guarded
+    from thesis_repro.core import cache as cache_mod
 
     def no_space(*args, **kwargs):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # as a write() reports it: no file name
@@ -694,7 +698,7 @@ def test_a_malformed_claims_registry_is_one_line_naming_file_and_line(monkeypatc
 def test_an_error_after_a_progress_bar_starts_on_its_own_line_without_terminal_codes(capsys):
     """A notebook that fails under a half-drawn progress bar: the `error:` line is not glued onto the bar, and
     terminal colour codes in the message (torch's) are dropped."""
-    from thesis_repro.__main__ import _guarded, main
+    from thesis_repro.cli.commands import _guarded, main
 
     def fails() -> int:
         notebook_kernel.TRACKED_STDERR.write("\revaluate obs:   0%|          | 0/1")

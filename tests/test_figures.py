@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from thesis_repro import figures
-from thesis_repro.cache import Job
+from thesis_repro.core.cache import Job
 from thesis_repro.figures import ch4, ch5
 
 EXPECTED = ["3.2", "3.3", "4.1", "4.2", "4.3", "4.4", "4.5", "4.6", "4.7", "5.3", "5.4", "5.5", "5.6"]
@@ -286,7 +286,7 @@ def test_curriculum_end_averages_the_last_tenth_of_the_trials():
 
 
 def test_a_run_shared_by_two_figures_is_computed_once():
-    from thesis_repro.backends import run_jobs
+    from thesis_repro.core.backends import run_jobs
 
     small = {"panels": ["a"], "algos": ["joint"]}
     (first,) = run_jobs(figures.training_jobs("4.1", "smoke", **small), n_jobs=1, progress=False)
@@ -296,7 +296,7 @@ def test_a_run_shared_by_two_figures_is_computed_once():
 
 @pytest.mark.parametrize("figure_id", EXPECTED)
 def test_notebooks_are_thin_and_end_with_the_shared_verdict(figure_id):
-    from thesis_repro import paths
+    from thesis_repro.core import paths
 
     fig = figures.get(figure_id)
     code = "\n".join(line for line in paths.notebook(figure_id).read_text().splitlines() if not line.startswith("#"))
@@ -317,7 +317,7 @@ def test_register_checks_the_job_kinds():
 
 @pytest.mark.parametrize("figure_id", EXPECTED)
 def test_every_figure_page_opens_with_the_thesis_caption_and_claims(figure_id):
-    from thesis_repro import book
+    from thesis_repro.book import builder as book
 
     entry = book.claims()[figures.get(figure_id).notebook_id]  # the book inserts these under the title
     assert entry["caption"] and entry["claims"]

@@ -1,4 +1,4 @@
-"""The perturbation environments as Gymnasium citizens (issue 45): Gymnasium's full ``check_env`` on every wrapper
+"""The perturbation environments as Gymnasium citizens: Gymnasium's full ``check_env`` on every wrapper
 and every registered id, recreation from ``env.spec``, factor wrappers on any MuJoCo env, one-line errors, quiet."""
 
 from __future__ import annotations

@@ -50,7 +50,7 @@ def test_the_core_dependencies_leave_the_book_stack_to_an_extra():
 def test_import_sets_no_mujoco_gl_and_rendering_sets_it():
     code = (
         "import os; os.environ.pop('MUJOCO_GL', None)\n"
-        "import thesis_repro, thesis_repro.envs, thesis_repro.agent, thesis_repro.clips\n"
+        "import thesis_repro, thesis_repro.envs, thesis_repro.book.agent, thesis_repro.book.clips\n"
         "print(os.environ.get('MUJOCO_GL'))\n"
         "from thesis_repro.envs import prepare_render\n"
         "prepare_render('rgb_array'); print(os.environ.get('MUJOCO_GL'))\n"
@@ -73,7 +73,7 @@ def test_human_rendering_without_a_display_is_one_line(monkeypatch):
 
 
 def test_a_kit_outside_its_clone_keeps_runs_in_the_user_cache(monkeypatch, tmp_path):
-    from thesis_repro import paths
+    from thesis_repro.core import paths
 
     monkeypatch.setattr(paths, "ROOT", tmp_path / "site-packages")
     monkeypatch.delenv("THESIS_REPRO_DATA")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thesis_repro.cache import Job, RunCache
+from thesis_repro.core.cache import Job, RunCache
 from thesis_repro.learners import ALGORITHMS, MULTI_DOMAIN, train_config
 
 

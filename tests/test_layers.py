@@ -1,4 +1,4 @@
-"""Imports run one way (issue 21): figures compute numbers, the claims layer judges them.
+"""Imports run one way: figures compute numbers, the claims layer judges them.
 
 An AST scan of the sources (every import, also those inside functions): no figure module imports the claims
 layer or defines a verdict function; the claims layer never imports the figure layer; ``runs.py`` and its siblings
@@ -7,10 +7,10 @@ module or the claims layer.
 
 The direction is ``runs -> figures``, ``budgets -> figures, runs`` and ``pages -> figures, runs, budgets``: no
 figure module imports ``runs``, ``budgets`` or the claims layer, directly or through any other module of the
-package (what a page prints about its runs lives in :mod:`thesis_repro.pages`).
+package (what a page prints about its runs lives in :mod:`thesis_repro.book.pages`).
 
-The whole package follows the package map of ``thesis_repro/__init__.py``: each layer (core; store and backends;
-envs; learners, mdl, arm; evaluation; figures; runs; claims; book and CLI) imports only itself and the layers below.
+The whole package follows the package map of ``thesis_repro/__init__.py``: each layer, one folder each (core; envs;
+learners, mdl, arm; evaluation; figures; runs; claims; book; command line) imports only itself and the layers below.
 """
 
 from __future__ import annotations
@@ -25,16 +25,8 @@ import thesis_repro
 ROOT = Path(thesis_repro.__file__).parent
 FIGURES = sorted((ROOT / "figures").glob("*.py"))
 CLAIMS = sorted((ROOT / "claims").rglob("*.py"))
-#: What imports the figure registry, so the figure layer must not import it (issue 21: imports run one way).
-ABOVE_FIGURES = (
-    "thesis_repro.runs",
-    "thesis_repro.shipped_checks",
-    "thesis_repro.retrain_check",
-    "thesis_repro.generator",
-    "thesis_repro.budgets",
-    "thesis_repro.claims",
-    "thesis_repro.pages",
-)
+#: The layer folders that import the figure registry, so the figure layer imports none of them (imports run one way).
+ABOVE_FIGURES = ("thesis_repro.runs", "thesis_repro.claims", "thesis_repro.book", "thesis_repro.cli")
 #: What builds a verdict (thesis_repro.claims.report); a figure module imports none of it (NOT_RUN is scales').
 JUDGING = {"Verdict", "status", "decide"}
 
@@ -77,18 +69,23 @@ def reaches(path: Path, package: str) -> list[str]:
 
 def test_the_scan_sees_the_imports_it_checks():
     assert FIGURES and CLAIMS
-    assert "thesis_repro.figures" in imported(ROOT / "runs.py")
+    assert "thesis_repro.figures" in imported(ROOT / "runs" / "layer.py")
     assert "thesis_repro.claims.page_verdicts" in imported(ROOT / "claims" / "__init__.py")
     # the forms a back-import could take in a figure module: nested, aliased, relative, dynamic
     probe = (
         "def f():\n"
-        "    from thesis_repro import runs\n"
-        "    import thesis_repro.budgets as b\n"
+        "    from thesis_repro.runs import layer\n"
+        "    import thesis_repro.runs.budgets as b\n"
         "    from .. import claims\n"
-        "    importlib.import_module('thesis_repro.pages')\n"
+        "    importlib.import_module('thesis_repro.book.pages')\n"
     )
     found = imported(ROOT / "figures" / "probe.py", text=probe)
-    assert {"thesis_repro.runs", "thesis_repro.budgets", "thesis_repro.claims", "thesis_repro.pages"} <= found, found
+    assert {
+        "thesis_repro.runs.layer",
+        "thesis_repro.runs.budgets",
+        "thesis_repro.claims",
+        "thesis_repro.book.pages",
+    } <= found
 
 
 def sources() -> dict[str, Path]:
@@ -116,7 +113,7 @@ def test_figure_modules_import_neither_runs_budgets_nor_claims(path):
     back = sorted(m for m in imported(path) for up in ABOVE_FIGURES if m == up or m.startswith(up + "."))
     assert not back, (
         f"figures/{path.name} imports {back}: runs, budgets and the claims layer import the figure layer, "
-        "so imports run one way (a page's runs summary and claim meta live in thesis_repro.pages)"
+        "so imports run one way (a page's runs summary and claim meta live in thesis_repro.book.pages)"
     )
 
 
@@ -128,14 +125,17 @@ def test_the_figure_layer_reaches_nothing_that_imports_it():
         reached = closure(module_name(path), modules)
         back = sorted(m for m in reached for up in ABOVE_FIGURES if m == up or m.startswith(up + "."))
         assert not back, f"figures/{path.name} reaches {back}"
-        assert not {"thesis_repro.study", "thesis_repro.verify"} & reached, f"figures/{path.name} reaches {reached}"
+        assert not {"thesis_repro.runs.study", "thesis_repro.cli.verify"} & reached, (
+            f"figures/{path.name} reaches {reached}"
+        )
 
 
 def test_pages_sits_above_figures_runs_and_budgets():
-    mods = imported(ROOT / "pages.py")
-    assert {"thesis_repro.figures", "thesis_repro.runs", "thesis_repro.budgets"} <= mods
-    assert "thesis_repro.figures" in imported(ROOT / "budgets.py")
-    from thesis_repro import figures, pages
+    mods = imported(ROOT / "book" / "pages.py")
+    assert {"thesis_repro.figures", "thesis_repro.runs.layer", "thesis_repro.runs.budgets"} <= mods
+    assert "thesis_repro.figures" in imported(ROOT / "runs" / "budgets.py")
+    from thesis_repro import figures
+    from thesis_repro.book import pages
 
     for name in ("runs_summary", "claim_meta"):
         assert callable(getattr(pages, name)) and not hasattr(figures, name)
@@ -170,10 +170,10 @@ def test_the_claims_layer_never_imports_the_figure_layer(path):
     assert not reaches(path, "thesis_repro.figures"), f"{where} imports the figure layer"
 
 
-@pytest.mark.parametrize("name", ["runs.py", "shipped_checks.py", "retrain_check.py", "generator.py"])
+@pytest.mark.parametrize("name", ["layer.py", "shipped_checks.py", "retrain_check.py", "generator.py", "needs.py"])
 def test_the_run_modules_need_only_the_figure_registry(name):
-    mods = imported(ROOT / name)
-    assert not reaches(ROOT / name, "thesis_repro.claims")
+    mods = imported(ROOT / "runs" / name)
+    assert not reaches(ROOT / "runs" / name, "thesis_repro.claims")
     chapters = {f"thesis_repro.figures.{p.stem}" for p in FIGURES if p.stem != "__init__"}
     assert not mods & chapters, sorted(mods & chapters)
 
@@ -215,12 +215,21 @@ def upward_imports(imports: dict[str, set[str]], layers: list[tuple[str, list[st
     return out
 
 
-def test_the_package_map_lists_the_layers_of_the_issue_and_every_module():
+def test_the_package_map_names_one_folder_per_layer_and_places_every_module():
     layers = package_map()
     assert [name for name, _ in layers] == [
-        "core", "store and backends", "envs", "learners, mdl, arm", "evaluation", "figures", "runs", "claims",
-        "book and CLI",
+        "core", "envs", "learners, mdl, arm", "evaluation", "figures", "runs", "claims", "book", "command line",
     ]  # fmt: skip
+    folders = sorted(p.name for p in ROOT.iterdir() if (p / "__init__.py").is_file())
+    mapped = {prefix.removeprefix("thesis_repro.") for _, prefixes in layers for prefix in prefixes}
+    assert set(folders) <= mapped, f"folders the package map does not name: {sorted(set(folders) - mapped)}"
+    top = sorted(p.name for p in ROOT.iterdir() if p.name not in {"__init__.py", "__main__.py", "__pycache__"})
+    assert [p for p in top if p.endswith(".py")] == [], f"modules outside the layer folders: {top}"
+    assert len(top) <= 12, f"the package map fits one screen: {len(top)} top-level entries {top}"
+    for name in top:
+        face = ROOT / name / "__init__.py"
+        doc = ast.get_docstring(ast.parse(face.read_text())) if face.is_file() else "Data, no module."
+        assert doc and doc.splitlines()[0].endswith("."), f"thesis_repro/{name}: a docstring opening with one line"
     unmapped = sorted(m for m in sources() if layer_of(m, layers) is None)
     assert not unmapped, f"modules the package map (thesis_repro/__init__.py) does not place: {unmapped}"
 
@@ -231,6 +240,25 @@ def test_each_layer_imports_only_downward():
 
 
 def test_the_layer_check_catches_an_upward_import():
-    probe = imported(ROOT / "envs" / "probe.py", text="def f():\n    from thesis_repro import runs\n")
-    imports = {"thesis_repro.envs.probe": probe, "thesis_repro.runs": set()}
-    assert upward_imports(imports, package_map()) == ["thesis_repro.envs.probe (envs) -> thesis_repro.runs (runs)"]
+    probe = imported(ROOT / "envs" / "probe.py", text="def f():\n    from thesis_repro.runs import layer as runs\n")
+    imports = {"thesis_repro.envs.probe": probe, "thesis_repro.runs.layer": set()}
+    assert upward_imports(imports, package_map()) == [
+        "thesis_repro.envs.probe (envs) -> thesis_repro.runs.layer (runs)"
+    ]
+
+
+def test_a_page_s_metadata_never_loads_the_generator():
+    """What a figure needs is a pure question (:mod:`thesis_repro.runs.needs`): the page module, its claim meta
+    and budgets answer it without importing the reference-run generator."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from thesis_repro.book import pages\n"
+        "from thesis_repro.runs import budgets\n"
+        "budgets.training_jobs('smoke', ['3.3'])\n"
+        "print('thesis_repro.runs.generator' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False", out.stderr

@@ -10,7 +10,7 @@ import pytest
 import torch as th
 
 from tests.interrupt import Interrupt
-from thesis_repro.cache import Job, RunCache, canonical_json
+from thesis_repro.core.cache import Job, RunCache, canonical_json
 from thesis_repro.learners import ALGORITHMS, load_policy, snapshots, train_config, train_job
 from thesis_repro.learners import train as lt
 from thesis_repro.learners.arpl import ARPLVecEnv, arpl_perturbation, mean_action

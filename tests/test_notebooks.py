@@ -7,7 +7,8 @@ import json
 import pytest
 
 from tests.test_book import shared_smoke_dirs
-from thesis_repro import notebooks, paths
+from thesis_repro.book import notebooks
+from thesis_repro.core import paths
 
 #: `make test` runs pytest in two processes (`-n 2 --dist loadgroup`): every test that shares the smoke
 #: notebooks' session folder runs in the same one, so they execute once.
@@ -36,7 +37,7 @@ def test_notebook_smoke(nid, tmp_path_factory, monkeypatch):
     # the execution cache: stamped key and the kit modules the kernel imported (the listing cell is removed)
     meta = nb["metadata"]["thesis_repro"]
     assert notebooks.is_current(nid, "smoke")
-    assert "thesis_repro/book.py" not in meta["modules"]
+    assert "thesis_repro/book/builder.py" not in meta["modules"]
     if not notebooks.is_guide(nid):  # a guide writes no verdict
         assert "thesis_repro/claims/report.py" in meta["modules"]
     assert all(notebooks.DEPS_TAG not in t for t in tags)

@@ -1,4 +1,4 @@
-"""Workers die with their parent (issue 43 item 3): a run killed with SIGKILL leaves no pool worker behind."""
+"""Workers die with their parent: a run killed with SIGKILL leaves no pool worker behind."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from thesis_repro import backends, job_kinds, paths
-from thesis_repro.cache import Job, Result
+from thesis_repro.core import backends, job_kinds, paths
+from thesis_repro.core.cache import Job, Result
 
 
 def _sleep(config: dict, workdir: Path) -> dict:
@@ -30,8 +30,8 @@ job_kinds.register("test-orphan-sleep", "tests.test_orphans:_sleep")
 #: The parent: two such jobs on a pool of two workers (what a figure's ``run_jobs`` does).
 PARENT = """
 import sys
-from thesis_repro import backends
-from thesis_repro.cache import Job, RunCache
+from thesis_repro.core import backends
+from thesis_repro.core.cache import Job, RunCache
 from tests.test_orphans import _pool_execute
 backends.execute = _pool_execute
 jobs = [Job("test-orphan-sleep", {"pids": sys.argv[1], "i": i}) for i in range(2)]

@@ -8,10 +8,12 @@ import json
 
 import pytest
 
-from thesis_repro import figures, plan, throughput
-from thesis_repro.__main__ import main
-from thesis_repro.cache import Job
+from thesis_repro import figures
+from thesis_repro.cli.commands import main
+from thesis_repro.core.cache import Job
 from thesis_repro.learners import train_config
+from thesis_repro.runs import costs as plan
+from thesis_repro.runs import throughput
 
 RATES = throughput.Rates({"ppo": 128.0, "evaluate": 100.0}, {"ppo": "test", "evaluate": "test"})
 
@@ -121,7 +123,7 @@ def test_plan_of_a_subset_counts_only_its_runs(capsys):
 
 
 def test_plan_of_what_is_missing_leaves_out_finished_runs():
-    from thesis_repro.cache import RunCache
+    from thesis_repro.core.cache import RunCache
 
     jobs = figures.jobs("3.3", "smoke", algos=["ppo"], envs=["InvertedPendulum"])
     assert plan.plan_figure("3.3", "smoke", 1, None, True, algos=["ppo"], envs=["InvertedPendulum"]).n_train == 1
@@ -134,7 +136,7 @@ def test_plan_of_what_is_missing_leaves_out_finished_runs():
 
 
 def test_plan_reports_cost_per_training_seed():
-    """Issue 22: `plan` reports per seed. Every job counts for its policy's training seed, and the per-seed
+    """The seed regeneration: `plan` reports per seed. Every job counts for its policy's training seed, and the per-seed
     totals add up to the plan's."""
     jobs = figures.jobs("3.3", "smoke", train_seeds=2)
     p = plan.plan_jobs("fig-3.3", jobs, "smoke", cores=2, rates=RATES)

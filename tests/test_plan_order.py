@@ -10,10 +10,12 @@ import math
 
 import pytest
 
-from thesis_repro import figures, generator, job_kinds, order, paths
-from thesis_repro.__main__ import main
-from thesis_repro.cache import Job
-from thesis_repro.order import Claim, Item
+from thesis_repro import figures
+from thesis_repro.cli.commands import main
+from thesis_repro.core import job_kinds, paths
+from thesis_repro.core.cache import Job
+from thesis_repro.runs import generator, needs, order
+from thesis_repro.runs.order import Claim, Item
 
 
 def _never(config: dict, workdir) -> dict:  # a toy kind's job function: planned, never run here
@@ -110,7 +112,7 @@ def test_the_plan_leaves_out_chapter_4_items_no_claim_of_which_6_seeds_settle(mo
     assert p.left_out == {"4.1": "no claim of it can be settled by 6 seeds"}
     assert p.skipped == {"4.3-d": "every kl_avg run diverged"} and p.unsettled == ["3.2-c", "4.1-a"]
     text = order.report(p)
-    assert "left out (issue 46 item 1): 4.1" in text and "4.7-b" in text and "3-9" in text
+    assert "left out (no claim settled at these seeds): 4.1" in text and "4.7-b" in text and "3-9" in text
     assert p.states == {"4.7": "read", "3.2": "made", "5.3": "to make"}
     assert "made but not read yet: 3.2: raise each one's block" in text and "train_seeds: 6" in text
     named = order.confirmatory_plan("small", [3, 4, 5], claims, rates=None, figure_ids=["4.1", "3.2"])
@@ -141,11 +143,13 @@ def _labels(planned):
 
 
 def test_item_by_item_makes_every_seed_of_an_item_before_the_next(two_items):
-    item = generator.plan("smoke", ["9.1", "9.2"], kinds=["order-toy"], seeds=[0, 1, 2], order="item")
+    item = generator.job_queue("smoke", ["9.1", "9.2"], kinds=["order-toy"], seeds=[0, 1, 2], order="item")
     assert _labels(item) == ["a0", "c0", "a1", "c1", "a2", "c2", "b0", "b1", "b2"]
-    seed_first = generator.plan("smoke", ["9.1", "9.2"], kinds=["order-toy"], by_figure=True, seeds=[0, 1, 2])
+    seed_first = generator.job_queue("smoke", ["9.1", "9.2"], kinds=["order-toy"], by_figure=True, seeds=[0, 1, 2])
     assert _labels(seed_first) == ["a0", "c0", "b0", "a1", "c1", "a2", "c2", "b1", "b2"]  # still available
-    own = generator.plan("smoke", ["9.2", "9.1"], kinds=["order-toy"], seeds=[1], order="item", item_seeds={"9.1": [2]})
+    own = generator.job_queue(
+        "smoke", ["9.2", "9.1"], kinds=["order-toy"], seeds=[1], order="item", item_seeds={"9.1": [2]}
+    )
     assert _labels(own) == ["b1", "a2", "c2"]  # an item's own seeds (chapter 5's to 10)
 
 
@@ -154,7 +158,7 @@ def test_a_bad_order_is_one_error_line(capsys):
     err = capsys.readouterr().err
     assert err == "error: unknown order 'fastest'; valid orders are: 'seed-first', 'item', 'claims'\n"
     with pytest.raises(ValueError, match="valid generator orders are: 'seed-first', 'item'"):
-        generator.plan("smoke", order="claims")
+        generator.job_queue("smoke", order="claims")
     assert main(["plan", "order", "--scale", "small"]) == 2
     assert capsys.readouterr().err.startswith("error: plan order needs --seeds")
 
@@ -162,25 +166,26 @@ def test_a_bad_order_is_one_error_line(capsys):
 def test_seeds_past_chapter_5_s_list_are_planned_without_changing_the_scale():
     """`--seeds 3 4 5` plans chapter 5's CMA-ES seeds too (they list `seeds`, not a `train_seeds` count), while the
     scale's own list stays: a fresh clone's page never trains seeds that are not shipped."""
-    from thesis_repro import plan, throughput
+    from thesis_repro.runs import costs as plan
+    from thesis_repro.runs import throughput
 
     listed = figures.settings("5.3", "small")["seeds"]  # [0, 1, 2], or more once its fresh seeds are shipped
-    assert plan.seed_count("5.3", "small", {20, 21}) == {"seeds": [*listed, 20, 21]}
-    assert plan.seed_count("5.3", "small", {listed[0], listed[-1]}) == {}
-    jobs = plan.seed_jobs("5.3", "small", [20, 21])
-    assert sorted(plan.training_seed(j) for j in jobs) == [20, 21]
-    assert {plan.training_seed(j) for j in figures.jobs("5.3", "small")} == set(listed)
-    per_seed = len(plan.seed_jobs("5.4", "small", [0]))
-    assert len(plan.seed_jobs("5.4", "small", range(3, 10))) == 7 * per_seed > 0
-    planned = generator.plan("small", ["5.3"], kinds=["arm-solve"], seeds=[4, 3], order="item")
+    assert needs.seed_count("5.3", "small", {20, 21}) == {"seeds": [*listed, 20, 21]}
+    assert needs.seed_count("5.3", "small", {listed[0], listed[-1]}) == {}
+    jobs = needs.seed_jobs("5.3", "small", [20, 21])
+    assert sorted(needs.training_seed(j) for j in jobs) == [20, 21]
+    assert {needs.training_seed(j) for j in figures.jobs("5.3", "small")} == set(listed)
+    per_seed = len(needs.seed_jobs("5.4", "small", [0]))
+    assert len(needs.seed_jobs("5.4", "small", range(3, 10))) == 7 * per_seed > 0
+    planned = generator.job_queue("small", ["5.3"], kinds=["arm-solve"], seeds=[4, 3], order="item")
     assert [p.job.config["seed"] for p in planned] == [4, 3]
     p = plan.plan_figure("5.6", "small", rates=throughput.Rates({"arm": 1.0}, {}), seeds=[3, 4, 5, 6, 7, 8, 9])
-    assert p.n_other == 7 * len(plan.seed_jobs("5.6", "small", [0])) and p.core_hours > 0
+    assert p.n_other == 7 * len(needs.seed_jobs("5.6", "small", [0])) and p.core_hours > 0
 
 
 def test_shipped_pace_prices_chapter_5_by_kind(tmp_path):
     """`--rates shipped` (and `plan order`) price an arm job at the pace its kind's shipped entries kept."""
-    from thesis_repro import throughput
+    from thesis_repro.runs import throughput
 
     job = Job("arm-solve", {"popsize": 10, "generations": 30, "seed": 0})
     entry = tmp_path / "arm-solve" / "solve__key"

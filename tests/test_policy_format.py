@@ -72,7 +72,7 @@ def test_the_cli_refuses_a_planted_payload_with_one_error_line(tmp_path):
     marker = tmp_path / "payload-ran"
     th.save({"state_dict": _Payload(marker)}, tmp_path / "b" / "policy.pth")
     code = (
-        "import sys; from thesis_repro import retrain_check; from thesis_repro.__main__ import _guarded\n"
+        "import sys; from thesis_repro.runs import retrain_check; from thesis_repro.cli.commands import _guarded\n"
         "sys.exit(_guarded(lambda: retrain_check.max_abs_diff(sys.argv[1], sys.argv[2])))"
     )
     done = subprocess.run(

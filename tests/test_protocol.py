@@ -1,4 +1,4 @@
-"""The training protocol (issue 20): baselines ppo1's linear annealing, the thesis protocol as the only one, and
+"""The training protocol: baselines ppo1's linear annealing, the thesis protocol as the only one, and
 the invariant that a fresh clone's small figure never trains for hours."""
 
 from __future__ import annotations
@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 from stable_baselines3.common.callbacks import BaseCallback
 
-from thesis_repro import figures, paths, protocol, scales
+from thesis_repro import figures
+from thesis_repro.book import protocol
+from thesis_repro.core import paths, scales
 from thesis_repro.learners import train_config, train_job
 from thesis_repro.learners.config import PROTOCOLS, THESIS_PROTOCOL_KEYS, iteration_steps
 from thesis_repro.learners.train import Ppo1Linear
@@ -90,7 +92,7 @@ def test_every_shipped_ppo_run_anneals_or_names_its_schedule():
     import json
 
     from thesis_repro.learners.config import LR_SCHEDULES
-    from thesis_repro.study import lr_schedule_jobs
+    from thesis_repro.runs.study import lr_schedule_jobs
 
     study = {j.key for j in lr_schedule_jobs()}
     checked = 0
@@ -108,8 +110,8 @@ def test_every_shipped_ppo_run_anneals_or_names_its_schedule():
 def test_each_scale_states_its_seeds_and_rollouts_once():
     """`defaults` of scales.yaml give each scale's seeds and rollouts; a figure block of `small` restates neither
     (Fig 3.2 counts 3 like the rest), but for an item raised to the confirmatory seed count once its fresh seeds
-    are shipped (issue 46), and the caller's explicit override is the last word."""
-    from thesis_repro.plan import CONFIRMATORY_SEEDS
+    are shipped, and the caller's explicit override is the last word."""
+    from thesis_repro.runs.needs import CONFIRMATORY_SEEDS
 
     table = scales._table()
     assert (table["defaults"]["small"]["train_seeds"], table["defaults"]["small"]["test_rollouts"]) == (3, 10)
@@ -123,10 +125,10 @@ def test_each_scale_states_its_seeds_and_rollouts_once():
 
 
 def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
-    """Issue 20's invariant while runs change: every training run of every small figure is shipped (a fresh
+    """The thesis protocol's invariant while runs change: every training run of every small figure is shipped (a fresh
     clone, i.e. an empty local cache, evaluates and plots only)."""
-    from thesis_repro import paths
-    from thesis_repro.cache import RunCache
+    from thesis_repro.core import paths
+    from thesis_repro.core.cache import RunCache
 
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path))
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
@@ -138,7 +140,7 @@ def test_a_fresh_clones_small_figures_train_nothing(tmp_path, monkeypatch):
 
 
 def test_small_has_3_seeds_10_rollouts_and_every_learner():
-    """Issue 22's evidence at small: 3 training seeds (6 for an item whose fresh seeds are shipped, issue 46) x 10
+    """The seed regeneration's evidence at small: 3 training seeds (6 for an item whose fresh seeds are shipped) x 10
     test rollouts for every chapter 3-4 item, no learner skipped; chapter 5 keeps its own seeds."""
     small = {fid: scales.figure_settings(fid, "small") for fid in scales.figures()}
     assert {s["protocol"] for s in small.values()} == {"thesis"}
@@ -151,11 +153,11 @@ def test_small_has_3_seeds_10_rollouts_and_every_learner():
 
 def test_the_generator_can_take_one_seed_first():
     """`--seeds 0` plans seed 0 only; `--seeds 0 1 2` plans the three seeds, seed by seed."""
-    from thesis_repro import generator
+    from thesis_repro.runs import generator
 
-    planned = generator.plan("small", ["3.3"], seeds=[0], algos=["ppo"])
+    planned = generator.job_queue("small", ["3.3"], seeds=[0], algos=["ppo"])
     assert {p.job.config["seed"] for p in planned} == {0} and {p.job.config["algorithm"] for p in planned} == {"ppo"}
-    every = generator.plan("small", ["3.3"], seeds=[0, 1, 2], algos=["ppo"])
+    every = generator.job_queue("small", ["3.3"], seeds=[0, 1, 2], algos=["ppo"])
     assert len(every) == 3 * len(planned)
     assert [p.job.config["seed"] for p in every] == sorted(p.job.config["seed"] for p in every)
 
@@ -166,9 +168,12 @@ FRESH_CLONE_EVAL_STEPS = 10_000_000
 
 
 def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
-    """Issue 22: every small evaluation is shipped, so a fresh clone's book loads rather than evaluates for hours;
+    """The seed regeneration: every small evaluation is shipped, so a fresh clone's book loads rather than evaluates
+    for hours;
     no more than :data:`FRESH_CLONE_EVAL_STEPS`."""
-    from thesis_repro import paths, plan, throughput
+    from thesis_repro.core import paths
+    from thesis_repro.runs import costs as plan
+    from thesis_repro.runs import throughput
 
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path))
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
@@ -184,10 +189,12 @@ def test_a_fresh_clones_small_book_evaluates_little(tmp_path, monkeypatch):
 def test_a_seed_past_the_confirmatory_target_is_stale(tmp_path):
     """The scale's own seeds are current; the confirmatory replication's (3-5 here) are current for
     `check_shipped` before the scale table counts them; a seed past that target is stale."""
-    from thesis_repro import generator, scales, shipped_checks
+    from thesis_repro.core import scales
+    from thesis_repro.runs import generator, shipped_checks
 
-    at_three = sorted(  # an item with a learner grid the scale table still reads at 3 seeds (issue 46 raises them
-        # one by one): a chapter-3 table first (cheapest to plan), else a figure (issue 46 leaves chapter 4's at 3)
+    # an item with a learner grid the scale table still reads at 3 seeds (the confirmatory replication raises them
+    # one by one): a chapter-3 table first (cheapest to plan), else a figure (it leaves chapter 4's at 3)
+    at_three = sorted(
         (
             f
             for f in scales.figures()
@@ -200,9 +207,9 @@ def test_a_seed_past_the_confirmatory_target_is_stale(tmp_path):
     if not at_three:
         pytest.skip("every chapter 3-4 item reads its fresh seeds at small")
     item, algo = at_three[0], scales.figure_settings(at_three[0], "small")["algos"][-1]
-    within = generator.plan("small", [item], seeds=[2], algos=[algo])
-    fresh = generator.plan("small", [item], seeds=[5], algos=[algo])
-    beyond = generator.plan("small", [item], seeds=[6], algos=[algo])
+    within = generator.job_queue("small", [item], seeds=[2], algos=[algo])
+    fresh = generator.job_queue("small", [item], seeds=[5], algos=[algo])
+    beyond = generator.job_queue("small", [item], seeds=[6], algos=[algo])
     assert within and fresh and beyond
     current = shipped_checks.current_keys("small", figure_ids=[item])
     assert {p.job.key for p in within} <= current
@@ -227,6 +234,6 @@ def test_book_names_exactly_the_items_at_each_seed_count(name: str, seeds: int, 
     text = (paths.ROOT / "book" / "runs.md").read_text()
     block = text.split(f"<!-- {name}-seeds:begin -->")[1].split(f"<!-- {name}-seeds:end -->")[0]
     assert block == getattr(protocol, words)(seeds, "small"), (
-        f"book/runs.md's {name}-seeds list is stale: paste `python -c \"from thesis_repro import protocol; "
+        f"book/runs.md's {name}-seeds list is stale: paste `python -c \"from thesis_repro.book import protocol; "
         f'print(protocol.{words}({seeds}))"`'
     )

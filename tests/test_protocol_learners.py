@@ -1,4 +1,4 @@
-"""The thesis protocol's learners (issue 20 items 2-4): EPOpt ranks complete episodes by their full return,
+"""The thesis protocol's learners: EPOpt ranks complete episodes by their full return,
 MAML-DG / Reptile-DG hold one domain Θ_i per meta-batch, ARPL's δ is §3.2.1's ε ∇_s‖π_θ(s)‖. Each setting has
 a named other option (fragments, a new domain every episode, the rescaled δ); each test below fails on it."""
 

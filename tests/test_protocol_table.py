@@ -1,4 +1,4 @@
-"""The protocol page (issue 20, "One table of every deviation"): one row per setting, no setting without a row."""
+"""The protocol page ("One table of every deviation"): one row per setting, no setting without a row."""
 
 from __future__ import annotations
 
@@ -7,7 +7,9 @@ import re
 import pytest
 import yaml
 
-from thesis_repro import book, paths, protocol
+from thesis_repro.book import builder as book
+from thesis_repro.book import protocol
+from thesis_repro.core import paths
 
 THESIS = paths.ROOT.parent / "shared" / "thesis.txt"
 
@@ -103,7 +105,7 @@ def test_page_renders_every_row_and_joins_the_book_contents(tmp_path):
 
 def test_the_page_names_each_item_s_protocol_at_small():
     """The protocol page lists every chapter 3-4 item once, under the protocol scales.yaml gives it."""
-    from thesis_repro import scales
+    from thesis_repro.core import scales
 
     listed = protocol.protocols_at("small")
     items = [i.split(" (")[0] for figs in listed.values() for i in figs]

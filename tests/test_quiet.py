@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from thesis_repro import notebook_kernel, notebooks
+from thesis_repro.book import notebook_kernel, notebooks
 from thesis_repro.envs import make_env
 from thesis_repro.envs.registry import MODEL_XML
 

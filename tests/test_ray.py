@@ -1,4 +1,4 @@
-"""The Ray backend (:mod:`thesis_repro.backends`): backend choice, packed entries, the task body without Ray,
+"""The Ray backend (:mod:`thesis_repro.core.backends`): backend choice, packed entries, the task body without Ray,
 and, when ``ray`` is importable, a loopback Ray cluster (head + one worker node, started and stopped here)
 that runs the fig-3.3 smoke grid with the local pool's numbers and survives a worker killed mid-training."""
 
@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import backends, figures, job_kinds
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job, RunCache, read_entry
+from thesis_repro import figures
+from thesis_repro.core import backends, job_kinds
+from thesis_repro.core.backends import run_jobs
+from thesis_repro.core.cache import Job, RunCache, read_entry
 from thesis_repro.learners import train_config
 
 #: one `make test` process runs this module (its module-scoped fixture is set up once)

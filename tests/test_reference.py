@@ -9,7 +9,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from thesis_repro import paths, thesis_numbers
+from thesis_repro.core import paths, thesis_numbers
 
 AUC_METHODS = {
     "table3_4": ["ppo", "trpo", "ddpg", "sac"],

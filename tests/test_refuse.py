@@ -1,4 +1,4 @@
-"""Say it, or refuse (issue 43 item 4): a figure whose training runs are neither shipped nor cached refuses with one
+"""Say it, or refuse: a figure whose training runs are neither shipped nor cached refuses with one
 line naming what would train and its cost, unless asked to train; local runs used over shipped ones are said."""
 
 from __future__ import annotations
@@ -7,9 +7,12 @@ import dataclasses
 
 import pytest
 
-from thesis_repro import figures, notebooks, paths, plan
-from thesis_repro.__main__ import main
-from thesis_repro.cache import Job, RunCache
+from thesis_repro import figures
+from thesis_repro.book import notebooks
+from thesis_repro.cli.commands import main
+from thesis_repro.core import paths
+from thesis_repro.core.cache import Job, RunCache
+from thesis_repro.runs import costs as plan
 
 TOY = [Job("square", {"x": x}) for x in (1, 2)]
 
@@ -58,7 +61,7 @@ def test_local_runs_used_over_shipped_ones_are_said(toy_training, tmp_path, monk
 def test_local_runs_used_over_shipped_ones_are_named_in_the_verdicts_evidence(toy_training, tmp_path, monkeypatch):
     """The page's meta counts its runs read from the local run cache (those replacing a shipped copy too), and
     every verdict judged from that page's numbers says how many in its evidence."""
-    from thesis_repro import pages
+    from thesis_repro.book import pages
     from thesis_repro.claims import ledger, page_verdicts, registry, report, store
     from thesis_repro.claims import synthetic as S
 

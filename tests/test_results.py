@@ -7,9 +7,9 @@ import os
 
 import pytest
 
-from thesis_repro import paths
-from thesis_repro.__main__ import main
 from thesis_repro.claims import results
+from thesis_repro.cli.commands import main
+from thesis_repro.core import paths
 
 CLAIM = {
     "id": "3.3-pareto",

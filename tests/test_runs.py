@@ -10,9 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import figures, generator, job_kinds, paths, plan, provenance, retrain_check, runs, shipped_checks
-from thesis_repro.__main__ import main
-from thesis_repro.cache import CorruptEntryWarning, Job, RunCache, read_entry
+from thesis_repro import figures
+from thesis_repro.cli.commands import main
+from thesis_repro.core import job_kinds, paths, provenance
+from thesis_repro.core.cache import CorruptEntryWarning, Job, RunCache, read_entry
+from thesis_repro.runs import costs as plan
+from thesis_repro.runs import generator, needs, retrain_check, shipped_checks
+from thesis_repro.runs import layer as runs
 
 INTERRUPT_ONCE = "THESIS_REPRO_TEST_INTERRUPT"
 
@@ -119,7 +123,7 @@ def test_deadline_stretches_the_eta_by_the_core_share_trainings_kept():
     assert generator.core_share(Landed(300.0, 400.0)) == pytest.approx(0.75)
     assert generator.core_share(Landed(500.0, 400.0)) == 1.0  # a pace per wall second above the CPU pace: capped
     assert generator.core_share(Landed(None, None)) is None
-    job = generator.Planned(Job("train", _cfg("a", 10)), ["9.9"])
+    job = generator.Queued(Job("train", _cfg("a", 10)), ["9.9"])
     queue = generator._Deadline([job], datetime.now() + timedelta(seconds=600), lambda j: 300.0, lambda line: None)
     assert queue.share == 1.0
     for _ in range(generator.SHARE_WINDOW):
@@ -133,7 +137,7 @@ def test_deadline_stretches_the_eta_by_the_core_share_trainings_kept():
 
 def test_eta_counts_the_work_left_past_a_checkpoint(monkeypatch, tmp_path):
     from thesis_repro.learners import train
-    from thesis_repro.throughput import Rates
+    from thesis_repro.runs.throughput import Rates
 
     job = Job("train", {"algorithm": "ppo", "env": "Hopper", "seed": 0, "timesteps": 1_000_000})
     rates = Rates({"ppo": 1000.0}, {})
@@ -169,11 +173,11 @@ def test_generator_commits_each_run(fake_figures, tmp_path, monkeypatch):
 
 
 def test_plan_dedupes_and_orders_by_cost(fake_figures):
-    plan = generator.plan("smoke", kinds=["toy-train"])
+    plan = generator.job_queue("smoke", kinds=["toy-train"])
     assert [p.job.config["algorithm"] for p in plan] == ["a", "b", "c"]
     assert [p.cost for p in plan] == [10.0, 20.0, 30.0]
     assert plan[1].figures == ["fig-9.1", "fig-9.2"]
-    by_figure = generator.plan("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True)
+    by_figure = generator.job_queue("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True)
     assert [p.job.config["algorithm"] for p in by_figure] == ["b", "c", "a"]  # 9.1's runs first, then 9.2's
     with pytest.raises(ValueError, match="valid job kinds are"):
         generator.generate("smoke", kinds=["trian"], log=str)
@@ -190,10 +194,10 @@ def test_plan_of_several_seeds_completes_seed_0_then_item_by_item(monkeypatch):
     }
     for fid, grid in grids.items():
         figures.register(fid, f"toy figure {fid}", kinds=["toy-train"], settings_id="_example")(grid)
-    order = generator.plan("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True, seeds=[0, 1, 2])
+    order = generator.job_queue("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True, seeds=[0, 1, 2])
     labels = [f"{p.job.config['algorithm']}{p.job.config['seed']}" for p in order]
     assert labels == ["a0", "c0", "b0", "a1", "c1", "a2", "c2", "b1", "b2"]
-    order = generator.plan("smoke", kinds=["toy-train"], seeds=[2, 0])
+    order = generator.job_queue("smoke", kinds=["toy-train"], seeds=[2, 0])
     assert [f"{p.job.config['algorithm']}{p.job.config['seed']}" for p in order] == ["a2", "b2", "c2", "a0", "b0", "c0"]
 
 
@@ -257,7 +261,7 @@ def test_shipped_job_and_cheapest_shipped(fake_figures, tmp_path, monkeypatch):
     assert cheapest == Job("toy-train", _cfg("a", 10))
     fresh = RunCache(tmp_path / "fresh", reference=False).run(cheapest)  # the retrain-and-compare check
     assert fresh.source == "computed" and (fresh.out / "policy.txt").read_text() == "w=0"
-    monkeypatch.setattr("thesis_repro.cache.CACHE_VERSION", 99)  # keys changed: the shipped run is unusable
+    monkeypatch.setattr("thesis_repro.core.cache.CACHE_VERSION", 99)  # keys changed: the shipped run is unusable
     with pytest.raises(ValueError, match="no longer hashes to its key.*make reference-runs"):
         shipped_checks.cheapest_shipped("toy-train", layer)
 
@@ -300,7 +304,7 @@ def test_export_of_a_real_training_run_keeps_what_evaluation_needs(tmp_path):
 
 
 def test_retrain_comparison_is_bit_exact_on_the_same_platform_else_by_outcome(tmp_path):
-    from thesis_repro.provenance import platform_info
+    from thesis_repro.core.provenance import platform_info
 
     entry = tmp_path / "train" / "a__Toy__s0__0123"
     entry.mkdir(parents=True)
@@ -326,7 +330,7 @@ def test_retrain_comparison_is_bit_exact_on_the_same_platform_else_by_outcome(tm
 
 
 def test_wall_seconds_of_a_resumed_run_counts_every_session(tmp_path):
-    from thesis_repro.cache import Result
+    from thesis_repro.core.cache import Result
 
     (tmp_path / "provenance.json").write_text(json.dumps({"wall_seconds": 25.0}))  # the last session only
     assert runs.wall_seconds(Result(tmp_path, {"wall_time": 830.0}, {})) == 830.0
@@ -367,8 +371,8 @@ def test_runs_command(fake_figures, capsys):
 
 def test_plan_produces_seeds_past_the_scale_s_own_count():
     """`--seeds 1` plans seed 1 even where the scale shows one seed (seeds land ahead of the scale table)."""
-    seed0 = generator.plan("smoke", ["3.3"], seeds=[0])
-    seed1 = generator.plan("smoke", ["3.3"], seeds=[1])
+    seed0 = generator.job_queue("smoke", ["3.3"], seeds=[0])
+    seed1 = generator.job_queue("smoke", ["3.3"], seeds=[1])
     assert figures.settings("3.3", "smoke")["train_seeds"] == 1
-    assert len(seed1) == len(seed0) > 0 and {plan.training_seed(p.job) for p in seed1} == {1}
+    assert len(seed1) == len(seed0) > 0 and {needs.training_seed(p.job) for p in seed1} == {1}
     assert {p.job.config["env"] for p in seed1} == {p.job.config["env"] for p in seed0}

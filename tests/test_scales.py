@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from thesis_repro import scales
+from thesis_repro.core import scales
 
 
 def test_full_scale_is_the_thesis_setting():

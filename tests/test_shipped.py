@@ -11,9 +11,12 @@ import re
 
 import pytest
 
-from thesis_repro import paths, provenance, retrain_check, runs, shipped_checks, throughput, verify
-from thesis_repro.cache import RunCache, read_entry
 from thesis_repro.claims import ledger, report, snapshot
+from thesis_repro.cli import verify
+from thesis_repro.core import paths, provenance
+from thesis_repro.core.cache import RunCache, read_entry
+from thesis_repro.runs import layer as runs
+from thesis_repro.runs import retrain_check, shipped_checks, throughput
 
 LAYER = paths.ROOT / "data" / "reference"
 
@@ -22,7 +25,7 @@ def test_every_shipped_run_is_current_and_intact():
     entries = runs.shipped_entries(LAYER)
     if not entries:
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
-    from thesis_repro.study import study_jobs
+    from thesis_repro.runs.study import study_jobs
 
     # the studies' runs are current
     stale = shipped_checks.check_shipped("small", LAYER, also={j.key for j in study_jobs()})
@@ -51,7 +54,7 @@ def test_every_kind_verify_recomputes_compares_with_itself():
 
 def test_verify_samples_every_shipped_evaluation_the_fresh_seeds_too():
     """`make verify` draws from every shipped evaluation `runs --check` counts current, the fresh seeds' (3 and
-    above, shipped before the scale table reads them) included (issue 46: verify samples the new seeds too)."""
+    above, shipped before the scale table reads them) included (verify samples the new seeds too)."""
     ours, others = verify.shipped_of_scale("small", LAYER, verify.VERIFIABLE)
     if not ours:
         pytest.skip("no evaluations shipped yet")
@@ -67,7 +70,7 @@ def test_shipped_layer_is_compact():
     big = sorted(f"{p.relative_to(LAYER)} ({n / 2**20:.1f} MiB)" for p, n in sizes.items() if n > 2**21)
     assert not big, f"shipped files over 2 MiB (store arrays deflated, thin the logs): {big}"
     total = sum(sizes.values())
-    # ~0.35 MB per training run: small's 3 seeds of every chapter 3-4 run (issue 22) and their evaluations.
+    # ~0.35 MB per training run: small's 3 seeds of every chapter 3-4 run and their evaluations.
     # Compact files, never optimiser state. 150 MB until the thesis-budget study: its 108 runs at 4e6 steps with
     # 3 snapshots each and their 1,728 evaluations add ~42 MB (`python -m thesis_repro plan thesis-budget`).
     assert total < 180e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is 180 MB"
@@ -88,7 +91,7 @@ def test_the_cheapest_shipped_run_is_cheap_and_loads_as_shipped(tmp_path):
 def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
     """Retrains the cheapest shipped run (a minute or more) and compares it with the shipped one. `make test` leaves
     it out (marker ``duplicates_verify``): `make verify SCALE=small TRAIN=1` retrains the same run with the same
-    comparison (:func:`thesis_repro.verify.retrain_check`), and `make test-verify` runs this test."""
+    comparison (:func:`thesis_repro.cli.verify.retrain_check`), and `make test-verify` runs this test."""
     job = shipped_checks.cheapest_shipped("train", LAYER)
     if job is None:
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")

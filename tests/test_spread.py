@@ -1,4 +1,4 @@
-"""Seed spread of the training return beside published numbers (``budgets --spread``, issue 22), and the book
+"""Seed spread of the training return beside published numbers (``budgets --spread``), and the book
 page's block that shows it (``book/runs.md``): every row of that block is recomputed here from the shipped runs,
 restricted to its seeds."""
 
@@ -8,10 +8,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from thesis_repro import budgets, paths, thesis_numbers
-from thesis_repro.__main__ import main
+from thesis_repro.cli.commands import main
+from thesis_repro.core import paths, thesis_numbers
 from thesis_repro.learners import train_config
-from thesis_repro.study import lr_schedule_jobs
+from thesis_repro.runs import budgets
+from thesis_repro.runs.study import lr_schedule_jobs
 
 #: The page holding the block, the block and the command that regenerates it (the test checks that the page names it).
 PAGE = paths.ROOT / "book" / "runs.md"

@@ -1,4 +1,4 @@
-"""Protocol studies (:mod:`thesis_repro.study`): the Reptile-DG outer-step study's learner, configs and jobs.
+"""Protocol studies (:mod:`thesis_repro.runs.study`): the Reptile-DG outer-step study's learner, configs and jobs.
 
 Alg 2 writes the outer update as "Adam optimiser π ← π + β(π' − π)"; the kit's Table 3.7 runs read it as one
 Adam step of lr β on the gradient π − π'. The study compares that with Nichol et al.'s outer step
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import torch as th
 
-from thesis_repro import study
 from thesis_repro.learners import meta, train_config
 from thesis_repro.learners import train as lt
+from thesis_repro.runs import study
 
 th.set_num_threads(1)
 
@@ -68,7 +68,7 @@ def test_alg2_as_written_keeps_adam_and_the_option_keeps_shipped_keys():
 
 
 def test_the_alg2_runs_of_the_study_are_table_3_7s_runs():
-    from thesis_repro.plan import seed_jobs
+    from thesis_repro.runs.needs import seed_jobs
 
     spec = study.SPECS["reptile-outer-step"]
     table = {j.key for j in seed_jobs("table-3.7", "small", seeds=[0, 1, 2]) if j.kind == "train"}
@@ -101,7 +101,7 @@ def test_study_effects_read_a_none_setting_and_unknown_names_are_one_line_errors
 
 
 def test_the_kit_runs_of_the_maml_study_are_table_3_7s_and_step_is_alg_1_read_literally():
-    from thesis_repro.plan import seed_jobs
+    from thesis_repro.runs.needs import seed_jobs
 
     spec = study.SPECS["maml-outer-update"]
     table = {j.key for j in seed_jobs("table-3.7", "small", seeds=[0, 1, 2]) if j.kind == "train"}
@@ -126,13 +126,14 @@ STUDY_BLOCKS = {"reptile-outer-step": "reptile-study", "maml-outer-update": "mam
 
 @pytest.mark.parametrize(("name", "marker"), STUDY_BLOCKS.items())
 def test_book_study_block_is_the_summary_of_the_shipped_runs(monkeypatch, name, marker):
-    from thesis_repro import budgets, paths
+    from thesis_repro.core import paths
+    from thesis_repro.runs import budgets
 
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the real shipped layer
     text = (paths.ROOT / "book" / "learners.md").read_text()
-    assert f"python -m thesis_repro.study {name} [--summary]" in text
+    assert f"python -m thesis_repro.runs.study {name} [--summary]" in text
     block = text.split(f"<!-- {marker}:begin -->")[1].split(f"<!-- {marker}:end -->")[0].strip()
     spec = study.SPECS[name]
     expected = study.summary(spec.jobs(), budgets.shipped_cache(), spec).strip()
-    stale = f"book/learners.md {marker} block is stale: paste `python -m thesis_repro.study {name} --summary`"
+    stale = f"book/learners.md {marker} block is stale: paste `python -m thesis_repro.runs.study {name} --summary`"
     assert block == expected, stale

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from thesis_repro import thesis_numbers
+from thesis_repro.core import thesis_numbers
 from thesis_repro.evaluation import tables as T
 
 RNG = np.random.default_rng(0)
@@ -162,8 +162,9 @@ def test_auc_change_is_scale_free_per_task():
 
 
 # ================================================================ the chapter-3 items (figures.ch3_tables / ch3_curves)
-from thesis_repro import figures, paths  # noqa: E402
+from thesis_repro import figures
 from thesis_repro.claims import report  # noqa: E402
+from thesis_repro.core import paths  # noqa: E402
 from thesis_repro.figures import ch3_curves as C  # noqa: E402
 from thesis_repro.figures import ch3_tables as F  # noqa: E402
 
@@ -203,8 +204,8 @@ def test_items_share_runs_with_fig_3_3_and_each_other():
 
 def test_budgets_are_fig_3_3s():
     """Every chapter-3 item trains with Fig 3.3's budgets; at small an item whose fresh seeds are shipped reads
-    the confirmatory seed count (issue 46) instead of Fig 3.3's."""
-    from thesis_repro.plan import CONFIRMATORY_SEEDS
+    the confirmatory seed count instead of Fig 3.3's."""
+    from thesis_repro.runs.needs import CONFIRMATORY_SEEDS
 
     for item in ITEMS:
         for scale in ("smoke", "small", "full"):

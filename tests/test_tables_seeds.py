@@ -1,4 +1,4 @@
-"""Confidence intervals across training seeds (issue 21): the statistic (thesis_repro.evaluation.tables), checked
+"""Confidence intervals across training seeds: the statistic (thesis_repro.evaluation.tables), checked
 by hand against ``scipy.stats.t.interval``, and the chapter-3 tables, bars and curves that show it — the
 multi-seed path on synthetic 3-seed frames, the one-seed path (no interval, no crash)."""
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from thesis_repro import terminal
-from thesis_repro.__main__ import main
+from thesis_repro.cli.commands import main
+from thesis_repro.core import terminal
 
 ROOT = Path(__file__).resolve().parents[1]
 

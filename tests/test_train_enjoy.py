@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from thesis_repro import agent
-from thesis_repro.__main__ import main
+from thesis_repro.book import agent
+from thesis_repro.cli.commands import main
 
 
 def test_an_unshipped_run_names_its_cost_and_asks_for_train(monkeypatch, capsys):
@@ -36,7 +36,7 @@ def test_bad_input_is_one_line(argv, expected, capsys):
 
 
 def test_tasks_and_learners_match_case_insensitively():
-    assert agent.train_job("PPO", "invertedpendulum", 0, "smoke") == agent.train_job(
+    assert agent.training_job("PPO", "invertedpendulum", 0, "smoke") == agent.training_job(
         "ppo", "InvertedPendulum", 0, "smoke"
     )
     assert agent.match_task("HALFCHEETAH-V5") == "HalfCheetah"
@@ -54,8 +54,8 @@ def test_train_with_a_budget_prints_its_cost_then_progress_with_an_eta(monkeypat
     assert err[0].startswith("train ppo on InvertedPendulum: ") and "ETA ?" in err[0]
     assert err[-1].startswith("train ppo on InvertedPendulum: 512/512 env steps (100%)") and err[-1].endswith("done")
     assert all(len(line) <= 80 for line in got.out.splitlines() + err[:-1] if not line.startswith("/"))
-    job = agent.train_job("ppo", "InvertedPendulum", 0, "smoke", timesteps=512)
-    assert job.config["timesteps"] == 512 and job != agent.train_job("ppo", "InvertedPendulum", 0, "smoke")
+    job = agent.training_job("ppo", "InvertedPendulum", 0, "smoke", timesteps=512)
+    assert job.config["timesteps"] == 512 and job != agent.training_job("ppo", "InvertedPendulum", 0, "smoke")
     assert main(argv) == 0  # now cached: no cost, no progress
     got = capsys.readouterr()
     assert "smoke, 512 steps): cached" in got.out.replace("\n  ", " ") and got.err == ""

@@ -1,4 +1,4 @@
-"""``make verify`` (issue 22 item 3) and shipped evaluations (item 2): the generator ships evaluation entries keyed by
+"""``make verify`` and shipped evaluations: the generator ships evaluation entries keyed by
 the shipped policy; ``verify`` recomputes a seeded sample of them and compares (bit-identical on the platform that
 made them, else within ``VERIFY_RTOL``), prints a table and fails on a mismatch. Toy kinds, a temporary layer."""
 
@@ -12,9 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from thesis_repro import backends, figures, generator, job_kinds, retrain_check, runs, shipped_checks, verify
-from thesis_repro.__main__ import main
-from thesis_repro.cache import Job, Result, RunCache, find_entry, read_entry, save_arrays, write_manifest
+from thesis_repro import figures
+from thesis_repro.cli import verify
+from thesis_repro.cli.commands import main
+from thesis_repro.core import backends, job_kinds
+from thesis_repro.core.cache import Job, Result, RunCache, find_entry, read_entry, save_arrays, write_manifest
+from thesis_repro.runs import generator, retrain_check, shipped_checks
+from thesis_repro.runs import layer as runs
 
 
 # ---------------------------------------------------------------- toy kinds (importable by path: the worker imports us)
@@ -178,7 +182,8 @@ def _key(entry: Path) -> str:
 
 
 def test_a_consistent_edit_is_caught_by_verify_entry_and_verify_figure(layer, capsys):
-    """Issue 43's edit: one evaluation's returns x1.045 and its manifest rehashed; every manifest check passes."""
+    """The fault checks' edit: one evaluation's returns x1.045 and its manifest rehashed; every manifest check
+    passes."""
     target = _evaluations(layer)[1]
     _rewrite(target, lambda r: r * 1.045)
     assert shipped_checks.verify_shipped(layer) == {}  # the manifest is consistent: only recomputing catches it

@@ -1,31 +1,27 @@
 """thesis_repro: reproduce, figure by figure, C. Zhao's thesis on generalisation in deep RL.
 
-The package map, layers from the bottom up. A module imports only from its own layer and the layers below it
-(``tests/test_layers.py`` reads this list and enforces it; ``tests/test_imports.py`` forbids import circles):
+The package map, layers from the bottom up, one folder each. A module imports only from its own layer and the
+layers below it (``tests/test_layers.py`` reads this list and enforces it; ``tests/test_imports.py`` forbids import
+circles):
 
-1. **core**: ``thesis_repro``, ``paths``, ``validation``, ``provenance``, ``scales``, ``thesis_numbers``,
-   ``job_kinds``, ``bench``, ``terminal`` -- locations, checks, where and in which numerics an entry was made, the
-   scale table, the thesis's numbers, the job registry, the timing helpers and output that fits the terminal; they
-   import the standard library, third-party packages and each other only.
-2. **store and backends**: ``cache``, ``backends`` -- the run cache and where jobs run; may import core (a job
-   function is resolved by name through ``job_kinds``, never imported).
-3. **envs**: ``envs`` -- the MuJoCo tasks and their perturbations; may import core.
-4. **learners, mdl, arm**: ``learners``, ``mdl``, ``arm`` -- the RL learners, Alg 3's aggregation, chapter 5's
-   arm; may import envs, the store (a job loads its dependencies through the run cache) and core.
-5. **evaluation**: ``evaluation`` -- the chapter 3 testing protocol and its benchmark; may import every layer
-   above this line.
-6. **figures**: ``figures`` -- each item's jobs and numbers, no verdicts; may import every layer below.
-7. **runs**: ``throughput``, ``plan``, ``runs``, ``shipped_checks``, ``retrain_check``, ``generator``, ``order``,
-   ``study``, ``budget_study``, ``pilots``, ``budgets`` -- what a job costs, cost plans, where the runs are and their
-   export into the shipped layer, the shipped layer's checks, a retrain against a shipped run, the reference-run
-   generator and the order it makes items in (claims settled per core-hour), the protocol studies, the
-   thesis-budget study, the pilot runs, budgets; may import figures and below.
-8. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed, in the verdict words
-   of ``claims.report``; may import runs (the studies) and below, never figures.
-9. **book and CLI**: ``book``, ``pages``, ``notebooks``, ``protocol``, ``agent``, ``clips``, ``verify``,
-   ``__main__``, ``claims.__main__``, ``claims.cli`` -- pages, the book, a user's agent beside
-   the shipped learners, videos of trained policies, ``make verify`` (it re-runs a claim's notebooks) and the
-   command lines; may import everything.
+1. **core**: ``thesis_repro``, ``core`` -- locations, argument checks, where and in which numerics an entry was
+   made, the scale table, the thesis's numbers, the job registry, code stamps, timing helpers, output that fits
+   the terminal, the run cache and where jobs run (a job function is resolved by name through
+   ``core.job_kinds``, never imported).
+2. **envs**: ``envs`` -- the MuJoCo tasks and their perturbations.
+3. **learners, mdl, arm**: ``learners``, ``mdl``, ``arm`` -- the RL learners, Alg 3's aggregation, chapter 5's
+   arm (a job loads its dependencies through the run cache).
+4. **evaluation**: ``evaluation`` -- the chapter 3 testing protocol and its benchmark.
+5. **figures**: ``figures`` -- each item's jobs and numbers, no verdicts.
+6. **runs**: ``runs`` -- which jobs a figure needs (``runs.needs``, pure), what they cost, where the runs are and
+   their export into the shipped layer, its checks, a retrain against a shipped run, the reference-run generator
+   and its order, the protocol studies, the thesis-budget study, the pilots, budgets.
+7. **claims**: ``claims`` -- the claims ledger: judges the numbers the figures computed, in the verdict words of
+   ``claims.report``; never imports figures.
+8. **book**: ``book`` -- pages, notebook execution, the book's build, the protocol table, videos of trained
+   policies and a user's agent beside the shipped learners.
+9. **command line**: ``cli``, ``__main__``, ``claims.__main__``, ``claims.cli`` -- ``python -m thesis_repro``,
+   ``make verify`` (it re-runs a claim's notebooks) and the claims command line.
 """
 
 import os
@@ -33,7 +29,7 @@ import os
 # MuJoCo's offscreen renderer (MUJOCO_GL) is chosen where a task is made to render
 # (thesis_repro.envs.make.prepare_render), never on import.
 
-#: Portable numerics (issue 19 item 6): the same float kernels on every x86-64 CPU, so a run or an evaluation
+#: Portable numerics: the same float kernels on every x86-64 CPU, so a run or an evaluation
 #: gives the same numbers on Intel and AMD. Measured on an AVX-512 Xeon: MKL's CPU dispatch (the sgemm of every
 #: policy forward and PPO update) changes an evaluation's returns in the 7th digit and a training run's weights;
 #: MKL's COMPATIBLE branch is the only one its documentation promises identical on Intel and compatible

@@ -16,7 +16,7 @@ import re
 import sys
 from pathlib import Path
 
-from thesis_repro import paths
+from thesis_repro.core import paths
 
 ENVS = ["Walker2d", "Hopper", "HalfCheetah", "InvertedPendulum", "InvertedDoublePendulum"]
 TESTS = ["obs", "act", "env", "dom"]

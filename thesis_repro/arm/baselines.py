@@ -37,8 +37,8 @@ from thesis_repro.arm.learn import SOURCE_DEFAULTS, arm_objective, evaluate_poli
 from thesis_repro.arm.policy import RBFPolicy
 from thesis_repro.arm.tasks import sample_tasks, simulate, validate_tasks
 from thesis_repro.arm.transfer import alternate, make_subspace
-from thesis_repro.cache import Job, RunCache
-from thesis_repro.validation import check_choice
+from thesis_repro.core.cache import Job, RunCache
+from thesis_repro.core.validation import check_choice
 
 TRANSFER: tuple[str, ...] = ("scratch", "direct", "matrix", "tensor")
 COMPETITORS: tuple[str, ...] = ("ella", "rbf-ella", "fcnn")

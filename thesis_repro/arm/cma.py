@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from thesis_repro.validation import check_positive
+from thesis_repro.core.validation import check_positive
 
 #: ``evaluate(X (n, pop, dim))`` returns either ``fitness`` or ``(fitness, cost, success)``, each ``(n, pop)``.
 Evaluate = Callable[[np.ndarray], Any]

@@ -40,7 +40,7 @@ from thesis_repro.arm.learn import ALGO_VERSION, evaluate_policies, mtl_alternat
 from thesis_repro.arm.policy import RBFPolicy
 from thesis_repro.arm.tasks import SIM_VERSION, sample_tasks
 from thesis_repro.arm.transfer import Tucker, hosvd
-from thesis_repro.validation import check_choice
+from thesis_repro.core.validation import check_choice
 
 CONDITIONS: tuple[str, ...] = ("CL", "NC")
 CURRICULUM: tuple[str, ...] = ("reach", "throw", "bic")

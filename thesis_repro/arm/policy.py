@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from thesis_repro.validation import check_nonneg, check_positive
+from thesis_repro.core.validation import check_nonneg, check_positive
 
 A: int = 2  #: actuators: horizontal and vertical end-effector acceleration
 

@@ -77,7 +77,7 @@ from typing import Any
 import numpy as np
 
 from thesis_repro.arm.policy import A, RBFPolicy
-from thesis_repro.validation import check_choice, check_nonneg, check_positive
+from thesis_repro.core.validation import check_choice, check_nonneg, check_positive
 
 #: Bump whenever the simulated physics or costs change; put it in every cached job's config that simulates.
 SIM_VERSION: int = 3  # 3: reach cost penalises velocity (|v_t|² in the target-state distance)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from thesis_repro.arm.cma import CMAResult, cma_lockstep, default_popsize
-from thesis_repro.validation import check_choice, check_nonneg
+from thesis_repro.core.validation import check_choice, check_nonneg
 
 STRATEGIES: tuple[str, ...] = ("tensor", "matrix")
 

@@ -21,7 +21,7 @@ import warnings
 from collections.abc import Sequence
 
 from thesis_repro.claims import design, evidence, ledger, ledger_row, registry, scoreboard, snapshot
-from thesis_repro.scales import SCALES
+from thesis_repro.core.scales import SCALES
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -38,9 +38,9 @@ from collections.abc import Mapping
 from functools import cache
 from typing import Any
 
-from thesis_repro import paths
 from thesis_repro.claims import judge, judge_v3, registry, seeds, stats, stats_v3
 from thesis_repro.claims.measures import ch3, ch4, ch5, common
+from thesis_repro.core import paths
 
 VERSION = "v3"
 #: The version before :data:`VERSION`, still shown beside it (its record: the lock's ``previous``).

@@ -1,7 +1,7 @@
 """Why a claim does not (fully) reproduce: seed spread, training regime, and the protocol studies' measurements.
 
 A claim may name the protocol studies its evidence rests on (``sensitivity: [lr-schedule]``,
-:data:`thesis_repro.study.STUDIES`): its "why" (:func:`diagnose`) then shows each study's measured difference,
+:data:`thesis_repro.runs.study.STUDIES`): its "why" (:func:`diagnose`) then shows each study's measured difference,
 from the study's cached / shipped runs (:func:`study_result`; nothing when they are not available, never trained
 here).
 """
@@ -13,14 +13,15 @@ from typing import Any
 
 import numpy as np
 
-from thesis_repro import paths, study
 from thesis_repro.claims.evidence import ci_words
 from thesis_repro.claims.registry import specs
+from thesis_repro.core import paths
+from thesis_repro.runs import study
 
 
 def diagnose(judged: Mapping[str, Any], meta: Mapping[str, Any], sensitivities: Sequence[Any] = ()) -> str:
     """Why a claim does not (fully) reproduce, from the kit's own measurements: seed spread, training regime
-    (half vs final budget, :mod:`thesis_repro.budgets`), protocol sensitivity where measured (a page's
+    (half vs final budget, :mod:`thesis_repro.runs.budgets`), protocol sensitivity where measured (a page's
     ``meta["protocol"]``, and the claim's registered studies' results, :func:`study_result`)."""
     widths, against, short = [], [], []
     for j in judged.values():
@@ -69,7 +70,7 @@ _STUDY_RESULTS: dict[tuple[Any, ...], Any] = {}
 
 
 def study_result(name: str) -> Any:
-    """The protocol study ``name``'s :class:`~thesis_repro.study.Sensitivity` from the runs available in the
+    """The protocol study ``name``'s :class:`~thesis_repro.runs.study.Sensitivity` from the runs available in the
     run cache and the shipped layer, or ``None`` (never trains). Computed once per study function and cache
     location in a process."""
     fn = study.STUDIES[name]
@@ -80,7 +81,7 @@ def study_result(name: str) -> Any:
 
 
 def sensitivity_text(m: Any) -> str:
-    """One "why" clause from a :class:`~thesis_repro.study.Sensitivity`: per task the difference with its Welch
+    """One "why" clause from a :class:`~thesis_repro.runs.study.Sensitivity`: per task the difference with its Welch
     95 % CI across seeds, and whether every CI contains 0 (within seed spread)."""
     cells = []
     for i, e in enumerate(m.effects):
@@ -126,7 +127,7 @@ def sensitivity_method() -> str:
         studies.append(f"`{name}`, declared on {', '.join(ids)}: {result}")
     return (
         "**Protocol sensitivity**: a claim that does not fully reproduce and whose evidence rests on runs a protocol "
-        "study varied (`sensitivity:` in the registry; `python -m thesis_repro.study`) shows in its *why* the "
+        "study varied (`sensitivity:` in the registry; `python -m thesis_repro.runs.study`) shows in its *why* the "
         "setting's effect with its Welch 95 % CI across seeds, from the study's cached / shipped runs (left out when "
         "they are not available); a CI containing 0 means the setting moves the result less than the seed spread. "
         + ("; ".join(studies) if studies else "No claim names a study")

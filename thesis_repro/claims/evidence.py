@@ -50,7 +50,7 @@ def describe(row: Row) -> str:
 
 def local_runs_text(page: str, use: Mapping[str, Any]) -> str:
     """What a page's verdicts rest on when some of its runs came from the local run cache, not the shipped layer
-    (:func:`thesis_repro.pages.local_runs`).
+    (:func:`thesis_repro.book.pages.local_runs`).
 
     >>> local_runs_text("fig-3.4", {"local": 2, "replacing_shipped": 1, "of": 35, "noun": "runs"})
     'fig-3.4 used 2 of its 35 runs from the local run cache, not the shipped layer (1 in place of a shipped copy)'

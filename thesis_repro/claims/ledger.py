@@ -29,11 +29,11 @@ from typing import Any
 
 import pandas as pd
 
-from thesis_repro import paths
 from thesis_repro.claims import calibration, design, report, snapshot
 from thesis_repro.claims import judge as J
 from thesis_repro.claims import judge_v3 as J3
 from thesis_repro.claims import measures as M
+from thesis_repro.claims import readings as R
 from thesis_repro.claims import sensitivity as subsets
 from thesis_repro.claims import stats_v3 as T
 from thesis_repro.claims.confirmatory import FIRST_FRESH, Confirmation, fresh_frames, fresh_seeds, seeds_in
@@ -44,6 +44,7 @@ from thesis_repro.claims.registry import Spec, spec, specs
 from thesis_repro.claims.rules import rule_for, thesis_effects
 from thesis_repro.claims.stats import LEVEL, CountRule, Unit, combine_bounded, combine_groups, null_pass_rate, pooled
 from thesis_repro.claims.store import in_pass, make_target, one_pass, page_data, read_json, saved_blob
+from thesis_repro.core import paths
 
 NULL_DRAWS = 60
 
@@ -120,7 +121,40 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
     row.shipped = list(meta["shipped_pages"])
     row.local_runs = dict(meta["local_runs"])
     row.confirmation = confirm(s, scale, row, frames, meta)
+    if R.applies(s):
+        row.readings = judge_readings(s, scale, with_null, frames)
     return row
+
+
+def judge_readings(
+    s: Spec, scale: str, with_null: bool | str, frames: Mapping[str, pd.DataFrame]
+) -> list[dict[str, Any]]:
+    """Claim ``s`` once per reading of the thesis's update (:mod:`thesis_repro.claims.readings`): design v3's
+    gated label with its primary statistic, *diverged, not judged* where the reading diverged, *not computed*
+    where it is stable and distinct but not trained on the claim's pages."""
+    out = []
+    for algo, outcome, how in R.routes(frames):
+        if how == "diverged":
+            out.append(R.entry(algo, outcome, how, R.DIVERGED, note=R.diverged_note(how)))
+            continue
+        if how == "not trained":
+            note = f"stable and distinct in its pilot, not yet trained on {', '.join(s.data_pages)}'s grid at {scale}"
+            out.append(R.entry(algo, outcome, how, report.NOT_COMPUTED, note=note))
+            continue
+        v = R.spec_for(s, algo)
+        got = R.as_reading(frames, R.column(algo)) if how == "params_avg" else frames
+        v3 = _judge_v3(v, scale, with_null, got, M.NotRun("judged by design v3's rule alone"), None)
+        if v3 is None:
+            out.append(R.entry(algo, outcome, how, report.NOT_COMPUTED, note="nothing to judge"))
+        elif "note" in v3:
+            diverged = str(v3["note"]).startswith(R.DIVERGED)
+            out.append(R.entry(algo, outcome, how, R.DIVERGED if diverged else v3["label"], note=v3["note"]))
+        else:
+            row = Row(v, v3["label"], primary=v3["primary"])
+            row.v3 = {"reason": v3["reason"]}
+            entry = R.entry(algo, outcome, how, v3["label"], ours_text(row), v3["reason"])
+            out.append({**entry, "n_seeds": v3["n_seeds"], "calibration": R.power(v3["calibration"])})
+    return out
 
 
 def confirm(

@@ -51,6 +51,8 @@ class Row:
     #: design v3: ``status`` (the statistical label before the calibration gate), ``reason`` (why the gate
     #: changed it), ``conjunction``, ``thesis_effect`` (is the thesis's own effect excluded?)
     v3: dict[str, Any] = field(default_factory=dict)
+    #: chapter 4's claims: the verdict per reading of the thesis's update (:mod:`thesis_repro.claims.readings`)
+    readings: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         s = self.spec
@@ -79,6 +81,7 @@ class Row:
             "thesis_effect": self.v3.get("thesis_effect"),
             "thesis_effect_text": thesis_effect_text(self),
             "v3_ablation": self.v3.get("ablation", {}),
+            "readings": self.readings,
             "v1_verdict": self.v1_status or self.status,
             "v1_statistic": self.v1_statistic,
             "level": self.level,

@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from thesis_repro import paths
+from thesis_repro.core import paths
 
 
 @dataclass(frozen=True)
@@ -63,8 +63,8 @@ def specs() -> tuple[Spec, ...]:
 
 
 def _sensitivity_names(cid: str, c: Mapping[str, Any]) -> tuple[str, ...]:
-    """A claim's ``sensitivity`` field: protocol-study names, each one of :data:`thesis_repro.study.STUDIES`."""
-    from thesis_repro.study import STUDIES  # cheap: the study module imports no learner until it runs
+    """A claim's ``sensitivity`` field: protocol-study names, each one of :data:`thesis_repro.runs.study.STUDIES`."""
+    from thesis_repro.runs.study import STUDIES  # cheap: the study module imports no learner until it runs
 
     names = c.get("sensitivity", [])
     if isinstance(names, str) or not isinstance(names, list):

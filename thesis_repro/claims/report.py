@@ -4,7 +4,7 @@ The claims layer (:func:`thesis_repro.claims.judge_page`, the last call of every
 notebook) judges a page's numbers into :class:`Verdict` objects and hands them to ``report(figure, scale,
 verdicts)``, which prints one line per claim (the terminal and the executed notebook), displays each as a
 visible admonition in the book, and writes ``build/<scale>/figures/<figure>.verdicts.json`` for the chapter
-summaries (:mod:`thesis_repro.book`). The figure layer computes numbers only and builds no verdict.
+summaries (:mod:`thesis_repro.book.builder`). The figure layer computes numbers only and builds no verdict.
 
 >>> v = Verdict("3.3", "Training return and testing AUC are negatively correlated",
 ...             REPRODUCES, "15/20 cells negative (thesis: 18/20)")
@@ -21,14 +21,13 @@ ValueError: unknown verdict status 'maybe'; valid verdict statuses are: 'reprodu
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
-from thesis_repro import paths
-from thesis_repro.scales import NOT_RUN  # the words a figure's table uses too
-from thesis_repro.validation import check_choice
+from thesis_repro.core import paths, stamps
+from thesis_repro.core.scales import NOT_RUN  # the words a figure's table uses too
+from thesis_repro.core.validation import check_choice
 
 REPRODUCES = "reproduces"
 PARTLY = "partly reproduces"
@@ -159,7 +158,7 @@ def save_rule(page: str, scale: str, verdicts: Sequence[Verdict]) -> Path:
 def _write(out: Path, figure: str, scale: str, verdicts: Sequence[Verdict]) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".tmp")
-    blob = {"figure": figure, "scale": scale, **stamp(figure), "verdicts": [asdict(v) for v in verdicts]}
+    blob = {"figure": figure, "scale": scale, **stamps.page_stamp(figure), "verdicts": [asdict(v) for v in verdicts]}
     tmp.write_text(json.dumps(blob, indent=1))
     tmp.replace(out)
     return out
@@ -185,7 +184,7 @@ def report(figure: str, scale: str, verdicts: Sequence[Verdict], display: bool =
 
 def load(figure: str, scale: str) -> list[Verdict]:
     """Verdicts saved by :func:`report` (empty if the figure was not run at ``scale``); inside a notebook, also
-    those of finished pages (:func:`~thesis_repro.paths.page_output`)."""
+    those of finished pages (:func:`~thesis_repro.core.paths.page_output`)."""
     p = paths.page_output(scale, verdicts_path(figure, scale).name)
     if not p.exists():
         return []
@@ -193,25 +192,7 @@ def load(figure: str, scale: str) -> list[Verdict]:
 
 
 def stale(figure: str, scale: str) -> bool:
-    """Whether the verdicts :func:`load` reads were saved by other kit code (:func:`is_stale`)."""
+    """Whether the verdicts :func:`load` reads were saved by other kit code
+    (:func:`~thesis_repro.core.stamps.is_stale`)."""
     p = paths.page_output(scale, verdicts_path(figure, scale).name)
-    return p.exists() and is_stale(figure, json.loads(p.read_text()))
-
-
-def stamp(page: str) -> dict[str, Any]:
-    """What a page's saved numbers or verdicts carry to tell who wrote them: ``kit``, the
-    :func:`~thesis_repro.paths.code_stamp` over ``kit_modules``, the kit modules this process imported."""
-    modules = paths.imported_modules()
-    return {"kit": paths.code_stamp(page, modules), "kit_modules": modules}
-
-
-def is_stale(page: str, blob: Mapping[str, Any]) -> bool:
-    """Whether ``blob`` (saved with :func:`stamp`) was written by other kit code: a module it imported, the
-    configuration, the thesis data or the page's notebook changed since (every module counts for a blob saved
-    without its list).
-
-    >>> blob = stamp("table-3.4")
-    >>> is_stale("table-3.4", blob), is_stale("table-3.4", {**blob, "kit": "0" * 12}), is_stale("table-3.4", {})
-    (False, True, True)
-    """
-    return blob.get("kit") != paths.code_stamp(page, blob.get("kit_modules"))
+    return p.exists() and stamps.is_stale(figure, json.loads(p.read_text()))

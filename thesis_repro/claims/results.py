@@ -33,9 +33,9 @@ from unittest import mock
 
 import yaml
 
-from thesis_repro import paths, scales
 from thesis_repro.claims import deviations, ledger, registry, scoreboard
 from thesis_repro.claims.confirmatory import FIRST_FRESH, FRESH_WORDS, fresh_summary, fresh_verdict, seed_range
+from thesis_repro.core import paths, scales
 
 #: The README's generated blocks: the results summary and the scale table.
 RESULTS_MARKERS = ("<!-- results:start -->", "<!-- results:end -->")

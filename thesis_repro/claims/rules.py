@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import thesis_numbers
 from thesis_repro.claims import measures as M
 from thesis_repro.claims.registry import Spec, spec
 from thesis_repro.claims.stats import CountRule, _point, unit_seed_effects
+from thesis_repro.core import thesis_numbers
 
 #: Fraction of the thesis's own k/n a "thesis"-tied threshold asks for.
 THESIS_SHARE = 0.75

@@ -1,9 +1,10 @@
-"""Registered subset sensitivity (issue 42, item 5): a claim's frozen v2 rule judged again on a subset of its runs.
+"""Registered subset sensitivity: a claim's frozen v2 rule judged again on a subset of its runs.
 
 A claim entry may carry ``sensitivity_subset: trained`` in ``data/thesis/claims.yaml`` (outside its ``rule:`` and
 ``v2:`` blocks, so outside the design's hashes: :func:`thesis_repro.claims.design.rule_hashes`). Its page saves a
-bool column of that name on every per-seed row (``trained``: :mod:`thesis_repro.budgets` calls the row's training
-run trained, :func:`thesis_repro.pages.claim_frames`). :func:`check` keeps the rows where the column is True in every
+bool column of that name on every per-seed row (``trained``: :mod:`thesis_repro.runs.budgets` calls the row's training
+run trained, :func:`thesis_repro.book.pages.claim_frames`). :func:`check` keeps the rows where the column is True in
+every
 frame that carries it, runs the claim's measure and v2 judgement unchanged on them (the judging code is not
 touched: the data are filtered before the measure) and reports the label, the primary statistic and the units and
 runs that remain, beside the primary verdict. A page saved before the column existed gives *not available*.

@@ -5,13 +5,13 @@ The ledger judges the per-seed numbers a page saves when its notebook runs (``bu
 ``<page>.data.json``, and ``<page>.rule.json`` for a page-verdict claim). A fresh clone has none until
 ``make book`` ran (about ten minutes at ``small``), so :func:`ship` (``make ship-claims SCALE=small``, after
 the book) copies the files the ledger reads into ``data/reference/claims/<scale>/`` (under
-:func:`~thesis_repro.paths.reference`):
+:func:`~thesis_repro.core.paths.reference`):
 
 * ``<file>.gz``: the saved file without its code stamp, gzip-compressed deterministically, so a refresh
   whose numbers did not change rewrites no data file;
 * ``index.json``: per file its SHA-256 (a corrupt file is detected and never judged), its code stamp
   (``kit``, ``kit_modules``: numbers shipped by other kit code are reported stale, as the book's are) and,
-  once, the :func:`~thesis_repro.cache.provenance` of the shipping (command, git commit, host, platform).
+  once, the :func:`~thesis_repro.core.cache.provenance` of the shipping (command, git commit, host, platform).
 
 The ledger reads a page's own build file first and falls back to the snapshot when the build has none or only
 a stale one (:func:`thesis_repro.claims.store.saved_blob`); ``THESIS_REPRO_RETRAIN=1`` ignores the snapshot,
@@ -30,8 +30,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from thesis_repro import paths
 from thesis_repro.claims import registry, report
+from thesis_repro.core import paths, stamps
 
 #: The code-stamp keys of a saved file, kept in the index (not in the data file) so that a refresh after a code
 #: change whose numbers did not change leaves the data file byte-identical.
@@ -44,7 +44,7 @@ class CorruptSnapshot(ValueError):
 
 
 def folder(scale: str) -> Path:
-    """``data/reference/claims/<scale>`` (under :func:`~thesis_repro.paths.reference`)."""
+    """``data/reference/claims/<scale>`` (under :func:`~thesis_repro.core.paths.reference`)."""
     return paths.reference() / "claims" / scale
 
 
@@ -129,7 +129,7 @@ def ship(scale: str) -> list[str]:
     src = {n: paths.figures(scale) / n for n in files()}
     missing = sorted(page_of(n) for n, p in src.items() if not p.exists())
     blobs = {n: json.loads(p.read_text()) for n, p in src.items() if p.exists()}
-    stale = sorted(page_of(n) for n, b in blobs.items() if report.is_stale(page_of(n), b))
+    stale = sorted(page_of(n) for n, b in blobs.items() if stamps.is_stale(page_of(n), b))
     if missing or stale:
         what = "; ".join(f"{label}: {', '.join(ps)}" for label, ps in (("not run", missing), ("stale", stale)) if ps)
         raise ValueError(f"cannot ship the claims snapshot at {scale} ({what}); run `make book SCALE={scale}` first")
@@ -146,7 +146,7 @@ def ship(scale: str) -> list[str]:
     for old in out.glob("*.gz"):
         if old.name.removesuffix(".gz") not in entries:
             old.unlink()
-    from thesis_repro.cache import provenance as run_provenance
+    from thesis_repro.core.cache import provenance as run_provenance
 
     idx = {"scale": scale, "files": entries, "provenance": run_provenance(start, time.time())}
     _write(out / INDEX, (json.dumps(idx, indent=1, sort_keys=True) + "\n").encode())
@@ -168,7 +168,7 @@ def check(scale: str) -> dict[str, str]:
             out[name] = "not run here"
             continue
         built = json.loads(p.read_text())
-        if report.is_stale(page_of(name), built):
+        if stamps.is_stale(page_of(name), built):
             out[name] = "stale here"
             continue
         try:
@@ -196,7 +196,7 @@ def refresh_hint(scale: str) -> str:
     if not idx:
         return ""
     differ = [n for n, v in check(scale).items() if v not in ("identical", "not run here", "stale here")]
-    stale = [n for n, e in idx.get("files", {}).items() if report.is_stale(page_of(n), e)]
+    stale = [n for n, e in idx.get("files", {}).items() if stamps.is_stale(page_of(n), e)]
     if not differ and not stale:
         return ""
     parts = [f"{len(differ)} differ from this build's numbers"] if differ else []

@@ -17,10 +17,10 @@ from typing import Any, TypeVar
 import numpy as np
 import pandas as pd
 
-from thesis_repro import paths
-from thesis_repro.claims import report, snapshot
+from thesis_repro.claims import snapshot
 from thesis_repro.claims.confirmatory import fresh_frames
 from thesis_repro.claims.registry import Spec, data_name
+from thesis_repro.core import paths, stamps
 
 
 def data_path(page: str, scale: str) -> Path:
@@ -30,13 +30,13 @@ def data_path(page: str, scale: str) -> Path:
 
 def save_page(page: str, scale: str, frames: Mapping[str, pd.DataFrame], meta: Mapping[str, Any]) -> Path:
     """Write a page's per-seed frames (records) and meta (scale, seeds, budget note) atomically, stamped
-    with :func:`~thesis_repro.paths.code_stamp` over the kit modules this process imported."""
+    with :func:`~thesis_repro.core.stamps.code_stamp` over the kit modules this process imported."""
     out = data_path(page, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
     blob = {
         "page": page,
         "scale": scale,
-        **report.stamp(page),
+        **stamps.page_stamp(page),
         "meta": dict(meta),
         "frames": {k: json.loads(v.to_json(orient="records")) for k, v in frames.items()},
     }
@@ -56,16 +56,16 @@ def _jsonable(x: Any) -> Any:
 
 def saved_blob(page: str, name: str, scale: str) -> dict[str, Any] | None:
     """The file ``name`` (``<page>.data.json`` or ``<page>.verdicts.json``) as ``page`` saved it at ``scale``, or
-    None: the build's copy (inside a notebook, also a finished page's: :func:`~thesis_repro.paths.page_output`)
+    None: the build's copy (inside a notebook, also a finished page's: :func:`~thesis_repro.core.paths.page_output`)
     unless it is missing or stale and the shipped snapshot (:mod:`~thesis_repro.claims.snapshot`) has one that is
-    not. ``blob["stale"]``: written by other kit code (:func:`~thesis_repro.paths.code_stamp`);
+    not. ``blob["stale"]``: written by other kit code (:func:`~thesis_repro.core.stamps.code_stamp`);
     ``blob["shipped"]``: read from the snapshot; ``blob["version"]``: changes whenever the numbers may have.
     A corrupt shipped file with no build copy raises :class:`~thesis_repro.claims.snapshot.CorruptSnapshot`."""
     p = paths.page_output(scale, name)
     built = json.loads(p.read_text()) if p.exists() else None
     if built is not None:
         built["version"] = f"{p}@{p.stat().st_mtime_ns}"
-    if built is not None and not report.is_stale(page, built):
+    if built is not None and not stamps.is_stale(page, built):
         return {**built, "stale": False, "shipped": False}
     try:
         shipped = snapshot.read(name, scale)
@@ -73,8 +73,8 @@ def saved_blob(page: str, name: str, scale: str) -> dict[str, Any] | None:
         if built is None:
             raise
         shipped = None
-    if shipped is not None and (built is None or not report.is_stale(page, shipped)):
-        return {**shipped, "stale": report.is_stale(page, shipped), "shipped": True}
+    if shipped is not None and (built is None or not stamps.is_stale(page, shipped)):
+        return {**shipped, "stale": stamps.is_stale(page, shipped), "shipped": True}
     return None if built is None else {**built, "stale": True, "shipped": False}
 
 

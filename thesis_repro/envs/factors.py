@@ -44,8 +44,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from thesis_repro.core.validation import check_choice
 from thesis_repro.envs.registry import ENVS, short_name
-from thesis_repro.validation import check_choice
 
 MIN_RATIO: float = 0.05
 WIND_SCALE: float = 9.81  # m/s² of horizontal acceleration per unit of σ·ε (= |g|)

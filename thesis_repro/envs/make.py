@@ -16,6 +16,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from thesis_repro.core.validation import check_choice, check_nonneg
 from thesis_repro.envs.factors import check_factors, env_short_name
 from thesis_repro.envs.lean import lean_spec
 from thesis_repro.envs.registry import model_kwargs, resolve_env, short_name
@@ -28,7 +29,6 @@ from thesis_repro.envs.wrappers import (
     Wind,
     _has_display,
 )
-from thesis_repro.validation import check_choice, check_nonneg
 
 #: thesis testing settings: none, Obs (σ^o), Act (σ^u), Env (σ^s), Dom (Σ).
 PERTURBATIONS: tuple[str, ...] = ("none", "obs", "act", "env", "dom")

@@ -21,7 +21,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from thesis_repro.validation import check_choice
+from thesis_repro.core.validation import check_choice
 
 #: short name -> Gymnasium id (the thesis used the -v2 versions of the same tasks; v2 needs mujoco-py).
 ENVS: dict[str, str] = {

@@ -38,8 +38,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from thesis_repro.core.validation import check_nonneg
 from thesis_repro.envs.factors import FactorSet
-from thesis_repro.validation import check_nonneg
 
 
 class _Seeded(gym.Wrapper, gym.utils.RecordConstructorArgs):

@@ -25,8 +25,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from thesis_repro.core.validation import check_choice, check_nonneg
 from thesis_repro.envs import PERTURBATIONS, make_env
-from thesis_repro.validation import check_choice, check_nonneg
 
 #: Testing conditions of chapter 3 (``"none"``: the unperturbed training domain).
 #: Tag mixed into the testing-seed stream (the bytes of "test").

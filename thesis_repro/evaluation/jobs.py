@@ -3,7 +3,7 @@
 An evaluation config (the ``"evaluate"`` job) is ``{"train": <train_config(...)>, "test": <test block>}``;
 the trained model comes from the run cache (the same train job is trained once and shared by every test).
 The kind pins its training run (:func:`evaluate_dependencies`): the run cache adds ``"policy": <identity of
-the training entry>`` (:func:`thesis_repro.cache.entry_identity`) before keying it, so an evaluation of
+the training entry>`` (:func:`thesis_repro.core.cache.entry_identity`) before keying it, so an evaluation of
 retrained weights is a new entry, and a fresh clone (shipped training runs) computes the same keys.
 A test block is ``{"perturbation", "sigmas" | "ratios", "n_rollouts", "seed", "max_episode_steps",
 "c_a", "snapshot" (optional), "env" (optional), "env_kwargs" (optional)}``:
@@ -34,14 +34,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job, Result, RunCache
+from thesis_repro.core.backends import run_jobs
+from thesis_repro.core.cache import Job, Result, RunCache
+from thesis_repro.core.validation import check_choice, check_nonneg
 from thesis_repro.evaluation.evaluator import PERTURBATIONS, evaluate, evaluate_shift
 from thesis_repro.evaluation.metrics import auc, expected_return, sigma_step
 from thesis_repro.learners import load_policy, train_config
-from thesis_repro.validation import check_choice, check_nonneg
 
-#: Job kinds of training and evaluation runs (``thesis_repro.job_kinds``).
+#: Job kinds of training and evaluation runs (``thesis_repro.core.job_kinds``).
 TRAIN_KIND = "train"
 EVAL_KIND = "evaluate"
 

@@ -3,7 +3,7 @@ under the book's own protocol, with 95 % CIs across training seeds.
 
 :func:`score_model` defaults to a scale's book grid (σ points, testing rollouts, episode length and test types of
 the chapter-3 pages in ``config/scales.yaml``) and the book's testing seeds, so its AUCs are comparable with the
-shipped learners' (:func:`thesis_repro.agent.compare_with_shipped` puts them side by side). The CIs are the pages'
+shipped learners' (:func:`thesis_repro.book.agent.compare_with_shipped` puts them side by side). The CIs are the pages'
 (:func:`thesis_repro.evaluation.tables.seed_ci`: per seed the mean over its rollouts, then the t-interval across
 seeds; one model: no interval).
 """
@@ -19,11 +19,11 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from thesis_repro import paths, scales
+from thesis_repro.core import paths, scales
+from thesis_repro.core.validation import check_choice
 from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.evaluator import PERTURBATIONS, EnvMaker, Policy, check_shapes, default_make, evaluate
 from thesis_repro.evaluation.metrics import auc, sigma_step
-from thesis_repro.validation import check_choice
 
 #: The chapter-3 item whose settings give a scale's book grid (every chapter-3 item shares it, scales.yaml).
 GRID_ITEM = "table-3.4"

@@ -17,7 +17,7 @@
   baseline), or ``(AUC_method − AUC_baseline) / max_m |AUC_m|`` over the methods of the row (``how="max"``),
   then average over tasks.
 
-* **Confidence intervals across training seeds** (issue 21: the training seed is the unit of replication,
+* **Confidence intervals across training seeds** (the training seed is the unit of replication,
   never the testing rollout): per seed, the mean over its rollouts; then the two-sided t-interval of the mean
   over the seeds (:func:`t_interval`, ``scipy.stats.t.interval`` with ``n_seeds − 1`` degrees of freedom, level
   :data:`CI_LEVEL`) — :func:`seed_ci` for table cells, :func:`seed_change_ci` for the bars of Figs 3.5/3.6,
@@ -45,8 +45,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from thesis_repro import thesis_numbers
-from thesis_repro.validation import check_choice
+from thesis_repro.core import thesis_numbers
+from thesis_repro.core.validation import check_choice
 
 #: Columns that identify one row of a chapter-3 table (a testing condition).
 ROW: tuple[str, ...] = ("env", "test")

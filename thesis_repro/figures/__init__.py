@@ -2,14 +2,14 @@
 
 Each chapter module (:mod:`~thesis_repro.figures.ch3`, :mod:`~thesis_repro.figures.ch4`,
 :mod:`~thesis_repro.figures.ch5`, ...) registers its items with :func:`register`; a registered item knows
-every :class:`~thesis_repro.cache.Job` it runs for given settings (training jobs first), so the run listing
+every :class:`~thesis_repro.core.cache.Job` it runs for given settings (training jobs first), so the run listing
 (``python -m thesis_repro runs 3.3``), the reference-run generator and the tests can enumerate a figure's
 runs without executing its notebook. Settings always come from the one scale table
-(:func:`thesis_repro.scales.figure_settings`).
+(:func:`thesis_repro.core.scales.figure_settings`).
 
-Imports run one way (issue 21): :mod:`thesis_repro.runs` and :mod:`thesis_repro.budgets` import this
+Imports run one way: :mod:`thesis_repro.runs.layer` and :mod:`thesis_repro.runs.budgets` import this
 registry, so no figure module imports them (nor the claims layer), not even at call time; what a notebook
-page prints about its runs and hands the claims layer lives in :mod:`thesis_repro.pages`
+page prints about its runs and hands the claims layer lives in :mod:`thesis_repro.book.pages`
 (``tests/test_layers.py`` enforces both).
 
 >>> from thesis_repro import figures
@@ -29,9 +29,9 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from thesis_repro import job_kinds, scales
-from thesis_repro.cache import Job
-from thesis_repro.validation import check_choice
+from thesis_repro.core import job_kinds, scales
+from thesis_repro.core.cache import Job
+from thesis_repro.core.validation import check_choice
 
 #: Job kinds whose runs are *training* runs (shipped as reference runs at ``small``).
 TRAINING_KINDS: tuple[str, ...] = ("train",)
@@ -64,7 +64,7 @@ class Figure:
         return sorted(jobs, key=lambda j: j.kind not in TRAINING_KINDS)
 
     def settings(self, scale: str, **overrides: Any) -> dict[str, Any]:
-        """Resolved settings of this figure at ``scale`` (:func:`thesis_repro.scales.figure_settings`)."""
+        """Resolved settings of this figure at ``scale`` (:func:`thesis_repro.core.scales.figure_settings`)."""
         return scales.figure_settings(self.settings_id or self.id, scale, **overrides)
 
     @property

@@ -17,14 +17,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import thesis_numbers
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job, Result
+from thesis_repro.core import thesis_numbers
+from thesis_repro.core.backends import run_jobs
+from thesis_repro.core.cache import Job, Result
+from thesis_repro.core.validation import check_choice
 from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
 from thesis_repro.evaluation.jobs import check_test
 from thesis_repro.figures import register
 from thesis_repro.learners import iteration_steps, n_iterations, train_config
-from thesis_repro.validation import check_choice
 
 SELECTIONS: tuple[str, ...] = ("best", "mean")
 

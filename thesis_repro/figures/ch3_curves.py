@@ -20,8 +20,9 @@ import numpy as np
 import pandas as pd
 import seaborn as sns
 
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job
+from thesis_repro.core.backends import run_jobs
+from thesis_repro.core.cache import Job
+from thesis_repro.core.validation import check_choice
 from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE
 from thesis_repro.envs.registry import short_name
 from thesis_repro.evaluation import tables
@@ -37,7 +38,6 @@ from thesis_repro.figures.ch3_tables import (
     skipped,
     thesis_cells,
 )
-from thesis_repro.validation import check_choice
 
 
 # ---------------------------------------------------------------- job grids (shared with the tables)

@@ -33,9 +33,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import scales, thesis_numbers
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job, Result
+from thesis_repro.core import scales, thesis_numbers
+from thesis_repro.core.backends import run_jobs
+from thesis_repro.core.cache import Job, Result
+from thesis_repro.core.validation import check_choice
 from thesis_repro.envs.registry import short_name
 from thesis_repro.evaluation import Benchmark, tables
 from thesis_repro.evaluation.metrics import auc
@@ -43,7 +44,6 @@ from thesis_repro.figures import FIGURES, budget_note, register
 from thesis_repro.figures import settings as _figure_settings
 from thesis_repro.figures.ch3 import benchmark, learner_timesteps, timesteps_for, variants
 from thesis_repro.learners import hyperparams
-from thesis_repro.validation import check_choice
 
 #: Thesis CSV of each table item (``data/thesis``).
 THESIS_TABLES: dict[str, str] = {

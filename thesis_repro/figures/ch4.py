@@ -1,6 +1,6 @@
 """Chapter 4, Figures 4.1-4.7 (kl_avg, kl_exact vs params_avg, joint): job grids and tidy frames.
 
-Every figure trains the thesis's kl_avg (Eq 4.11) and our kl_exact (the exact Eq 4.7 minimiser, issue 12)
+Every figure trains the thesis's kl_avg (Eq 4.11) and our kl_exact (the exact Eq 4.7 minimiser)
 beside the baselines params_avg and joint; the claims layer (:mod:`thesis_repro.claims`) judges each claim
 for each of the two aggregates, against params_avg and joint only.
 
@@ -24,15 +24,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from thesis_repro import thesis_numbers
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job
+from thesis_repro.core import thesis_numbers
+from thesis_repro.core.backends import run_jobs
+from thesis_repro.core.cache import Job
+from thesis_repro.core.validation import check_choice
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.metrics import auc
 from thesis_repro.figures import register
 from thesis_repro.learners import iteration_steps, load_policy, train_config
-from thesis_repro.validation import check_choice
 
 EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
 #: The thesis's spelling of the learners (figures and tables show these names; configs use the ids).

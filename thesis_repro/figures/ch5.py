@@ -22,10 +22,10 @@ from thesis_repro.arm.baselines import COMPETITORS, STRATEGIES, TARGET_DEFAULTS,
 from thesis_repro.arm.curriculum import CONDITIONS, CURRICULUM_DEFAULTS
 from thesis_repro.arm.learn import source_config
 from thesis_repro.arm.tasks import SIM_VERSION, ArmConfig
-from thesis_repro.backends import run_jobs
-from thesis_repro.cache import Job, Result
+from thesis_repro.core.backends import run_jobs
+from thesis_repro.core.cache import Job, Result
+from thesis_repro.core.validation import check_choice
 from thesis_repro.figures import register
-from thesis_repro.validation import check_choice
 
 #: Methods compared in Fig 5.5: our tensor transfer and the competitors.
 FIG55_METHODS: tuple[str, ...] = ("tensor", *COMPETITORS)

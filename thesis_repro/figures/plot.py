@@ -17,7 +17,7 @@ import pandas as pd
 import seaborn as sns
 from matplotlib.transforms import Bbox
 
-from thesis_repro import paths
+from thesis_repro.core import paths
 from thesis_repro.evaluation import tables
 
 

@@ -7,7 +7,7 @@ artefacts) and :func:`load_policy` gives the deterministic batch policy the eval
 >>> from thesis_repro.learners import ALGORITHMS, MULTI_DOMAIN, train_config
 >>> "ppo-scn-16" in ALGORITHMS, "kl-avg" in MULTI_DOMAIN
 (True, True)
->>> from thesis_repro.cache import Job
+>>> from thesis_repro.core.cache import Job
 >>> job = Job("train", train_config("ppo", "Hopper", seed=0, timesteps=20_000))
 """
 

@@ -31,8 +31,8 @@ import torch as th
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from thesis_repro.core.validation import check_choice, check_nonneg
 from thesis_repro.learners.config import ARPL_DELTAS as DELTAS  # §3.2.1's ε·∇ or ∇ rescaled to length ε
-from thesis_repro.validation import check_choice, check_nonneg
 
 
 def mean_action(policy: ActorCriticPolicy, obs: th.Tensor) -> th.Tensor:

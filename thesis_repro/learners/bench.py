@@ -1,6 +1,6 @@
 """Training throughput (env steps per CPU-second, gradient updates included) of the kit's learners vs SB3.
 
-One line per target of issue 7, each ``measured value, ratio, target, met/not met``:
+One line per throughput target, each ``measured value, ratio, target, met/not met``:
 
 * **PPO** (Appendix-A settings: 8 envs × 256 steps, batch 64, 10 epochs, 64-64 tanh; the kit's
   :class:`~thesis_repro.learners.fast.FastPPO` + lean stepping) vs SB3's 1-env default
@@ -14,7 +14,7 @@ One line per target of issue 7, each ``measured value, ratio, target, met/not me
 Rates are steps per CPU-second of this process (``time.process_time``; everything measured is single-threaded),
 measured in alternating chunks (one chunk of each contender per round, after one warm-up chunk each), so
 that the other work sharing the machine affects all contenders alike. Called by ``make bench`` through
-:mod:`thesis_repro.bench`.
+:mod:`thesis_repro.core.bench`.
 
 * **Multi-domain learners** (chapter 4, :func:`bench_multidomain`): ``joint``, ``params-avg``, ``kl-avg`` and
   ``kl-exact`` (their ``hyperparams.yaml`` settings: N = 4 domains × T = 1024 steps per iteration, Alg 3's
@@ -46,13 +46,13 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormalize
 
-from thesis_repro.bench import target_line
+from thesis_repro.core.bench import target_line
+from thesis_repro.core.validation import check_positive
 from thesis_repro.envs.registry import resolve_env
 from thesis_repro.learners import train as tr
 from thesis_repro.learners.config import train_config
-from thesis_repro.validation import check_positive
 
-#: issue 7's throughput targets (ratios)
+#: the throughput targets (ratios)
 TARGETS: dict[str, float] = {"ppo": 3.0, "sac": 2.0, "ddpg": 2.0, "multidomain": 0.8}
 
 _clock = time.process_time

@@ -27,10 +27,10 @@ from typing import Any
 
 import yaml
 
-from thesis_repro import paths
+from thesis_repro.core import paths
+from thesis_repro.core.validation import check_choice, check_nonneg
 from thesis_repro.envs.make import PERTURBATIONS
 from thesis_repro.envs.registry import short_name
-from thesis_repro.validation import check_choice, check_nonneg
 
 #: Algorithm classes (the ``class`` of an entry): SB3's, and the multi-domain PPOs of ``learners.multidomain``.
 ON_POLICY: tuple[str, ...] = ("PPO", "TRPO", "EPOpt", "MAMLDG", "ReptileDG", "SubPolicyAggregation")
@@ -66,13 +66,13 @@ IDENTITY = ("algorithm", "class", "env", "seed", "timesteps")
 #: (learning rate AND clip range x max(1 - t/T, 0), t = env steps before the iteration, T = the run's budget),
 #: or ``constant``.
 LR_SCHEDULES: tuple[str, ...] = ("linear", "constant")
-#: Training protocols: ``thesis``, every learner as the thesis ran it (issue 20: baselines-style annealed PPO,
+#: Training protocols: ``thesis``, every learner as the thesis ran it (baselines-style annealed PPO,
 #: EPOpt ranking whole episodes, one domain per batch for MAML-DG / Reptile-DG, ARPL's δ as §3.2.1 writes it).
 PROTOCOLS: tuple[str, ...] = ("thesis",)
 #: Settings the thesis protocol sets (dotted paths into the resolved config); a config without them is of no protocol.
 THESIS_PROTOCOL_KEYS: tuple[str, ...] = (
     "lr_schedule",
-    "sb3.epopt_rank",  # EPOpt ranks whole episodes by their full return (issue 20 item 2)
+    "sb3.epopt_rank",  # EPOpt ranks whole episodes by their full return
     "sb3.epopt_warm_start",  # EPOpt's ε = 1 warm start in iterations (Rajeswaran et al.), replaces epopt_warmup
     "sb3.domain_per_batch",  # MAML-DG / Reptile-DG: one Θ_i for all of domain i's batches (item 3)
     "arpl.delta",  # ARPL's δ as §3.2.1 writes it (item 4)

@@ -33,12 +33,12 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
+from thesis_repro.core.validation import check_choice, check_nonneg
 from thesis_repro.envs.wrappers import _EpisodeDomain
 from thesis_repro.learners.config import META_UPDATES
 from thesis_repro.learners.fast import RolloutTensors, _ManualActorCritic, ppo_epochs, rollout_tensors
 from thesis_repro.learners.multidomain import MultiDomainPPO
 from thesis_repro.mdl import aggregate as agg
-from thesis_repro.validation import check_choice, check_nonneg
 
 
 def reptile_meta_step(module: nn.Module, adapted: dict[str, th.Tensor], optimizer: th.optim.Optimizer) -> None:
@@ -182,7 +182,7 @@ class ReptileDG(_MetaPPO):
     π − π' per iteration) ε instead takes Nichol et al.'s (2018) outer step π ← π + ε_t (π' − π) with no
     optimiser, ε_t = ε x (current learning rate / initial one), so it anneals as the run's lr schedule does (the
     Reptile paper anneals ε linearly to 0). It is what the protocol study ``reptile-outer-step``
-    (:mod:`thesis_repro.study`) varies; ε = 1 keeps the whole adaptation (π ← π').
+    (:mod:`thesis_repro.runs.study`) varies; ε = 1 keeps the whole adaptation (π ← π').
     """
 
     def __init__(self, *args: Any, meta_step_size: float | None = None, **kwargs: Any):
@@ -226,7 +226,7 @@ class MAMLDG(_MetaPPO):
 
     **Outer update (fidelity note).** Alg 1 writes one step π ← π + β∇_π Σ_i η(π_i) per iteration. Read
     literally (``meta_update="step"``) that is ONE Adam step per 2·N·T = 8,192 env steps: 24 steps in `small`'s
-    200k-step InvertedPendulum run (measured, 3 seeds: ``python -m thesis_repro.study maml-outer-update``)
+    200k-step InvertedPendulum run (measured, 3 seeds: ``python -m thesis_repro.runs.study maml-outer-update``)
     and 488 in the thesis's 4M, against PPO-MDL's ~10 epochs x 64 minibatches per 4,096 steps.
     The thesis's Table 3.7 has PPO-MAML-DG level with or above PPO-MDL, which such a learner cannot reach, so
     the kit's default (``meta_update="ppo"``) optimises the same first-order outer objective as PPO optimises

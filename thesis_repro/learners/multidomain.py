@@ -51,12 +51,12 @@ from stable_baselines3.common.utils import FloatSchedule
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from torch import nn
 
+from thesis_repro.core.validation import check_choice, check_nonneg
 from thesis_repro.envs.vec import LeanVecEnv, LeanVecNormalize
 from thesis_repro.learners.config import AGGREGATES, EPOPT_RANKS
 from thesis_repro.learners.fast import FastPPO, RolloutTensors, ppo_epochs, rollout_tensors
 from thesis_repro.mdl import aggregate as agg
 from thesis_repro.mdl import exact, readings
-from thesis_repro.validation import check_choice, check_nonneg
 
 
 # ---------------------------------------------------------------------------------- defining steps (pure)

@@ -7,7 +7,7 @@ layer sizes, activation by name from :data:`TORCH_CLASSES`). :func:`save_policy`
 :func:`read_state_dict` and :func:`build_policy` read them; a file that is not tensors only (a pickled SB3
 ``BasePolicy.save``, or a planted payload) is refused with one line, its code never run. Resumable checkpoints
 (``model.zip``, ``vecnormalize.pkl``, ``live.pkl``) still pickle: they stay in the local work folder and are
-never shipped (:data:`thesis_repro.cache.UNSHIPPED`).
+never shipped (:data:`thesis_repro.core.cache.UNSHIPPED`).
 
 >>> import numpy as np
 >>> # pol = load_policy(result)              # a cache Result of train_job, its out/ folder, or a snapshot folder
@@ -29,8 +29,8 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.sac.policies import SACPolicy
 from stable_baselines3.td3.policies import TD3Policy
 
+from thesis_repro.core.validation import check_choice
 from thesis_repro.learners.policies import SCNPolicy
-from thesis_repro.validation import check_choice
 
 #: Policy classes a run may save (``learner.json``'s ``policy_class``, ``"module:qualname"``): every kit learner's.
 POLICY_CLASSES: dict[str, type[BasePolicy]] = {

@@ -41,7 +41,7 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import Tensor, nn
 from torch.func import functional_call, jacrev, jvp, vjp
 
-from thesis_repro.validation import check_nonneg
+from thesis_repro.core.validation import check_nonneg
 
 DistFn = Callable[[nn.Module, Tensor], tuple[Tensor, Tensor]]
 

@@ -13,8 +13,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from thesis_repro.core.validation import check_nonneg
 from thesis_repro.mdl.aggregate import FisherProducts, PolicyView, _KLToTargets, conjugate_gradient, gaussian_kl
-from thesis_repro.validation import check_nonneg
 
 
 def kl_exact(

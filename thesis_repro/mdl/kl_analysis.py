@@ -33,9 +33,9 @@ import pandas as pd
 import torch
 from scipy.optimize import minimize
 
+from thesis_repro.core.validation import check_choice, check_positive
 from thesis_repro.mdl import aggregate as agg
 from thesis_repro.mdl import exact
-from thesis_repro.validation import check_choice, check_positive
 
 KINDS: tuple[str, ...] = ("perturb", "update")
 AGGREGATES: tuple[str, ...] = ("params_avg", "kl_avg", "eq4.10", "kl_exact")

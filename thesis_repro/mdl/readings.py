@@ -33,9 +33,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from thesis_repro.core.validation import check_nonneg
 from thesis_repro.mdl.aggregate import FisherProducts, GaussianPolicy, PolicyView, kl_avg, kl_avg_dense, mean_kl
 from thesis_repro.mdl.exact import kl_exact
-from thesis_repro.validation import check_nonneg
 
 
 class Reading(NamedTuple):

@@ -1,0 +1,1 @@
+"""The command line: ``python -m thesis_repro`` and ``make verify``."""

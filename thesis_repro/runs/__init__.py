@@ -1,0 +1,1 @@
+"""Runs: what each figure needs, what it costs, the reference-run generator, the shipped layer and its checks."""
