@@ -21,7 +21,7 @@ CHROMIUM_STAMP := $(VENV)/.installed-chromium
 NEEDS := $(STAMP) $(if $(filter ray,$(BACKEND)),$(RAY_STAMP))
 export PYTHONUNBUFFERED := 1
 
-.PHONY: venv test smoke book clips bench budgets lint clean-build figure-% table-% reference-runs seeds confirmatory runs-% plan-% verify \
+.PHONY: venv test test-verify smoke book clips bench budgets lint clean-build figure-% table-% reference-runs seeds confirmatory runs-% plan-% verify \
 	thesis-budget ch4-readings-grid \
 	verify-all chromium check-book ship-claims check-claims results
 
@@ -84,14 +84,26 @@ book: $(NEEDS)
 ## make test : unit tests + doctests + papermill smoke run of every notebook + book build at smoke scale, in two
 ## processes (pytest -n 2: the smoke notebooks and the book share one, each module with a shared fixture stays in
 ## one; the longest work starts first, tests/conftest.py LONGEST_FIRST); lists the 40 slowest tests (budget: 10 min
-## on 2 cores). Installs first what the tests need (the venv, Ray's extra, chromium); no test installs anything
+## on 2 cores). Installs first what the tests need (the venv, Ray's extra, chromium); no test installs anything.
+## Leaves out the tests marked duplicates_verify, which repeat a `make verify` check at minutes of cost (the retrain
+## of the cheapest shipped run: `make verify SCALE=small TRAIN=1`); make test-verify runs them
 test: $(STAMP) $(RAY_STAMP) $(CHROMIUM_STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
+	$(call pytest_in_tmp,-n 2 --dist loadgroup --no-loadscope-reorder -q -rfEs --durations=40 \
+	  -m "not duplicates_verify" --doctest-modules tests thesis_repro)
+
+## make test-verify : the tests make test leaves out because they repeat a `make verify` check at minutes of cost
+## (marker duplicates_verify: tests/test_shipped.py's retrain of the cheapest shipped run, as `make verify TRAIN=1`)
+test-verify: $(STAMP)
+	$(call pytest_in_tmp,-q -rfEs -m duplicates_verify tests)
+
+# pytest with its arguments $(1), in a temporary run cache and build folder (removed after)
+define pytest_in_tmp
 	tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
 	export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build SB3_LOGDIR=$$tmp/sb3-log; \
-	$(BIN)/python -m pytest -n 2 --dist loadgroup --no-loadscope-reorder -q -rfEs --durations=40 \
-	  --doctest-modules tests thesis_repro \
+	$(BIN)/python -m pytest $(1) \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
+endef
 
 ## make reference-runs SCALE=small [FIGURES="3.3 4.1"] [COMMIT=1] [ALGOS="ppo ppo-16"] [SEEDS="0 1 2"] [KINDS=train] [UNTIL=22:40] :
 ## train every figure's training runs (cheapest first, resumable: re-run after an interruption) and ship them in
@@ -145,7 +157,8 @@ ch4-readings-grid: $(STAMP)
 ## compare: bit-identical wherever the numerics are pinned (the default; any difference is a mismatch, with its size),
 ## rollout means within 5 % only for entries made under THESIS_REPRO_NUMERICS=native on another CPU; prints a table
 ## (over 40 entries, only those not bit-identical), fails on a mismatch; TRAIN=1 also retrains the cheapest shipped
-## training run; KINDS samples other shipped kinds too (chapter 5's arm-target, ...); FIGURE / ENTRY / CLAIM
+## training run (what tests/test_shipped.py's retrain test checks: `make test-verify`, not `make test`); KINDS samples
+## other shipped kinds too (chapter 5's arm-target, ...); FIGURE / ENTRY / CLAIM
 ## recompute every entry behind a figure, one entry, or a claim (then its pages' saved numbers too, compared with the
 ## shipped claims snapshot); STUDY=thesis-budget: that study's free integrity check instead (each learner without a
 ## budget-dependent schedule, at the small budget, is the shipped small run of the same seed bit for bit)

@@ -7,6 +7,14 @@ import pytest
 import thesis_repro  # noqa: F401 - sets the pinned numerics before any test imports torch
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        "duplicates_verify: repeats a `make verify` check at minutes of cost; `make test` leaves it out, "
+        "`make test-verify` runs it",
+    )
+
+
 @pytest.fixture(autouse=True)
 def _isolated_dirs(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path_factory.mktemp("runs")))
@@ -40,7 +48,12 @@ LONGEST_FIRST: tuple[str, ...] = (
     "group:smoke",  # the smoke notebooks and the smoke book in Chromium (minutes)
     "group:claims-seeds",  # every claim judged three times
     "tests/test_claims_snapshot.py::test_the_snapshot_judges_every_claim_exactly_as_the_build_it_was_shipped_from",
-    "tests/test_shipped.py::test_cheapest_shipped_run_retrains_to_the_same_policy",
+    "tests/test_results.py::test_results_md_and_readme_blocks_are_current_with_the_shipped_snapshot",
+    "tests/test_claims_v3.py::test_no_plain_verdict_rests_on_a_rule_outside_the_calibration_gate",
+    "tests/test_install.py::test_a_built_wheel_scores_against_the_checkouts_shipped_runs",
+    "tests/test_claims_v3.py::test_v2_still_gives_its_registered_verdicts_on_seeds_0_to_5",
+    "tests/test_shipped.py::test_the_claims_snapshot_covers_every_ledger_file_intact",
+    "tests/test_budget_study.py::test_an_interrupted_study_run_resumes_to_the_same_snapshots",
     "tests/test_claims.py::test_null_calibration",
     "group:ray",
     "tests/test_faults.py::test_interrupting_a_real_figure_in_its_pool_is_one_line",

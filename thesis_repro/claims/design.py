@@ -185,8 +185,11 @@ def _sha(text: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+@cache
 def _tree(obj: Any) -> str:
-    """The syntax tree of ``obj``'s source without docstrings (comments never reach the tree)."""
+    """The syntax tree of ``obj``'s source without docstrings (comments never reach the tree); kept per object (a
+    process's source does not change, and a replaced function is another object), since the claims' hashes ask for
+    the same dozens of trees on every judged claim."""
     tree = ast.parse(textwrap.dedent(inspect.getsource(obj)))
     for node in ast.walk(tree):
         body = getattr(node, "body", None)
@@ -196,14 +199,16 @@ def _tree(obj: Any) -> str:
     return ast.dump(tree, annotate_fields=False, include_attributes=False)
 
 
+@cache
+def _def_names(module: Any) -> tuple[str, ...]:
+    """Names of the top-level functions and classes in ``module``'s source."""
+    tree = ast.parse(inspect.getsource(module))
+    return tuple(node.name for node in tree.body if isinstance(node, (ast.FunctionDef, ast.ClassDef)))
+
+
 def _module_defs(module: Any) -> list[tuple[str, str]]:
     """Every top-level function and class of ``module`` as (name, syntax tree without docstrings)."""
-    tree = ast.parse(inspect.getsource(module))
-    out = []
-    for node in tree.body:
-        if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
-            out.append((node.name, _tree(getattr(module, node.name))))
-    return out
+    return [(name, _tree(getattr(module, name))) for name in _def_names(module)]
 
 
 def engine_hash() -> str:
