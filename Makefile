@@ -85,17 +85,16 @@ book: $(NEEDS)
 ## processes (pytest -n 2: the smoke notebooks and the book share one, each module with a shared fixture stays in
 ## one; the longest work starts first, tests/conftest.py LONGEST_FIRST); lists the 40 slowest tests (budget: 10 min
 ## on 2 cores). Installs first what the tests need (the venv, Ray's extra, chromium); no test installs anything.
-## Leaves out the tests marked duplicates_verify, which repeat a `make verify` check at minutes of cost (the retrain
-## of the cheapest shipped run: `make verify SCALE=small TRAIN=1`); make test-verify runs them
+## CI runs it: it checks the shipped runs' keys and retrains the cheapest one (tests/test_shipped.py); make
+## test-verify runs that retrain alone (marker retrains, as `make verify SCALE=small TRAIN=1` does)
 test: $(STAMP) $(RAY_STAMP) $(CHROMIUM_STAMP)
 	$(BIN)/ruff check thesis_repro tests notebooks
 	$(call pytest_in_tmp,-n 2 --dist loadgroup --no-loadscope-reorder -q -rfEs --durations=40 \
-	  -m "not duplicates_verify" --doctest-modules tests thesis_repro)
+	  --doctest-modules tests thesis_repro)
 
-## make test-verify : the tests make test leaves out because they repeat a `make verify` check at minutes of cost
-## (marker duplicates_verify: tests/test_shipped.py's retrain of the cheapest shipped run, as `make verify TRAIN=1`)
+## make test-verify : the retrain of the cheapest shipped run alone (marker retrains; make test runs it too)
 test-verify: $(STAMP)
-	$(call pytest_in_tmp,-q -rfEs -m duplicates_verify tests)
+	$(call pytest_in_tmp,-q -rfEs -m retrains tests)
 
 # pytest with its arguments $(1), in a temporary run cache and build folder (removed after)
 define pytest_in_tmp
@@ -157,7 +156,7 @@ ch4-readings-grid: $(STAMP)
 ## compare: bit-identical wherever the numerics are pinned (the default; any difference is a mismatch, with its size),
 ## rollout means within 5 % only for entries made under THESIS_REPRO_NUMERICS=native on another CPU; prints a table
 ## (over 40 entries, only those not bit-identical), fails on a mismatch; TRAIN=1 also retrains the cheapest shipped
-## training run (what tests/test_shipped.py's retrain test checks: `make test-verify`, not `make test`); KINDS samples
+## training run (what tests/test_shipped.py's retrain test checks in `make test`); KINDS samples
 ## other shipped kinds too (chapter 5's arm-target, ...); FIGURE / ENTRY / CLAIM
 ## recompute every entry behind a figure, one entry, or a claim (then its pages' saved numbers too, compared with the
 ## shipped claims snapshot); STUDY=thesis-budget: that study's free integrity check instead (each learner without a

@@ -10,8 +10,8 @@ import thesis_repro  # noqa: F401 - sets the pinned numerics before any test imp
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
-        "duplicates_verify: repeats a `make verify` check at minutes of cost; `make test` leaves it out, "
-        "`make test-verify` runs it",
+        "retrains: retrains a shipped run and compares it (a minute or more); `make test` runs it, CI's retrain, "
+        "and `make test-verify` runs it alone",
     )
 
 
@@ -51,6 +51,7 @@ LONGEST_FIRST: tuple[str, ...] = (
     "tests/test_results.py::test_results_md_and_readme_blocks_are_current_with_the_shipped_snapshot",
     "tests/test_claims_v3.py::test_no_plain_verdict_rests_on_a_rule_outside_the_calibration_gate",
     "tests/test_install.py::test_a_built_wheel_scores_against_the_checkouts_shipped_runs",
+    "tests/test_shipped.py::test_cheapest_shipped_run_retrains_to_the_same_policy",
     "tests/test_claims_v3.py::test_v2_still_gives_its_registered_verdicts_on_seeds_0_to_5",
     "tests/test_shipped.py::test_the_claims_snapshot_covers_every_ledger_file_intact",
     "tests/test_budget_study.py::test_an_interrupted_study_run_resumes_to_the_same_snapshots",

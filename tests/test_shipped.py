@@ -87,11 +87,11 @@ def test_the_cheapest_shipped_run_is_cheap_and_loads_as_shipped(tmp_path):
     assert shipped is not None and shipped.source == "shipped"
 
 
-@pytest.mark.duplicates_verify
+@pytest.mark.retrains
 def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
-    """Retrains the cheapest shipped run (a minute or more) and compares it with the shipped one. `make test` leaves
-    it out (marker ``duplicates_verify``): `make verify SCALE=small TRAIN=1` retrains the same run with the same
-    comparison (:func:`thesis_repro.cli.verify.retrain_check`), and `make test-verify` runs this test."""
+    """Retrains the cheapest shipped run (a minute or more) and compares it with the shipped one: CI's retrain
+    (`make test`; `make test-verify` runs it alone, `make verify SCALE=small TRAIN=1` makes the same comparison with
+    :func:`thesis_repro.cli.verify.retrain_check`)."""
     job = shipped_checks.cheapest_shipped("train", LAYER)
     if job is None:
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
