@@ -950,11 +950,7 @@ def _runs_command(args: argparse.Namespace) -> int:
         print(f"{len(done)} shipped training runs compacted: arrays {before / 1e6:.2f} MB -> {after / 1e6:.2f} MB")
         return 0
     if args.check:
-        from thesis_repro.runs.budget_study import study_keys
-        from thesis_repro.runs.study import study_jobs
-
-        also = {j.key for j in study_jobs()} | study_keys(args.scale)
-        stale = shipped_checks.check_shipped(args.scale, also=also)
+        stale = shipped_checks.check_shipped(args.scale, also=shipped_checks.study_keys(args.scale))
         corrupt, local = shipped_checks.verify_shipped(), shipped_checks.verify_local()
         for s in stale:
             print(s.message)
