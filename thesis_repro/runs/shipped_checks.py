@@ -163,9 +163,11 @@ def study_keys(scale: str = "small", layer_root: str | Path | None = None) -> se
     from thesis_repro.runs import budget_study, pilots
     from thesis_repro.runs.study import study_jobs
 
-    keys = {j.key for j in study_jobs()} | budget_study.study_keys(scale, layer_root)
-    view = RunCache(layer_root if layer_root is not None else paths.reference(), reference=False)
-    algos = pilots.grid_algos(pilots.load_summary("ch4-readings"))
+    layer = Path(layer_root) if layer_root is not None else paths.reference()
+    keys = {j.key for j in study_jobs()} | budget_study.study_keys(scale, layer)
+    view = RunCache(layer, reference=False)
+    summary = layer / pilots.summary_path("ch4-readings").relative_to(paths.reference())  # the layer's own
+    algos = pilots.grid_algos(json.loads(summary.read_text())) if summary.exists() else []
     for q in pilots.grid_jobs(scale, algos):
         keys.add(q.job.key)
         if job_kinds.pinned(q.job.kind) and (bound := view.bind(q.job)) is not None:
