@@ -25,6 +25,7 @@ def reading_rows():
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
+        readings.outcomes.cache_clear()  # read from the real layer, whatever an earlier test's layer gave
         with store.one_pass():
             return [ledger.judge(registry.spec(c), "small").as_dict() for c in design.READING_CLAIMS]
 

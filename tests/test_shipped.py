@@ -16,7 +16,7 @@ from thesis_repro.cli import verify
 from thesis_repro.core import paths, provenance
 from thesis_repro.core.cache import RunCache, read_entry
 from thesis_repro.runs import layer as runs
-from thesis_repro.runs import retrain_check, shipped_checks, throughput
+from thesis_repro.runs import retrain_check, shipped_checks, studies, throughput
 
 LAYER = paths.ROOT / "data" / "reference"
 
@@ -26,7 +26,7 @@ def test_every_shipped_run_is_current_and_intact():
     if not entries:
         pytest.skip("no reference runs shipped yet (make reference-runs SCALE=small COMMIT=1)")
     # the studies' runs are current (protocol studies, the thesis-budget study, chapter 4's readings grid)
-    stale = shipped_checks.check_shipped("small", LAYER, also=shipped_checks.study_keys("small", LAYER))
+    stale = shipped_checks.check_shipped("small", LAYER, also=studies.keys("small", LAYER, protocol=True))
     assert not stale, "\n".join(s.message for s in stale)
     assert shipped_checks.verify_shipped(LAYER) == {}
     for entry in entries:  # rebuilt from its own config.json, each hashes to its folder's key

@@ -950,7 +950,9 @@ def _runs_command(args: argparse.Namespace) -> int:
         print(f"{len(done)} shipped training runs compacted: arrays {before / 1e6:.2f} MB -> {after / 1e6:.2f} MB")
         return 0
     if args.check:
-        stale = shipped_checks.check_shipped(args.scale, also=shipped_checks.study_keys(args.scale))
+        from thesis_repro.runs import studies
+
+        stale = shipped_checks.check_shipped(args.scale, also=studies.keys(args.scale, protocol=True))
         corrupt, local = shipped_checks.verify_shipped(), shipped_checks.verify_local()
         for s in stale:
             print(s.message)

@@ -63,9 +63,9 @@ import thesis_repro
 from thesis_repro.core import job_kinds, paths, scales
 from thesis_repro.core.cache import Result, RunCache, find_entry, read_entry
 from thesis_repro.core.validation import check_choice, one_line
-from thesis_repro.runs import budget_study, retrain_check, shipped_checks, throughput
 from thesis_repro.runs import costs as plan
 from thesis_repro.runs import layer as runs
+from thesis_repro.runs import retrain_check, shipped_checks, studies, throughput
 
 #: Shipped kinds whose entries ``verify`` recomputes by default (evaluations: seconds to minutes each, from a
 #: shipped policy).
@@ -217,14 +217,14 @@ def compare(
 # ---------------------------------------------------------------- which entries
 def shipped_of_scale(scale: str, layer: Path, kinds: Iterable[str] = KINDS) -> tuple[list[Path], list[Path]]:
     """Shipped entries of ``kinds`` in ``layer`` that ``scale``'s figures make (keys bound to the shipped
-    policies; the fresh seeds' too, up to :func:`~thesis_repro.runs.needs.target_seeds`) or its budget study
-    (:mod:`thesis_repro.runs.budget_study`), and the other shipped entries of those kinds (stale, or of another
+    policies; the fresh seeds' too, up to :func:`~thesis_repro.runs.needs.target_seeds`) or its studies
+    (:mod:`thesis_repro.runs.studies`), and the other shipped entries of those kinds (stale, or of another
     scale)."""
     kinds = tuple(kinds)
     entries = [p for p in runs.shipped_entries(layer) if p.parent.name in kinds]
     if not entries:
         return [], []
-    keys = shipped_checks.target_keys(scale, kinds, layer_root=layer) | budget_study.study_keys(scale, layer)
+    keys = shipped_checks.target_keys(scale, kinds, layer_root=layer) | studies.keys(scale, layer)
     ours = [p for p in entries if p.name.rsplit("__", 1)[1] in keys]
     return ours, [p for p in entries if p not in ours]
 

@@ -155,26 +155,6 @@ def check_shipped(
     return stale
 
 
-def study_keys(scale: str = "small", layer_root: str | Path | None = None) -> set[str]:
-    """The keys of every registered study's runs besides the figures' (current, though no page lists them yet):
-    the protocol studies (:func:`thesis_repro.runs.study.study_jobs`), the thesis-budget study
-    (:func:`thesis_repro.runs.budget_study.study_keys`) and chapter 4's readings grid
-    (:func:`thesis_repro.runs.pilots.grid_jobs`), evaluations under their unbound and bound keys."""
-    from thesis_repro.runs import budget_study, pilots
-    from thesis_repro.runs.study import study_jobs
-
-    layer = Path(layer_root) if layer_root is not None else paths.reference()
-    keys = {j.key for j in study_jobs()} | budget_study.study_keys(scale, layer)
-    view = RunCache(layer, reference=False)
-    summary = layer / pilots.summary_path("ch4-readings").relative_to(paths.reference())  # the layer's own
-    algos = pilots.grid_algos(json.loads(summary.read_text())) if summary.exists() else []
-    for q in pilots.grid_jobs(scale, algos):
-        keys.add(q.job.key)
-        if job_kinds.pinned(q.job.kind) and (bound := view.bind(q.job)) is not None:
-            keys.add(bound.key)
-    return keys
-
-
 def verify_shipped(layer_root: str | Path | None = None) -> dict[Path, str]:
     """Shipped entries that fail their manifest (or cannot be read), with the reason."""
     return {p: why for p in shipped_entries(layer_root) if (why := corrupt(p)) is not None}

@@ -1,0 +1,48 @@
+"""Every registered study's runs beside the figures': the keys ``runs --check`` and ``make verify`` count as
+current though no page lists their learners yet.
+
+* the thesis-budget study (:func:`thesis_repro.runs.budget_study.study_keys`);
+* chapter 4's readings grid (:func:`thesis_repro.runs.pilots.grid_jobs`): the readings that train and differ
+  from params_avg in their pilots, on every chapter-4 item registered;
+* with ``protocol``, the protocol studies (:func:`thesis_repro.runs.study.study_jobs`).
+
+Evaluations count under their unbound and bound keys (bound: the shipped runs they evaluate).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from thesis_repro import figures
+from thesis_repro.core import job_kinds, paths
+from thesis_repro.core.cache import RunCache
+from thesis_repro.runs import budget_study, pilots
+from thesis_repro.runs.study import study_jobs
+
+#: The pilot set whose summary names the readings that go to the grid.
+READINGS_PILOTS = "ch4-readings"
+
+
+def grid_keys(scale: str, layer: Path) -> set[str]:
+    """The keys of chapter 4's readings grid at ``scale`` in ``layer`` (from the layer's own pilot summary; none
+    without one), on the chapter-4 items the figure registry holds."""
+    summary = layer / pilots.summary_path(READINGS_PILOTS).relative_to(paths.reference())
+    if not summary.exists():
+        return set()
+    algos = pilots.grid_algos(json.loads(summary.read_text()))
+    view = RunCache(layer, reference=False)
+    keys: set[str] = set()
+    for fid in (f for f in pilots.GRID_ITEMS if f in figures.ids()):
+        for job in figures.jobs(fid, scale, algos=algos):
+            keys.add(job.key)
+            if job_kinds.pinned(job.kind) and (bound := view.bind(job)) is not None:
+                keys.add(bound.key)
+    return keys
+
+
+def keys(scale: str = "small", layer_root: str | Path | None = None, protocol: bool = False) -> set[str]:
+    """The keys of every study's runs at ``scale`` in ``layer_root`` (default: the shipped layer)."""
+    layer = Path(layer_root) if layer_root is not None else paths.reference()
+    out = budget_study.study_keys(scale, layer) | grid_keys(scale, layer)
+    return out | {j.key for j in study_jobs()} if protocol else out
