@@ -15,6 +15,19 @@ def pytest_configure(config: pytest.Config) -> None:
     )
 
 
+@pytest.fixture
+def shipped(monkeypatch):
+    """The real shipped layer (data/reference: runs, claims snapshot, calibration) instead of the empty one each test
+    gets, as a fresh clone reads it; skips where no evaluation is shipped."""
+    from thesis_repro.core import paths
+
+    layer = paths.ROOT / "data" / "reference"
+    if not (layer / "evaluate").is_dir():
+        pytest.skip("no shipped evaluations (data/reference/evaluate)")
+    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
+    return layer
+
+
 @pytest.fixture(autouse=True)
 def _isolated_dirs(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path_factory.mktemp("runs")))

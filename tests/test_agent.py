@@ -17,16 +17,6 @@ from thesis_repro.evaluation import score as sc
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture
-def shipped(monkeypatch):
-    """The real shipped layer (data/reference) instead of conftest's empty one."""
-    layer = ROOT / "data" / "reference"
-    if not (layer / "evaluate").is_dir():
-        pytest.skip("no shipped evaluations (data/reference/evaluate)")
-    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
-    return layer
-
-
 @pytest.fixture(scope="module")
 def tiny_models():
     """Two untrained PPO models on Hopper (two "training seeds"); they fall within tens of steps."""

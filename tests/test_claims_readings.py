@@ -11,14 +11,6 @@ from thesis_repro.claims import design, judge_v3, ledger, readings, registry, re
 from thesis_repro.claims.measures.ch4 import DIVERGED
 
 
-@pytest.fixture
-def shipped(monkeypatch):
-    """The ledger reads the real shipped layer (its claims snapshot and calibration), as a fresh clone does."""
-    from thesis_repro.core import paths
-
-    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
-
-
 @pytest.fixture(scope="module")
 def reading_rows():
     from thesis_repro.core import paths

@@ -21,14 +21,6 @@ from thesis_repro.claims.seeds import Seeded, joined, series
 from thesis_repro.claims.stats import Contrast, CountRule, Unit
 
 
-@pytest.fixture
-def shipped(monkeypatch):
-    """The ledger reads the real shipped layer (its claims snapshot and calibration), as a fresh clone does."""
-    from thesis_repro.core import paths
-
-    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))
-
-
 def _seeded(rng: np.random.Generator, seeds: list[int], mu: float = 0.0, sd: float = 1.0) -> Seeded:
     return Seeded(mu + sd * rng.standard_normal(len(seeds)), seeds)
 

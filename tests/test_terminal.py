@@ -16,14 +16,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
-def shipped(monkeypatch):
-    """The real shipped layer (data/reference) instead of conftest's empty one, at 80 columns."""
-    layer = ROOT / "data" / "reference"
-    if not (layer / "evaluate").is_dir():
-        pytest.skip("no shipped evaluations (data/reference/evaluate)")
-    monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
+def shipped(shipped, monkeypatch):
+    """conftest's real shipped layer, at 80 columns."""
     monkeypatch.setenv("COLUMNS", "80")
-    return layer
+    return shipped
 
 
 def _fits(text: str, cols: int = 80) -> bool:
