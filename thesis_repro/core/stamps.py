@@ -27,8 +27,11 @@ from __future__ import annotations
 import ast
 import hashlib
 import json
-from collections.abc import Mapping, Sequence
-from functools import lru_cache
+import os
+import re
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from functools import cache, lru_cache
 from pathlib import Path
 
 from thesis_repro.core import paths
@@ -69,12 +72,50 @@ def normalised(source: str) -> str:
     return ast.dump(tree, annotate_fields=False, include_attributes=False)
 
 
-@lru_cache(maxsize=4096)
-def _source_hash(data: bytes) -> str:
+@cache
+def _memo_dir() -> Path:
+    """Where computed hashes are kept between processes: ``<build folder>/.stamps/<version>``, the version being
+    Python's (its syntax trees differ between versions) and this module's bytes (the normalisation itself)."""
+    version = hashlib.sha256(f"{sys.version_info[:2]}".encode() + Path(__file__).read_bytes()).hexdigest()[:12]
+    return paths.build(".stamps") / version
+
+
+_MEMO_VALUE = re.compile(r"(bytes:)?[0-9a-f]{16}|[0-9a-f]{64}")
+
+
+def _memo(kind: str, data: bytes, compute: Callable[[], str]) -> str:
+    """``compute()``, kept on disk under the SHA-256 of ``data`` (content-addressed: a file's bytes decide its hash,
+    so an entry never goes stale). Every notebook kernel and command hashes the kit's ~120 modules, seconds of
+    syntax-tree work each time; this makes it once per content. Written atomically; an unreadable or malformed
+    entry is recomputed and rewritten."""
+    entry = _memo_dir() / f"{kind}-{hashlib.sha256(data).hexdigest()}"
+    try:
+        value = entry.read_text()
+        if _MEMO_VALUE.fullmatch(value):
+            return value
+    except OSError:
+        pass
+    value = compute()
+    try:
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        tmp = entry.with_name(f".{entry.name}.{os.getpid()}.tmp")
+        tmp.write_text(value)
+        os.replace(tmp, entry)
+    except OSError:  # a read-only build folder: the hash is still right, only not kept
+        pass
+    return value
+
+
+def _normalised_hash(data: bytes) -> str:
     try:
         return hashlib.sha256(normalised(data.decode()).encode()).hexdigest()[:16]
     except (SyntaxError, UnicodeDecodeError, ValueError):
         return "bytes:" + hashlib.sha256(data).hexdigest()[:16]
+
+
+@lru_cache(maxsize=4096)
+def _source_hash(data: bytes) -> str:
+    return _memo("module", data, lambda: _normalised_hash(data))
 
 
 def module_hash(path: Path) -> str:
@@ -82,8 +123,7 @@ def module_hash(path: Path) -> str:
     return _source_hash(path.read_bytes()) if path.is_file() else "<missing>"
 
 
-@lru_cache(maxsize=1024)
-def _data_hash(suffix: str, data: bytes) -> str:
+def _parsed_hash(suffix: str, data: bytes) -> str:
     if suffix in {".yaml", ".yml", ".json"}:
         try:
             if suffix == ".json":
@@ -96,6 +136,11 @@ def _data_hash(suffix: str, data: bytes) -> str:
         except ValueError:
             pass
     return hashlib.sha256(data).hexdigest()
+
+
+@lru_cache(maxsize=1024)
+def _data_hash(suffix: str, data: bytes) -> str:
+    return _memo(f"data{suffix}", data, lambda: _parsed_hash(suffix, data))
 
 
 def data_hash(path: Path) -> str:
