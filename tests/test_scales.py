@@ -35,3 +35,16 @@ def test_override_and_every_figure_resolves_at_every_scale():
         for sc in scales.SCALES:
             s = scales.figure_settings(fig, sc)
             assert s["figure"] == fig and s["scale"] == sc
+
+
+def test_the_yaml_loader_reads_every_kit_yaml_file_as_pyyamls_safe_loader_does():
+    """core.yamlfile uses libyaml's parser for speed; it must give the same values as PyYAML's pure-Python one."""
+    import yaml
+
+    from thesis_repro.core import paths, yamlfile
+
+    files = [*paths.ROOT.joinpath("thesis_repro").rglob("*.yaml"), *paths.ROOT.joinpath("data").glob("**/*.yaml")]
+    assert len(files) >= 4
+    for f in files:
+        text = f.read_text()
+        assert yamlfile.load(text) == yaml.safe_load(text), f

@@ -55,7 +55,7 @@ import yaml
 from thesis_repro.book import notebooks, protocol
 from thesis_repro.claims import ledger, readings, registry, report, results
 from thesis_repro.claims import scoreboard as claims_scoreboard
-from thesis_repro.core import paths
+from thesis_repro.core import paths, yamlfile
 from thesis_repro.core.scales import check_scale
 
 #: Lines of a stream output that are progress or log, not content (tqdm bars, file logs, verdict echo).
@@ -122,7 +122,7 @@ def plain_math(text: str) -> str:
 @cache
 def claims() -> dict[str, dict[str, Any]]:
     """The thesis's caption and claims per page id, from ``data/thesis/claims.yaml``."""
-    return yaml.safe_load((paths.THESIS_DATA / "claims.yaml").read_text())
+    return yamlfile.load((paths.THESIS_DATA / "claims.yaml").read_text())
 
 
 def title(page: str) -> str:

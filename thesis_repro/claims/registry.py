@@ -18,9 +18,7 @@ from dataclasses import dataclass, field, replace
 from functools import cache
 from typing import Any
 
-import yaml
-
-from thesis_repro.core import paths
+from thesis_repro.core import paths, yamlfile
 
 
 @dataclass(frozen=True)
@@ -53,7 +51,7 @@ class Spec:
 @cache
 def registry() -> dict[str, Any]:
     """``data/thesis/claims.yaml`` as loaded."""
-    return yaml.safe_load((paths.THESIS_DATA / "claims.yaml").read_text())
+    return yamlfile.load((paths.THESIS_DATA / "claims.yaml").read_text())
 
 
 @cache

@@ -31,8 +31,6 @@ from pathlib import Path
 from typing import Any
 from unittest import mock
 
-import yaml
-
 from thesis_repro.claims import deviations, ledger, registry, scoreboard
 from thesis_repro.claims.confirmatory import (
     FIRST_FRESH,
@@ -42,7 +40,7 @@ from thesis_repro.claims.confirmatory import (
     seed_range,
     v2_words,
 )
-from thesis_repro.core import paths, scales
+from thesis_repro.core import paths, scales, yamlfile
 
 #: The README's generated blocks: the results summary and the scale table.
 RESULTS_MARKERS = ("<!-- results:start -->", "<!-- results:end -->")
@@ -449,7 +447,7 @@ def seeds_note(more: Mapping[str, Mapping[str, int]]) -> str:
 
 def scale_rows() -> str:
     """The README's scale table, from ``thesis_repro/config/scales.yaml``, and the items that read more seeds."""
-    descriptions = yaml.safe_load((paths.CONFIG / "scales.yaml").read_text())["scales"]
+    descriptions = yamlfile.load((paths.CONFIG / "scales.yaml").read_text())["scales"]
     table = scales_table({s: scales.figure_settings("_example", s) for s in scales.SCALES}, descriptions)
     note = seeds_note({s: more_seeds(s) for s in scales.SCALES})
     return f"{table}\n\n{note}" if note else table

@@ -684,11 +684,12 @@ def notebook_parameters(pairs: list[list[str]], scale: str) -> dict[str, Any]:
     import yaml
 
     from thesis_repro.book import notebooks
+    from thesis_repro.core import yamlfile
 
     params: dict[str, Any] = {}
     for name, text in pairs:
         try:
-            params[name] = yaml.safe_load(text)
+            params[name] = yamlfile.load(text)
         except yaml.YAMLError:
             params[name] = text
     return notebooks.check_parameters(params, scale)

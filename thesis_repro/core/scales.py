@@ -18,9 +18,7 @@ import copy
 from functools import cache
 from typing import Any
 
-import yaml
-
-from thesis_repro.core import paths
+from thesis_repro.core import paths, yamlfile
 from thesis_repro.core.validation import check_choice
 
 SCALES: tuple[str, ...] = ("smoke", "small", "full")
@@ -31,7 +29,7 @@ NOT_RUN = "not run at this scale"
 @cache
 def _table() -> dict[str, Any]:
     with open(paths.CONFIG / "scales.yaml") as fh:
-        table = yaml.safe_load(fh)
+        table = yamlfile.load(fh)
     for key in ("scales", "defaults", "figures"):
         if key not in table:
             raise ValueError(f"scales.yaml is malformed: missing top-level key {key!r}")

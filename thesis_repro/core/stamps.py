@@ -34,7 +34,7 @@ from collections.abc import Callable, Mapping, Sequence
 from functools import cache, lru_cache
 from pathlib import Path
 
-from thesis_repro.core import paths
+from thesis_repro.core import paths, yamlfile
 
 
 def _is_prose(node: ast.stmt) -> bool:
@@ -129,9 +129,7 @@ def _parsed_hash(suffix: str, data: bytes) -> str:
             if suffix == ".json":
                 value = json.loads(data)
             else:
-                import yaml  # local: only data files need it
-
-                value = yaml.safe_load(data)
+                value = yamlfile.load(data)
             data = json.dumps(value, sort_keys=True, default=str).encode()
         except ValueError:
             pass

@@ -17,9 +17,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import yaml
 
-from thesis_repro.core import paths, scales
+from thesis_repro.core import paths, scales, yamlfile
 from thesis_repro.core.validation import check_choice
 from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.evaluator import PERTURBATIONS, EnvMaker, Policy, check_shapes, default_make, evaluate
@@ -34,7 +33,7 @@ AGENT = "your agent"
 @cache
 def default_sigmas() -> tuple[float, ...]:
     """The thesis-scale testing grid (``defaults.full.sigmas`` of ``config/scales.yaml``)."""
-    table = yaml.safe_load((paths.CONFIG / "scales.yaml").read_text())
+    table = yamlfile.load((paths.CONFIG / "scales.yaml").read_text())
     return tuple(float(s) for s in table["defaults"]["full"]["sigmas"])
 
 

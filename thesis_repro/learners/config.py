@@ -25,9 +25,7 @@ from collections.abc import Mapping
 from functools import cache
 from typing import Any
 
-import yaml
-
-from thesis_repro.core import paths
+from thesis_repro.core import paths, yamlfile
 from thesis_repro.core.validation import check_choice, check_nonneg
 from thesis_repro.envs.make import PERTURBATIONS
 from thesis_repro.envs.registry import short_name
@@ -87,7 +85,7 @@ ARPL_DELTAS: tuple[str, ...] = ("gradient", "rescaled")
 @cache
 def _raw() -> dict[str, Any]:
     with open(paths.CONFIG / "hyperparams.yaml") as fh:
-        table = yaml.safe_load(fh)
+        table = yamlfile.load(fh)
     if not isinstance(table, dict) or not table:
         raise ValueError("hyperparams.yaml must map algorithm names to entries")
     return table
