@@ -73,11 +73,14 @@ def normalised(source: str) -> str:
 
 
 @cache
+def _memo_version() -> str:
+    """Python's version (its syntax trees differ between versions) and this module's bytes (the normalisation)."""
+    return hashlib.sha256(f"{sys.version_info[:2]}".encode() + Path(__file__).read_bytes()).hexdigest()[:12]
+
+
 def _memo_dir() -> Path:
-    """Where computed hashes are kept between processes: ``<build folder>/.stamps/<version>``, the version being
-    Python's (its syntax trees differ between versions) and this module's bytes (the normalisation itself)."""
-    version = hashlib.sha256(f"{sys.version_info[:2]}".encode() + Path(__file__).read_bytes()).hexdigest()[:12]
-    return paths.build(".stamps") / version
+    """Where computed hashes are kept between processes: ``<build folder>/.stamps/<version>``."""
+    return paths.build(".stamps") / _memo_version()
 
 
 _MEMO_VALUE = re.compile(r"(bytes:)?[0-9a-f]{16}|[0-9a-f]{64}")
