@@ -257,7 +257,7 @@ def test_a_page_s_metadata_never_loads_the_generator():
         "import sys\n"
         "from thesis_repro.book import pages\n"
         "from thesis_repro.runs import budgets\n"
-        "budgets.training_jobs('smoke', ['3.3'])\n"
+        "budgets.ordered_training_jobs('smoke', ['3.3'])\n"
         "print('thesis_repro.runs.generator' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -139,7 +139,7 @@ def entry(algo: str, outcome: str, how: str, status: str, ours: str = "", note: 
     }
 
 
-def power(cal: Mapping[str, Any]) -> dict[str, Any]:
+def calibration_summary(cal: Mapping[str, Any]) -> dict[str, Any]:
     """The parts of a v3 calibration a reading's entry carries: the gate's rates and the power figures."""
     keep = ("draws", "false_reproduces", "false_does_not", "effect", "power_at", "seeds_for_80", "max_seeds")
     return {k: cal[k] for k in keep if k in cal}

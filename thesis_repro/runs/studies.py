@@ -2,7 +2,7 @@
 current though no page lists their learners yet.
 
 * the thesis-budget study (:func:`thesis_repro.runs.budget_study.study_keys`);
-* chapter 4's readings grid (:func:`thesis_repro.runs.pilots.grid_jobs`): the readings that train and differ
+* chapter 4's readings grid (:func:`thesis_repro.runs.pilots.readings_grid_jobs`): the readings that train and differ
   from params_avg in their pilots, on every chapter-4 item registered;
 * with ``protocol``, the protocol studies (:func:`thesis_repro.runs.study.study_jobs`).
 
@@ -36,7 +36,7 @@ def grid_keys(scale: str, layer: Path) -> set[str]:
     for fid in (f for f in pilots.GRID_ITEMS if f in figures.ids()):
         for job in figures.jobs(fid, scale, algos=algos):
             keys.add(job.key)
-            if job_kinds.pinned(job.kind) and (bound := view.bind(job)) is not None:
+            if job_kinds.pins_dependencies(job.kind) and (bound := view.bind(job)) is not None:
                 keys.add(bound.key)
     return keys
 
