@@ -62,6 +62,7 @@ import numpy as np
 import thesis_repro
 from thesis_repro.core import job_kinds, paths, scales
 from thesis_repro.core.cache import Result, RunCache, find_entry, read_entry
+from thesis_repro.core.provenance import numerics_env
 from thesis_repro.core.validation import check_choice, one_line
 from thesis_repro.runs import costs as plan
 from thesis_repro.runs import layer as runs
@@ -425,14 +426,6 @@ def _name(path: Path) -> str:
 
 
 # ---------------------------------------------------------------- recomputing
-def numerics_env(path: Path) -> dict[str, str]:
-    """Environment variables that recompute entry ``path`` in the float numerics it was made in
-    (``provenance.numerics_env``: MKL's branch and ATen's CPU capability as its provenance records them), so that
-    the same machine gives the same bits; ``{}`` (this process's settings) where the kit does not record them."""
-    fn = getattr(runs, "numerics_env", None)
-    return dict(fn(path)) if fn is not None else {}
-
-
 #: The worker process of :func:`recompute_all` (run with ``python -c``; ``sys.argv[1]`` is its spec file).
 _WORKER = "import sys; from thesis_repro.cli.verify import _worker; _worker(sys.argv[1])"
 
