@@ -106,12 +106,13 @@ def readings_grid_jobs(scale: str, algos: Sequence[str]) -> list[Queued]:
     """The jobs of ``algos`` on every :data:`GRID_ITEMS` item at ``scale`` (the item's own settings and seeds, so
     each is the job the item makes once it lists the learner), deduplicated; the training runs item by item, the
     items with the fewest runs first (an item is judged once all its runs are shipped), each item's runs cheapest
-    first; then the evaluations."""
+    first; then the evaluations. Items the figure registry does not hold are left out."""
+    held = [f for f in GRID_ITEMS if f in figures.ids()]
     out: dict[str, Queued] = {}
-    for fid in GRID_ITEMS:
+    for fid in held:
         for job in figures.jobs(fid, scale, algos=list(algos)):
             out.setdefault(job.key, Queued(job)).figures.append(figures.get(fid).notebook_id)
-    items = [figures.get(f).notebook_id for f in GRID_ITEMS]
+    items = [figures.get(f).notebook_id for f in held]
     runs = {f: sum(p.job.kind == "train" and p.figures[0] == f for p in out.values()) for f in items}
     first = {f: (n, i) for i, (f, n) in enumerate(runs.items())}
     return sorted(out.values(), key=lambda p: (p.job.kind != "train", first[p.figures[0]], p.cost, p.job.label))
