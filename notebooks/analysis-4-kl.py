@@ -140,7 +140,7 @@ print(ka.sweep_text(sweep))
 
 # %%
 table = ka.compare_aggregates(problems, reference_iters=settings["reference_iters"])
-summary = ka.summarise(table)
+summary = ka.summarise_aggregates(table)
 print(table.to_string(float_format=lambda v: f"{v:.4g}"))
 print()
 print(summary.to_string(float_format=lambda v: f"{v:.3g}"))
@@ -171,7 +171,7 @@ axes[2].set_title("5: excess per problem (lower is better)")
 axes[2].legend(fontsize=7, loc="lower right", framealpha=0.6)
 fig.suptitle(f"Eq 4.7 aggregates, reproduced — scale={SCALE}")
 fig.tight_layout()
-out = paths.figures(SCALE) / "analysis-4-kl.png"
+out = paths.figures_dir(SCALE) / "analysis-4-kl.png"
 out.parent.mkdir(parents=True, exist_ok=True)
 fig.savefig(out, dpi=100)
 print("saved", out)
@@ -202,4 +202,4 @@ print(
 
 # %%
 frames = {"summary": summary.reset_index(), "linear": linear.reset_index()}
-_ = judge_page("analysis-4-kl", SCALE, frames, page_rule=analysis_4_kl.verdicts(summary, linear, SCALE))
+_ = judge_page("analysis-4-kl", SCALE, frames, page_rule=analysis_4_kl.kl_verdicts(summary, linear, SCALE))

@@ -54,7 +54,7 @@ points.round(1).style.format(precision=1).set_caption(
 
 # %%
 trained = budgets.table(SCALE, ["3.3"])
-print(budgets.render(trained))
+print(budgets.format_table(trained))
 
 # %% [markdown]
 # ## (a, b) Testing AUC vs training return, with the Pareto frontier

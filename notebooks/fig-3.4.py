@@ -27,9 +27,9 @@ from thesis_repro import claims
 from thesis_repro.book import pages
 from thesis_repro.figures import ch3_curves, ch3_tables, plot
 
-settings = ch3_tables.settings("3.4", SCALE)
+settings = ch3_tables.checked_settings("3.4", SCALE)
 print(pages.runs_summary("3.4", SCALE))
-print(ch3_tables.describe(settings))
+print(ch3_tables.describe_budget(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 heat = ch3_curves.run_heat(settings, n_jobs=settings["n_jobs"])
 fig = ch3_curves.plot_curves(res, settings, "Fig 3.4 (top)")

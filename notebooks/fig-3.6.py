@@ -37,9 +37,9 @@ from thesis_repro import claims
 from thesis_repro.book import pages
 from thesis_repro.figures import ch3_curves, ch3_tables, plot
 
-settings = ch3_tables.settings("3.6", SCALE)
+settings = ch3_tables.checked_settings("3.6", SCALE)
 print(pages.runs_summary("3.6", SCALE))
-print(ch3_tables.describe(settings))
+print(ch3_tables.describe_budget(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 bars = ch3_curves.bars("3.6", ch3_tables.our_cells(res), settings, samples=res.aucs)
 fig = ch3_curves.plot_bars(

@@ -48,7 +48,7 @@ fig, axes = plot.lines_by_panel(
     "iteration",
     [("return", "episode return (reproduced)"), ("length", "episode length (reproduced)")],
     ch4.algo_names(settings),
-    title=lambda cond, i: f"({cond['panel']}) {ch4.label(cond)}" if i == 0 else "",
+    title=lambda cond, i: f"({cond['panel']}) {ch4.panel_title(cond)}" if i == 0 else "",
 )
 band = plot.seed_band(curves, ["panel", "algo", "iteration"])
 fig.suptitle(f"Fig 4.1 reproduced — {settings['env']}, scale={SCALE}, {settings['train_seeds']} seed(s)\n{band}")

@@ -51,7 +51,7 @@ for i, algo in enumerate(algos):
         ax.imshow(frame)
         ax.set_axis_off()
         ax.set_title(f"{algo} (seed {best.loc[algo, 'seed']}), step {step}", fontsize=8)
-fig.suptitle(f"Fig 4.2 reproduced — {settings['env']}, trained {ch4.label(cond)}, tested ξ = 0, scale={SCALE}")
+fig.suptitle(f"Fig 4.2 reproduced — {settings['env']}, trained {ch4.panel_title(cond)}, tested ξ = 0, scale={SCALE}")
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-4.2", dpi=80)
 

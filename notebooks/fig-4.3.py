@@ -45,7 +45,7 @@ fig, axes = plot.lines_by_panel(
     "value",
     [("return", "testing return (reproduced)")],
     ch4.algo_names(settings),
-    title=lambda cond, i: f"({cond['panel']}) {ch4.label(cond)}",
+    title=lambda cond, i: f"({cond['panel']}) {ch4.panel_title(cond)}",
     shade_wind=True,
     marker="o",
 )

@@ -51,7 +51,7 @@ sns.lineplot(
     data=wind, x="value", y="return", hue="algo", hue_order=algos, marker="o", errorbar=tables.t_errorbar, ax=axes[0]
 )
 axes[0].axvspan(*cond["wind"], color="grey", alpha=0.15)
-axes[0].set(title=f"(a) {ch4.label(cond)}", xlabel="testing wind ξ", ylabel="testing return (reproduced)")
+axes[0].set(title=f"(a) {ch4.panel_title(cond)}", xlabel="testing wind ξ", ylabel="testing return (reproduced)")
 vmin, vmax = heat["return"].min(), heat["return"].max()
 for i, algo in enumerate(algos):
     sub = heat[heat["algo"] == algo]

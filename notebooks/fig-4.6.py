@@ -55,7 +55,7 @@ fig, axes = plot.lines_by_panel(
     "value",
     [("obs", "testing return, obs noise (reproduced)"), ("act", "testing return, act noise (reproduced)")],
     ch4.algo_names(settings),
-    title=lambda cond, i: f"({cond['panel']}) {ch4.label(cond)}" if i == 0 else "",
+    title=lambda cond, i: f"({cond['panel']}) {ch4.panel_title(cond)}" if i == 0 else "",
     marker="o",
 )
 for ax in axes.flat:

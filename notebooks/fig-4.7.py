@@ -49,7 +49,7 @@ algos = ch4.algo_names(settings)
 sns.lineplot(
     data=curves, x="iteration", y="entropy", hue="algo", hue_order=algos, errorbar=tables.t_errorbar, ax=axes[0]
 )
-axes[0].set(ylabel="policy entropy [nats] (reproduced)", title=ch4.label(cond))
+axes[0].set(ylabel="policy entropy [nats] (reproduced)", title=ch4.panel_title(cond))
 kl = curves.dropna(subset=["kl_to_aggregate"])
 kl = kl.assign(log10_kl=np.log10(kl["kl_to_aggregate"].clip(lower=KL_FLOOR)))
 sns.lineplot(data=kl, x="iteration", y="log10_kl", hue="algo", errorbar=tables.t_errorbar, ax=axes[1])

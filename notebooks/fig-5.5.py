@@ -44,7 +44,7 @@ ch5.strategy_means(summary, METHODS).round(3)
 
 # %%
 src, tgt, d = ch5.cast_to_bic(curves, settings["families"])
-per_seed = ch5.seed_means(summary, METHODS)
+per_seed = ch5.strategy_seed_means(summary, METHODS)
 wins = ch5.pair_wins(summary, METHODS)
 band = plot.seed_band(d, ["strategy", "trials"]).replace("band:", "(a) band, (b) bars:")
 by_strategy = dict(hue="strategy", hue_order=METHODS, errorbar=tables.t_errorbar)  # per-seed rows

@@ -69,7 +69,7 @@ comparison = compare_with_shipped(scores, compute_missing=guide["compute_missing
 print(comparison)
 
 # %%
-out = paths.figures(SCALE) / "guide-score-agent.png"
+out = paths.figures_dir(SCALE) / "guide-score-agent.png"
 out.parent.mkdir(parents=True, exist_ok=True)
 comparison.figure.savefig(out, dpi=100)
 print("saved", out)

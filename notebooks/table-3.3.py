@@ -37,9 +37,9 @@ from thesis_repro import claims
 from thesis_repro.book import pages
 from thesis_repro.figures import ch3_tables
 
-settings = ch3_tables.settings("table-3.3", SCALE)
+settings = ch3_tables.checked_settings("table-3.3", SCALE)
 print(pages.runs_summary("table-3.3", SCALE))
-print(ch3_tables.describe(settings))
+print(ch3_tables.describe_budget(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 ours = ch3_tables.table33(res, settings)
 text_a, text_b = ch3_tables.table33_text(ours)

@@ -34,9 +34,9 @@ from thesis_repro import claims
 from thesis_repro.book import pages
 from thesis_repro.figures import ch3_tables
 
-settings = ch3_tables.settings("table-3.7", SCALE)
+settings = ch3_tables.checked_settings("table-3.7", SCALE)
 print(pages.runs_summary("table-3.7", SCALE))
-print(ch3_tables.describe(settings))
+print(ch3_tables.describe_budget(settings))
 res = ch3_tables.run(settings, n_jobs=settings["n_jobs"])
 comp = ch3_tables.compare("table-3.7", ch3_tables.our_cells(res), settings, ci=ch3_tables.our_ci(res))
 comp.style("Table 3.7: testing AUC, thesis beside reproduced (bold: best or not significantly different)")

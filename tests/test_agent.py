@@ -29,7 +29,7 @@ def test_book_grid_is_the_pages_grid():
     from thesis_repro.figures import ch3_tables
 
     for scale in ("smoke", "small"):
-        s, g = ch3_tables.settings("3.4", scale), sc.book_grid(scale)
+        s, g = ch3_tables.checked_settings("3.4", scale), sc.book_grid(scale)
         assert g["sigmas"] == [float(x) for x in s["sigmas"]]
         assert g["n_rollouts"] == s["test_rollouts"] and g["tests"] == list(s["tests"])
 
@@ -201,7 +201,7 @@ def test_the_guide_page_is_a_book_page_the_claims_ledger_ignores(tmp_path):
     assert GUIDE in notebooks.notebook_ids(guides=True) and GUIDE not in notebooks.notebook_ids()
     assert notebooks.notebook_ids(guides=True)[-1] == GUIDE  # after every thesis page: it reads their runs
     assert notebooks.check_notebook(GUIDE) == GUIDE and notebooks.page_id(GUIDE) == GUIDE
-    assert notebooks.source(GUIDE).name == f"{GUIDE}.py" and notebooks.chapter(GUIDE) == "guide"
+    assert notebooks.source(GUIDE).name == f"{GUIDE}.py" and notebooks.page_chapter(GUIDE) == "guide"
     assert notebooks.parameter_names(GUIDE) == ["SCALE", "TASK", "SEEDS", "TIMESTEPS"]
     assert GUIDE not in book.claims() and not registry.page_claims(GUIDE)  # no thesis claim, no verdict
     (tmp_path / "chapter-3.md").write_text("# Chapter 3\n")

@@ -352,7 +352,7 @@ def test_analysis_problems_and_tables():
     assert (by["excess"] >= -1e-10).all()  # θ* is at least as good as every aggregate
     assert by.loc["params_avg", "dist_ratio"] == pytest.approx(1.0)
     assert by.loc["params_avg", "eq47"] == pytest.approx(p.objective(agg.params_avg(p.thetas)))
-    s = ka.summarise(table)
+    s = ka.summarise_aggregates(table)
     assert list(s.index) == list(ka.AGGREGATES)
     assert s.loc["params_avg", "beats_params_avg"] == 0.0 and s.loc["kl_exact", "beats_params_avg"] == 1.0
     assert s.loc["params_avg", "median_eq47_vs_avg"] == pytest.approx(1.0)
@@ -398,11 +398,11 @@ def test_analysis_verdict_statuses():
             index=list(ka.AGGREGATES),
         )
 
-    got = [v.status for v in analysis_4_kl.verdicts(summary(0.0), lin, "small")]
+    got = [v.status for v in analysis_4_kl.kl_verdicts(summary(0.0), lin, "small")]
     assert got == [report.DOES_NOT, report.DOES_NOT, report.REPRODUCES]
-    assert analysis_4_kl.verdicts(summary(0.5), lin, "small")[0].status == report.PARTLY
-    assert analysis_4_kl.verdicts(summary(1.0), lin, "small")[0].status == report.REPRODUCES
-    assert {v.status for v in analysis_4_kl.verdicts(summary(1.0), lin, "smoke")} == {report.NOT_JUDGED}
+    assert analysis_4_kl.kl_verdicts(summary(0.5), lin, "small")[0].status == report.PARTLY
+    assert analysis_4_kl.kl_verdicts(summary(1.0), lin, "small")[0].status == report.REPRODUCES
+    assert {v.status for v in analysis_4_kl.kl_verdicts(summary(1.0), lin, "smoke")} == {report.NOT_JUDGED}
     bad = lin.copy()
     bad.loc["kl_exact", "eq47"] = 1.5  # did not reach the closed form
-    assert analysis_4_kl.verdicts(summary(0.0), bad, "small")[2].status == report.DOES_NOT
+    assert analysis_4_kl.kl_verdicts(summary(0.0), bad, "small")[2].status == report.DOES_NOT

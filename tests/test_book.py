@@ -578,7 +578,7 @@ def test_summaries_count_verdicts(monkeypatch, tmp_path):
     report.report("fig-3.3", "small", [report.Verdict("3.3", "a", report.REPRODUCES, "e|1")], display=False)
     report.report("fig-3.2", "small", [report.Verdict("3.2", "b", report.DOES_NOT)], display=False)
     # the scoreboard reads the claims ledger: distinct thesis claims, none computed in this empty build
-    board = book.scoreboard(["3.2", "3.3"], "small")
+    board = book.book_scoreboard(["3.2", "3.3"], "small")
     from thesis_repro.claims import ledger
 
     n_thesis = sum(not s.beyond for s in ledger.specs())
@@ -614,7 +614,7 @@ def test_chapter_4_pages_say_whether_the_thesis_reports_curve_values():
     for nid in notebooks.notebook_ids():
         page = notebooks.page_id(nid)
         cell = book.thesis_cell(page, "small")["source"]
-        if notebooks.chapter(nid) == "4":
+        if notebooks.page_chapter(nid) == "4":
             assert cell.count("**Thesis values:**") == 1, page
             assert "none" in cell or "data/thesis/" in cell, page
         else:
@@ -627,7 +627,7 @@ def test_a_failing_notebook_gets_an_error_page_and_fails_the_build(monkeypatch, 
     def boom(nid, scale, **kwargs):
         raise RuntimeError("Traceback (most recent call last):\n  ...\nKeyError: 'sigmas'")
 
-    monkeypatch.setattr(notebooks, "execute", boom)
+    monkeypatch.setattr(notebooks, "execute_notebook", boom)
     with pytest.raises(RuntimeError, match=r"1 notebook\(s\) failed at scale smoke \(fig-3.3\)"):
         book.build("smoke", ids=["3.3"], root=tmp_path / "book")
     html = (tmp_path / "book" / "_build" / "html" / "executed" / "fig-3.3.html").read_text()
@@ -639,7 +639,7 @@ def test_a_failing_notebook_gets_an_error_page_and_fails_the_build(monkeypatch, 
 @pytest.mark.xdist_group("book-pages")  # with the module mark, a group of its own: no shared smoke folder
 def test_shipped_only_book_leaves_out_what_would_train_and_says_how_to_run_it(monkeypatch, tmp_path):
     # the test run cache and shipped layer are empty: Fig 3.3's training runs are all to compute
-    monkeypatch.setattr(notebooks, "execute", lambda *a, **k: pytest.fail("a notebook that would train ran"))
+    monkeypatch.setattr(notebooks, "execute_notebook", lambda *a, **k: pytest.fail("a notebook that would train ran"))
     book.build("smoke", ids=["3.3"], root=tmp_path / "book", shipped_only=True)
     html = tmp_path / "book" / "_build" / "html"
     page = re.sub(r"<[^>]+>", "", (html / "executed" / "fig-3.3.html").read_text())
@@ -699,7 +699,7 @@ def check_book_in_browser(browser: Browser, html_root: Path, tmp_path: Path) -> 
     assert not problems, f"{len(problems)} problem(s): " + "; ".join(problems[:30])
     intro = browser.dom(html_root / "intro.html")
     assert "Scoreboard at scale" in intro, intro[-2000:]
-    for ch in sorted({notebooks.chapter(n) for n in notebooks.notebook_ids()}):
+    for ch in sorted({notebooks.page_chapter(n) for n in notebooks.notebook_ids()}):
         assert "Verdicts at scale" in browser.dom(html_root / f"chapter-{ch}.html"), ch
     shot = tmp_path / "page.png"
     browser.screenshot(html_root / "intro.html", shot)

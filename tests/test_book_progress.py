@@ -20,7 +20,7 @@ class _Tty(io.StringIO):
 
 def test_a_log_gets_one_plain_line_per_notebook():
     out = io.StringIO()
-    with book.Progress(3, out) as progress:
+    with book.BookProgress(3, out) as progress:
         for page, action in [("fig-3.3", "executing ..."), ("table-3.4", "up to date"), ("fig-3.6", "executing ...")]:
             progress.step(page, action)
     assert out.getvalue().splitlines() == [
@@ -32,7 +32,7 @@ def test_a_log_gets_one_plain_line_per_notebook():
 
 def test_a_terminal_gets_the_same_lines_above_a_bar_and_the_notebooks_output_between_them():
     out = _Tty()
-    with book.Progress(24, out) as progress:
+    with book.BookProgress(24, out) as progress:
         assert progress.bar is not None
         for i in range(7):
             progress.step(f"page-{i}", "executing ...")

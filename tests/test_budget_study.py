@@ -49,7 +49,7 @@ def test_the_budget_is_the_only_change_from_fig_3_3s_small_runs(train):
 
 
 def test_each_run_is_evaluated_after_1_2_3_and_4m_steps_under_every_fig_3_3_test(train):
-    evals = bs.eval_jobs("small", train)
+    evals = bs.budget_eval_jobs("small", train)
     assert len(evals) == 108 * 4 * 4
     fig = {json.dumps(j.config["test"], sort_keys=True) for j in figures.jobs("3.3", "small") if j.kind == "evaluate"}
     assert len(fig) == 4
@@ -74,14 +74,14 @@ def test_no_existing_run_key_changes():
     layer = paths.ROOT / "data" / "reference"  # the real shipped layer (the fixtures point the kit elsewhere)
     missing = [j.label for j in figures.training_jobs("3.3", "small") if find_entry(layer, j) is None]
     assert not missing
-    study = {j.key for j in bs.jobs("small")}
+    study = {j.key for j in bs.budget_jobs("small")}
     for fid in figures.ids():
         assert not study & {j.key for j in figures.jobs(fid, "small")}, fid
 
 
 def test_the_order_runs_the_pareto_panels_tasks_first_and_every_job_once():
     out = bs.ordered("small", RATES)
-    assert len(out) == len({p.job.key for p in out}) == len(bs.jobs("small"))
+    assert len(out) == len({p.job.key for p in out}) == len(bs.budget_jobs("small"))
     train = [p.job for p in out if p.job.kind == "train"]
     tasks = list(dict.fromkeys(j.config["env"] for j in train))
     assert tasks == ["Walker2d", "HalfCheetah", "Hopper"]
@@ -138,7 +138,7 @@ def test_the_generator_makes_the_smoke_study_resumably_and_plan_missing_reads_0(
     assert main(["reference-runs", "--study", "thesis-budget", "--scale", "smoke"]) == 0
     out = capsys.readouterr().out
     assert out.count("[follows] evaluate") == 4 and "step128" in out and "step150" in out
-    assert not plan.to_compute(bs.jobs("smoke"))
+    assert not plan.to_compute(bs.budget_jobs("smoke"))
     assert main(["plan", "thesis-budget", "--scale", "smoke", "--missing"]) == 0
     assert "0 jobs left of 6" in capsys.readouterr().out
     assert main(["reference-runs", "--study", "thesis-budget", "--scale", "smoke"]) == 0

@@ -40,18 +40,23 @@ def test_extrapolation_and_judgement():
     assert budgets.extrapolate(1500.0, 1600.0, 1e6, 4e6) == 1500.0  # a falling curve is not extrapolated down
     assert budgets.extrapolate(1500.0, 1000.0, 4e6, 4e6) == 1500.0
     # the thesis's own training return wins where it exists (Table 3.3a)
-    assert budgets.judge(0.7 * 3128.6, 0.0, 1e6, 3128.6) == (pytest.approx(0.7), "trained")
-    assert budgets.judge(0.69 * 3128.6, 2000.0, 1e6, 3128.6)[1] == "still learning"
+    assert budgets.training_verdict(0.7 * 3128.6, 0.0, 1e6, 3128.6) == (pytest.approx(0.7), "trained")
+    assert budgets.training_verdict(0.69 * 3128.6, 2000.0, 1e6, 3128.6)[1] == "still learning"
     # else the extrapolated 4e6 return: at 1M, 1000 after 833.3 at 500k -> 1000 + 2 * 166.7 = 1333.3 at 4M
-    assert budgets.judge(1000.0, 2500.0 / 3, 1e6, None) == (pytest.approx(0.75), "trained")
-    assert budgets.judge(1000.0, 600.0, 1e6, None) == (pytest.approx(1000 / 1800), "still learning")
-    assert budgets.judge(float("nan"), 1.0, 1e6, None)[1] == "still learning"
+    assert budgets.training_verdict(1000.0, 2500.0 / 3, 1e6, None) == (pytest.approx(0.75), "trained")
+    assert budgets.training_verdict(1000.0, 600.0, 1e6, None) == (pytest.approx(1000 / 1800), "still learning")
+    assert budgets.training_verdict(float("nan"), 1.0, 1e6, None)[1] == "still learning"
     # a run that collapsed (PPO) is judged against its own peak, not against a flat extrapolation
-    assert budgets.judge(2839.0, 5142.0, 1e6, None, peak=8000.0) == (pytest.approx(2839 / 8000), "fell from its peak")
-    assert budgets.judge(7900.0, 8100.0, 1e6, None, peak=8200.0) == (pytest.approx(7900 / 8200), "trained")
-    assert budgets.judge(1500.0, 1000.0, 1e6, None, peak=1600.0)[0] == pytest.approx(0.6)  # extrapolation larger
+    assert budgets.training_verdict(2839.0, 5142.0, 1e6, None, peak=8000.0) == (
+        pytest.approx(2839 / 8000),
+        "fell from its peak",
+    )
+    assert budgets.training_verdict(7900.0, 8100.0, 1e6, None, peak=8200.0) == (pytest.approx(7900 / 8200), "trained")
+    assert budgets.training_verdict(1500.0, 1000.0, 1e6, None, peak=1600.0)[0] == pytest.approx(
+        0.6
+    )  # extrapolation larger
     # a bounded task: the extrapolation stops at the largest possible return (InvertedDoublePendulum: 10/step)
-    assert budgets.judge(9191.0, 6308.0, 1e6, None, ceiling=10_000.0) == (pytest.approx(0.9191), "trained")
+    assert budgets.training_verdict(9191.0, 6308.0, 1e6, None, ceiling=10_000.0) == (pytest.approx(0.9191), "trained")
     assert budgets.THESIS_STEPS == 4_000_000
 
 

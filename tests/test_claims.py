@@ -211,7 +211,7 @@ def test_a_page_in_its_staging_folder_reads_finished_pages(tmp_path, monkeypatch
     assert ledger.judge(claim, "small", with_null=False).status == report.NOT_COMPUTED  # what the kernel saw before
     monkeypatch.setenv(paths.PUBLISHED_ENV, str(tmp_path / "build"))
     assert ledger.judge(claim, "small", with_null=False).status == published
-    assert len(report.load("table-3.4", "small")) == len(registry.page_claims("table-3.4"))
+    assert len(report.load_verdicts("table-3.4", "small")) == len(registry.page_claims("table-3.4"))
 
 
 def test_claims_json_cli_is_fast_and_machine_readable(tmp_path):

@@ -9,6 +9,7 @@ import pytest
 
 from thesis_repro.claims import design, judge_v3, ledger, readings, registry, report, store
 from thesis_repro.claims.measures.ch4 import DIVERGED
+from thesis_repro.mdl import readings as mdl_readings
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +28,7 @@ def test_every_reading_claim_has_a_verdict_per_reading(reading_rows):
     reading diverged (its pilot, when it has no grid run; else every grid run the claim reads, by Fig 4.7's rule),
     params_avg's runs where it reduces to params_avg, and a plain label only with a calibration inside the gate."""
     outcomes = readings.outcomes()
-    assert set(outcomes) == set(readings.reading_ids())
+    assert set(outcomes) == set(mdl_readings.reading_ids())
     assert outcomes["kl-avg-tr"] == readings.PILOT_DIVERGED and outcomes["kl-avg-ls"] == readings.PARAMS_AVG
     for row in reading_rows:
         got = {e["reading"]: e for e in row["readings"]}

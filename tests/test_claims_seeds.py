@@ -283,7 +283,7 @@ def test_the_page_prints_the_ci_next_to_the_statistic(capsys):
     assert f"{stat}; effect in the claim's direction (> 0 supports it) [95 % CI across 3 training seeds]" in v.evidence
     assert "more contrast(s) in the units table" in v.evidence  # 20 rows: the first few, then the table
     assert effect in v.evidence and effect in v._repr_markdown_()
-    saved = report.load("table-3.6", SCALE)
+    saved = report.load_verdicts("table-3.6", SCALE)
     assert any(effect in x.evidence for x in saved)
     table = evidence.units_table(row)
     ci = evidence.nowrap(f"[{c['ci'][0]:.3g}, {c['ci'][1]:.3g}]")  # short cells keep to one line

@@ -140,7 +140,7 @@ def test_the_sensitivity_is_computed_from_the_runs_with_the_summary_s_welch():
     assert e.task == "InvertedDoublePendulum" and e.n == (3, 3)
     assert e.difference == pytest.approx(np.mean(lin) - np.mean(const)) and e.ci == pytest.approx((ci.low, ci.high))
     assert m.seeds == "3 seeds" and m.within_spread
-    text = study.summary(study.lr_schedule_jobs(), cache)
+    text = study.study_table(study.lr_schedule_jobs(), cache)
     assert f"= {e.difference:,.0f} (Welch 95 % CI {e.ci[0]:,.0f} to {e.ci[1]:,.0f}" in text
     assert "\nHopper:" not in text and "| Hopper (1M) | linear | 1/3 |" in text
     assert study.lr_schedule_sensitivity(_FakeCache({})) is None

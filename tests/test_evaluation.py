@@ -341,13 +341,13 @@ def test_bench_registry_reports_missing_and_rejects_unknown(monkeypatch, capsys)
     from thesis_repro.core import bench
 
     monkeypatch.setitem(bench.BENCHMARKS, "ghost", "thesis_repro.no_such_module:bench_ghost")
-    assert bench.resolve("ghost") is None
-    assert bench.run(["ghost"]) == {}
+    assert bench.benchmark_function("ghost") is None
+    assert bench.run_benchmarks(["ghost"]) == {}
     assert "MISSING" in capsys.readouterr().out
     with pytest.raises(ValueError, match="valid benchmarks"):
-        bench.run(["nope"])
+        bench.run_benchmarks(["nope"])
     with pytest.raises(ValueError, match="module:function"):
-        bench.register("x", "no_colon")
+        bench.register_benchmark("x", "no_colon")
 
 
 def test_make_bench_lists_and_rejects_an_unknown_benchmark_in_one_line(capsys):
@@ -472,7 +472,7 @@ def test_cli_rejects_bad_make_variables_before_any_notebook_runs(var, value, exp
     from thesis_repro.cli.commands import main
 
     monkeypatch.setenv(var, value)
-    monkeypatch.setattr(notebooks, "execute", lambda *a, **k: pytest.fail("a notebook ran"))
+    monkeypatch.setattr(notebooks, "execute_notebook", lambda *a, **k: pytest.fail("a notebook ran"))
     assert main(["figure", "3.3", "--scale", "smoke"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(expected)

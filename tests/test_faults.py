@@ -43,7 +43,7 @@ from pathlib import Path
 from thesis_repro.core import paths
 from thesis_repro.claims import report
 
-out = paths.figures(SCALE) / "fig-9.1.png"
+out = paths.figures_dir(SCALE) / "fig-9.1.png"
 out.parent.mkdir(parents=True, exist_ok=True)
 out.write_text(f"figure {MODE}")
 print("saved", out)
@@ -93,14 +93,14 @@ def toy(tmp_path, monkeypatch) -> Path:
 
 def outputs(scale: str = "smoke") -> dict[str, bytes]:
     """The toy notebook's executed copy, figure and verdicts."""
-    files = [notebooks.executed_path("9.1", scale), paths.figures(scale) / "fig-9.1.png"]
-    files.append(paths.figures(scale) / "fig-9.1.verdicts.json")
+    files = [notebooks.executed_path("9.1", scale), paths.figures_dir(scale) / "fig-9.1.png"]
+    files.append(paths.figures_dir(scale) / "fig-9.1.verdicts.json")
     return {p.name: p.read_bytes() for p in files}
 
 
 def leftovers() -> list[Path]:
     """Staging folders of the build (none may outlive a run)."""
-    return sorted(paths.build("smoke").parent.glob(".staging-*"))
+    return sorted(paths.build_dir("smoke").parent.glob(".staging-*"))
 
 
 # ---------------------------------------------------------------- notebook failures
@@ -109,7 +109,7 @@ def test_failed_notebook_is_one_line_and_leaves_the_previous_outputs_intact(toy,
     good = outputs()
     assert good["fig-9.1.png"] == b"figure ok"
     # the executed notebook names the figure where it is, not where the kernel wrote it (the staging folder)
-    assert f"saved {paths.figures('smoke') / 'fig-9.1.png'}" in good["fig-9.1.ipynb"].decode()
+    assert f"saved {paths.figures_dir('smoke') / 'fig-9.1.png'}" in good["fig-9.1.ipynb"].decode()
     assert ".staging-" not in good["fig-9.1.ipynb"].decode()
     capsys.readouterr()
     # the failing run writes its figure and verdicts before it raises: staged, never swapped in
@@ -131,12 +131,12 @@ def test_failed_notebook_is_one_line_and_leaves_the_previous_outputs_intact(toy,
 def test_an_unknown_notebook_parameter_is_an_error(toy, capsys):
     assert main(["figure", "9.1", "--scale", "smoke", "-p", "NOSUCH", "1"]) == 2
     assert_one_error(capsys.readouterr().err, "unknown parameter 'NOSUCH' of notebook fig-9.1", "MODE, MARKER")
-    assert not (paths.figures("smoke") / "fig-9.1.png").exists()  # nothing ran
+    assert not (paths.figures_dir("smoke") / "fig-9.1.png").exists()  # nothing ran
 
 
 def test_a_scale_parameter_cannot_override_the_scale(toy, capsys, monkeypatch):
     ran = []
-    monkeypatch.setattr(notebooks, "execute", lambda *a, **k: ran.append(a))
+    monkeypatch.setattr(notebooks, "execute_notebook", lambda *a, **k: ran.append(a))
     assert main(["figure", "9.1", "--scale", "smoke", "-p", "SCALE", "full"]) == 2
     assert_one_error(capsys.readouterr().err, "SCALE='full'", "'smoke'", "--scale")
     assert ran == []
@@ -144,7 +144,7 @@ def test_a_scale_parameter_cannot_override_the_scale(toy, capsys, monkeypatch):
     assert ran == [("9.1", "smoke", {"SEEDS": 2})]
     monkeypatch.undo()
     with pytest.raises(ValueError, match="differs from the scale"):
-        notebooks.execute("3.3", "smoke", {"SCALE": "small"})
+        notebooks.execute_notebook("3.3", "smoke", {"SCALE": "small"})
 
 
 # ---------------------------------------------------------------- interrupts and kills
@@ -327,7 +327,7 @@ def test_kernel_files_of_a_killed_run_are_removed_by_the_next_run(toy, tmp_path,
     assert leftovers(), "the killed run's staging folder should still be there"
     assert outputs() == good
     monkeypatch.setattr(tempfile, "tempdir", str(private_tmp))
-    removed = notebooks.clean_stale(paths.build("smoke").parent)  # what the next execute() does first
+    removed = notebooks.clean_stale(paths.build_dir("smoke").parent)  # what the next execute_notebook() does first
     assert len(removed) == len(stale) + 1
     assert sorted(private_tmp.glob("thesis-repro-kernel-*")) == [] and leftovers() == []
 
@@ -358,7 +358,7 @@ if __name__ == "__main__":
     figures.FIGURES.clear()
     figures.TRAINING_KINDS = ("sleepy",)
     grid = [Job("sleepy", {"seed": i, "marker": sys.argv[1]}) for i in range(3)]
-    figures.register("9.1", "toy", kinds=["sleepy"], settings_id="_example")(lambda scale: grid)
+    figures.register_figure("9.1", "toy", kinds=["sleepy"], settings_id="_example")(lambda scale: grid)
     from thesis_repro.cli.commands import main
 
     sys.exit(main(["reference-runs", "--scale", "smoke", "--kind", "sleepy", "--jobs", "2", "--figures", "9.1"]))
@@ -487,7 +487,7 @@ def test_keyboard_interrupt_anywhere_is_one_line_and_code_130(monkeypatch, capsy
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(notebooks, "execute", interrupted)
+    monkeypatch.setattr(notebooks, "execute_notebook", interrupted)
     assert main(["figure", "3.3", "--scale", "smoke"]) == 130
     err = capsys.readouterr().err
     assert error_lines(err) == [INTERRUPTED]
@@ -500,7 +500,7 @@ def _must_not_run(*args, **kwargs):
 
 
 def test_build_path_that_is_a_file(monkeypatch, tmp_path, capsys):
-    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    monkeypatch.setattr(notebooks, "execute_notebook", _must_not_run)
     (tmp_path / "a-file").write_text("")
     monkeypatch.setenv("THESIS_REPRO_BUILD", str(tmp_path / "a-file"))
     assert main(["figure", "3.3", "--scale", "smoke"]) == 1
@@ -528,7 +528,7 @@ def _read_only_folder(tmp_path: Path) -> Path:
 
 @pytest.mark.parametrize("setting", ["THESIS_REPRO_DATA", "THESIS_REPRO_BUILD"])
 def test_unwritable_data_or_build_folder(monkeypatch, tmp_path, capsys, setting):
-    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    monkeypatch.setattr(notebooks, "execute_notebook", _must_not_run)
     folder = _read_only_folder(tmp_path)
     monkeypatch.setenv(setting, str(folder))
     try:
@@ -544,18 +544,18 @@ def test_full_disk(monkeypatch, capsys):
     def no_space(fd):
         raise full
 
-    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    monkeypatch.setattr(notebooks, "execute_notebook", _must_not_run)
     with monkeypatch.context() as m:
         m.setattr(os, "fsync", no_space)  # the write probe of the run cache hits a full disk
         assert main(["figure", "3.3", "--scale", "smoke"]) == 1
-    assert_one_error(capsys.readouterr().err, str(paths.runs()), "THESIS_REPRO_DATA", "No space left on device")
+    assert_one_error(capsys.readouterr().err, str(paths.runs_dir()), "THESIS_REPRO_DATA", "No space left on device")
     # a full disk while the notebook's outputs are written
     target = notebooks.executed_path("3.3", "smoke")
 
     def writes_fail(*args, **kwargs):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(target))
 
-    monkeypatch.setattr(notebooks, "execute", writes_fail)
+    monkeypatch.setattr(notebooks, "execute_notebook", writes_fail)
     assert main(["figure", "3.3", "--scale", "smoke"]) == 1
     assert_one_error(capsys.readouterr().err, f"{target} (the build folder, THESIS_REPRO_BUILD): No space left")
 
@@ -568,7 +568,7 @@ def test_a_full_disk_during_a_commit_names_the_entry(monkeypatch, capsys):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # as a write() reports it: no file name
 
     monkeypatch.setattr(cache_mod, "write_manifest", no_space)
-    runs_dir = paths.runs()
+    runs_dir = paths.runs_dir()
     assert _guarded(lambda: RunCache(runs_dir, reference=False).run(Job("square", {"x": 3}))) == 1
     line = assert_one_error(capsys.readouterr().err, str(runs_dir), "(the run cache, THESIS_REPRO_DATA)", "No space")
     assert "/.tmp-" in line and "Errno" not in line
@@ -576,7 +576,7 @@ def test_a_full_disk_during_a_commit_names_the_entry(monkeypatch, capsys):
 
 @pytest.mark.parametrize("value", ["x", "0", "-2", "1.5", ""])
 def test_bad_thesis_repro_jobs(monkeypatch, capsys, value):
-    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    monkeypatch.setattr(notebooks, "execute_notebook", _must_not_run)
     monkeypatch.setenv("THESIS_REPRO_JOBS", value)
     assert main(["figure", "3.3", "--scale", "smoke"]) == 2
     assert_one_error(capsys.readouterr().err, "THESIS_REPRO_JOBS", repr(value), "valid values are integers >= 1")
@@ -584,7 +584,7 @@ def test_bad_thesis_repro_jobs(monkeypatch, capsys, value):
 
 @pytest.mark.parametrize("value", ["0", "-1", "two"])
 def test_bad_jobs_argument(monkeypatch, capsys, value):
-    monkeypatch.setattr(notebooks, "execute", _must_not_run)
+    monkeypatch.setattr(notebooks, "execute_notebook", _must_not_run)
     assert main(["figure", "3.3", "--scale", "smoke", "--jobs", value]) == 2
     assert_one_error(capsys.readouterr().err, "--jobs", repr(value), "valid values are integers >= 1")
     assert main(["plan", "3.3", "--cores", value]) == 2
@@ -626,7 +626,7 @@ def square_figure(monkeypatch):
     monkeypatch.setattr(figures, "FIGURES", {})
     monkeypatch.setattr(figures, "TRAINING_KINDS", ("square",))
     job = Job("square", {"x": 3})
-    figures.register("9.1", "toy figure", kinds=["square"], settings_id="_example")(lambda scale: [job])
+    figures.register_figure("9.1", "toy figure", kinds=["square"], settings_id="_example")(lambda scale: [job])
     return job
 
 
@@ -649,13 +649,13 @@ def test_runs_listing_shows_corrupt_local_and_shipped_entries(square_figure, cap
     assert main(["runs", "9.1", "--scale", "smoke"]) == 0
     out = capsys.readouterr().out
     assert "fig-9.1 (smoke): 1 training run: 0 shipped, 0 cached, 1 to compute (1 corrupt, will be recomputed)" in out
-    assert [r["state"] for r in runs.rows("9.1", "smoke")] == ["corrupt"]
+    assert [r["state"] for r in runs.run_rows("9.1", "smoke")] == ["corrupt"]
     # the same in the shipped layer
     layer = tmp_path / "layer"
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
     shipped = runs.export(RunCache(tmp_path / "fresh", reference=False).run(square_figure), layer).path
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "empty"))
-    assert [r["state"] for r in runs.rows("9.1", "smoke")] == ["shipped"]
+    assert [r["state"] for r in runs.run_rows("9.1", "smoke")] == ["shipped"]
     (shipped / "config.json").write_text("{}")
     assert main(["runs", "9.1", "--scale", "smoke", "--json"]) == 0
     assert [r["state"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["corrupt"]

@@ -44,7 +44,7 @@ def test_jobs_put_training_first_without_duplicates_and_use_declared_kinds(figur
 
 def test_register_rejects_a_second_grid_for_an_id_and_overrides_reach_the_settings():
     with pytest.raises(ValueError, match="already registered"):
-        figures.register("3.3", "again")(lambda s: [])
+        figures.register_figure("3.3", "again")(lambda s: [])
     base = figures.training_jobs("4.1", "smoke")
     more = figures.training_jobs("4.1", "smoke", train_seeds=2)
     assert len(more) == 2 * len(base) and _keys(base) < _keys(more)
@@ -106,7 +106,7 @@ def _table() -> pd.DataFrame:
             "return": [95.0, 100.0, 90.0, 120.0, 100.0, 110.0],
         }
     )
-    return ch4.compare(frame, "return")
+    return ch4.best_per_group(frame, "return")
 
 
 def test_compare_marks_the_best_algorithm_per_panel():
@@ -180,7 +180,7 @@ def test_compare_ci_means_match_compare_with_equal_rollouts():
         ignore_index=True,
     )
     frame.loc[frame["panel"] == "b", "return"] *= 2
-    num = ch4.compare(frame, "return")
+    num = ch4.best_per_group(frame, "return")
     table = ch4.compare_ci(frame, "return")
     for p in "ab":
         for algo in ("kl_avg", "joint"):
@@ -259,7 +259,7 @@ def test_seed_means_are_the_unit_of_the_ch5_error_bars():
     """Per seed, the mean over pairs; their mean over seeds is strategy_means (equal pairs per seed)."""
     summary = pd.concat([_transfer_summary().assign(seed=0), _transfer_summary().assign(seed=1)], ignore_index=True)
     summary.loc[summary.seed == 1, "total_cost"] += 2.0
-    per_seed = ch5.seed_means(summary, ["tensor", "scratch"])
+    per_seed = ch5.strategy_seed_means(summary, ["tensor", "scratch"])
     assert per_seed[["strategy", "seed"]].values.tolist() == [
         ["tensor", 0],
         ["tensor", 1],
@@ -311,7 +311,7 @@ def test_notebooks_are_thin_and_end_with_the_shared_verdict(figure_id):
 
 def test_register_checks_the_job_kinds():
     with pytest.raises(ValueError, match="unknown job kind 'trian'; valid job kinds are"):
-        figures.register("_x", "typo", kinds=["trian"])
+        figures.register_figure("_x", "typo", kinds=["trian"])
     assert "_x" not in figures.FIGURES
 
 

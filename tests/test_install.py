@@ -81,8 +81,8 @@ def test_a_kit_outside_its_clone_keeps_runs_in_the_user_cache(monkeypatch, tmp_p
     monkeypatch.delenv("THESIS_REPRO_REFERENCE")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     assert not paths.in_clone()
-    assert paths.runs() == tmp_path / "cache" / "thesis_repro" / "runs"
-    assert paths.build("small") == tmp_path / "cache" / "thesis_repro" / "build" / "small"
+    assert paths.runs_dir() == tmp_path / "cache" / "thesis_repro" / "runs"
+    assert paths.build_dir("small") == tmp_path / "cache" / "thesis_repro" / "build" / "small"
     assert paths.reference_note() == (
         "no shipped runs in this install (pip installs the code alone): clone the kit and set "
         "THESIS_REPRO_REFERENCE=<clone>/data/reference"

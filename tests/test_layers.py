@@ -11,6 +11,9 @@ package (what a page prints about its runs lives in :mod:`thesis_repro.book.page
 
 The whole package follows the package map of ``thesis_repro/__init__.py``: each layer, one folder each (core; envs;
 learners, mdl, arm; evaluation; figures; runs; claims; book; command line) imports only itself and the layers below.
+
+One name per idea: no two modules define public module-level functions of the same name, unless the name means the
+same thing in each (:data:`SAME_NAME_SAME_IDEA`, each entry with its reason).
 """
 
 from __future__ import annotations
@@ -257,8 +260,58 @@ def test_a_page_s_metadata_never_loads_the_generator():
         "import sys\n"
         "from thesis_repro.book import pages\n"
         "from thesis_repro.runs import budgets\n"
-        "budgets.training_jobs('smoke', ['3.3'])\n"
+        "budgets.ordered_training_jobs('smoke', ['3.3'])\n"
         "print('thesis_repro.runs.generator' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False", out.stderr
+
+
+#: Public module-level functions that several modules define on purpose, each meaning the same thing in every one
+#: of them: name -> the modules allowed to define it (``None``: any module). Anything else is one name per idea.
+SAME_NAME_SAME_IDEA: dict[str, set[str] | None] = {
+    # ``python -m <module>``'s entry point: every runnable module has its own, and each means just that.
+    "main": None,
+    # Holm's step-down over a claim's family of pooled tests: each frozen design's judge keeps its own copy (v2's
+    # pools Pooled, v3's PooledTest), so that changing one design's statistics cannot move the other's verdicts.
+    "holm_outcome": {"thesis_repro.claims.judge", "thesis_repro.claims.judge_v3"},
+}
+
+
+def public_functions(modules: dict[str, Path], texts: dict[str, str] | None = None) -> dict[str, list[str]]:
+    """Public (no leading underscore) module-level function name -> the modules that define it (methods, classes
+    and imported names do not count). ``texts`` replaces some modules' sources."""
+    out: dict[str, list[str]] = {}
+    for name, path in modules.items():
+        text = (texts or {}).get(name)
+        for node in ast.parse(path.read_text() if text is None else text, str(path)).body:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and not node.name.startswith("_"):
+                out.setdefault(node.name, []).append(name)
+    return out
+
+
+def shared_names(defined: dict[str, list[str]]) -> list[str]:
+    """One line per public function name that more than one module defines, outside :data:`SAME_NAME_SAME_IDEA`."""
+    out = []
+    for fn, modules in sorted(defined.items()):
+        allowed = SAME_NAME_SAME_IDEA.get(fn, set())
+        if len(modules) > 1 and not (allowed is None or set(modules) <= allowed):
+            out.append(f"{fn}: {', '.join(sorted(modules))}")
+    return out
+
+
+def test_no_two_modules_define_a_public_function_of_the_same_name():
+    """One name per idea: two modules never define public functions of the same name, except the deliberate
+    same-meaning ones of :data:`SAME_NAME_SAME_IDEA`. Rename the less apt one to say what it returns or does."""
+    shared = shared_names(public_functions(sources()))
+    assert not shared, "public functions defined in more than one module:\n" + "\n".join(shared)
+
+
+def test_the_name_check_catches_a_shared_name():
+    modules = sources()
+    probe = {"thesis_repro.envs.registry": "def build_dir(scale):\n    return scale\n"}
+    assert "build_dir: thesis_repro.core.paths, thesis_repro.envs.registry" in shared_names(
+        public_functions(modules, probe)
+    )
+    allowed = {"thesis_repro.envs.registry": "def main():\n    return 0\n"}
+    assert not shared_names(public_functions(modules, allowed))

@@ -478,7 +478,7 @@ def test_compare_names_the_best_learner_with_kl_exact_beside_kl_avg():
         for a, vs in {"kl_avg": [95, 110], "kl_exact": [80, 150], "params_avg": [100, 100], "joint": [90, 105]}.items()
         for p, v in zip("ab", vs, strict=True)
     ]
-    table = ch4.compare(pd.DataFrame(rows), "return")
+    table = ch4.best_per_group(pd.DataFrame(rows), "return")
     assert table.loc["b", "best"] == "kl_exact" and not table.loc["b", "kl_avg_best"]
     assert table.loc["a", "best"] == "params_avg" and table.loc["a", "kl_exact"] == 80
 

@@ -25,7 +25,7 @@ def test_notebook_smoke(nid, tmp_path_factory, monkeypatch):
     # the session's book build may already have executed it with today's sources (same execution key)
     out = notebooks.executed_path(nid, "smoke")
     if not notebooks.is_current(nid, "smoke"):
-        out = notebooks.execute(nid, "smoke", log=False)
+        out = notebooks.execute_notebook(nid, "smoke", log=False)
     nb = json.loads(out.read_text())
     errors = [o for c in nb["cells"] for o in c.get("outputs", []) if o.get("output_type") == "error"]
     assert not errors
@@ -59,7 +59,7 @@ def test_notebook_ids_and_book_order():
     assert IDS == sorted(IDS, key=notebooks.sort_key)
     assert notebooks.sort_key("4.7") < notebooks.sort_key("table-4.1") < notebooks.sort_key("analysis-4-kl")
     assert notebooks.sort_key("analysis-4-kl") < notebooks.sort_key("5.3")
-    assert notebooks.chapter("analysis-4-kl") == "4" and notebooks.chapter("table-3.7") == "3"
+    assert notebooks.page_chapter("analysis-4-kl") == "4" and notebooks.page_chapter("table-3.7") == "3"
     assert paths.notebook("analysis-4-kl").name == "analysis-4-kl.py"
     assert notebooks.executed_path("table-3.4", "small").name == "table-3.4.ipynb"
 

@@ -61,7 +61,7 @@ def test_smoke_plan_matches_the_counted_jobs():
     assert eval_h == pytest.approx(
         plan.makespan([throughput.work(j) / 100 / 3600 for j in jobs if j.kind == "evaluate"], 2)
     )
-    assert "fig-3.3 (smoke): 6 training jobs (1,536 env steps), 24 evaluation and other jobs" in plan.summary(p)
+    assert "fig-3.3 (smoke): 6 training jobs (1,536 env steps), 24 evaluation and other jobs" in plan.plan_summary(p)
 
 
 def test_book_plan_counts_shared_runs_once():
@@ -144,9 +144,9 @@ def test_plan_reports_cost_per_training_seed():
     assert sum(n for n, _ in p.seeds.values()) == len({j.key for j in jobs})
     assert sum(h for _, h in p.seeds.values()) == pytest.approx(p.core_hours)
     assert p.seeds[0] == pytest.approx(p.seeds[1])  # the two seeds run the same grid
-    text = plan.report(p, RATES)
+    text = plan.cost_report(p, RATES)
     assert "per training seed: s0: " in text and "; s1: " in text
-    assert plan.per_seed(plan.plan_jobs("x", [], "smoke", 1, RATES)) == ""
+    assert plan.cost_per_seed(plan.plan_jobs("x", [], "smoke", 1, RATES)) == ""
 
 
 def _ship(

@@ -111,7 +111,7 @@ def test_the_plan_leaves_out_chapter_4_items_no_claim_of_which_6_seeds_settle(mo
     assert [r.item for r in p.ranked] == ["4.7", "3.2", "5.3"] and p.ranked[2].target == 10
     assert p.left_out == {"4.1": "no claim of it can be settled by 6 seeds"}
     assert p.skipped == {"4.3-d": "every kl_avg run diverged"} and p.unsettled == ["3.2-c", "4.1-a"]
-    text = order.report(p)
+    text = order.order_report(p)
     assert "left out (no claim settled at these seeds): 4.1" in text and "4.7-b" in text and "3-9" in text
     assert p.states == {"4.7": "read", "3.2": "made", "5.3": "to make"}
     assert "made but not read yet: 3.2: raise each one's block" in text and "train_seeds: 6" in text
@@ -135,7 +135,7 @@ def two_items(monkeypatch):
         "9.2": lambda s: [Job("order-toy", cfg("b", 1, seed)) for seed in (0, 1, 2)],
     }
     for fid, grid in grids.items():
-        figures.register(fid, f"toy figure {fid}", kinds=["order-toy"], settings_id="_example")(grid)
+        figures.register_figure(fid, f"toy figure {fid}", kinds=["order-toy"], settings_id="_example")(grid)
 
 
 def _labels(planned):

@@ -65,7 +65,7 @@ def test_rows_are_complete_and_nothing_is_unknown():
             assert r.get("reason"), r["item"]
         # the thesis's words come with their line, or the row says the thesis is silent
         assert _lines_cited(r["thesis"]) or "silent" in r["thesis"], r["item"]
-    n = protocol.counts()
+    n = protocol.rows_per_status()
     assert sum(n.values()) == len(rows) and all(n[s] > 0 for s in protocol.STATUSES)
 
 
@@ -92,7 +92,7 @@ def test_page_renders_every_row_and_joins_the_book_contents(tmp_path):
     assert md.startswith(f"# {protocol.TITLE}")
     for r in protocol.rows():
         assert protocol._cell(r["item"]) in md
-    n = protocol.counts()
+    n = protocol.rows_per_status()
     assert f"{len(protocol.rows())} rows: {n['match']} match, {n['stated choice']} stated choice" in md
     head = md.partition(f"## {protocol.ALL_HEADING}")[0]
     for line in md.splitlines():

@@ -82,7 +82,7 @@ def test_compute_materialises_the_training_run_of_an_evaluation(tmp_path):
     train = Job("train", _smoke_train())
     test = {"perturbation": "obs", "sigmas": [0.0, 0.5], "n_rollouts": 2, "max_episode_steps": 50}
     ev = Job("evaluate", {"train": train.config, "test": test})
-    assert [d.key for d in backends.dependencies(ev)] == [train.key]
+    assert [d.key for d in backends.job_dependencies(ev)] == [train.key]
     driver = RunCache(tmp_path / "driver", reference=False)
     trained = driver.run(train)
     worker = tmp_path / "worker"

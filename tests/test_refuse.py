@@ -27,7 +27,7 @@ def toy_training(monkeypatch):
 
 def test_a_figure_without_its_shipped_runs_refuses_naming_the_cost(monkeypatch, capsys):
     ran = []
-    monkeypatch.setattr(notebooks, "execute", lambda *a, **k: ran.append(a))
+    monkeypatch.setattr(notebooks, "execute_notebook", lambda *a, **k: ran.append(a))
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", "/nonexistent")  # the shipped layer is missing
     assert main(["figure", "3.3", "--scale", "small"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -46,13 +46,13 @@ def test_local_runs_used_over_shipped_ones_are_said(toy_training, tmp_path, monk
     for job in TOY:
         RunCache(layer, reference=False).run(job)  # shipped
     assert plan.refuse_training("3.3", "small") == 0
-    RunCache(paths.runs(), reference=False).run(TOY[0])  # and one of them also in the local cache
+    RunCache(paths.runs_dir(), reference=False).run(TOY[0])  # and one of them also in the local cache
     assert plan.refuse_training("3.3", "small") == 1
     out = capsys.readouterr().out
     assert "figure 3.3: 1 of its 2 training runs come from the local cache" in out
     with pytest.raises(ValueError, match=r"would train 1 of its 2 runs"):
         monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path / "empty"))
-        for p in paths.runs().glob("square/*"):
+        for p in paths.runs_dir().glob("square/*"):
             if TOY[1].key in p.name:
                 raise AssertionError("only TOY[0] is local")
         plan.refuse_training("3.3", "small")
@@ -72,7 +72,7 @@ def test_local_runs_used_over_shipped_ones_are_named_in_the_verdicts_evidence(to
     for job in TOY:
         RunCache(layer, reference=False).run(job)  # both shipped
     assert pages.local_runs("3.3", settings) is None
-    RunCache(paths.runs(), reference=False).run(TOY[0])  # one also local: it replaces the shipped copy
+    RunCache(paths.runs_dir(), reference=False).run(TOY[0])  # one also local: it replaces the shipped copy
     use = pages.local_runs("3.3", settings)
     assert use == {"local": 1, "replacing_shipped": 1, "of": 2, "noun": "training runs"}
 

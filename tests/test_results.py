@@ -24,7 +24,7 @@ CLAIM = {
 
 def test_results_md_and_readme_blocks_are_current_with_the_shipped_snapshot(monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the real shipped layer
-    stale = [p.name for p, text in results.generate("small").items() if not p.exists() or p.read_text() != text]
+    stale = [p.name for p, text in results.generated_files("small").items() if not p.exists() or p.read_text() != text]
     assert not stale, f"out of date with the shipped claims snapshot: {', '.join(stale)}; run `make results`"
 
 
@@ -68,7 +68,7 @@ def test_results_md_counts_every_claim_once_and_groups_by_chapter():
 def test_a_readme_without_its_markers_is_one_error_line(tmp_path, monkeypatch, capsys):
     with pytest.raises(ValueError, match="README.md needs one <!-- results:start --> ... <!-- results:end --> block"):
         results.replace_block("no markers", results.RESULTS_MARKERS, "x")
-    monkeypatch.setattr(results, "generate", lambda scale: results.render({}, scale, "no markers", ""))
+    monkeypatch.setattr(results, "generated_files", lambda scale: results.render_results({}, scale, "no markers", ""))
     assert main(["results", "--check"]) == 2
     assert capsys.readouterr().err.strip().startswith("error: README.md needs one <!-- results:start -->")
 
@@ -85,6 +85,6 @@ def test_the_ledger_is_judged_from_the_snapshot_not_from_this_builds_pages(monke
     (tmp_path / "small" / "figures").mkdir(parents=True)
     (tmp_path / "small" / "figures" / "fig-3.3.data.json").write_text("{}")
     with results.snapshot_only():
-        assert not paths.figures("small").exists() and paths.PUBLISHED_ENV not in os.environ
-    assert paths.figures("small") == tmp_path / "small" / "figures"
+        assert not paths.figures_dir("small").exists() and paths.PUBLISHED_ENV not in os.environ
+    assert paths.figures_dir("small") == tmp_path / "small" / "figures"
     assert os.environ[paths.PUBLISHED_ENV] == str(tmp_path)

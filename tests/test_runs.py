@@ -61,7 +61,7 @@ def fake_figures(monkeypatch, tmp_path):
         "9.2": lambda s: [shared, Job("toy-train", _cfg("a", 10))],
     }
     for fid, grid in grids.items():
-        figures.register(fid, f"toy figure {fid}", kinds=["toy-train", "square"], settings_id="_example")(grid)
+        figures.register_figure(fid, f"toy figure {fid}", kinds=["toy-train", "square"], settings_id="_example")(grid)
     layer = tmp_path / "reference"
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(layer))
     return layer
@@ -193,7 +193,7 @@ def test_plan_of_several_seeds_completes_seed_0_then_item_by_item(monkeypatch):
         "9.2": lambda s: [Job("toy-train", _cfg("b", 10, seed)) for seed in (0, 1, 2)],
     }
     for fid, grid in grids.items():
-        figures.register(fid, f"toy figure {fid}", kinds=["toy-train"], settings_id="_example")(grid)
+        figures.register_figure(fid, f"toy figure {fid}", kinds=["toy-train"], settings_id="_example")(grid)
     order = generator.job_queue("smoke", ["9.1", "9.2"], kinds=["toy-train"], by_figure=True, seeds=[0, 1, 2])
     labels = [f"{p.job.config['algorithm']}{p.job.config['seed']}" for p in order]
     assert labels == ["a0", "c0", "b0", "a1", "c1", "a2", "c2", "b1", "b2"]
@@ -208,21 +208,21 @@ def test_rows_states_summary_and_runs_json(fake_figures, tmp_path):
     assert [j.kind for j in jobs] == ["toy-train", "toy-train", "square"]  # training first
     runs.export(RunCache(tmp_path / "maker", reference=False).run(jobs[0]), layer)  # ship c
     cache.run(jobs[2])  # cache the square job locally
-    rows = {r["label"]: r for r in runs.rows("9.1", "smoke", cache)}
+    rows = {r["label"]: r for r in runs.run_rows("9.1", "smoke", cache)}
     assert {k: r["state"] for k, r in rows.items()} == {
         "c__Toy__s0": "shipped",
         "b__Toy__s0": "missing",
         "x1": "cached",
     }
     assert rows["c__Toy__s0"]["path"].endswith(f"toy-train/c__Toy__s0__{jobs[0].key}")
-    assert "c__Toy__s0" in plan.table(list(rows.values())).splitlines()[1]
+    assert "c__Toy__s0" in plan.text_table(list(rows.values())).splitlines()[1]
     training = [j for j in jobs if j.kind in figures.TRAINING_KINDS]
     assert runs.summary(training, cache) == "2 training runs: 1 shipped, 0 cached, 1 to compute"
-    path = runs.record("9.1", "smoke", cache)
-    assert path == paths.figures("smoke") / "fig-9.1.runs.json"
+    path = runs.write_run_rows("9.1", "smoke", cache)
+    assert path == paths.figures_dir("smoke") / "fig-9.1.runs.json"
     doc = json.loads(path.read_text())
     assert doc["summary"].startswith("2 training runs: 1 shipped") and len(doc["runs"]) == 3
-    assert runs.record("table-9.9", "smoke") is None  # not a registered figure: nothing to record
+    assert runs.write_run_rows("table-9.9", "smoke") is None  # not a registered figure: nothing to record
 
 
 def test_check_shipped_reports_stale_runs_with_the_fix(fake_figures, tmp_path):
@@ -344,10 +344,12 @@ def test_generator_progress_line_reads_the_newest_checkpoint(tmp_path):
     work = cache.workdir(job)
     for steps in (100_000, 200_704):
         (work / f"ckpt-{steps:012d}").mkdir(parents=True)
-    line = generator.progress_line([job, fresh], cache, 125.0)
+    line = generator.jobs_progress_line([job, fresh], cache, 125.0)
     assert line.startswith("  ... 2 min: training ")
     assert f"{job.label} 200,704/300,000 steps; {fresh.label} 0/10 steps" in line
-    line = generator.progress_line([job], cache, 125.0, eta=lambda j: 1500.0)  # the generator's estimate of the rest
+    line = generator.jobs_progress_line(
+        [job], cache, 125.0, eta=lambda j: 1500.0
+    )  # the generator's estimate of the rest
     assert f"{job.label} 200,704/300,000 steps, ~25 min left (newest checkpoints)" in line
 
 

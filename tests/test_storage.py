@@ -208,11 +208,17 @@ def test_kinds_declare_their_dependencies_and_resources():
         Job("arm-target", {"source": src, "strategy": "tensor"}),
         Job("arm-target", {"source": src, "strategy": "fcnn"}),
     )
-    assert [d.kind for d in backends.dependencies(tensor)] == ["arm-source"]
-    assert [(d.kind, d.config["policy"]) for d in backends.dependencies(fcnn)] == [("arm-competitor-source", "fcnn")]
-    assert backends.dependencies(Job("square", {"x": 1})) == []
+    assert [d.kind for d in backends.job_dependencies(tensor)] == ["arm-source"]
+    assert [(d.kind, d.config["policy"]) for d in backends.job_dependencies(fcnn)] == [
+        ("arm-competitor-source", "fcnn")
+    ]
+    assert backends.job_dependencies(Job("square", {"x": 1})) == []
     assert backends.resources("train")["memory"] > backends.resources("arm-target")["memory"]
-    assert job_kinds.pinned("evaluate") and not job_kinds.pinned("arm-target") and not job_kinds.pinned("train")
+    assert (
+        job_kinds.pins_dependencies("evaluate")
+        and not job_kinds.pins_dependencies("arm-target")
+        and not job_kinds.pins_dependencies("train")
+    )
     cache = RunCache(reference=False)
     assert cache.bind(tensor) is tensor  # an unpinned kind is keyed by its config alone, as before
 

@@ -134,6 +134,6 @@ def test_book_study_block_is_the_summary_of_the_shipped_runs(monkeypatch, name, 
     assert f"python -m thesis_repro.runs.study {name} [--summary]" in text
     block = text.split(f"<!-- {marker}:begin -->")[1].split(f"<!-- {marker}:end -->")[0].strip()
     spec = study.SPECS[name]
-    expected = study.summary(spec.jobs(), budgets.shipped_cache(), spec).strip()
+    expected = study.study_table(spec.jobs(), budgets.shipped_cache(), spec).strip()
     stale = f"book/learners.md {marker} block is stale: paste `python -m thesis_repro.runs.study {name} --summary`"
     assert block == expected, stale

@@ -182,7 +182,7 @@ def test_every_item_is_registered_with_a_notebook_and_settings_at_every_scale():
         assert fig.module in ("thesis_repro.figures.ch3_tables", "thesis_repro.figures.ch3_curves")
         assert paths.notebook(item if item.startswith("table") else item).exists()
         for scale in ("smoke", "small", "full"):
-            s = F.settings(item, scale)
+            s = F.checked_settings(item, scale)
             assert set(F.learners(s)) | set(F.skipped(s)) == set(s["algos"])
 
 
@@ -209,7 +209,7 @@ def test_budgets_are_fig_3_3s():
 
     for item in ITEMS:
         for scale in ("smoke", "small", "full"):
-            s, ref = F.settings(item, scale), figures.settings("3.3", scale)
+            s, ref = F.checked_settings(item, scale), figures.settings("3.3", scale)
             for key in ("timesteps", "test_rollouts", "max_episode_steps", "train_overrides"):
                 assert s[key] == ref[key], (item, scale, key)
             seeds = (ref["train_seeds"], CONFIRMATORY_SEEDS) if scale == "small" else (ref["train_seeds"],)
@@ -218,13 +218,13 @@ def test_budgets_are_fig_3_3s():
 
 def test_settings_errors_name_the_valid_choices():
     with pytest.raises(ValueError, match="skip_algos"):
-        F.settings("table-3.4", "small", skip_algos=["td3"])
+        F.checked_settings("table-3.4", "small", skip_algos=["td3"])
     with pytest.raises(ValueError, match="unknown factor of Walker2d 'mass'; valid factors of Walker2d are"):
         C.shift_value("Walker2d", "mass", 0.2)
     with pytest.raises(ValueError, match="unknown normalisation"):
-        C.bars("3.5", F.thesis_cells(), F.settings("3.5", "small", normalisation="zscore"))
+        C.bars("3.5", F.thesis_cells(), F.checked_settings("3.5", "small", normalisation="zscore"))
     with pytest.raises(ValueError, match="unknown chapter-3 item 'table-9.9'"):
-        F.compare("table-9.9", F.thesis_cells(), F.settings("table-3.4", "small"))
+        F.compare("table-9.9", F.thesis_cells(), F.checked_settings("table-3.4", "small"))
 
 
 # ---------------------------------------------------------------- the thesis's own numbers as ours
@@ -235,13 +235,13 @@ def thesis_as_ours(item: str, s: dict) -> pd.DataFrame:
 
 @pytest.mark.parametrize("item", ["table-3.4", "table-3.5", "table-3.6", "table-3.7"])
 def test_the_thesis_numbers_as_ours_agree_with_the_thesis_bolding(item):
-    s = F.settings(item, "full")
+    s = F.checked_settings(item, "full")
     a = F.compare(item, thesis_as_ours(item, s), s).agreement
     assert a["rows"] == a["best_same"] == 20 and a["same"] == a["cells"]
 
 
 def test_unaffordable_learners_keep_the_thesis_numbers():
-    s = F.settings("table-3.4", "small", skip_algos=["ddpg", "sac"])  # a scale that could not afford them
+    s = F.checked_settings("table-3.4", "small", skip_algos=["ddpg", "sac"])  # a scale that could not afford them
     assert F.skipped(s) == ["ddpg", "sac"]
     ours = thesis_as_ours("table-3.4", s)
     ours = ours[ours.method.isin(F.learners(s))]
@@ -251,7 +251,7 @@ def test_unaffordable_learners_keep_the_thesis_numbers():
     assert text.loc[("Walker2d", "obs"), ("sac", "thesis")] == "1565.4 ± 544.9"
     assert bool(mask.loc[("Walker2d", "obs"), ("sac", "thesis")])  # the thesis's bold survives
     assert "font-weight: bold" in comp.style("t").to_html()
-    text = F.describe(s, width=60)
+    text = F.describe_budget(s, width=60)
     assert "Not run at this scale (thesis numbers shown): ddpg, sac" in " ".join(text.split())
     assert max(map(len, text.splitlines())) <= 60 < len(text)  # wrapped for the book page
 
@@ -275,7 +275,7 @@ def fake_run_jobs(jobs, **_):
 
 def test_run_assembles_per_rollout_aucs_cells_and_training_episodes(monkeypatch):
     monkeypatch.setattr(F, "run_jobs", fake_run_jobs)
-    s = F.settings("table-3.5", "smoke", train_seeds=2, sigmas=[0.0, 0.2, 0.4], test_rollouts=3)
+    s = F.checked_settings("table-3.5", "smoke", train_seeds=2, sigmas=[0.0, 0.2, 0.4], test_rollouts=3)
     res = F.run(s)
     n_envs, n_algos = len(s["envs"]), len(s["algos"])
     assert len(res.aucs) == n_envs * n_algos * 2 * 4 * 3  # envs × learners × seeds × tests × rollouts
@@ -293,7 +293,7 @@ def test_run_assembles_per_rollout_aucs_cells_and_training_episodes(monkeypatch)
 
 def test_table33_cells_and_its_sigma_grid(monkeypatch):
     monkeypatch.setattr(F, "run_jobs", fake_run_jobs)
-    s = F.settings("table-3.3", "smoke", train_seeds=2)
+    s = F.checked_settings("table-3.3", "smoke", train_seeds=2)
     a, b = F.table33(F.run(s), s)
     assert a.noise_type.tolist() == ["none", "obs", "act", "env", "mdl"]
     assert a.train_sigma.tolist() == [0.0, 0.2, 0.2, 0.2, 0.2]
@@ -304,27 +304,27 @@ def test_table33_cells_and_its_sigma_grid(monkeypatch):
     assert texts[1].loc[("obs", 0.0), (0.0, "thesis")] == "3723.9 ± 321.3"
     partial = F.table33_text((a.iloc[:2], b))[0]  # the thesis has no σ_tr = 0.2 cell for "none": stays empty
     assert partial.loc["none", (0.2, "reproduced")] == "" and partial.loc["act", (0.2, "reproduced")] == report.NOT_RUN
-    s_bad = F.settings("table-3.3", "smoke", sigmas=[0.0, 0.5])
+    s_bad = F.checked_settings("table-3.3", "smoke", sigmas=[0.0, 0.5])
     with pytest.raises(ValueError, match="lacks"):
         F.table33(F.run(s_bad), s_bad)
 
 
 # ---------------------------------------------------------------- figure statistics
 def test_bars_derived_from_the_thesis_tables_by_hand():
-    s = F.settings("3.5", "full")
+    s = F.checked_settings("3.5", "full")
     b = C.bars("3.5", F.thesis_cells(), s)
     th = thesis_numbers.load("table3_5").pivot_table(index=["env", "test"], columns="method", values="mean")
     obs = th.xs("obs", level="test")
     expect = ((obs["ppo-mdl"] - obs["ppo"]) / obs["ppo"]).mean()
     got = b.query("source == 'thesis' and method == 'ppo-mdl' and test == 'obs'").change.item()
     assert got == pytest.approx(expect)
-    b6 = C.bars("3.6", F.thesis_cells(), F.settings("3.6", "full"))
+    b6 = C.bars("3.6", F.thesis_cells(), F.checked_settings("3.6", "full"))
     assert set(b6.query("panel == 'b'").method) == {"ppo-epopt", "ppo-maml-dg", "ppo-reptile-dg"}
     assert set(b6.query("panel == 'b'").baseline) == {"ppo-mdl"}
 
 
 def test_heat_grid_and_summary():
-    s = F.settings("3.4", "small")
+    s = F.checked_settings("3.4", "small")
     cells = C.heat_cells(s)
     assert len(cells) == len(s["heat_shifts"]) ** 2
     assert {"body_mass": 1.0, "wind": 0.0} in cells
@@ -344,6 +344,6 @@ def test_heat_grid_and_summary():
 
 
 def test_budget_sentence_names_only_the_items_tasks():
-    one = " ".join(F.describe(F.settings("3.4", "small")).split())
+    one = " ".join(F.describe_budget(F.checked_settings("3.4", "small")).split())
     assert "scale small: 2,000,000 env steps per run (thesis: 4,000,000)" in one and "InvertedPendulum" not in one
-    assert "InvertedPendulum: 200,000" in " ".join(F.describe(F.settings("table-3.4", "small")).split())
+    assert "InvertedPendulum: 200,000" in " ".join(F.describe_budget(F.checked_settings("table-3.4", "small")).split())

@@ -143,7 +143,7 @@ def fake_jobs(monkeypatch):
 
 @pytest.mark.parametrize("seeds", [3, 1])
 def test_table_pages_show_the_seed_interval_beside_the_thesis_format(fake_jobs, seeds):
-    s = F.settings("table-3.4", "smoke", train_seeds=seeds, sigmas=[0.0, 0.2, 0.4], test_rollouts=3)
+    s = F.checked_settings("table-3.4", "smoke", train_seeds=seeds, sigmas=[0.0, 0.2, 0.4], test_rollouts=3)
     res = F.run(s)
     ci = F.our_ci(res)
     comp = F.compare("table-3.4", F.our_cells(res), s, ci=ci)
@@ -171,7 +171,7 @@ def test_table_pages_show_the_seed_interval_beside_the_thesis_format(fake_jobs, 
 
 
 def test_table33_cells_carry_the_seed_interval(fake_jobs):
-    s = F.settings("table-3.3", "smoke", train_seeds=3)
+    s = F.checked_settings("table-3.3", "smoke", train_seeds=3)
     res = F.run(s)
     a, b = F.table33(res, s)
     ep = res.episodes[(res.episodes.method == "ppo") & (res.episodes.env == s["env"])].groupby("seed").value.mean()
@@ -183,14 +183,14 @@ def test_table33_cells_carry_the_seed_interval(fake_jobs):
     assert cb.loc[("obs", 0.0), 0.0].endswith("(3)")
     html = F.ci_text_style(cb, b, "t").to_html()
     assert ">0.2<" in html and "0.200000" not in html and "across 3 training seeds" in html
-    one = F.run(F.settings("table-3.3", "smoke", train_seeds=1))
-    ca1, _ = F.table33_ci_text(F.table33(one, F.settings("table-3.3", "smoke", train_seeds=1)))
+    one = F.run(F.checked_settings("table-3.3", "smoke", train_seeds=1))
+    ca1, _ = F.table33_ci_text(F.table33(one, F.checked_settings("table-3.3", "smoke", train_seeds=1)))
     assert ca1.loc["none", 0.0].endswith("(1 seed)")
 
 
 @pytest.mark.parametrize("seeds", [3, 1])
 def test_bars_carry_the_seed_interval_and_draw_error_bars_only_with_seeds(fake_jobs, seeds):
-    s = F.settings("3.5", "smoke", train_seeds=seeds, sigmas=[0.0, 0.2, 0.4], test_rollouts=2)
+    s = F.checked_settings("3.5", "smoke", train_seeds=seeds, sigmas=[0.0, 0.2, 0.4], test_rollouts=2)
     res = F.run(s)
     b = C.bars("3.5", F.our_cells(res), s, samples=res.aucs)
     ours, thesis = b[b.source == "reproduced"], b[b.source == "thesis"]
@@ -214,7 +214,7 @@ def test_bars_carry_the_seed_interval_and_draw_error_bars_only_with_seeds(fake_j
 
 @pytest.mark.parametrize("seeds", [3, 1])
 def test_curves_are_seed_means_with_a_seed_interval_band(fake_jobs, seeds):
-    s = F.settings("3.7", "smoke", train_seeds=seeds, sigmas=[0.0, 0.2, 0.4], test_rollouts=2)
+    s = F.checked_settings("3.7", "smoke", train_seeds=seeds, sigmas=[0.0, 0.2, 0.4], test_rollouts=2)
     res = F.run(s)
     per_seed = C.curve_seeds(res)
     assert len(per_seed) == len(res.returns) // 2  # one point per seed: the rollouts are averaged inside it

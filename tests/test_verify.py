@@ -65,7 +65,9 @@ def _eval_job(train: dict) -> Job:
 def toy_figure(monkeypatch):
     """A figure making 3 toy policies and their evaluations at every scale; ``verify`` checks the toy kind."""
 
-    @figures.register("_verify", "toy figure", kinds=["test-verify-policy", "test-verify-eval"], settings_id="_example")
+    @figures.register_figure(
+        "_verify", "toy figure", kinds=["test-verify-policy", "test-verify-eval"], settings_id="_example"
+    )
     def _grid(settings):
         return [Job("test-verify-policy", t) for t in TRAINS] + [_eval_job(t) for t in TRAINS]
 
@@ -311,23 +313,23 @@ def test_a_long_verification_lists_only_the_entries_that_are_not_identical():
 
 def test_verify_run_checks_n():
     with pytest.raises(ValueError, match="valid values are integers >= 1"):
-        verify.run("smoke", 0)
+        verify.run_checks("smoke", 0)
 
 
 # ---------------------------------------------------------------- the rules
 def test_compare_rules():
     a = {"returns": np.array([[100.0, 200.0]]), "auc": 3.0, "label": "x"}
-    assert verify.compare(a, a, same=True).verdict == "identical"
+    assert verify.compare_values(a, a, same=True).verdict == "identical"
     near = {**a, "returns": np.array([[90.0, 211.0]])}  # rollouts differ, their mean by 0.3 %
-    assert not verify.compare(a, near, same=True).ok
-    assert verify.compare(a, near, same=False).ok and verify.compare(a, near, same=None).ok
-    assert "native numerics, platform not recorded" in verify.compare(a, near, same=None).verdict
-    assert not verify.compare(a, {**a, "auc": 3.0 * 1.2}, same=False).ok
-    assert not verify.compare(a, {**a, "label": "y"}, same=False).ok
-    assert "different values" in verify.compare(a, {"returns": a["returns"], "label": "x"}, same=False).verdict
+    assert not verify.compare_values(a, near, same=True).ok
+    assert verify.compare_values(a, near, same=False).ok and verify.compare_values(a, near, same=None).ok
+    assert "native numerics, platform not recorded" in verify.compare_values(a, near, same=None).verdict
+    assert not verify.compare_values(a, {**a, "auc": 3.0 * 1.2}, same=False).ok
+    assert not verify.compare_values(a, {**a, "label": "y"}, same=False).ok
+    assert "different values" in verify.compare_values(a, {"returns": a["returns"], "label": "x"}, same=False).verdict
     nan = {"returns": np.array([[np.nan, 1.0]])}
-    assert verify.compare(nan, nan, same=True).verdict == "identical"
-    check = verify.compare(a, near, same=False, entry="e")
+    assert verify.compare_values(nan, nan, same=True).verdict == "identical"
+    check = verify.compare_values(a, near, same=False, entry="e")
     assert check.row()["shipped"] == "150.00" and check.row()["|diff|"] == "11"
     assert verify.VERIFY_RTOL == retrain_check.OUTCOME_RTOL
 
@@ -336,12 +338,15 @@ def test_arm_kinds_compare_their_summaries_across_platforms():
     """A CMA-ES search redone on another CPU: weights and curves are other samples, the outcome must agree."""
     arm = {"mean_total_cost": 2224.8, "final_cost": np.array([1.62, 0.16]), "W": np.array([[0.3, -0.2]])}
     other_path = {**arm, "mean_total_cost": 2223.8, "final_cost": np.array([1.62, 0.22]), "W": np.array([[0.5, 0.1]])}
-    assert not verify.compare(arm, other_path, same=False).ok  # the evaluations' rule: final_cost off by 6 %
-    ok = verify.compare(arm, other_path, same=False, summaries_only=True)
+    assert not verify.compare_values(arm, other_path, same=False).ok  # the evaluations' rule: final_cost off by 6 %
+    ok = verify.compare_values(arm, other_path, same=False, summaries_only=True)
     assert ok.ok and ok.verdict == "within 5% (native numerics on another CPU: summaries differ by 0.0%)"
-    assert not verify.compare(arm, other_path, same=True, summaries_only=True).ok  # same platform: bit-identity
+    assert not verify.compare_values(arm, other_path, same=True, summaries_only=True).ok  # same platform: bit-identity
     worse = {**other_path, "mean_total_cost": 2224.8 * 1.2}
-    assert "MISMATCH: summaries differ by 16.7% > 5%" in verify.compare(arm, worse, False, summaries_only=True).verdict
+    assert (
+        "MISMATCH: summaries differ by 16.7% > 5%"
+        in verify.compare_values(arm, worse, False, summaries_only=True).verdict
+    )
     assert set(verify.VERIFIABLE) == {*verify.KINDS, *verify.ARM_KINDS}
     assert all(job_kinds.KINDS.get(k) for k in verify.ARM_KINDS)  # each names a registered kind
 
@@ -350,9 +355,9 @@ def test_a_curriculum_entry_with_named_phases_compares():
     """Fig 5.6's curriculum entries carry an array of phase names beside their numbers: compared as values, not
     a NumPy truth-value error (`verify --entry NC__s9` used to end in one)."""
     cl = {"curve": np.array([0.5, 0.2]), "phases": np.array(["reach", "bic"])}
-    assert verify.compare(cl, {k: v.copy() for k, v in cl.items()}, same=True).verdict == "identical"
+    assert verify.compare_values(cl, {k: v.copy() for k, v in cl.items()}, same=True).verdict == "identical"
     other = {**cl, "phases": np.array(["throw", "bic"])}
-    assert verify.compare(cl, other, same=True).verdict == "MISMATCH: phases differ"
+    assert verify.compare_values(cl, other, same=True).verdict == "MISMATCH: phases differ"
 
 
 def _train_entry(tmp_path: Path, resumed_from: int, start: str) -> Result:

@@ -110,7 +110,7 @@ def table3_3(lines: list[str]) -> tuple[list[dict], list[dict]]:
 
 def write(name: str, rows: list[dict]) -> None:
     """Write ``rows`` to ``data/thesis/<name>.csv``."""
-    with paths.thesis_table(name).open("w", newline="") as f:
+    with paths.thesis_table_path(name).open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)

@@ -49,7 +49,7 @@ ITEMS: tuple[str, ...] = ("table-3.4", "table-3.5", "table-3.6", "table-3.7", "3
 def _item_settings(item: str, scale: str) -> dict[str, Any]:
     from thesis_repro.figures import ch3_tables
 
-    return ch3_tables.settings(item, scale)
+    return ch3_tables.checked_settings(item, scale)
 
 
 def _learners(task: str, scale: str) -> dict[str, dict[str, Any]]:

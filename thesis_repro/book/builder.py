@@ -195,7 +195,7 @@ def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
     of the page."""
     lines = [
         f"- {verdict_line(v)}" + (f"\n  - *{_escape_md(v.confirmatory)}*" if v.confirmatory else "")
-        for v in report.load(page, scale)
+        for v in report.load_verdicts(page, scale)
     ]
     if not lines:
         return None
@@ -233,7 +233,7 @@ def thesis_values_line(page: str) -> str | None:
     >>> thesis_values_line("fig-3.3") is None, "kit's own" in thesis_values_line("analysis-4-kl")
     (True, True)
     """
-    if notebooks.chapter(page) not in CURVE_CHAPTERS:
+    if notebooks.page_chapter(page) not in CURVE_CHAPTERS:
         return None
     files = thesis_values(page)
     if files:
@@ -308,7 +308,7 @@ def prepare_page(nb: dict[str, Any], nid: str, scale: str) -> dict[str, Any]:
     first_verdicts = verdicts_cell(page, scale)
     if first_verdicts is not None:
         cells.insert(at, first_verdicts)
-    if not report.load(page, scale):
+    if not report.load_verdicts(page, scale):
         cells.append(
             md_cell(
                 f"```{{admonition}} No computed verdict\n:class: warning\n"
@@ -360,11 +360,11 @@ def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[s
     v3's label with v2's beside it; the saved evidence for a verdict without a one-line headline; the full evidence
     is on its page), a list rather than a table so the line keeps the text column's width; pages without a verdict
     are listed too, with ``notes[page]`` as the reason, else "not in this build"."""
-    pages = [notebooks.page_id(n) for n in executed if notebooks.chapter(n) == chapter]
+    pages = [notebooks.page_id(n) for n in executed if notebooks.page_chapter(n) == chapter]
     known = [p for p in claims() if p.split("-", 1)[1].split("-")[0].split(".")[0] == chapter]
     items = []
     for page in pages:
-        verdicts = report.load(page, scale)
+        verdicts = report.load_verdicts(page, scale)
         link = f"{{doc}}`{title(page)} <executed/{page}>`"
         if not verdicts:
             items.append(f"- {link}: {NO_VERDICT} (no verdict written)")
@@ -405,7 +405,7 @@ def open_with(page: str, line: str) -> str:
     return "\n\n".join((title, line, rest.lstrip("\n")))
 
 
-def scoreboard(executed: list[str], scale: str, rows: list[Any] | None = None) -> str:
+def book_scoreboard(executed: list[str], scale: str, rows: list[Any] | None = None) -> str:
     """The scoreboard of distinct thesis claims at ``scale``, read from the claims ledger (the claims ledger:
     :func:`thesis_repro.claims.scoreboard.scoreboard`, the same ledger as ``python -m thesis_repro claims``),
     with the beyond-the-thesis count and the method section (each rule's null pass rate). ``executed`` is
@@ -452,7 +452,7 @@ def write_toc(executed: list[str], root: Path) -> Path:
     chapters = []
     for md in chapter_pages(root):
         num = md.stem.split("-", 1)[1]
-        ids = sorted((n for n in executed if notebooks.chapter(n) == num), key=notebooks.sort_key)
+        ids = sorted((n for n in executed if notebooks.page_chapter(n) == num), key=notebooks.sort_key)
         entry: dict = {"file": md.stem}
         sections = [{"file": f"executed/{notebooks.page_id(n)}"} for n in ids]
         sections += [{"file": p.stem} for p in sorted(root.glob(f"chapter-{num}-*.md"))]
@@ -524,13 +524,13 @@ def progress_line(i: int, n: int, page: str, action: str) -> str:
     return f"[{i}/{n}] {page} {action}"
 
 
-class Progress:
+class BookProgress:
     r"""Which notebook the book is on: one plain line per notebook (:func:`progress_line`); in a terminal (``bar``:
     force it; default: whether ``stream`` is a TTY) also a tqdm bar below the output, which the notebooks' printed
     lines pass above while it is open (a context manager).
 
     >>> import io; out = io.StringIO()
-    >>> with Progress(2, out) as p:
+    >>> with BookProgress(2, out) as p:
     ...     p.step("fig-3.3", "up to date")
     >>> out.getvalue()
     '[1/2] fig-3.3 up to date\n'
@@ -543,7 +543,7 @@ class Progress:
         self.bar: Any = None
         self._exit = contextlib.ExitStack()
 
-    def __enter__(self) -> Progress:
+    def __enter__(self) -> BookProgress:
         if self.tty:
             from tqdm import tqdm
             from tqdm.contrib import DummyTqdmFile
@@ -595,13 +595,13 @@ def build(
     check_scale(scale)
     t0 = time.time()
     ids = notebooks.notebook_ids(guides=True) if ids is None else [notebooks.check_notebook(n) for n in ids]
-    root = Path(root) if root is not None else paths.build(scale) / "book"
+    root = Path(root) if root is not None else paths.build_dir(scale) / "book"
     stage(root)
     protocol.write_page(root)
     (root / "executed").mkdir()
     ran, kept, failed, pending = [], [], {}, {}
     order = execution_order(ids)  # pages read by other pages' claims first; the TOC keeps book order
-    with Progress(len(order)) as progress:
+    with BookProgress(len(order)) as progress:
         for nid in order:
             total, todo = untrained(nid, scale) if shipped_only else (0, [])
             if todo:
@@ -617,7 +617,7 @@ def build(
                 if force or not fresh:
                     ran.append(nid)
                     progress.step(notebooks.page_id(nid), "executing ...")
-                    src = notebooks.execute(nid, scale)
+                    src = notebooks.execute_notebook(nid, scale)
                 else:
                     kept.append(nid)
                     progress.step(notebooks.page_id(nid), "up to date")
@@ -651,7 +651,7 @@ def build(
             f.write(chapter_summary(chapter, judged, scale, pending))
     intro = root / "intro.md"
     built = f"\n_Built at scale `{scale}` from commit `{_git_rev()}` on {time.strftime('%Y-%m-%d %H:%M')}._\n"
-    intro.write_text(place_scoreboard(intro.read_text(), scoreboard(judged, scale, rows)) + built)
+    intro.write_text(place_scoreboard(intro.read_text(), book_scoreboard(judged, scale, rows)) + built)
     write_toc(ids, root)
     jb = Path(sys.executable).parent / "jupyter-book"
     done = subprocess.run([str(jb), "build", str(root), "--quiet"], capture_output=True, text=True)

@@ -202,7 +202,7 @@ CLIPS_INDEX = "clips.json"
 
 def clips_dir(scale: str) -> Path:
     """``build/<scale>/clips``: the clips of ``scale`` (``<learner>.gif``) and their :data:`CLIPS_INDEX`."""
-    return paths.build(scale) / "clips"
+    return paths.build_dir(scale) / "clips"
 
 
 def clips_key(scale: str, cache: RunCache | None = None) -> str:

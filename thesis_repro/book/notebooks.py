@@ -19,7 +19,7 @@ written there and moved into ``build/<scale>/`` (``os.replace``, the notebook la
 succeeds. A failed run raises :class:`NotebookError` (the failing cell's own exception, one line) and keeps
 its executed copy as ``<page id>.failed.ipynb`` beside the previous, intact one; an interrupted run kills its
 kernel (and the kernel's worker processes) and removes its connection files. Kernel files and staging
-folders left by a process that was killed outright are removed by the next :func:`execute`.
+folders left by a process that was killed outright are removed by the next :func:`execute_notebook`.
 
 Every executed notebook is stamped with an *execution key* (:func:`execution_key`): the notebook source,
 the scale, the parameters, ``THESIS_REPRO_RETRAIN``, the kit modules its kernel imported (listed by a
@@ -30,7 +30,7 @@ changing runs by hand, rebuild with ``--force``.
 
 >>> page_id("3.3"), page_id("table-3.4"), page_id("analysis-4-kl")
 ('fig-3.3', 'table-3.4', 'analysis-4-kl')
->>> chapter("table-3.4"), chapter("analysis-4-kl")
+>>> page_chapter("table-3.4"), page_chapter("analysis-4-kl")
 ('3', '4')
 >>> sorted(["analysis-4-kl", "table-4.1", "4.10", "4.2"], key=sort_key)
 ['4.2', '4.10', 'table-4.1', 'analysis-4-kl']
@@ -105,7 +105,7 @@ def source(nid: str) -> Path:
     return paths.NOTEBOOKS / f"{page}.py" if is_guide(page) else paths.notebook(page)
 
 
-def chapter(nid: str) -> str:
+def page_chapter(nid: str) -> str:
     """Chapter number (as a string) of a notebook id; ``"guide"`` for a guide page."""
     if is_guide(nid):
         return "guide"
@@ -206,7 +206,7 @@ def clean_stale(build_root: Path | None = None) -> list[Path]:
             with contextlib.suppress(OSError):
                 p.unlink()
                 removed.append(p)
-    root = build_root if build_root is not None else paths.build("x").parent
+    root = build_root if build_root is not None else paths.build_dir("x").parent
     if root.is_dir():
         for p in root.glob(".staging-*"):
             pid = owner_pid(p.name, ".staging-", "")
@@ -303,7 +303,7 @@ def outputs_of(nid: str, scale: str, since: float = 0.0) -> list[Path]:
     """Figure files of ``nid`` in ``build/<scale>/figures`` (``<page id>*``), written at or after ``since``."""
     stem = page_id(nid)
     found = []
-    for p in sorted(paths.figures(scale).glob(f"{stem}*")):
+    for p in sorted(paths.figures_dir(scale).glob(f"{stem}*")):
         tail = p.name[len(stem) :]
         if tail[:1].isdigit() or p.suffix in {".json", ".tmp"} or not p.is_file():
             continue  # fig-3.3 must not claim fig-3.30's files; verdicts/run lists are not figures
@@ -331,7 +331,7 @@ def require_book() -> None:
         raise RuntimeError(f"no notebooks at {paths.NOTEBOOKS}: they ship with the kit's clone, not with pip install")
 
 
-def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log: bool = True) -> Path:
+def execute_notebook(nid: str, scale: str, parameters: dict[str, Any] | None = None, log: bool = True) -> Path:
     """Execute notebook ``nid`` at ``scale`` and return the path of the executed ``.ipynb``.
 
     With ``log`` the notebook's stderr (progress bars) goes to this process's stderr as it comes, then
@@ -359,18 +359,18 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
     if unknown:
         valid = ", ".join(known) or "none (only --scale)"
         raise ValueError(f"unknown parameter {unknown[0]!r} of notebook {page}; valid parameters are: {valid}")
-    build_root = paths.build(scale).parent.absolute()  # absolute: the kernel runs in the repository
+    build_root = paths.build_dir(scale).parent.absolute()  # absolute: the kernel runs in the repository
     clean_stale(build_root)
     src = source(nid)
     out = executed_path(nid, scale)
     failed = failed_path(nid, scale)
     out.parent.mkdir(parents=True, exist_ok=True)
-    paths.figures(scale).mkdir(parents=True, exist_ok=True)
+    paths.figures_dir(scale).mkdir(parents=True, exist_ok=True)
     stage = build_root / f".staging-{scale}-{page}-{os.getpid()}"
     shutil.rmtree(stage, ignore_errors=True)
     staged_out = stage / out.absolute().relative_to(build_root)
     staged_out.parent.mkdir(parents=True)
-    (stage / paths.figures(scale).absolute().relative_to(build_root)).mkdir(parents=True)
+    (stage / paths.figures_dir(scale).absolute().relative_to(build_root)).mkdir(parents=True)
     nb = jupytext.read(src)
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
     deps = nbformat.v4.new_code_cell(_DEPS_CODE)
@@ -417,11 +417,11 @@ def execute(nid: str, scale: str, parameters: dict[str, Any] | None = None, log:
         shutil.rmtree(stage, ignore_errors=True)
     from thesis_repro.runs import layer as runs  # local: the run listing imports the whole figure layer
 
-    runs.record(nid, scale)  # build/<scale>/figures/fig-X.Y.runs.json: where this figure's runs are
+    runs.write_run_rows(nid, scale)  # build/<scale>/figures/fig-X.Y.runs.json: where this figure's runs are
     if log:
         verdicts = report.verdicts_path(page, scale)
         if verdicts.exists() and verdicts.stat().st_mtime >= t0:
-            for v in report.load(page, scale):
+            for v in report.load_verdicts(page, scale):
                 print(v)
         figs = ", ".join(str(p) for p in outputs_of(nid, scale, since=t0)) or "none"
         print(f"[thesis_repro] {page} ({scale}, {seconds:.0f} s): notebook {out}; figures: {figs}")

@@ -155,7 +155,7 @@ def _cell(text: Any) -> str:
     return re.sub(r"[ \t\r\n]+", " ", str(text or "")).strip(" ").replace("|", "\\|")
 
 
-def counts(table: Sequence[Mapping[str, Any]] | None = None) -> Counter:
+def rows_per_status(table: Sequence[Mapping[str, Any]] | None = None) -> Counter:
     """Rows per status."""
     return Counter(r["status"] for r in (table or rows()))
 
@@ -183,7 +183,7 @@ def render(table: Sequence[Mapping[str, Any]] | None = None) -> str:
     True
     """
     table = list(table or rows())
-    n = counts(table)
+    n = rows_per_status(table)
     deviations = [r for r in table if r["status"] == "deviation"]
     lines = [
         f"# {TITLE}",

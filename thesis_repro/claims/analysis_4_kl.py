@@ -16,8 +16,8 @@ from thesis_repro.claims.report import Verdict, status
 PAGE = "analysis-4-kl"
 
 
-def verdicts(summary: pd.DataFrame, linear: pd.DataFrame, scale: str) -> list[Verdict]:
-    """Verdicts of the page from :func:`~thesis_repro.mdl.kl_analysis.summarise` (MLP problems) and
+def kl_verdicts(summary: pd.DataFrame, linear: pd.DataFrame, scale: str) -> list[Verdict]:
+    """Verdicts of the page from :func:`~thesis_repro.mdl.kl_analysis.summarise_aggregates` (MLP problems) and
     :func:`~thesis_repro.mdl.kl_analysis.linear_gaussian` tables.
 
     Claim judged: the thesis's premise that Eq 4.10/4.11 moves the aggregate closer, in the KL of Eq 4.7,

@@ -72,7 +72,9 @@ def main(argv: list[str] | None = None) -> int:
         for name, verdict in got.items():
             print(f"{name}: {verdict}")
         same = sum(v == "identical" for v in got.values())
-        print(f"{same}/{len(got)} saved files identical to the shipped snapshot ({snapshot.provenance(args.scale)})")
+        print(
+            f"{same}/{len(got)} saved files identical to the shipped snapshot ({snapshot.snapshot_source(args.scale)})"
+        )
         return 0 if same == len(got) else 1
     if args.ship:
         try:
@@ -83,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         where = ledger.ship_calibration(args.scale)
         print(f"shipped the claims' calibration and power to {where}")
         print(
-            f"shipped {len(snapshot.files())} saved file(s) to {snapshot.provenance(args.scale)}; "
+            f"shipped {len(snapshot.files())} saved file(s) to {snapshot.snapshot_source(args.scale)}; "
             f"{len(changed)} data file(s) changed" + (f": {', '.join(changed)}" if changed else "")
         )
         return 0

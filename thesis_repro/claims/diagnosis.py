@@ -74,7 +74,7 @@ def study_result(name: str) -> Any:
     run cache and the shipped layer, or ``None`` (never trains). Computed once per study function and cache
     location in a process."""
     fn = study.STUDIES[name]
-    key = (name, fn, str(paths.runs()), None if paths.retrain() else str(paths.reference()))
+    key = (name, fn, str(paths.runs_dir()), None if paths.retrain() else str(paths.reference()))
     if key not in _STUDY_RESULTS:
         _STUDY_RESULTS[key] = fn()
     return _STUDY_RESULTS[key]

@@ -153,7 +153,7 @@ def judge_readings(
             row = Row(v, v3["label"], primary=v3["primary"])
             row.v3 = {"reason": v3["reason"]}
             entry = R.entry(algo, outcome, how, v3["label"], ours_text(row), v3["reason"])
-            out.append({**entry, "n_seeds": v3["n_seeds"], "calibration": R.power(v3["calibration"])})
+            out.append({**entry, "n_seeds": v3["n_seeds"], "calibration": R.calibration_summary(v3["calibration"])})
     return out
 
 
@@ -520,7 +520,7 @@ def calibration_v3_of(
 def _cached_calibration(scale: str, key: str, compute: bool, make: Any) -> dict[str, Any]:
     """The calibration entry ``key``: the build's cache first, then the shipped snapshot's, else ``make()`` (when
     ``compute``) written atomically into the build's cache."""
-    store = paths.figures(scale) / CALIBRATION
+    store = paths.figures_dir(scale) / CALIBRATION
     for p in (paths.page_output(scale, CALIBRATION), snapshot.folder(scale) / CALIBRATION):
         known = read_json(p)
         if key in known:
@@ -637,7 +637,7 @@ def _judge_v1_frames(
 
 
 def subset_check(s: Spec, scale: str, frames: Mapping[str, pd.DataFrame]) -> dict[str, Any]:
-    """The claim's registered subset sensitivity check (:func:`thesis_repro.claims.sensitivity.check`) on the
+    """The claim's registered subset sensitivity check (:func:`thesis_repro.claims.sensitivity.judge_subset`) on the
     subset's rows: design v3's seed-keyed rule, count rules and Holm family, as its primary verdict (the statistical
     label: no calibration gate, as the fresh seeds' check), with design v2's beside it (``v2_verdict``,
     ``v2_primary``, ``v2_ours``); ``ours`` is its number (:func:`ours_text`) and ``line`` the one line its page folds
@@ -656,8 +656,8 @@ def subset_check(s: Spec, scale: str, frames: Mapping[str, pd.DataFrame]) -> dic
         return J3.judge_v3(run, lv3, mg3, rules, conj, family)
 
     judged = scale != "smoke"
-    info = subsets.check(s.subset, frames, rule3, v3, judged)
-    before = subsets.check(s.subset, frames, rule2, v2, judged)
+    info = subsets.judge_subset(s.subset, frames, rule3, v3, judged)
+    before = subsets.judge_subset(s.subset, frames, rule2, v2, judged)
     info["v2_verdict"], info["v2_primary"] = before["verdict"], before.get("primary", {})
     ours = ours_text(Row(s, str(info["verdict"]), primary=info["primary"])) if info.get("primary") else ""
     v2_ours = ours_text(Row(s, str(before["verdict"]), primary=before["primary"])) if before.get("primary") else ""
@@ -668,7 +668,7 @@ def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]], versions:
     """:func:`~thesis_repro.claims.stats.null_pass_rate` of a claim, cached per version of the saved numbers it
     was judged from (:func:`saved_blob`'s ``version``)."""
     key = f"{s.id}|" + "|".join(versions)
-    store = paths.figures(scale) / "claims-null.json"
+    store = paths.figures_dir(scale) / "claims-null.json"
     known_at = paths.page_output(scale, store.name)  # inside a notebook: start from the finished pages' cache
     known = json.loads(known_at.read_text()) if known_at.exists() else {}
     if key not in known:

@@ -52,6 +52,7 @@ def column(algo: str) -> str:
 def outcomes() -> dict[str, str]:
     """Each reading's pilot outcome (:data:`DISTINCT`, :data:`PARAMS_AVG` or :data:`PILOT_DIVERGED`), in the order
     of the readings table, from the shipped pilot summary ({} when none is shipped)."""
+    from thesis_repro.mdl.readings import reading_ids  # local: the readings' maths loads torch only when asked
     from thesis_repro.runs import pilots  # local: the pilots load the learners (torch) only when asked
 
     try:
@@ -69,13 +70,6 @@ def outcomes() -> dict[str, str]:
         else:
             out[algo] = PARAMS_AVG if r["reduces to params_avg"] else DISTINCT
     return out
-
-
-def reading_ids() -> tuple[str, ...]:
-    """The readings' hyperparameter ids, in the order of the readings table."""
-    from thesis_repro.mdl.readings import reading_ids as ids
-
-    return ids()
 
 
 def reading_name(algo: str) -> str:
@@ -139,7 +133,7 @@ def entry(algo: str, outcome: str, how: str, status: str, ours: str = "", note: 
     }
 
 
-def power(cal: Mapping[str, Any]) -> dict[str, Any]:
+def calibration_summary(cal: Mapping[str, Any]) -> dict[str, Any]:
     """The parts of a v3 calibration a reading's entry carries: the gate's rates and the power figures."""
     keep = ("draws", "false_reproduces", "false_does_not", "effect", "power_at", "seeds_for_80", "max_seeds")
     return {k: cal[k] for k in keep if k in cal}
@@ -221,5 +215,7 @@ def verdict_list(rows: Sequence[Mapping[str, Any]]) -> str:
 
 
 def _order(algo: str) -> int:
+    from thesis_repro.mdl.readings import reading_ids  # local: the readings' maths loads torch only when asked
+
     ids = reading_ids()
     return ids.index(algo) if algo in ids else len(ids)

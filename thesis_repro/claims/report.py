@@ -153,13 +153,13 @@ def status(holds: bool | None, scale: str, partly: bool = False) -> str:
 
 def verdicts_path(figure: str, scale: str) -> Path:
     """``build/<scale>/figures/<figure>.verdicts.json`` (``figure`` like ``fig-3.3`` or ``table-3.4``)."""
-    return paths.figures(scale) / f"{figure}.verdicts.json"
+    return paths.figures_dir(scale) / f"{figure}.verdicts.json"
 
 
 def rule_path(page: str, scale: str) -> Path:
     """``build/<scale>/figures/<page>.rule.json``: the verdicts of a page's own rule (``analysis-4-kl``'s), which
     its ``page_verdict`` claims read; the page's judged verdicts go to :func:`verdicts_path`, as every page's."""
-    return paths.figures(scale) / f"{page}.rule.json"
+    return paths.figures_dir(scale) / f"{page}.rule.json"
 
 
 def save_rule(page: str, scale: str, verdicts: Sequence[Verdict]) -> Path:
@@ -194,7 +194,7 @@ def report(figure: str, scale: str, verdicts: Sequence[Verdict], display: bool =
     return _write(verdicts_path(figure, scale), figure, scale, verdicts)
 
 
-def load(figure: str, scale: str) -> list[Verdict]:
+def load_verdicts(figure: str, scale: str) -> list[Verdict]:
     """Verdicts saved by :func:`report` (empty if the figure was not run at ``scale``); inside a notebook, also
     those of finished pages (:func:`~thesis_repro.core.paths.page_output`)."""
     p = paths.page_output(scale, verdicts_path(figure, scale).name)
@@ -204,7 +204,7 @@ def load(figure: str, scale: str) -> list[Verdict]:
 
 
 def stale(figure: str, scale: str) -> bool:
-    """Whether the verdicts :func:`load` reads were saved by other kit code
+    """Whether the verdicts :func:`load_verdicts` reads were saved by other kit code
     (:func:`~thesis_repro.core.stamps.is_stale`)."""
     p = paths.page_output(scale, verdicts_path(figure, scale).name)
     return p.exists() and stamps.is_stale(figure, json.loads(p.read_text()))

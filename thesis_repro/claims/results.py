@@ -2,7 +2,7 @@
 
 Everything here but :func:`main` is wording: pure functions over the claims ledger's JSON dicts
 (:func:`thesis_repro.claims.scoreboard.as_json`) and the scale table's resolved settings. A claim's dict is read
-through :func:`label`, :func:`short`, :func:`thesis_value` and :func:`ours`, which use the keys ``label``,
+through :func:`verdict_label`, :func:`short`, :func:`thesis_value` and :func:`ours`, which use the keys ``label``,
 ``short``, ``thesis_value`` and ``ours`` when the ledger provides them, else today's ``verdict``, ``claim`` and
 ``statistic``. :func:`main` judges every claim from the shipped claims snapshot
 (``data/reference/claims/<scale>/``, never a build's own pages, so the files match a fresh clone) and writes
@@ -11,8 +11,10 @@ only says which are out of date (exit 1).
 
 >>> words("one two three", limit=2)
 'one two ...'
->>> label({"verdict": "inconclusive"}), label({"verdict": "inconclusive", "label": "holds within bounds"})
-('inconclusive', 'holds within bounds')
+>>> verdict_label({"verdict": "inconclusive"})
+'inconclusive'
+>>> verdict_label({"verdict": "inconclusive", "label": "holds within bounds"})
+'holds within bounds'
 >>> replace_block("a\\n<!-- x:start -->\\nold\\n<!-- x:end -->\\nb", ("<!-- x:start -->", "<!-- x:end -->"), "new")
 'a\\n<!-- x:start -->\\nnew\\n<!-- x:end -->\\nb'
 """
@@ -64,7 +66,7 @@ def words(text: str, limit: int = SHORT_WORDS) -> str:
     return " ".join(parts[:limit]) + (" ..." if len(parts) > limit else "")
 
 
-def label(claim: Mapping[str, Any]) -> str:
+def verdict_label(claim: Mapping[str, Any]) -> str:
     """The claim's verdict label (``label``, else today's ``verdict``)."""
     return str(claim.get("label") or claim.get("verdict") or "not computed")
 
@@ -124,7 +126,7 @@ def thesis_effect(claim: Mapping[str, Any]) -> str:
 
 def v2_label(claim: Mapping[str, Any]) -> str:
     """The claim's design-v2 verdict (the registered analysis of seeds 0-5)."""
-    return str(claim.get("v2_verdict") or label(claim))
+    return str(claim.get("v2_verdict") or verdict_label(claim))
 
 
 def thesis_lines(claim: Mapping[str, Any]) -> str:
@@ -154,7 +156,7 @@ def label_counts(claims: Sequence[Mapping[str, Any]]) -> list[tuple[str, int]]:
     >>> label_counts([{"verdict": "b"}, {"verdict": "a"}, {"verdict": "b"}])
     [('b', 2), ('a', 1)]
     """
-    c = Counter(label(x) for x in claims)
+    c = Counter(verdict_label(x) for x in claims)
     return sorted(c.items(), key=lambda kv: (-kv[1], kv[0]))
 
 
@@ -220,8 +222,8 @@ def fresh_md(ledger_json: Mapping[str, Any], scale: str) -> str:
         fresh = str(fresh_verdict(c))
         seeds = seed_range(c["confirmatory"]["seeds"]) if c["confirmatory"].get("seeds") else "-"
         out.append(
-            f"- `{c.get('id', '?')}` ({thesis_lines(c)}, {_cell(short(c))}): every seed **{_cell(label(c))}** "
-            f"({v2_words(label(c), v2_label(c))}); fresh seeds {seeds} alone **{_cell(fresh_cell(c))}**"
+            f"- `{c.get('id', '?')}` ({thesis_lines(c)}, {_cell(short(c))}): every seed **{_cell(verdict_label(c))}** "
+            f"({v2_words(verdict_label(c), v2_label(c))}); fresh seeds {seeds} alone **{_cell(fresh_cell(c))}**"
             + (f" ({v2_words(fresh, c['confirmatory']['v2_verdict'])})" if c["confirmatory"].get("v2_verdict") else "")
         )
         out.append(f"  <br>ours on the fresh seeds: {_cell(c['confirmatory'].get('ours') or '-')}")
@@ -242,7 +244,7 @@ def claims_table(claims: Sequence[Mapping[str, Any]]) -> str:
             short(c),
             thesis_value(c),
             ours(c),
-            f"**{label(c)}**",
+            f"**{verdict_label(c)}**",
             thesis_effect(c),
             v2_label(c),
             fresh_cell(c),
@@ -307,7 +309,7 @@ def readme_results(ledger_json: Mapping[str, Any], scale: str) -> str:
         fresh_counts(claims) + " " + fresh_summary(claims),
         "",
     ]
-    against = [c for c in claims if does_not_reproduce(label(c))]
+    against = [c for c in claims if does_not_reproduce(verdict_label(c))]
     if against:
         out.append("Claims that do not reproduce:")
         out.append("")
@@ -337,7 +339,7 @@ def verdict_lists(ledger_json: Mapping[str, Any]) -> str:
         if n > LIST_AT_MOST:
             big.append(f"{n} {lab}")
             continue
-        items = [f"- `{c.get('id')}` ({thesis_lines(c)}): {short(c)}" for c in claims if label(c) == lab]
+        items = [f"- `{c.get('id')}` ({thesis_lines(c)}): {short(c)}" for c in claims if verdict_label(c) == lab]
         blocks.append(f"**{lab} ({n}):**\n\n" + "\n".join(items))
     if big:
         blocks.append("Not listed: " + ", ".join(big) + " (the chapter pages table every claim).")
@@ -383,7 +385,7 @@ def replace_block(text: str, markers: tuple[str, str], body: str) -> str:
     return f"{head}{start}\n{body.strip()}\n{end}{tail}"
 
 
-def render(ledger_json: Mapping[str, Any], scale: str, readme: str, scale_rows: str) -> dict[str, str]:
+def render_results(ledger_json: Mapping[str, Any], scale: str, readme: str, scale_rows: str) -> dict[str, str]:
     """{file name: its new text} for RESULTS.md, README.md (given its current text) and the book's fresh-seeds
     page."""
     text = replace_block(readme, RESULTS_MARKERS, readme_results(ledger_json, scale))
@@ -453,11 +455,11 @@ def scale_rows() -> str:
     return f"{table}\n\n{note}" if note else table
 
 
-def generate(scale: str = SCALE, root: Path | None = None) -> dict[Path, str]:
+def generated_files(scale: str = SCALE, root: Path | None = None) -> dict[Path, str]:
     """{path: text} of every generated file, rendered from the shipped snapshot (nothing is written)."""
     root = Path(root) if root is not None else paths.ROOT
     readme = (root / "README.md").read_text()
-    texts = render(ledger_json(scale), scale, readme, scale_rows())
+    texts = render_results(ledger_json(scale), scale, readme, scale_rows())
     return {root / name: text for name, text in texts.items()}
 
 
@@ -469,7 +471,7 @@ def main(argv: list[str] | None = None, parser: type[argparse.ArgumentParser] = 
     ap.add_argument("--check", action="store_true", help="write nothing; exit 1 if a generated file is out of date")
     args = ap.parse_args(argv)
     stale = []
-    for path, text in generate(SCALE).items():
+    for path, text in generated_files(SCALE).items():
         if (path.read_text() if path.exists() else None) == text:
             continue
         stale.append(path.name)

@@ -93,7 +93,9 @@ def rule_text(s: Spec) -> str:
     if r.get("visual"):
         return "not judged: the sentence is about what the figure looks like (the frames are shown on the page)"
     if "page_verdict" in r:
-        return "the analysis page's own rule (thesis_repro.claims.analysis_4_kl.verdicts: share of synthetic problems)"
+        return (
+            "the analysis page's own rule (thesis_repro.claims.analysis_4_kl.kl_verdicts: share of synthetic problems)"
+        )
     if r.get("derived"):
         return f"derived: reproduces iff every one of {', '.join(r['derived'])} reproduces (statuses combined)"
     parts = [f"statistic: {r.get('statistic', '')}", f"units: {r.get('units', '')}"]

@@ -85,7 +85,7 @@ def as_json(rows: Sequence[Row], scale: str = "") -> dict[str, Any]:
         "beyond_counts": dict(counts(rows, beyond=True)),
         "stale_pages": stale_pages(rows),
         "shipped_pages": shipped_pages(rows),
-        "snapshot": snapshot.provenance(scale) if scale and shipped_pages(rows) else None,
+        "snapshot": snapshot.snapshot_source(scale) if scale and shipped_pages(rows) else None,
     }
 
 
@@ -275,7 +275,7 @@ def shipped_hint(rows: Sequence[Row], scale: str) -> str:
     if not pages:
         return ""
     shown = ", ".join(pages[:6]) + (f" and {len(pages) - 6} more" if len(pages) > 6 else "")
-    where = snapshot.provenance(scale)
+    where = snapshot.snapshot_source(scale)
     return (
         f"shipped: the numbers of {len(pages)} page(s) ({shown}) come from the shipped claims snapshot "
         f"({where + ': ' if where else ''}the numbers those pages saved when the book ran where they were shipped); "

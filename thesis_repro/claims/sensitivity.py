@@ -4,11 +4,11 @@ runs.
 A claim entry may carry ``sensitivity_subset: trained`` in ``data/thesis/claims.yaml`` (outside its ``rule:`` and
 ``v2:`` blocks, so outside the design's hashes: :func:`thesis_repro.claims.design.rule_hashes`). Its page saves a
 bool column of that name on every per-seed row (``trained``: :mod:`thesis_repro.runs.budgets` calls the row's
-training run trained, :func:`thesis_repro.book.pages.claim_frames`). :func:`check` keeps the rows where the column
-is True in every frame that carries it, runs the claim's measure and a judgement handed to it unchanged on them (the
-judging code is not touched: the data are filtered before the measure; the ledger hands it design v3's seed-keyed
-judgement, and v2's for the label beside it) and reports the label, the primary statistic and the units and runs
-that remain, beside the primary verdict. A page saved before the column existed gives *not available*.
+training run trained, :func:`thesis_repro.book.pages.claim_frames`). :func:`judge_subset` keeps the rows where the
+column is True in every frame that carries it, runs the claim's measure and a judgement handed to it unchanged on
+them (the judging code is not touched: the data are filtered before the measure; the ledger hands it design v3's
+seed-keyed judgement, and v2's for the label beside it) and reports the label, the primary statistic and the units
+and runs that remain, beside the primary verdict. A page saved before the column existed gives *not available*.
 
 >>> import pandas as pd
 >>> f = pd.DataFrame({"env": "Hopper", "algo": ["a", "a", "b"], "seed": [0, 1, 0], "trained": [True, False, True]})
@@ -106,7 +106,7 @@ def _groups(frames: Mapping[str, pd.DataFrame], rule: Mapping[str, Any]) -> dict
         return M.MEASURES[rule["measure"]](frames, rule)
 
 
-def check(
+def judge_subset(
     subset: str,
     frames: Mapping[str, pd.DataFrame],
     rule: Mapping[str, Any],

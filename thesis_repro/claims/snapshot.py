@@ -102,10 +102,10 @@ def read(name: str, scale: str) -> dict[str, Any] | None:
     return {**blob, **{k: entry[k] for k in STAMP_KEYS if k in entry}, "version": f"shipped:{entry['sha256'][:16]}"}
 
 
-def provenance(scale: str) -> str:
+def snapshot_source(scale: str) -> str:
     """One phrase naming where the snapshot comes from: folder, git commit and date ('' when none is shipped).
 
-    >>> provenance("no-such-scale")
+    >>> snapshot_source("no-such-scale")
     ''
     """
     prov = index(scale).get("provenance")
@@ -126,7 +126,7 @@ def ship(scale: str) -> list[str]:
     checked fresh (saved by the current kit code); returns the data files rewritten. A page whose file is
     missing or stale is a ``ValueError`` naming the pages and the command that refreshes them."""
     start = time.time()
-    src = {n: paths.figures(scale) / n for n in files()}
+    src = {n: paths.figures_dir(scale) / n for n in files()}
     missing = sorted(page_of(n) for n, p in src.items() if not p.exists())
     blobs = {n: json.loads(p.read_text()) for n, p in src.items() if p.exists()}
     stale = sorted(page_of(n) for n, b in blobs.items() if stamps.is_stale(page_of(n), b))
@@ -163,7 +163,7 @@ def check(scale: str) -> dict[str, str]:
     reader's check that the snapshot is what the shipped runs give on their machine."""
     out = {}
     for name in files():
-        p = paths.figures(scale) / name
+        p = paths.figures_dir(scale) / name
         if not p.exists():
             out[name] = "not run here"
             continue

@@ -363,9 +363,7 @@ def pooled_test(units: Sequence[Unit], margin: float) -> PooledTest:
         nan = float("nan")
         return PooledTest(nan, nan, nan, 0, nan, nan, "r" if r else "value", (), len(units))
     named = tuple((lab, t) for (_, lab), t in tests.items())
-    return PooledTest(
-        weakest.est, weakest.lo, weakest.hi, weakest.n, py, pn, "r" if r else "value", named, len(units)
-    )
+    return PooledTest(weakest.est, weakest.lo, weakest.hi, weakest.n, py, pn, "r" if r else "value", named, len(units))
 
 
 def decisive(p: PooledTest) -> float:

@@ -25,7 +25,7 @@ from thesis_repro.core import paths, stamps
 
 def data_path(page: str, scale: str) -> Path:
     """``build/<scale>/figures/<page>.data.json``: the per-seed numbers a notebook saved for its claims."""
-    return paths.figures(scale) / data_name(page)
+    return paths.figures_dir(scale) / data_name(page)
 
 
 def save_page(page: str, scale: str, frames: Mapping[str, pd.DataFrame], meta: Mapping[str, Any]) -> Path:

@@ -355,8 +355,8 @@ def describe_os_error(err: OSError) -> str:
         return what
     where = ""
     settings = (
-        (paths.runs(), "the run cache, THESIS_REPRO_DATA"),
-        (paths.build("x").parent, "the build folder, THESIS_REPRO_BUILD"),
+        (paths.runs_dir(), "the run cache, THESIS_REPRO_DATA"),
+        (paths.build_dir("x").parent, "the build folder, THESIS_REPRO_BUILD"),
         (paths.reference(), "the shipped runs, THESIS_REPRO_REFERENCE"),
     )
     for root, setting in settings:
@@ -439,7 +439,7 @@ def _command(args: argparse.Namespace) -> int:
         notebooks.require_book()
         ids = notebooks.notebook_ids(guides=True) if args.figure == "all" else [notebooks.check_notebook(args.figure)]
         params = notebook_parameters(args.parameter, args.scale)
-        for folder in (paths.runs(), paths.build(args.scale)):
+        for folder in (paths.runs_dir(), paths.build_dir(args.scale)):
             check_writable(folder)
         if args.scale != "smoke" and not (args.train or paths.retrain()):
             from thesis_repro.runs import costs as plan
@@ -447,7 +447,7 @@ def _command(args: argparse.Namespace) -> int:
             for nid in ids:
                 plan.refuse_training(nid, args.scale)
         for nid in ids:
-            notebooks.execute(nid, args.scale, params)
+            notebooks.execute_notebook(nid, args.scale, params)
     elif args.cmd == "plan":
         return _plan_command(args)
     elif args.cmd == "bench":
@@ -477,7 +477,7 @@ def _command(args: argparse.Namespace) -> int:
             raise ValueError(
                 "--protocol, --at, --algos and --shipped-only go with --spread (budgets --spread --protocol thesis)"
             )
-        print(budgets.render(budgets.table(args.scale, ids)))
+        print(budgets.format_table(budgets.table(args.scale, ids)))
         cost = budgets.retrain_cost(args.scale, ids)
         print("\nRETRAIN=1 cost (measured wall time of the finished runs, 1 core each; upper bounds):")
         print(cost.to_string(index=False, float_format=lambda v: f"{v:.2f}"))
@@ -486,7 +486,7 @@ def _command(args: argparse.Namespace) -> int:
 
         scales.check_scale(args.scale)
         notebooks.require_book()
-        for folder in (paths.runs(), paths.build(args.scale)):
+        for folder in (paths.runs_dir(), paths.build_dir(args.scale)):
             check_writable(folder)
         book_mod.build(args.scale, reuse=args.reuse, force=args.force, shipped_only=args.shipped_only)
     return 0
@@ -501,7 +501,7 @@ def _bench_command(args: argparse.Namespace) -> int:
         for name, target in bench.BENCHMARKS.items():
             print(f"{name:14s} {target}")
         return 0
-    written = throughput.write_throughput(bench.run(args.names or None))
+    written = throughput.write_throughput(bench.run_benchmarks(args.names or None))
     if written is not None:
         print(f"throughput per learner family (steps per CPU-second) -> {written}")
     return 0
@@ -779,20 +779,20 @@ def _plan_command(args: argparse.Namespace) -> int:
     if args.figure == "order":
         from thesis_repro.runs import order
 
-        print(order.report(_order_plan(args.scale, args.seeds, rates, args.missing)))
+        print(order.order_report(_order_plan(args.scale, args.seeds, rates, args.missing)))
         return 0
     subset = {k: v for k, v in (("envs", args.envs), ("algos", args.algos)) if v is not None}
     if args.figure != "all":
         p = plan.plan_figure(args.figure, args.scale, args.cores, rates, args.missing, args.seeds, **subset)
-        print(plan.report(p, rates))
+        print(plan.cost_report(p, rates))
         return 0
     if subset:
         raise ValueError("--envs/--algos choose a subset of one figure; name it (plan 3.3 --algos ppo trpo)")
     per, book = plan.plan_book(args.scale, args.cores, rates, args.missing, args.seeds)
     for p in per:
-        print(plan.summary(p))
+        print(plan.plan_summary(p))
     print("\nthe book (every figure; runs shared by figures counted once):")
-    print(plan.report(book, rates))
+    print(plan.cost_report(book, rates))
     return 0
 
 
@@ -826,10 +826,10 @@ def _study_plan(name: str, scale: str, cores: int | None, rates: Any, missing: b
     from thesis_repro.runs import costs as plan
 
     budget_study.check_study(name)
-    jobs = budget_study.jobs(scale)
+    jobs = budget_study.budget_jobs(scale)
     todo = plan.to_compute(jobs) if missing else jobs
     p = plan.plan_jobs(name, todo, scale, cores or os.cpu_count() or 1, rates)
-    lines = [plan.report(p, rates), budget_study.size_line(budget_study.size_estimate(scale))]
+    lines = [plan.cost_report(p, rates), budget_study.size_line(budget_study.size_estimate(scale))]
     if missing:
         n_train = sum(j.kind == "train" for j in todo)
         lines.append(
@@ -846,7 +846,7 @@ def _study_plan(name: str, scale: str, cores: int | None, rates: Any, missing: b
         f"the generator's order (`make {name}`): the Pareto panels' tasks first, within a task the items that read its "
         "runs by claims settled per core-hour, each item's runs cheapest first; each run's evaluations follow it"
     )
-    lines.append(plan.table(rows, ("#", "run", "core-hours", "total")))
+    lines.append(plan.text_table(rows, ("#", "run", "core-hours", "total")))
     if len(ordered) > ORDER_SHOWN:
         lines.append(f"... {len(ordered) - ORDER_SHOWN} more training runs")
     return "\n".join(lines)
@@ -863,7 +863,7 @@ def _prefix_command(args: argparse.Namespace) -> int:
     scales.check_scale(args.scale)
     checks = budget_study.prefix_checks(args.scale)
     rows = [{"run": c.label, "status": c.status, "detail": c.detail} for c in checks]
-    print(plan.table(rows, ("run", "status", "detail")))
+    print(plan.text_table(rows, ("run", "status", "detail")))
     counts = {s: sum(c.status == s for c in checks) for s in dict.fromkeys(c.status for c in checks)}
     print(f"{args.study} ({args.scale}): " + ", ".join(f"{n} {s}" for s, n in counts.items()))
     return 1 if any(c.failed for c in checks) else 0
@@ -895,7 +895,7 @@ def _study_runs(args: argparse.Namespace) -> int:
         raise ValueError(f"--study {args.study} makes the whole study in its own order; drop {drop}")
     if args.scale != "smoke":
         budget_study.check_design(claims_design())
-    for folder in (paths.runs(), paths.reference()):
+    for folder in (paths.runs_dir(), paths.reference()):
         check_writable(folder)
     kinds = args.kind or ("train", "evaluate")
     rates = throughput.shipped_rates(by_env=True, machine=platform_info())
@@ -922,7 +922,7 @@ def _runs_command(args: argparse.Namespace) -> int:
         from thesis_repro.learners.config import ALGORITHMS
 
         check_choice(args.order, (*generator.ORDERS, "claims"), "order")
-        for folder in (paths.runs(), paths.reference()):
+        for folder in (paths.runs_dir(), paths.reference()):
             check_writable(folder)
         kinds = args.kind or figures.TRAINING_KINDS
         for algo in args.algos or ():
@@ -938,7 +938,7 @@ def _runs_command(args: argparse.Namespace) -> int:
                 raise ValueError("--order claims needs --seeds: the seeds to add, such as --seeds 3 4 5")
             rates = throughput.shipped_rates(by_env=True, machine=platform_info())
             ranked = _order_plan(args.scale, args.seeds, rates, missing=True, figure_ids=args.figures)
-            print(order.report(ranked), flush=True)
+            print(order.order_report(ranked), flush=True)
             figure_ids = order.item_order(ranked)
             only.update(order="item", item_seeds={f: order.item_seeds(f, args.seeds) for f in figure_ids})
         n_jobs = args.jobs or 1
@@ -963,14 +963,14 @@ def _runs_command(args: argparse.Namespace) -> int:
             print(f"corrupt local run {path}: {err} (removed and recomputed when a figure next needs it)")
         print(
             f"{len(runs.shipped_entries())} shipped runs: {len(stale)} stale, {len(corrupt)} corrupt; "
-            f"{len(runs.local_entries())} local runs ({paths.runs()}): {len(local)} corrupt"
+            f"{len(runs.local_entries())} local runs ({paths.runs_dir()}): {len(local)} corrupt"
         )
         return 1 if stale or corrupt or local else 0
     from thesis_repro.core import terminal
 
     ids = figures.ids() if args.figure == "all" else [figures.get(args.figure).id]
     for fid in ids:
-        rows = runs.rows(fid, args.scale)
+        rows = runs.run_rows(fid, args.scale)
         if args.json:
             print(json.dumps({"figure": fid, "scale": args.scale, "runs": rows}, indent=1))
             continue
@@ -978,7 +978,7 @@ def _runs_command(args: argparse.Namespace) -> int:
         line = runs.summary(train, verify=True) if train else "no training runs"
         print(terminal.wrap(f"{figures.get(fid).notebook_id} ({args.scale}): {line}"))
         if args.verbose:  # every run, in full
-            print(plan.table(rows) + "\n")
+            print(plan.text_table(rows) + "\n")
         else:
             print(terminal.fit(runs.rows_summary(rows)) + "\n")
     if not (args.json or args.verbose):

@@ -14,7 +14,7 @@ checks: a manifest only says the files are the ones it lists, so every value is 
   any difference is a mismatch, reported with its size;
 * **native numerics** (``THESIS_REPRO_NUMERICS=native``) **on another CPU, or one not recorded**: individual
   rollouts may differ (see :data:`VERIFY_RTOL`), the averages over the rollouts must agree within
-  :data:`VERIFY_RTOL` (for chapter 5's arm kinds, the entry's scalar summaries: see :func:`compare`); the
+  :data:`VERIFY_RTOL` (for chapter 5's arm kinds, the entry's scalar summaries: see :func:`compare_values`); the
   verdict says so.
 
 Targets instead of a sample: ``--entry KEY`` (one shipped entry, any kind; a training run is retrained),
@@ -31,11 +31,11 @@ interruption
 and whether that resume was exact.
 
 
->>> compare({"r": np.array([[1.0, 2.0]])}, {"r": np.array([[1.0, 2.0]])}, same=True).verdict
+>>> compare_values({"r": np.array([[1.0, 2.0]])}, {"r": np.array([[1.0, 2.0]])}, same=True).verdict
 'identical'
->>> compare({"r": np.array([[100.0, 200.0]])}, {"r": np.array([[120.0, 182.0]])}, same=False).verdict
+>>> compare_values({"r": np.array([[100.0, 200.0]])}, {"r": np.array([[120.0, 182.0]])}, same=False).verdict
 'within 5% (native numerics on another CPU: rollout means differ by 0.7%)'
->>> compare({"r": np.array([[100.0, 200.0]])}, {"r": np.array([[100.0, 200.1]])}, same=True).ok
+>>> compare_values({"r": np.array([[100.0, 200.0]])}, {"r": np.array([[100.0, 200.1]])}, same=True).ok
 False
 """
 
@@ -62,6 +62,7 @@ import numpy as np
 import thesis_repro
 from thesis_repro.core import job_kinds, paths, scales
 from thesis_repro.core.cache import Result, RunCache, find_entry, read_entry
+from thesis_repro.core.provenance import numerics_env
 from thesis_repro.core.validation import check_choice, one_line
 from thesis_repro.runs import costs as plan
 from thesis_repro.runs import layer as runs
@@ -71,7 +72,8 @@ from thesis_repro.runs import retrain_check, shipped_checks, studies, throughput
 #: shipped policy).
 KINDS: tuple[str, ...] = ("evaluate",)
 #: Chapter 5's shipped kinds ``verify --kind`` can recompute too: CMA-ES policy searches and their transfers, 3 s to
-#: 2.5 min each as their provenance records. Across platforms only their summaries are compared (see :func:`compare`).
+#: 2.5 min each as their provenance records. Across platforms only their summaries are compared (see
+#: :func:`compare_values`).
 ARM_KINDS: tuple[str, ...] = ("arm-solve", "arm-source", "arm-competitor-source", "arm-curriculum", "arm-target")
 #: Every kind ``verify --kind`` accepts. Training runs are checked by ``--train`` instead (one run, minutes to hours).
 VERIFIABLE: tuple[str, ...] = KINDS + ARM_KINDS
@@ -134,7 +136,7 @@ def _numeric(values: Mapping[str, Any]) -> tuple[dict[str, np.ndarray], dict[str
     return nums, other
 
 
-def headline(values: Mapping[str, Any]) -> float | None:
+def headline_value(values: Mapping[str, Any]) -> float | None:
     """The number a row shows: the mean test return (over every point and rollout) of an evaluation, else the
     first numeric scalar (by name), else ``None``."""
     for name in ("returns", "expected_return"):
@@ -155,7 +157,7 @@ def _averaged(arr: np.ndarray) -> np.ndarray:
     return arr.mean(axis=-1) if arr.ndim >= 2 else arr
 
 
-def compare(
+def compare_values(
     shipped: Mapping[str, Any],
     fresh: Mapping[str, Any],
     same: bool | None,
@@ -172,12 +174,12 @@ def compare(
     differently, so its weights and per-generation curves are other samples; its outcome must still agree.
 
     >>> a = {"cost": 2224.81, "curve": np.array([[11.3, 1.6]])}
-    >>> compare(a, {"cost": 2223.84, "curve": np.array([[11.3, 1.5]])}, same=False, summaries_only=True).verdict
+    >>> compare_values(a, {"cost": 2223.84, "curve": np.array([[11.3, 1.5]])}, same=False, summaries_only=True).verdict
     'within 5% (native numerics on another CPU: summaries differ by 0.0%)'
     """
     a_num, a_other = _numeric(shipped)
     b_num, b_other = _numeric(fresh)
-    a_h, b_h = headline(shipped), headline(fresh)
+    a_h, b_h = headline_value(shipped), headline_value(fresh)
 
     def check(diff: float | None, verdict: str, ok: bool) -> Check:
         return Check(entry, a_h, b_h, diff, verdict, ok)
@@ -424,14 +426,6 @@ def _name(path: Path) -> str:
 
 
 # ---------------------------------------------------------------- recomputing
-def numerics_env(path: Path) -> dict[str, str]:
-    """Environment variables that recompute entry ``path`` in the float numerics it was made in
-    (``provenance.numerics_env``: MKL's branch and ATen's CPU capability as its provenance records them), so that
-    the same machine gives the same bits; ``{}`` (this process's settings) where the kit does not record them."""
-    fn = getattr(runs, "numerics_env", None)
-    return dict(fn(path)) if fn is not None else {}
-
-
 #: The worker process of :func:`recompute_all` (run with ``python -c``; ``sys.argv[1]`` is its spec file).
 _WORKER = "import sys; from thesis_repro.cli.verify import _worker; _worker(sys.argv[1])"
 
@@ -547,11 +541,13 @@ def check_entry(path: Path, fresh: Path | str) -> Check:
     except Exception as err:  # noqa: BLE001 - any failure to read means the entry is unusable
         return Check(name, None, None, None, f"MISMATCH: shipped entry is corrupt ({one_line(err, 160)})", False)
     if isinstance(fresh, str):
-        return Check(name, headline(shipped_values), None, None, f"MISMATCH: {fresh.removeprefix('error: ')}", False)
+        return Check(
+            name, headline_value(shipped_values), None, None, f"MISMATCH: {fresh.removeprefix('error: ')}", False
+        )
     fresh_values, _ = read_entry(fresh)
     summaries = path.parent.name in ARM_KINDS
     same = True if pinned(path) else same_numerics(path, fresh)
-    return compare(shipped_values, fresh_values, same, entry=name, summaries_only=summaries)
+    return compare_values(shipped_values, fresh_values, same, entry=name, summaries_only=summaries)
 
 
 def missing_dependencies(path: Path, layer: Path) -> list[str]:
@@ -655,7 +651,7 @@ def _report(checks: Mapping[Path, Check], log: Callable[[str], None], listed: in
     shown = rows if len(rows) <= listed else [c for c in rows if c.verdict != "identical"]
     log("")
     if shown:
-        log(plan.table([c.row() for c in shown], ("entry", "shipped", "recomputed", "|diff|", "verdict")))
+        log(plan.text_table([c.row() for c in shown], ("entry", "shipped", "recomputed", "|diff|", "verdict")))
     if len(shown) < len(rows):
         if shown:
             log("")
@@ -686,7 +682,7 @@ def _retrain_entry(path: Path, root: Path, log: Callable[[str], None]) -> bool:
     fresh = retrain_check.recompute(job, root, shipped)
     if pinned(path):
         diff = retrain_check.max_abs_diff(shipped, fresh)
-        check = compare(values, read_entry(fresh.path)[0], True, entry=_name(path))
+        check = compare_values(values, read_entry(fresh.path)[0], True, entry=_name(path))
         ok = diff == 0.0 and check.ok
         log(f"weights: max |diff| {diff:.3g}; values: {check.verdict}")
     else:
@@ -697,7 +693,7 @@ def _retrain_entry(path: Path, root: Path, log: Callable[[str], None]) -> bool:
     return ok
 
 
-def run(
+def run_checks(
     scale: str,
     n: int = DEFAULT_N,
     seed: int | None = None,
@@ -808,7 +804,7 @@ def _sample_run(
 def main(args: argparse.Namespace) -> int:
     """The ``verify`` subcommand (``args``: ``scale``, ``n``, ``seed``, ``train``, ``kind``, ``figure``, ``entry``,
     ``claim``, ``all``)."""
-    return run(
+    return run_checks(
         args.scale,
         args.n,
         args.seed,

@@ -23,7 +23,7 @@ commits the finished entry into a scratch folder and returns it as bytes (:func:
 verifies it against its manifest and commits it to its run cache (:func:`commit`) as soon as it lands, with
 the same progress bar as the local pool. Provenance (host, times) is the worker's.
 
-Dependencies. A job's dependencies are what its kind's hook declares (:func:`dependencies`: an evaluation's
+Dependencies. A job's dependencies are what its kind's hook declares (:func:`job_dependencies`: an evaluation's
 training job, a transfer job's source job). When the dependency is in the same ``run_jobs`` call, its task's
 object ref is passed to the dependent task (Ray runs it after); when it is already in the driver's cache,
 the driver ``ray.put``\\ s its packed entry once. Either way the worker materialises the entry into its own run
@@ -102,11 +102,11 @@ def resources(kind: str) -> dict[str, float]:
     return dict(job_kinds.RESOURCES.get(kind, DEFAULT_RESOURCES))
 
 
-def dependencies(job: Job) -> list[Job]:
+def job_dependencies(job: Job) -> list[Job]:
     """Jobs whose results ``job`` loads through the run cache (its kind's hook,
     :func:`thesis_repro.core.job_kinds.dependencies`).
 
-    >>> [d.kind for d in dependencies(Job("evaluate", {"train": {"algorithm": "ppo"}, "test": {}}))]
+    >>> [d.kind for d in job_dependencies(Job("evaluate", {"train": {"algorithm": "ppo"}, "test": {}}))]
     ['train']
     """
     return list(job_kinds.dependencies(job.kind, job.config).values())
@@ -134,7 +134,7 @@ def _bind_all(
 ) -> tuple[list[Job], dict[str, Result]]:
     """``jobs`` bound (:meth:`RunCache.bind`), and the results of their pinned dependencies, which are run first
     (loaded and verified, or computed)."""
-    deps = {d.key: d for job in jobs if job_kinds.pinned(job.kind) for d in dependencies(job)}
+    deps = {d.key: d for job in jobs if job_kinds.pins_dependencies(job.kind) for d in job_dependencies(job)}
     done: dict[str, Result] = {}
     if deps:
         ran = run_jobs(list(deps.values()), n_jobs, cache, progress, f"{desc}: dependencies")
@@ -468,9 +468,9 @@ def run_ray(todo: Mapping[str, Job], cache: RunCache, bar: Any = None) -> dict[s
         return put[dep.key]
 
     # jobs another job of this call depends on go first, so their refs exist when the dependents are submitted
-    needed = {d.key for job in todo.values() for d in dependencies(job)}
+    needed = {d.key for job in todo.values() for d in job_dependencies(job)}
     for key, job in sorted(todo.items(), key=lambda kv: kv[0] not in needed):
-        deps = [r for r in (dep_ref(d) for d in dependencies(job)) if r is not None]
+        deps = [r for r in (dep_ref(d) for d in job_dependencies(job)) if r is not None]
         res = resources(job.kind)
         threads = int(res.get("num_cpus", 1))
         opts = {**res, "max_retries": retries(), "retry_exceptions": False, "name": f"{job.kind}:{job.label}"}

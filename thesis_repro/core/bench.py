@@ -3,12 +3,12 @@
 A benchmark is a zero-argument function named by ``"package.module:function"`` in :data:`BENCHMARKS`.
 It may print its own lines and returns a dict of measured values (printed as ``name.key = value``) or
 ``None``. Entries whose module is not importable yet are reported as missing, never as failures.
-To add yours, add one line to :data:`BENCHMARKS` (small edit) or call :func:`register` at import time.
+To add yours, add one line to :data:`BENCHMARKS` (small edit) or call :func:`register_benchmark` at import time.
 Each benchmark lives beside what it measures, so a ``bench`` module is always a throughput benchmark:
 ``learners/bench.py`` (training, the multi-domain learners too), ``arm/bench.py`` (the arm simulator)
 and ``evaluation/bench.py`` (the evaluator); this module only registers and runs them.
 
->>> run(["nope"])  # doctest: +ELLIPSIS
+>>> run_benchmarks(["nope"])  # doctest: +ELLIPSIS
 Traceback (most recent call last):
 ...
 ValueError: unknown benchmark 'nope'; valid benchmarks are: ...
@@ -34,7 +34,7 @@ BENCHMARKS: dict[str, str] = {
 }
 
 
-#: the target lines (:func:`target_line`) printed during the current :func:`run`, repeated as its summary
+#: the target lines (:func:`target_line`) printed during the current :func:`run_benchmarks`, repeated as its summary
 TARGET_LINES: list[str] = []
 
 
@@ -52,14 +52,14 @@ def target_line(label: str, measured: str, ratio: float, target: float) -> float
     return float(ratio)
 
 
-def register(name: str, target: str) -> None:
+def register_benchmark(name: str, target: str) -> None:
     """Add (or replace) benchmark ``name`` -> ``"module:function"``."""
     if ":" not in target:
         raise ValueError(f"benchmark target must look like 'package.module:function', got {target!r}")
     BENCHMARKS[name] = target
 
 
-def resolve(name: str) -> Callable[[], Mapping[str, Any] | None] | None:
+def benchmark_function(name: str) -> Callable[[], Mapping[str, Any] | None] | None:
     """The benchmark function, or ``None`` if its module (or function) does not exist yet."""
     module, func = BENCHMARKS[check_choice(name, BENCHMARKS, "benchmark")].split(":")
     try:
@@ -71,7 +71,7 @@ def resolve(name: str) -> Callable[[], Mapping[str, Any] | None] | None:
     return getattr(mod, func, None)
 
 
-def run(names: Iterable[str] | None = None) -> dict[str, Mapping[str, Any] | None]:
+def run_benchmarks(names: Iterable[str] | None = None) -> dict[str, Mapping[str, Any] | None]:
     """Run the named benchmarks (default: all) and print their results; missing ones get one clear line."""
     names = list(BENCHMARKS) if names is None else list(names)
     for n in names:
@@ -79,7 +79,7 @@ def run(names: Iterable[str] | None = None) -> dict[str, Mapping[str, Any] | Non
     results: dict[str, Mapping[str, Any] | None] = {}
     TARGET_LINES.clear()
     for name in names:
-        fn = resolve(name)
+        fn = benchmark_function(name)
         if fn is None:
             print(f"[{name}] MISSING: {BENCHMARKS[name]} is not implemented yet (skipped)\n", flush=True)
             continue

@@ -470,7 +470,7 @@ class RunCache:
     """
 
     def __init__(self, root: str | Path | None = None, reference: str | Path | bool = True):
-        self.root = Path(root) if root is not None else paths.runs()
+        self.root = Path(root) if root is not None else paths.runs_dir()
         if reference is True:
             self.reference: Path | None = None if paths.retrain() else paths.reference()
         elif reference is False or reference is None:
@@ -521,7 +521,7 @@ class RunCache:
         of the entry :meth:`load` gives (local first, then shipped). A dependency not committed yet gives
         ``None``, unless ``compute``: then it is loaded or computed through this cache first.
         """
-        if not job_kinds.pinned(job.kind):
+        if not job_kinds.pins_dependencies(job.kind):
             return job
         deps = job_kinds.dependencies(job.kind, job.config)
         if all(name in job.config for name in deps):

@@ -214,10 +214,10 @@ def dependencies(kind: str, config: Mapping[str, Any]) -> dict[str, Any]:
     return dict(_import(path)(config)) if path else {}
 
 
-def pinned(kind: str) -> bool:
+def pins_dependencies(kind: str) -> bool:
     """Does the key of a ``kind`` job pin the identity of its dependencies' entries?
 
-    >>> pinned("evaluate"), pinned("arm-target")
+    >>> pins_dependencies("evaluate"), pins_dependencies("arm-target")
     (True, False)
     """
     return kind_of(kind) in PINNED

@@ -52,7 +52,7 @@ def _user_cache() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "thesis_repro"
 
 
-def runs() -> Path:
+def runs_dir() -> Path:
     """Root of the content-addressed run cache: ``THESIS_REPRO_DATA``, else ``data/runs`` in the clone, else
     ``~/.cache/thesis_repro/runs``."""
     default = ROOT / "data" / "runs" if in_clone() else _user_cache() / "runs"
@@ -113,7 +113,7 @@ def retrain() -> bool:
     return value in yes
 
 
-def build(scale: str) -> Path:
+def build_dir(scale: str) -> Path:
     """Root of generated artefacts for one scale (executed notebooks, figures): ``THESIS_REPRO_BUILD``, else
     ``build`` in the clone, else ``~/.cache/thesis_repro/build``."""
     default = ROOT / "build" if in_clone() else _user_cache() / "build"
@@ -124,11 +124,11 @@ PUBLISHED_ENV = "THESIS_REPRO_PUBLISHED_BUILD"
 
 
 def published_figures(scale: str) -> Path:
-    """Figure folder of finished pages. Inside a notebook's kernel, :func:`build` is the notebook's staging folder
+    """Figure folder of finished pages. Inside a notebook's kernel, :func:`build_dir` is the notebook's staging folder
     and ``THESIS_REPRO_PUBLISHED_BUILD`` names the build folder it will move to, so a page can read what other
-    pages saved (a claim judged on Table 3.4 and repeated on Fig 3.7); elsewhere the same as :func:`figures`."""
+    pages saved (a claim judged on Table 3.4 and repeated on Fig 3.7); elsewhere the same as :func:`figures_dir`."""
     root = os.environ.get(PUBLISHED_ENV)
-    return Path(root) / scale / "figures" if root else figures(scale)
+    return Path(root) / scale / "figures" if root else figures_dir(scale)
 
 
 def page_output(scale: str, name: str) -> Path:
@@ -137,18 +137,18 @@ def page_output(scale: str, name: str) -> Path:
     >>> page_output("smoke", "no-such-page.data.json") == published_figures("smoke") / "no-such-page.data.json"
     True
     """
-    own = figures(scale) / name
+    own = figures_dir(scale) / name
     return own if own.exists() else published_figures(scale) / name
 
 
 def executed(scale: str) -> Path:
     """Folder of notebooks executed at ``scale``."""
-    return build(scale) / "notebooks"
+    return build_dir(scale) / "notebooks"
 
 
-def figures(scale: str) -> Path:
+def figures_dir(scale: str) -> Path:
     """Folder where notebooks save their figure files at ``scale``."""
-    return build(scale) / "figures"
+    return build_dir(scale) / "figures"
 
 
 def notebook(figure: str) -> Path:
@@ -157,7 +157,7 @@ def notebook(figure: str) -> Path:
     return NOTEBOOKS / f"{name}.py"
 
 
-def thesis_table(name: str) -> Path:
+def thesis_table_path(name: str) -> Path:
     """A transcribed reference table of the thesis, e.g. ``thesis_table("fig3_3c")``."""
     return THESIS_DATA / f"{name}.csv"
 

@@ -64,7 +64,7 @@ def load(name: str) -> pd.DataFrame:
     (20, 4)
     """
     check_choice(name, TABLES, "thesis table")
-    frame = pd.read_csv(paths.thesis_table(name), dtype=_STRINGS, keep_default_na=False, na_values=[""])
+    frame = pd.read_csv(paths.thesis_table_path(name), dtype=_STRINGS, keep_default_na=False, na_values=[""])
     _check_columns(frame, f"thesis table {name!r}", TABLES[name], _OPTIONAL)
     if "note" in frame.columns:
         frame["note"] = frame["note"].fillna("")

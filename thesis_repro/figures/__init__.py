@@ -1,7 +1,7 @@
 """The figure layer: one registry from a figure/table id to its job grid, its module and its settings.
 
 Each chapter module (:mod:`~thesis_repro.figures.ch3`, :mod:`~thesis_repro.figures.ch4`,
-:mod:`~thesis_repro.figures.ch5`, ...) registers its items with :func:`register`; a registered item knows
+:mod:`~thesis_repro.figures.ch5`, ...) registers its items with :func:`register_figure`; a registered item knows
 every :class:`~thesis_repro.core.cache.Job` it runs for given settings (training jobs first), so the run listing
 (``python -m thesis_repro runs 3.3``), the reference-run generator and the tests can enumerate a figure's
 runs without executing its notebook. Settings always come from the one scale table
@@ -77,7 +77,7 @@ class Figure:
 FIGURES: dict[str, Figure] = {}
 
 
-def register(
+def register_figure(
     figure_id: str,
     title: str,
     kinds: Iterable[str] = ("train", "evaluate"),
@@ -85,7 +85,7 @@ def register(
 ) -> Callable[[JobGrid], JobGrid]:
     """Decorator registering ``grid(settings) -> list[Job]`` as the job grid of ``figure_id``.
 
-    >>> @register("_doc", "toy figure", kinds=["square"], settings_id="_example")
+    >>> @register_figure("_doc", "toy figure", kinds=["square"], settings_id="_example")
     ... def _grid(settings):
     ...     return [Job("square", {"x": settings["train_seeds"]})]
     >>> [j.config for j in jobs("_doc", "smoke")]
@@ -196,7 +196,7 @@ __all__ = [
     "get",
     "ids",
     "jobs",
-    "register",
+    "register_figure",
     "settings",
     "thesis_budget",
     "training_jobs",

@@ -23,7 +23,7 @@ from thesis_repro.core.cache import Job, Result
 from thesis_repro.core.validation import check_choice
 from thesis_repro.evaluation import Benchmark, BenchmarkResult, benchmark_jobs, correlation, pareto_frontier
 from thesis_repro.evaluation.jobs import check_test
-from thesis_repro.figures import register
+from thesis_repro.figures import register_figure
 from thesis_repro.learners import iteration_steps, n_iterations, train_config
 
 SELECTIONS: tuple[str, ...] = ("best", "mean")
@@ -141,7 +141,7 @@ def _snapshot_evals(cfg: Mapping[str, Any], test: Mapping[str, Any], steps: Sequ
     return [Job("evaluate", {"train": dict(cfg), "test": {**test, "snapshot": int(s)}}) for s in steps]
 
 
-@register("3.2", "Overfitting occurs in deep RL (PPO, Walker2d)")
+@register_figure("3.2", "Overfitting occurs in deep RL (PPO, Walker2d)")
 def overfitting_jobs(settings: Mapping[str, Any]) -> list[Job]:
     """Train jobs (with snapshots), then one evaluation job per predicted snapshot."""
     cfgs, test = overfitting_configs(settings), overfitting_test(settings)
@@ -265,7 +265,7 @@ def pareto_benchmark(settings: Mapping[str, Any]) -> Benchmark:
     )
 
 
-@register("3.3", "Training return does not reflect generalisation (Pareto frontier, correlation)")
+@register_figure("3.3", "Training return does not reflect generalisation (Pareto frontier, correlation)")
 def pareto_jobs(settings: Mapping[str, Any]) -> list[Job]:
     """Every training job of Fig 3.3, then every evaluation job."""
     bench = pareto_benchmark(settings)

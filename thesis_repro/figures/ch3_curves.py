@@ -27,7 +27,7 @@ from thesis_repro.envs.factors import FACTORS, MIN_RATIO, WIND_SCALE
 from thesis_repro.envs.registry import short_name
 from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.jobs import check_test
-from thesis_repro.figures import register
+from thesis_repro.figures import register_figure
 from thesis_repro.figures.ch3_tables import (
     Results,
     benchmarks,
@@ -93,8 +93,10 @@ for _id, _title in [
     ("3.7", "Generalisation curves of the four basic learners on all five tasks"),
     ("3.8", "Generalisation curves of the selected learners on all five tasks"),
 ]:
-    register(_id, _title)(curve_grid)
-register("3.4", "Walker2d: return vs testing noise and heat maps over domain shifts (basic learners)")(fig34_grid)
+    register_figure(_id, _title)(curve_grid)
+register_figure("3.4", "Walker2d: return vs testing noise and heat maps over domain shifts (basic learners)")(
+    fig34_grid
+)
 
 
 def run_heat(settings: Mapping[str, Any], n_jobs: int | None = None) -> pd.DataFrame:

@@ -14,10 +14,10 @@ thesis averages) and cells (``env, test, method, mean, std, n``). Beside the the
 for the reproduced cells the 95 % CI of the mean across training seeds (:func:`our_ci`,
 :func:`~thesis_repro.evaluation.tables.seed_ci`): the seed is the unit of replication, not the rollout.
 
->>> s = settings("table-3.4", "smoke")
+>>> s = checked_settings("table-3.4", "smoke")
 >>> learners(s), skipped(s)
 (['ppo', 'trpo', 'ddpg', 'sac'], [])
->>> skipped(settings("table-3.4", "small", skip_algos=["ddpg", "sac"]))  # a scale that cannot afford them
+>>> skipped(checked_settings("table-3.4", "small", skip_algos=["ddpg", "sac"]))  # a scale that cannot afford them
 ['ddpg', 'sac']
 >>> noisy_learners()
 {'obs': 'ppo-obsnoise', 'act': 'ppo-actnoise', 'env': 'ppo-envnoise', 'dom': 'ppo-mdl'}
@@ -40,7 +40,7 @@ from thesis_repro.core.validation import check_choice
 from thesis_repro.envs.registry import short_name
 from thesis_repro.evaluation import Benchmark, tables
 from thesis_repro.evaluation.metrics import auc
-from thesis_repro.figures import FIGURES, budget_note, register
+from thesis_repro.figures import FIGURES, budget_note, register_figure
 from thesis_repro.figures import settings as _figure_settings
 from thesis_repro.figures.ch3 import benchmark, learner_timesteps, timesteps_for, variants
 from thesis_repro.learners import hyperparams
@@ -55,7 +55,7 @@ THESIS_TABLES: dict[str, str] = {
 ROW = list(tables.ROW)
 
 
-def settings(item: str, scale: str, **overrides: Any) -> dict[str, Any]:
+def checked_settings(item: str, scale: str, **overrides: Any) -> dict[str, Any]:
     """Resolved settings of a chapter-3 item (``"table-3.4"``, ``"3.5"``, ...), checked for consistency."""
     s = _figure_settings(item, scale, **overrides)
     unknown = [a for a in s["skip_algos"] if a not in s["algos"]]
@@ -117,7 +117,7 @@ def note(settings: Mapping[str, Any]) -> str:
     return budget_note({**settings, "timesteps": base}, n_algos=len(learners(settings)), extra=extra)
 
 
-def describe(settings: Mapping[str, Any], width: int = 100) -> str:
+def describe_budget(settings: Mapping[str, Any], width: int = 100) -> str:
     """For the notebook: this scale's budget beside the thesis's and what it does not run, wrapped at
     ``width`` characters (a book page shows printed text as is: one long line would scroll sideways)."""
     miss = skipped(settings)
@@ -163,7 +163,7 @@ for _id, _title in [
     ("table-3.6", "Algorithms and architectures (AUC), Welch-bolded"),
     ("table-3.7", "Multi-domain training methods (AUC), Welch-bolded"),
 ]:
-    register(_id, _title)(grid)
+    register_figure(_id, _title)(grid)
 
 
 # ---------------------------------------------------------------- running and tidy results
@@ -256,7 +256,7 @@ def wide(cells: pd.DataFrame, value: str = "mean", index: Sequence[str] = tuple(
 
 
 @dataclass
-class Comparison:
+class ThesisComparison:
     """One AUC table, thesis beside reproduced: bolded cells of both and the agreement of the bolding."""
 
     item: str
@@ -312,7 +312,9 @@ class Comparison:
         return ci_text_style(self.ci_text(), self.ci, caption)
 
 
-def compare(item: str, ours: pd.DataFrame, settings: Mapping[str, Any], ci: pd.DataFrame | None = None) -> Comparison:
+def compare(
+    item: str, ours: pd.DataFrame, settings: Mapping[str, Any], ci: pd.DataFrame | None = None
+) -> ThesisComparison:
     """Thesis beside reproduced AUC cells, both bolded, and the agreement of our bolding with the thesis's
     recomputed on the learners and rows we ran; ``ci`` (:func:`our_ci`) adds the intervals across seeds.
 
@@ -332,7 +334,7 @@ def compare(item: str, ours: pd.DataFrame, settings: Mapping[str, Any], ci: pd.D
     b_ours = tables.bold(ours) if not ours.empty else ours.assign(bold=False)
     same = tables.bold(thesis.merge(b_ours[[*ROW, "method"]], on=[*ROW, "method"]))
     agreement = tables.bold_agreement(b_ours, same)
-    return Comparison(item, b_thesis.reset_index(drop=True), b_ours, agreement, ci)
+    return ThesisComparison(item, b_thesis.reset_index(drop=True), b_ours, agreement, ci)
 
 
 #: Table style of the book pages: compact cells.

@@ -31,7 +31,7 @@ from thesis_repro.core.validation import check_choice
 from thesis_repro.envs import make_env
 from thesis_repro.evaluation import tables
 from thesis_repro.evaluation.metrics import auc
-from thesis_repro.figures import register
+from thesis_repro.figures import register_figure
 from thesis_repro.learners import iteration_steps, load_policy, train_config
 
 EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
@@ -61,7 +61,7 @@ def conditions(figure: str, panels: Sequence[str] | None = None) -> list[dict[st
     ]
 
 
-def label(cond: Mapping[str, Any]) -> str:
+def panel_title(cond: Mapping[str, Any]) -> str:
     """Panel title such as ``"c_a=0.001, ξ~U(-0.5,0.5)"``."""
     return f"c_a={cond['c_a']:g}, ξ~U({cond['wind'][0]:g},{cond['wind'][1]:g})"
 
@@ -107,7 +107,7 @@ def runs(settings: Mapping[str, Any]) -> pd.DataFrame:
                     {
                         "algo": THESIS_NAMES.get(algo, algo),
                         "panel": cond["panel"],
-                        "condition": label(cond),
+                        "condition": panel_title(cond),
                         "seed": seed,
                         "config": run_config(settings, algo, cond, seed),
                     }
@@ -230,17 +230,19 @@ def _grid(*evals: str) -> Any:
 
 _TRAIN = ("train",)
 _BOTH = ("train", "evaluate")
-register("4.1", "Training curves of kl_avg, kl_exact, params_avg and joint under four conditions", _TRAIN)(_grid())
-register("4.2", "Key frames of a walking cycle, kl_avg and kl_exact vs params_avg", _BOTH)(_grid("wind0"))
-register("4.3", "Walker2d testing return vs wind speed", _BOTH)(_grid("wind"))
-register("4.4", "Hopper: testing return vs wind; mass × friction heat maps", _BOTH)(_grid("wind", "shift"))
-register("4.5", "Walker2d testing return over mass × friction", _BOTH)(_grid("shift"))
-register("4.6", "Testing return vs observation- and action-noise scale", _BOTH)(_grid("obs", "act"))
-register("4.7", "Policy entropy during training", _TRAIN)(_grid())
+register_figure("4.1", "Training curves of kl_avg, kl_exact, params_avg and joint under four conditions", _TRAIN)(
+    _grid()
+)
+register_figure("4.2", "Key frames of a walking cycle, kl_avg and kl_exact vs params_avg", _BOTH)(_grid("wind0"))
+register_figure("4.3", "Walker2d testing return vs wind speed", _BOTH)(_grid("wind"))
+register_figure("4.4", "Hopper: testing return vs wind; mass × friction heat maps", _BOTH)(_grid("wind", "shift"))
+register_figure("4.5", "Walker2d testing return over mass × friction", _BOTH)(_grid("shift"))
+register_figure("4.6", "Testing return vs observation- and action-noise scale", _BOTH)(_grid("obs", "act"))
+register_figure("4.7", "Policy entropy during training", _TRAIN)(_grid())
 
 
 # ---------------------------------------------------------------- tables of the figures
-def compare(frame: pd.DataFrame, value: str, by: Sequence[str] = ("panel",), ours: str = OURS) -> pd.DataFrame:
+def best_per_group(frame: pd.DataFrame, value: str, by: Sequence[str] = ("panel",), ours: str = OURS) -> pd.DataFrame:
     """Mean of ``value`` per (by..., algo), the best algorithm of each group and whether it is ``ours``.
 
     The algorithm columns are the frame's ``algo`` values; ``best`` and ``<ours>_best`` are added.
@@ -285,7 +287,7 @@ def compare_ci(
     level: float = tables.CI_LEVEL,
     algos: Sequence[str] | None = None,
 ) -> pd.DataFrame:
-    """:func:`compare` across training seeds, for display: per (by..., algo) ``"mean ± half-width"`` of the
+    """:func:`best_per_group` across training seeds, for display: per (by..., algo) ``"mean ± half-width"`` of the
     ``level`` t-interval over per-seed means (:func:`seed_table`), and the ``best`` algorithm by that mean.
 
     Rows (``by``) keep their order of first appearance, algorithm columns too unless ``algos`` orders them
@@ -337,7 +339,7 @@ def late(curves: pd.DataFrame) -> pd.DataFrame:
 
 def late_returns(curves: pd.DataFrame) -> pd.DataFrame:
     """Fig 4.1: mean training return over the last third of the iterations, per panel and algorithm."""
-    return compare(late(curves), "return")
+    return best_per_group(late(curves), "return")
 
 
 def late_returns_ci(curves: pd.DataFrame) -> pd.DataFrame:

@@ -25,7 +25,7 @@ from thesis_repro.arm.tasks import SIM_VERSION, ArmConfig
 from thesis_repro.core.backends import run_jobs
 from thesis_repro.core.cache import Job, Result
 from thesis_repro.core.validation import check_choice
-from thesis_repro.figures import register
+from thesis_repro.figures import register_figure
 
 #: Methods compared in Fig 5.5: our tensor transfer and the competitors.
 FIG55_METHODS: tuple[str, ...] = ("tensor", *COMPETITORS)
@@ -53,7 +53,7 @@ def solve_jobs(settings: Mapping[str, Any]) -> list[Job]:
     ]
 
 
-register("5.3", "A successful ball-in-cup movement (string taut / slack)", ["arm-solve"])(solve_jobs)
+register_figure("5.3", "A successful ball-in-cup movement (string taut / slack)", ["arm-solve"])(solve_jobs)
 
 
 def catch_summary(results: Sequence[Result | Mapping[str, Any]], seeds: Sequence[int]) -> pd.DataFrame:
@@ -125,10 +125,10 @@ def _transfer_grid(strategies: Sequence[str]) -> Any:
 
 
 _ARM_KINDS = ("arm-source", "arm-competitor-source", "arm-target")
-register("5.4", "Transfer strategies to BIC: learning curves; total cost and success", _ARM_KINDS[::2])(
+register_figure("5.4", "Transfer strategies to BIC: learning curves; total cost and success", _ARM_KINDS[::2])(
     _transfer_grid(TRANSFER)
 )
-register("5.5", "Tensor transfer vs ELLA / RBF-ELLA / FCNN", _ARM_KINDS)(_transfer_grid(FIG55_METHODS))
+register_figure("5.5", "Tensor transfer vs ELLA / RBF-ELLA / FCNN", _ARM_KINDS)(_transfer_grid(FIG55_METHODS))
 
 
 def run_grid(
@@ -178,13 +178,13 @@ def strategy_means(summary: pd.DataFrame, strategies: Sequence[str]) -> pd.DataF
     return summary.groupby("strategy")[["total_cost", "success_rate"]].mean().reindex(list(strategies))
 
 
-def seed_means(summary: pd.DataFrame, strategies: Sequence[str]) -> pd.DataFrame:
+def strategy_seed_means(summary: pd.DataFrame, strategies: Sequence[str]) -> pd.DataFrame:
     """Per training seed, each strategy's mean total cost and success rate over all pairs: columns
     ``strategy, seed, total_cost, success_rate`` (the unit of replication for the figures' 95 % CI bars).
 
     >>> s = pd.DataFrame({"strategy": ["a", "a", "a", "a"], "seed": [0, 0, 1, 1], "pair": ["p", "q", "p", "q"],
     ...                   "total_cost": [1.0, 3.0, 5.0, 7.0], "success_rate": [0.0, 1.0, 1.0, 1.0]})
-    >>> seed_means(s, ["a"]).values.tolist()
+    >>> strategy_seed_means(s, ["a"]).values.tolist()
     [['a', 0, 2.0, 0.5], ['a', 1, 6.0, 1.0]]
     """
     means = summary.groupby(["strategy", "seed"])[["total_cost", "success_rate"]].mean()
@@ -216,7 +216,7 @@ def curriculum_jobs(settings: Mapping[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
-register("5.6", "Curriculum Reach → Throw → BIC vs no curriculum", ["arm-curriculum"])(
+register_figure("5.6", "Curriculum Reach → Throw → BIC vs no curriculum", ["arm-curriculum"])(
     lambda settings: [r["job"] for r in curriculum_jobs(settings)]
 )
 

@@ -23,7 +23,7 @@ from thesis_repro.evaluation import tables
 
 def save(fig: plt.Figure, scale: str, name: str, dpi: int = 100) -> None:
     """Save ``fig`` as ``build/<scale>/figures/<name>.png`` and print the path."""
-    out = paths.figures(scale) / f"{name}.png"
+    out = paths.figures_dir(scale) / f"{name}.png"
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi)
     print("saved", out)

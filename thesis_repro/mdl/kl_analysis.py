@@ -203,7 +203,7 @@ def compare_aggregates(problems: Sequence[Problem], reference_iters: int = 100, 
     return pd.DataFrame(rows)
 
 
-def summarise(table: pd.DataFrame) -> pd.DataFrame:
+def summarise_aggregates(table: pd.DataFrame) -> pd.DataFrame:
     """Per aggregate: median Eq 4.7 value (absolute and as a fraction of params_avg's on the same problem),
     median excess, median/max distance ratio, fraction of problems where it beats params_avg."""
     base = table["problem"].map(table[table["aggregate"] == "params_avg"].set_index("problem")["eq47"])
@@ -385,5 +385,5 @@ __all__ = [
     "make_problems",
     "reference_optimum",
     "spread_scaling",
-    "summarise",
+    "summarise_aggregates",
 ]

@@ -10,9 +10,9 @@ and every test of Fig 3.3 evaluates each snapshot and the final policy. The sett
 entry ``_thesis-budget`` (:data:`SETTINGS_ID`); the study's runs have keys of their own, so no page trains them
 and no existing run's key changes.
 
-* :func:`train_jobs` / :func:`eval_jobs` / :func:`jobs`: the study's job list; :func:`points`: the budgets it
-  evaluates (env steps, and the snapshot each reads); :func:`benchmark_at`: the Fig 3.3 grid at one of them, for
-  the pages and the claims layer.
+* :func:`train_jobs` / :func:`budget_eval_jobs` / :func:`budget_jobs`: the study's job list; :func:`points`: the
+  budgets it evaluates (env steps, and the snapshot each reads); :func:`benchmark_at`: the Fig 3.3 grid at one of
+  them, for the pages and the claims layer.
 * :func:`ordered`: the generator's order: the two Pareto panels' tasks first, then the others; within a task,
   the items that read its runs (Fig 3.3, Tables 3.4 and 3.6) ranked by claims settled per core-hour
   (:func:`thesis_repro.runs.order.rank`), each item's runs cheapest first, then by seed; every run is still trained
@@ -76,7 +76,7 @@ def check_study(name: str) -> str:
     return check_choice(name, STUDIES, "budget study")
 
 
-def settings(scale: str) -> dict[str, Any]:
+def budget_settings(scale: str) -> dict[str, Any]:
     """The study's resolved settings at ``scale`` (the scale table's :data:`SETTINGS_ID` entry)."""
     return scales.figure_settings(SETTINGS_ID, scale)
 
@@ -112,7 +112,7 @@ def train_config_of(s: Mapping[str, Any], algo: str, env: str, seed: int) -> dic
 
 def train_jobs(scale: str) -> list[Job]:
     """The study's training jobs, in (task :func:`task_order`, learner, seed) order."""
-    s = settings(scale)
+    s = budget_settings(scale)
     seeds = range(int(s["train_seeds"]))
     return [Job("train", train_config_of(s, a, e, sd)) for e in task_order(s) for a in variants(s) for sd in seeds]
 
@@ -150,9 +150,9 @@ def _tests(s: Mapping[str, Any]) -> Benchmark:
     )
 
 
-def eval_jobs(scale: str, train: Iterable[Job] | None = None) -> list[Job]:
+def budget_eval_jobs(scale: str, train: Iterable[Job] | None = None) -> list[Job]:
     """One evaluation job per study run (or per job of ``train``), test and :func:`points` entry, in run order."""
-    s = settings(scale)
+    s = budget_settings(scale)
     blocks = _tests(s).tests
     out = []
     for job in train if train is not None else train_jobs(scale):
@@ -163,10 +163,10 @@ def eval_jobs(scale: str, train: Iterable[Job] | None = None) -> list[Job]:
     return out
 
 
-def jobs(scale: str) -> list[Job]:
+def budget_jobs(scale: str) -> list[Job]:
     """Every job of the study: the training runs, then their evaluations."""
     train = train_jobs(scale)
-    return [*train, *eval_jobs(scale, train)]
+    return [*train, *budget_eval_jobs(scale, train)]
 
 
 def benchmark_at(scale: str, steps: int) -> Benchmark:
@@ -174,7 +174,7 @@ def benchmark_at(scale: str, steps: int) -> Benchmark:
     (one of the :func:`points`' ``steps`` of the runs; for the PPO family and TRPO the first iteration boundary at
     or after the requested budget), as a :class:`~thesis_repro.evaluation.Benchmark`. Its ``run()`` reports each
     run's final training return; the return at ``steps`` is :func:`thesis_repro.figures.ch3.training_return_at`."""
-    s = settings(scale)
+    s = budget_settings(scale)
     algos, envs, seeds = variants(s), task_order(s), list(range(int(s["train_seeds"])))
     blocks = _tests(s).tests
     cfgs = [train_config_of(s, a, e, sd) for sd in seeds for e in envs for a in algos]
@@ -200,7 +200,7 @@ def budgets(scale: str) -> list[int]:
     >>> budgets("small")
     [1000000, 2000000, 3000000, 4000000]
     """
-    s = settings(scale)
+    s = budget_settings(scale)
     return [*(int(t) for t in s["evaluate_at"]), int(s["timesteps"])]
 
 
@@ -219,10 +219,10 @@ def ordered(
     claims: cheapest item first), each item's runs not yet placed cheapest first, then by seed; each run's
     evaluations right after it. The order decides only what runs first: every job is in the list."""
     kinds = set(kinds)
-    s = settings(scale)
+    s = budget_settings(scale)
     train = train_jobs(scale)
     evals: dict[str, list[Job]] = {}
-    for e in eval_jobs(scale, train):
+    for e in budget_eval_jobs(scale, train):
         evals.setdefault(Job("train", e.config["train"]).key, []).append(e)
     price = {j.key: core_hours(work(j), job_rate(j, rates)) for j in train}
     target = int(s["train_seeds"])
@@ -250,9 +250,9 @@ def study_keys(scale: str, layer_root: str | Path | None = None) -> set[str]:
     runs they evaluate (the keys their shipped copies have), so ``runs --check`` counts them as current."""
     view = RunCache(layer_root if layer_root is not None else paths.reference(), reference=False)
     keys = set()
-    for j in jobs(scale):
+    for j in budget_jobs(scale):
         keys.add(j.key)
-        if job_kinds.pinned(j.kind) and (bound := view.bind(j)) is not None:
+        if job_kinds.pins_dependencies(j.kind) and (bound := view.bind(j)) is not None:
             keys.add(bound.key)
     return keys
 
@@ -401,7 +401,7 @@ def size_estimate(scale: str = "small", layer_root: str | Path | None = None) ->
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     train, missing, ev_bytes, n_ev = {}, [], 0, 0
     evals_per_run = {}
-    for e in eval_jobs(scale):
+    for e in budget_eval_jobs(scale):
         k = Job("train", e.config["train"]).key
         evals_per_run[k] = evals_per_run.get(k, 0) + 1
     twin_evals = {}

@@ -107,7 +107,7 @@ def extrapolate(final: float, half: float, steps: float, target: float = THESIS_
     return float(final + max(final - half, 0.0) * np.log2(target / steps))
 
 
-def judge(
+def training_verdict(
     final: float,
     half: float,
     steps: float,
@@ -122,9 +122,9 @@ def judge(
     ``peak`` (a learner given more steps does at least as well as it already did), at most ``ceiling``
     (the task's largest possible return).
 
-    >>> judge(2500.0, 2000.0, 1e6, 3128.6)[1], judge(1500.0, 1000.0, 1e6, None)
+    >>> training_verdict(2500.0, 2000.0, 1e6, 3128.6)[1], training_verdict(1500.0, 1000.0, 1e6, None)
     ('trained', (0.6, 'still learning'))
-    >>> judge(2800.0, 5100.0, 1e6, None, peak=9000.0)
+    >>> training_verdict(2800.0, 5100.0, 1e6, None, peak=9000.0)
     (0.3111111111111111, 'fell from its peak')
     """
     if thesis is not None and np.isfinite(thesis):
@@ -150,7 +150,7 @@ def _curve(result: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     return np.array([]), np.array([])
 
 
-def training_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
+def ordered_training_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
     """The deduplicated ``train`` jobs of the figures (all by default) at ``scale``, figure by figure
     (:func:`thesis_repro.runs.needs.needed`, the reference-run generator's own list, in its order: figure by
     figure, each figure's cheapest first)."""
@@ -166,7 +166,7 @@ def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache |
     cache = cache or RunCache()
     thesis = thesis_training_returns()
     rows = []
-    for job in training_jobs(scale, figure_ids):
+    for job in ordered_training_jobs(scale, figure_ids):
         c = job.config
         row: dict[str, Any] = {
             "algo": c["algorithm"],
@@ -183,7 +183,7 @@ def table(scale: str, figure_ids: Iterable[str] | None = None, cache: RunCache |
             continue
         stats = curve_stats(*_curve(result), total=row["timesteps"])
         bound = REWARD_BOUND.get(c["env"], float("inf")) * int(c.get("max_episode_steps") or 1000)
-        fraction, verdict = judge(stats["final"], stats["half"], row["timesteps"], ref, stats["peak"], bound)
+        fraction, verdict = training_verdict(stats["final"], stats["half"], row["timesteps"], ref, stats["peak"], bound)
         rows.append(
             {
                 **row,
@@ -253,7 +253,7 @@ def retrain_cost(scale: str, figure_ids: Iterable[str] | None = None, cache: Run
     return pd.DataFrame(rows)
 
 
-def render(frame: pd.DataFrame) -> str:
+def format_table(frame: pd.DataFrame) -> str:
     """The table as aligned text (``-`` for missing values), with a one-line count of the verdicts."""
     if frame.empty:
         return "no training runs"
@@ -338,7 +338,7 @@ def shipped_cache() -> RunCache:
 def spread_jobs(scale: str, figure_ids: Iterable[str] | None = None) -> list[Job]:
     """Every ``train`` job of the figures (all by default) at ``scale`` and (for all figures) the protocol studies'
     runs (:func:`thesis_repro.runs.study.study_jobs`), deduplicated by key."""
-    jobs: dict[str, Job] = {j.key: j for j in training_jobs(scale, figure_ids)}
+    jobs: dict[str, Job] = {j.key: j for j in ordered_training_jobs(scale, figure_ids)}
     if figure_ids is None:
         jobs.update((j.key, j) for j in study_jobs())
     return list(jobs.values())

@@ -191,7 +191,7 @@ def refuse_training(figure_id: str, scale: str, rates: Rates | None = None) -> i
     if local:
         print(
             f"figure {figure_id}: {local} of its {len(jobs)} training runs come from the local cache "
-            f"{paths.runs()}, not the shipped ones (`python -m thesis_repro runs {figure_id}` lists them)"
+            f"{paths.runs_dir()}, not the shipped ones (`python -m thesis_repro runs {figure_id}` lists them)"
         )
     return local
 
@@ -227,7 +227,7 @@ def _hours(h: float) -> str:
     return f"{h:,.1f} h" if h < 48 else f"{h:,.0f} h ({h / 24:,.1f} days)"
 
 
-def summary(p: Plan) -> str:
+def plan_summary(p: Plan) -> str:
     """The plan's one-line total: jobs, training env steps, core-hours, wall time on its cores."""
     train, other = p.wall_hours()
     return (
@@ -238,10 +238,13 @@ def summary(p: Plan) -> str:
     )
 
 
-def table(rows: Sequence[Mapping[str, str]], columns: Sequence[str] = ("kind", "label", "key", "state", "path")) -> str:
+def text_table(
+    rows: Sequence[Mapping[str, str]], columns: Sequence[str] = ("kind", "label", "key", "state", "path")
+) -> str:
     """Plain-text table of ``rows`` (what ``python -m thesis_repro runs`` prints).
 
-    >>> print(table([{"kind": "train", "label": "ppo__Hopper__s0", "key": "ab12", "state": "shipped", "path": "p"}]))
+    >>> row = {"kind": "train", "label": "ppo__Hopper__s0", "key": "ab12", "state": "shipped", "path": "p"}
+    >>> print(text_table([row]))
     kind   label            key   state    path
     train  ppo__Hopper__s0  ab12  shipped  p
     """
@@ -251,7 +254,7 @@ def table(rows: Sequence[Mapping[str, str]], columns: Sequence[str] = ("kind", "
     return "\n".join(lines)
 
 
-def report(p: Plan, rates: Rates | None = None) -> str:
+def cost_report(p: Plan, rates: Rates | None = None) -> str:
     """Table of ``p``'s lines (kind, family, jobs, work, rate and its source, core-hours) and its summary."""
     rates = rates or load_rates()
     rows = [
@@ -267,10 +270,10 @@ def report(p: Plan, rates: Rates | None = None) -> str:
         for ln in p.lines
     ]
     cols = ("kind", "family", "jobs", "work", "per CPU-s", "rate from", "core-hours")
-    return table(rows, cols) + "\n" + per_seed(p) + summary(p)
+    return text_table(rows, cols) + "\n" + cost_per_seed(p) + plan_summary(p)
 
 
-def per_seed(p: Plan) -> str:
+def cost_per_seed(p: Plan) -> str:
     """One line: jobs and core-hours per training seed (empty when the plan has no seeded job), so a run of
     several seeds can be ordered seed by seed (``reference-runs --seeds 0`` first)."""
     if not any(s is not None for s in p.seeds):

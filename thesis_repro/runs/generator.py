@@ -164,13 +164,13 @@ class _Followers:
 HEARTBEAT_SECONDS = 300.0
 
 
-def progress_line(
+def jobs_progress_line(
     jobs: Sequence[Job], cache: RunCache, elapsed: float, eta: Callable[[Job], float] | None = None
 ) -> str:
     """One line: how far each of ``jobs`` got (env steps of its newest checkpoint / its budget) and, with ``eta``
     (seconds still needed, :func:`eta_seconds`), about how long it has left.
 
-    >>> progress_line([], RunCache(reference=False), 600.0)
+    >>> jobs_progress_line([], RunCache(reference=False), 600.0)
     '  ... 10 min: nothing training'
     """
     from thesis_repro.learners.train import checkpoint_steps  # local: the listing stays importable without torch
@@ -363,7 +363,7 @@ def generate(
     shipped with a verified entry, runs the rest through the local cache ``n_jobs`` at a time (an
     interrupted run resumes from its workdir checkpoint on the next call), exports each finished one into
     the layer and, with ``commit``, commits it as it lands; every ``heartbeat`` seconds without one landing it
-    logs a :func:`progress_line`. Returns the exported runs.
+    logs a :func:`jobs_progress_line`. Returns the exported runs.
 
     A job of a pinned kind (an evaluation, ``--kind evaluate``) is keyed by the shipped entries of its
     dependencies (the training run it evaluates), so a fresh clone finds it: it is computed against the shipped
@@ -383,7 +383,7 @@ def generate(
     """
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     kinds = tuple(check_choice(k, sorted(job_kinds.KINDS), "job kind") for k in kinds)
-    pinned_kinds = tuple(k for k in kinds if job_kinds.pinned(k))
+    pinned_kinds = tuple(k for k in kinds if job_kinds.pins_dependencies(k))
     if pinned_kinds and len(pinned_kinds) < len(kinds):  # training and evaluation in one command: they follow
         kinds = tuple(k for k in kinds if k not in pinned_kinds)
         only = {"algos": algos, "seeds": seeds, "order": order, "item_seeds": item_seeds}
@@ -393,7 +393,7 @@ def generate(
         followers = _Followers(waiting, layer, cache, log)
     else:
         followers = None
-    pinned = any(job_kinds.pinned(k) for k in kinds)
+    pinned = any(job_kinds.pins_dependencies(k) for k in kinds)
     cache = cache or RunCache(reference=layer if pinned else False)  # evaluations load the shipped policies
     by_figure = figure_ids is not None
     if jobs is not None:
@@ -433,7 +433,7 @@ def generate(
         log(line + f" -> {shown(ex.path)}")
         done.append(ex)
         queue.observe(result)
-        if followers is not None and not job_kinds.pinned(p.job.kind):
+        if followers is not None and not job_kinds.pins_dependencies(p.job.kind):
             follow(followers.ready(p.job.key))
 
     failed: list[str] = []
@@ -491,7 +491,7 @@ def generate(
                     started = [futures[f].job for f in in_flight(futures, pending, n_jobs)]
                     running = [j for j in started if cache.workdir(j).exists()]  # workers still importing: none
                     if not finished and running:
-                        log(progress_line(running, cache, time.time() - t0, queue.eta))
+                        log(jobs_progress_line(running, cache, time.time() - t0, queue.eta))
                     for fut in finished:
                         landed += 1
                         land(landed, futures[fut], fut.result())

@@ -1,10 +1,11 @@
 """Where every figure's runs are, and the shipped layer they are copied into.
 
-* :func:`rows` / :func:`table`: a figure's jobs with their kind, label, key, state (``cached`` in the
-  local cache, ``shipped`` in ``data/reference``, ``corrupt`` = either of them failing its manifest, to be
-  recomputed, ``partial`` = interrupted and resumable, ``missing``) and path — ``python -m thesis_repro
-  runs 3.3 --scale small``; :func:`record` writes the same rows to ``build/<scale>/figures/fig-3.3.runs.json``
-  after a notebook ran; :func:`summary` is the one line a notebook prints.
+* :func:`run_rows`: a figure's jobs with their kind, label, key, state (``cached`` in the local cache,
+  ``shipped`` in ``data/reference``, ``corrupt`` = either of them failing its manifest, to be recomputed,
+  ``partial`` = interrupted and resumable, ``missing``) and path — ``python -m thesis_repro runs 3.3 --scale
+  small`` prints them (:func:`thesis_repro.runs.costs.text_table`); :func:`write_run_rows` writes the same rows
+  to ``build/<scale>/figures/fig-3.3.runs.json`` after a notebook ran; :func:`summary` is the one line a
+  notebook prints.
 * :func:`export`: compact copy of a finished training entry into the shipped layer (policy weights,
   obs filter, curves, snapshots, config, provenance; never optimiser state, full SB3 models or replay
   buffers) with a fresh manifest; :func:`entries` lists a layer's entries, :func:`wall_seconds` reads what one
@@ -47,7 +48,7 @@ from thesis_repro.core.cache import (
 from thesis_repro.core.compact import is_compact, read_arrays, same_arrays, write_compact
 from thesis_repro.core.paths import shown
 
-#: States of a job in :func:`rows`.
+#: States of a job in :func:`run_rows`.
 STATES: tuple[str, ...] = ("cached", "shipped", "corrupt", "partial", "missing")
 #: Artefacts never shipped (glob patterns on file or folder names): full SB3 models and VecNormalize
 #: pickles (optimiser state, env references), replay buffers, resumable checkpoints, optimiser dumps.
@@ -128,7 +129,7 @@ def rows_summary(rows: Sequence[Mapping[str, str]], listed: int = 5) -> str:
     return "\n".join(lines)
 
 
-def rows(figure_id: str, scale: str, cache: RunCache | None = None, verify: bool = True) -> list[dict[str, str]]:
+def run_rows(figure_id: str, scale: str, cache: RunCache | None = None, verify: bool = True) -> list[dict[str, str]]:
     """One row per job figure ``figure_id`` runs at ``scale`` (training jobs first); ``verify``: see
     :func:`job_state`."""
     cache = cache or RunCache()
@@ -156,10 +157,10 @@ def summary(jobs: Iterable[Job], cache: RunCache | None = None, verify: bool = F
 
 def runs_json(figure_id: str, scale: str) -> Path:
     """``build/<scale>/figures/fig-X.Y.runs.json``."""
-    return paths.figures(scale) / f"{figures.get(figure_id).notebook_id}.runs.json"
+    return paths.figures_dir(scale) / f"{figures.get(figure_id).notebook_id}.runs.json"
 
 
-def record(figure_id: str, scale: str, cache: RunCache | None = None) -> Path | None:
+def write_run_rows(figure_id: str, scale: str, cache: RunCache | None = None) -> Path | None:
     """Write the run rows of ``figure_id`` at ``scale`` to :func:`runs_json`; ``None`` if it is not a registered
     figure (nothing to record)."""
     try:
@@ -328,7 +329,7 @@ def shipped_entries(layer_root: str | Path | None = None) -> list[Path]:
 
 def local_entries(root: str | Path | None = None) -> list[Path]:
     """Every committed entry folder of the local run cache (``paths.runs()`` unless ``root``)."""
-    return entries(root if root is not None else paths.runs())
+    return entries(root if root is not None else paths.runs_dir())
 
 
 def wall_seconds(result: Result) -> float:

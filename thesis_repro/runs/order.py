@@ -12,7 +12,7 @@ its target seed count, whatever its early seeds show.
 items to :data:`CH5_TARGET_SEEDS`, and the chapter-4 items only where one of their claims can be settled at the
 requested seed count; a claim no seed was judged on (such as one resting only on kl_avg, whose every run
 diverged) is skipped with the ledger's own reason. ``python -m thesis_repro plan order --scale small --seeds 3 4 5``
-prints it (:func:`report`); ``reference-runs --order claims`` makes the items in that order, item by item.
+prints it (:func:`order_report`); ``reference-runs --order claims`` makes the items in that order, item by item.
 
 >>> items = [Item("a", 6, {"k1": 2.0}), Item("b", 6, {"k2": 1.0}), Item("c", 6, {"k1": 2.0, "k3": 0.5})]
 >>> claims = [Claim("a-1", ("a",), 3), Claim("a-2", ("a",), 5), Claim("b-1", ("b",), 12), Claim("c-1", ("c",), 6)]
@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from thesis_repro import figures
-from thesis_repro.runs.costs import core_hours, table, to_compute
+from thesis_repro.runs.costs import core_hours, text_table, to_compute
 from thesis_repro.runs.needs import CH5_TARGET_SEEDS, seed_count, seed_jobs
 from thesis_repro.runs.throughput import Rates, job_rate, work
 
@@ -242,7 +242,7 @@ def confirmatory_plan(
     return OrderPlan(scale, seeds, ranked, left_out, skipped, unsettled, states)
 
 
-def report(p: OrderPlan) -> str:
+def order_report(p: OrderPlan) -> str:
     """The plan as a table (rank, item, seeds, state, claims it can settle, core-hours, claims per core-hour,
     running total), then the items made but not read yet, the items left out and the claims skipped, each with
     why."""
@@ -267,7 +267,7 @@ def report(p: OrderPlan) -> str:
     lines = [
         f"the generator's order at {p.scale} for seeds {' '.join(map(str, p.seeds))}: claims settled per core-hour "
         "(the order decides what runs first, never what is judged; every item is made to its target)",
-        table(rows, cols),
+        text_table(rows, cols),
         f"{len(p.ranked)} items, {total:,.1f} core-hours; {settled} claims can be settled",
     ]
     made = [f for f, state in p.states.items() if state == "made"]

@@ -15,7 +15,7 @@ per-iteration diagnostics. :func:`pilot_table` turns it into the book's table.
     python -m thesis_repro.runs.pilots ch4-readings --summary                                # only write the summary
     python -m thesis_repro.runs.pilots ch4-readings --grid [--price] [--until HH:MM] [--jobs 2] [--commit]
 
-``--grid`` makes the readings' grid runs (:func:`grid_jobs`): every reading whose pilot trains and differs from
+``--grid`` makes the readings' grid runs (:func:`readings_grid_jobs`): every reading whose pilot trains and differs from
 params_avg (:func:`grid_algos`), on every chapter-4 item that judges the readings, at `small`'s seeds, through the
 reference-run generator (resumable, shipped as they land); ``--price`` prints their cost instead. The items list
 them once they are shipped (``algos`` in ``config/scales.yaml``), so no page trains them.
@@ -102,16 +102,17 @@ def grid_algos(doc: Mapping[str, Any]) -> list[str]:
     return [a for a in keep["learner"] if a in reading_ids() and a not in have]
 
 
-def grid_jobs(scale: str, algos: Sequence[str]) -> list[Queued]:
+def readings_grid_jobs(scale: str, algos: Sequence[str]) -> list[Queued]:
     """The jobs of ``algos`` on every :data:`GRID_ITEMS` item at ``scale`` (the item's own settings and seeds, so
     each is the job the item makes once it lists the learner), deduplicated; the training runs item by item, the
     items with the fewest runs first (an item is judged once all its runs are shipped), each item's runs cheapest
-    first; then the evaluations."""
+    first; then the evaluations. Items the figure registry does not hold are left out."""
+    held = [f for f in GRID_ITEMS if f in figures.ids()]
     out: dict[str, Queued] = {}
-    for fid in GRID_ITEMS:
+    for fid in held:
         for job in figures.jobs(fid, scale, algos=list(algos)):
             out.setdefault(job.key, Queued(job)).figures.append(figures.get(fid).notebook_id)
-    items = [figures.get(f).notebook_id for f in GRID_ITEMS]
+    items = [figures.get(f).notebook_id for f in held]
     runs = {f: sum(p.job.kind == "train" and p.figures[0] == f for p in out.values()) for f in items}
     first = {f: (n, i) for i, (f, n) in enumerate(runs.items())}
     return sorted(out.values(), key=lambda p: (p.job.kind != "train", first[p.figures[0]], p.cost, p.job.label))
@@ -508,7 +509,7 @@ What the pilots say, reading by reading:
 """
 
 
-def write_page(name: str) -> Path:
+def write_pilot_page(name: str) -> Path:
     """Render pilot set ``name``'s page from its summary into ``book/`` (:data:`PAGES`)."""
     out = paths.BOOK / PAGES[name]
     out.write_text(render_page(name, load_summary(name)))
@@ -545,12 +546,12 @@ def main(argv: list[str] | None = None) -> int:
             write_summary(args.name, everything, cache)
     print(paths.shown(write_summary(args.name, everything, cache)))
     if args.name in PAGES:
-        print(paths.shown(write_page(args.name)))
+        print(paths.shown(write_pilot_page(args.name)))
     return 0
 
 
 def _grid(args: argparse.Namespace) -> int:
-    """``--grid``: price or make the readings' grid runs (:func:`grid_jobs`) at `small`."""
+    """``--grid``: price or make the readings' grid runs (:func:`readings_grid_jobs`) at `small`."""
     from thesis_repro.core.provenance import claims_design, platform_info
     from thesis_repro.runs import costs, generator, throughput
     from thesis_repro.runs.budget_study import check_design
@@ -559,12 +560,12 @@ def _grid(args: argparse.Namespace) -> int:
     if not args.price:
         check_design(claims_design())  # judged under design v3, frozen before the first grid run
     algos = grid_algos(load_summary(args.name))
-    planned = grid_jobs("small", algos)
+    planned = readings_grid_jobs("small", algos)
     rates = throughput.shipped_rates(by_env=True, machine=platform_info())
     if args.price:
         todo = costs.to_compute([p.job for p in planned])
         print(f"readings to the grid (stable and distinct in their pilots): {', '.join(algos) or 'none'}")
-        print(costs.report(costs.plan_jobs(f"{args.name} grid", todo, "small", 2, rates), rates))
+        print(costs.cost_report(costs.plan_jobs(f"{args.name} grid", todo, "small", 2, rates), rates))
         return 0
     until = generator.parse_until(args.until) if args.until is not None else None
     kinds = ("train", "evaluate")

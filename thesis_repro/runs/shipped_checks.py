@@ -64,7 +64,7 @@ def current_keys(
         for j in figures.jobs(fid, scale, **seed_count(fid, scale, seeds)):
             if kinds is None or j.kind in kinds:
                 keys.add(j.key)
-                if job_kinds.pinned(j.kind) and (bound := shipped_view.bind(j)) is not None:
+                if job_kinds.pins_dependencies(j.kind) and (bound := shipped_view.bind(j)) is not None:
                     keys.add(bound.key)
     return keys
 

@@ -2,7 +2,7 @@
 current though no page lists their learners yet.
 
 * the thesis-budget study (:func:`thesis_repro.runs.budget_study.study_keys`);
-* chapter 4's readings grid (:func:`thesis_repro.runs.pilots.grid_jobs`): the readings that train and differ
+* chapter 4's readings grid (:func:`thesis_repro.runs.pilots.readings_grid_jobs`): the readings that train and differ
   from params_avg in their pilots, on every chapter-4 item registered;
 * with ``protocol``, the protocol studies (:func:`thesis_repro.runs.study.study_jobs`).
 
@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from thesis_repro import figures
 from thesis_repro.core import job_kinds, paths
 from thesis_repro.core.cache import RunCache
 from thesis_repro.runs import budget_study, pilots
@@ -33,11 +32,10 @@ def grid_keys(scale: str, layer: Path) -> set[str]:
     algos = pilots.grid_algos(json.loads(summary.read_text()))
     view = RunCache(layer, reference=False)
     keys: set[str] = set()
-    for fid in (f for f in pilots.GRID_ITEMS if f in figures.ids()):
-        for job in figures.jobs(fid, scale, algos=algos):
-            keys.add(job.key)
-            if job_kinds.pinned(job.kind) and (bound := view.bind(job)) is not None:
-                keys.add(bound.key)
+    for job in (q.job for q in pilots.readings_grid_jobs(scale, algos)):
+        keys.add(job.key)
+        if job_kinds.pins_dependencies(job.kind) and (bound := view.bind(job)) is not None:
+            keys.add(bound.key)
     return keys
 
 

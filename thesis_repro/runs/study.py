@@ -293,7 +293,7 @@ def sensitivity(name: str) -> Sensitivity | None:
     return STUDIES[name]()
 
 
-def summary(jobs: Sequence[Job], cache: RunCache | None = None, spec: StudySpec | None = None) -> str:
+def study_table(jobs: Sequence[Job], cache: RunCache | None = None, spec: StudySpec | None = None) -> str:
     """Markdown table: final training return (mean of the last 100 episodes) and the peak of the training
     curve, mean ± sd over the seeds per task and setting value of ``spec`` (default: the lr-schedule study),
     then each task's Welch contrast (:func:`schedule_effects`, the numbers the claims ledger reads); runs
@@ -392,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
     jobs = spec.jobs()
     if not args.summary:
         produce(jobs, args.jobs, ship=args.ship or args.commit, commit=args.commit, spec=spec)
-    print(summary(jobs, spec=spec))
+    print(study_table(jobs, spec=spec))
     return 0
 
 

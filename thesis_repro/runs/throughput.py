@@ -66,7 +66,7 @@ ARM_DEFAULT_POPSIZE = 16
 
 def throughput_path() -> Path:
     """``build/bench/throughput.json`` (under ``THESIS_REPRO_BUILD`` if set)."""
-    return paths.build("bench") / "throughput.json"
+    return paths.build_dir("bench") / "throughput.json"
 
 
 def family(job: Job) -> str:
@@ -153,7 +153,7 @@ class Rates:
 
 
 def throughput_from_bench(results: Mapping[str, Mapping[str, Any] | None]) -> dict[str, float]:
-    """Steps (or rollouts) per CPU-second per family from the results of :func:`thesis_repro.core.bench.run`.
+    """Steps (or rollouts) per CPU-second per family from the results of :func:`thesis_repro.core.bench.run_benchmarks`.
 
     >>> throughput_from_bench({"training": {"ppo kit steps/s": 900.0}, "multidomain": {"joint steps/s": 700.0}})
     {'ppo': 900.0, 'joint': 700.0, 'multidomain': 700.0}
