@@ -21,7 +21,7 @@ folder ``.tmp-<key>-<pid>``, then ``os.replace``; one left by a dead process is 
 entry whose files do not match its manifest is reported as corrupt, removed and recomputed. A per-entry
 lock makes concurrent processes safe: the second waits and then reuses the first one's result.
 
-Lookup order: the local cache (``paths.runs()``), then the shipped read-only layer of reference runs
+Lookup order: the local cache (``paths.runs_dir()``), then the shipped read-only layer of reference runs
 (``paths.reference()``, ignored when ``THESIS_REPRO_RETRAIN=1``). A shipped entry is verified against its
 manifest too; a corrupt one is reported and recomputed into the local cache, never used and never deleted.
 ``Result.source`` says where a result came from: ``"computed"``, ``"cached"`` or ``"shipped"``.
@@ -461,7 +461,7 @@ def single_threaded() -> Iterator[None]:
 
 
 class RunCache:
-    """The on-disk cache (``paths.runs()`` unless ``root`` is given) over the shipped read-only layer.
+    """The on-disk cache (``paths.runs_dir()`` unless ``root`` is given) over the shipped read-only layer.
 
     ``reference=True`` consults ``paths.reference()`` unless ``THESIS_REPRO_RETRAIN=1``; a path consults
     that folder; ``False`` disables the layer.

@@ -80,7 +80,7 @@ def _memo_version() -> str:
 
 def _memo_dir() -> Path:
     """Where computed hashes are kept between processes: ``<build folder>/.stamps/<version>``."""
-    return paths.build(".stamps") / _memo_version()
+    return paths.build_dir(".stamps") / _memo_version()
 
 
 _MEMO_VALUE = re.compile(r"(bytes:)?[0-9a-f]{16}|[0-9a-f]{64}")

@@ -328,7 +328,7 @@ def shipped_entries(layer_root: str | Path | None = None) -> list[Path]:
 
 
 def local_entries(root: str | Path | None = None) -> list[Path]:
-    """Every committed entry folder of the local run cache (``paths.runs()`` unless ``root``)."""
+    """Every committed entry folder of the local run cache (``paths.runs_dir()`` unless ``root``)."""
     return entries(root if root is not None else paths.runs_dir())
 
 

@@ -161,6 +161,6 @@ def verify_shipped(layer_root: str | Path | None = None) -> dict[Path, str]:
 
 
 def verify_local(root: str | Path | None = None) -> dict[Path, str]:
-    """Local run-cache entries (``paths.runs()`` unless ``root``) that fail their manifest, with the reason
+    """Local run-cache entries (``paths.runs_dir()`` unless ``root``) that fail their manifest, with the reason
     (the cache removes and recomputes such an entry when a figure next needs it)."""
     return {p: why for p in local_entries(root) if (why := corrupt(p)) is not None}
