@@ -122,7 +122,7 @@ def plain_math(text: str) -> str:
 @cache
 def claims() -> dict[str, dict[str, Any]]:
     """The thesis's caption and claims per page id, from ``data/thesis/claims.yaml``."""
-    return yamlfile.load((paths.THESIS_DATA / "claims.yaml").read_text())
+    return yamlfile.parse((paths.THESIS_DATA / "claims.yaml").read_text())
 
 
 def title(page: str) -> str:

@@ -52,7 +52,7 @@ TITLE = "Protocol: thesis beside kit"
 @cache
 def rows(path: str | Path | None = None) -> tuple[dict[str, Any], ...]:
     """The rows of the protocol file, checked (unknown keys, statuses and missing fields are errors)."""
-    data = yamlfile.load(Path(path or PROTOCOL_FILE).read_text())
+    data = yamlfile.parse(Path(path or PROTOCOL_FILE).read_text())
     out = data.get("rows") if isinstance(data, dict) else None
     if not out:
         raise ValueError(f"{path or PROTOCOL_FILE}: expected a `rows:` list")
@@ -86,14 +86,14 @@ def _flat(prefix: str, value: Any, whole: Iterable[str] = ()) -> Iterable[str]:
 def hyperparams_ids(table: Mapping[str, Any] | None = None) -> set[str]:
     """``hp:<entry>:<path>`` for every key each entry of hyperparams.yaml defines itself."""
     if table is None:
-        table = yamlfile.load((paths.CONFIG / "hyperparams.yaml").read_text())
+        table = yamlfile.parse((paths.CONFIG / "hyperparams.yaml").read_text())
     return {i for entry, body in table.items() for i in _flat(f"hp:{entry}:", body)}
 
 
 def scales_ids(table: Mapping[str, Any] | None = None) -> set[str]:
     """``scales:<figure | defaults>/<path>`` for every setting of scales.yaml (all scales)."""
     if table is None:
-        table = yamlfile.load((paths.CONFIG / "scales.yaml").read_text())
+        table = yamlfile.parse((paths.CONFIG / "scales.yaml").read_text())
     ids: set[str] = set()
     for block in table.get("defaults", {}).values():
         ids |= set(_flat("scales:defaults/", block, _WHOLE))

@@ -51,7 +51,7 @@ class Spec:
 @cache
 def registry() -> dict[str, Any]:
     """``data/thesis/claims.yaml`` as loaded."""
-    return yamlfile.load((paths.THESIS_DATA / "claims.yaml").read_text())
+    return yamlfile.parse((paths.THESIS_DATA / "claims.yaml").read_text())
 
 
 @cache

@@ -449,7 +449,7 @@ def seeds_note(more: Mapping[str, Mapping[str, int]]) -> str:
 
 def scale_rows() -> str:
     """The README's scale table, from ``thesis_repro/config/scales.yaml``, and the items that read more seeds."""
-    descriptions = yamlfile.load((paths.CONFIG / "scales.yaml").read_text())["scales"]
+    descriptions = yamlfile.parse((paths.CONFIG / "scales.yaml").read_text())["scales"]
     table = scales_table({s: scales.figure_settings("_example", s) for s in scales.SCALES}, descriptions)
     note = seeds_note({s: more_seeds(s) for s in scales.SCALES})
     return f"{table}\n\n{note}" if note else table

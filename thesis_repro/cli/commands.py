@@ -689,7 +689,7 @@ def notebook_parameters(pairs: list[list[str]], scale: str) -> dict[str, Any]:
     params: dict[str, Any] = {}
     for name, text in pairs:
         try:
-            params[name] = yamlfile.load(text)
+            params[name] = yamlfile.parse(text)
         except yaml.YAMLError:
             params[name] = text
     return notebooks.check_parameters(params, scale)

@@ -29,7 +29,7 @@ NOT_RUN = "not run at this scale"
 @cache
 def _table() -> dict[str, Any]:
     with open(paths.CONFIG / "scales.yaml") as fh:
-        table = yamlfile.load(fh)
+        table = yamlfile.parse(fh)
     for key in ("scales", "defaults", "figures"):
         if key not in table:
             raise ValueError(f"scales.yaml is malformed: missing top-level key {key!r}")

@@ -132,7 +132,7 @@ def _parsed_hash(suffix: str, data: bytes) -> str:
             if suffix == ".json":
                 value = json.loads(data)
             else:
-                value = yamlfile.load(data)
+                value = yamlfile.parse(data)
             data = json.dumps(value, sort_keys=True, default=str).encode()
         except ValueError:
             pass

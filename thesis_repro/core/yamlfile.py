@@ -4,7 +4,7 @@ The scale table, the hyperparameters and the thesis's claims are read by every n
 C parser reads them about five times faster than PyYAML's pure-Python one and gives the same values (both are
 YAML 1.1 safe loaders; a test compares them on every YAML file of the kit).
 
->>> load("a: [1, 2.5, x]")
+>>> parse("a: [1, 2.5, x]")
 {'a': [1, 2.5, 'x']}
 """
 
@@ -18,6 +18,6 @@ import yaml
 LOADER: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
-def load(text: str | bytes) -> Any:
+def parse(text: str | bytes) -> Any:
     """The value of the YAML document ``text`` (safe: plain data only)."""
     return yaml.load(text, Loader=LOADER)  # noqa: S506 - a safe loader

@@ -33,7 +33,7 @@ AGENT = "your agent"
 @cache
 def default_sigmas() -> tuple[float, ...]:
     """The thesis-scale testing grid (``defaults.full.sigmas`` of ``config/scales.yaml``)."""
-    table = yamlfile.load((paths.CONFIG / "scales.yaml").read_text())
+    table = yamlfile.parse((paths.CONFIG / "scales.yaml").read_text())
     return tuple(float(s) for s in table["defaults"]["full"]["sigmas"])
 
 

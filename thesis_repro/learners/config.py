@@ -85,7 +85,7 @@ ARPL_DELTAS: tuple[str, ...] = ("gradient", "rescaled")
 @cache
 def _raw() -> dict[str, Any]:
     with open(paths.CONFIG / "hyperparams.yaml") as fh:
-        table = yamlfile.load(fh)
+        table = yamlfile.parse(fh)
     if not isinstance(table, dict) or not table:
         raise ValueError("hyperparams.yaml must map algorithm names to entries")
     return table
