@@ -28,7 +28,6 @@
 SCALE = "small"
 
 # %%
-import matplotlib.pyplot as plt
 import seaborn as sns
 
 from thesis_repro import claims, figures
@@ -46,7 +45,7 @@ heat = ch4.evaluate_runs(runs, "shift", grid, settings["test_rollouts"], n_jobs=
 
 # %%
 algos = ch4.algo_names(settings)
-fig, axes = plt.subplots(1, 1 + len(algos), figsize=(4 * (1 + len(algos)), 3.6))
+fig, axes = plot.panel_grid(1 + len(algos))
 sns.lineplot(
     data=wind, x="value", y="return", hue="algo", hue_order=algos, marker="o", errorbar=tables.t_errorbar, ax=axes[0]
 )

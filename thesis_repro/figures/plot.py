@@ -29,6 +29,24 @@ def save(fig: plt.Figure, scale: str, name: str, dpi: int = 100) -> None:
     print("saved", out)
 
 
+def panel_grid(n: int, ncols: int = 4, panel: tuple[float, float] = (4.0, 3.6)) -> tuple[plt.Figure, list[plt.Axes]]:
+    """A figure of ``n`` panels of size ``panel`` (inches), at most ``ncols`` to a row (a row of seven panels is
+    wider than any page); the unused axes of the last row are hidden.
+
+    >>> fig, axes = panel_grid(7)
+    >>> len(axes), fig.get_size_inches().tolist()
+    (7, [16.0, 7.2])
+    >>> plt.close(fig)
+    """
+    cols = min(n, ncols)
+    rows = -(-n // cols)
+    fig, grid = plt.subplots(rows, cols, figsize=(panel[0] * cols, panel[1] * rows), squeeze=False)
+    flat = list(grid.ravel())
+    for ax in flat[n:]:
+        ax.set_visible(False)
+    return fig, flat[:n]
+
+
 #: Label offsets tried in turn (points; right/above first), each with its horizontal and vertical alignment.
 _LABEL_SPOTS = (
     ((3, 3), "left", "bottom"),
