@@ -244,3 +244,22 @@ def test_shipped_rates_are_the_median_pace_of_the_shipped_runs_per_family(tmp_pa
     assert main(["plan", "3.3", "--rates", "fast"]) == 2
     err = capsys.readouterr().err
     assert "invalid choice: 'fast' (choose from 'bench', 'shipped')" in err and err.count("\n") == 1
+
+
+def test_a_cpu_pace_elsewhere_beats_this_cpus_wall_pace(tmp_path):
+    """This machine's SAC runs all predate CPU timing and read a third of the pace in wall seconds; CPU-timed runs
+    made on another CPU price the family (a wall pace reads the share of a core the run got, not the code)."""
+    intel, amd = {"cpu": "Intel Xeon", "isa": ["avx2"]}, {"cpu": "AMD EPYC", "isa": ["avx2"]}
+    sac = train_config("sac", "Hopper", 0, 1000)
+    for i, pace in enumerate([150.0, 160.0, 200.0]):
+        _ship(tmp_path, f"intel{i}", sac, pace, intel)
+    _ship(tmp_path, "amd0", sac, 430.0, amd, cpu_pace=440.0)
+    one = throughput.shipped_rates(tmp_path, throughput.load_rates(), machine=intel)
+    assert one.rate("sac") == 160.0 and one.source("sac") == "shipped pace on this CPU, median of 3"
+    _ship(tmp_path, "amd1", sac, 450.0, amd, cpu_pace=460.0)
+    two = throughput.shipped_rates(tmp_path, throughput.load_rates(), machine=intel)
+    assert two.rate("sac") == 450.0 and two.source("sac") == "shipped pace, CPU-timed, median of 2"
+    _ship(tmp_path, "intel-timed0", sac, 300.0, intel, cpu_pace=380.0)
+    _ship(tmp_path, "intel-timed1", sac, 310.0, intel, cpu_pace=400.0)
+    three = throughput.shipped_rates(tmp_path, throughput.load_rates(), machine=intel)
+    assert three.rate("sac") == 390.0 and three.source("sac") == "shipped pace on this CPU, CPU-timed, median of 2"

@@ -250,8 +250,10 @@ def shipped_rates(
     With ``machine`` (this machine's :func:`~thesis_repro.core.provenance.platform_info`), a rate that at least
     :data:`MIN_LOCAL_RUNS` runs made on that platform give is their median alone: one CPU kept half another's pace
     on the same runs (chapter 4's Walker2d runs: Intel Xeon vs AMD EPYC), and a deadline (``--until``) must not
-    start a run it cannot finish. Then, among those runs, the CPU-timed ones alone where at least
-    :data:`MIN_LOCAL_RUNS` recorded CPU time: a wall pace reads the share of a core the run got, not the run. For
+    start a run it cannot finish. A CPU pace comes first, though: where at least :data:`MIN_LOCAL_RUNS` runs recorded
+    CPU time, their median alone (this CPU's, else every CPU's), since a wall pace reads the share of a core the run
+    got, not the run (this Xeon's SAC runs, all wall-timed, read 148-456 steps per wall second; the CPU-timed ones
+    on another CPU 389-575 per CPU-second). For
     the same reason a task whose runs give only a wall pace, in a family that has a CPU-timed rate, has no rate of
     its own: its jobs are priced at the family's (SAC's 160 wall steps/s on HalfCheetah against 469 per CPU-second).
 
@@ -283,11 +285,13 @@ def shipped_rates(
     cpu_timed: set[str] = set()  # keys whose rate is CPU-seconds' pace
     for key, runs in paces.items():
         mine = [r for r in runs if r.mine]
-        where = " on this CPU" if len(mine) >= MIN_LOCAL_RUNS else ""
-        runs = mine if where else runs
-        timed = [r for r in runs if r.timed]
-        how = ", CPU-timed" if len(timed) >= MIN_LOCAL_RUNS else ""
-        runs = timed if how else runs
+        choices = (  # in order of preference: a CPU pace before a wall pace, then this CPU's runs before others'
+            ([r for r in mine if r.timed], " on this CPU", ", CPU-timed"),
+            ([r for r in runs if r.timed], "", ", CPU-timed"),
+            (mine, " on this CPU", ""),
+            (runs, "", ""),
+        )
+        runs, where, how = next(c for c in choices if len(c[0]) >= MIN_LOCAL_RUNS or c[0] is runs)
         if how:
             cpu_timed.add(key)
         rates[key] = float(statistics.median(r.pace for r in runs))
