@@ -194,11 +194,13 @@ def load_summary(name: str) -> dict[str, Any]:
     return json.loads(path.read_text())
 
 
-def diverged(returns: Sequence[float | None], entropy: Sequence[float | None]) -> bool:
+def pilot_diverged(returns: Sequence[float | None], entropy: Sequence[float | None]) -> bool:
     """:data:`DIVERGED_FRACTION`'s rule on one run's per-iteration return and entropy.
 
-    >>> diverged([1.0, 50.0, 100.0, 120.0, 130.0, 140.0], [1.0] * 6), diverged([50.0, 100, 90] + [1.0] * 9, [1.0] * 12)
-    (False, True)
+    >>> pilot_diverged([1.0, 50.0, 100.0, 120.0, 130.0, 140.0], [1.0] * 6)
+    False
+    >>> pilot_diverged([50.0, 100, 90] + [1.0] * 9, [1.0] * 12)
+    True
     """
     r = pd.Series(np.asarray(returns, dtype=float)).rolling(5, min_periods=1).mean().to_numpy()
     ent = np.asarray(entropy, dtype=float)
@@ -235,7 +237,7 @@ def pilot_table(doc: Mapping[str, Any]) -> pd.DataFrame:
             departure = _median(list(np.where(spread > 0, kl / np.where(spread > 0, spread, 1.0), np.nan)))
         limits = ((median_frac, REDUCES_BELOW), (departure, SAME_AS_PARAMS_AVG))
         small = [v <= limit for v, limit in limits if np.isfinite(v)]
-        bad = diverged(s["return"], s["entropy"])
+        bad = pilot_diverged(s["return"], s["entropy"])
         full = p.get("full_run")
         same = None
         if full is not None:

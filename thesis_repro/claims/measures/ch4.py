@@ -95,7 +95,7 @@ def _retained(frame: pd.DataFrame, nominal: Callable[[pd.DataFrame], pd.Series],
 
 
 def learned_only(retained: pd.DataFrame, curves: pd.DataFrame | None, ours: str | None = None) -> pd.DataFrame:
-    """``retained`` with the value of every run that diverged in training (:func:`diverged_runs`, Fig 4.7's rule)
+    """``retained`` with the value of every run that diverged in training (:func:`diverged`, Fig 4.7's rule)
     set to NaN, so its unit is *undecided*: what a diverged policy keeps of its own near-zero nominal return
     says nothing about generalisation. Without ``curves``: ``retained`` as is. With ``ours``: inconclusive
     when no run of ``ours`` is left to judge.
@@ -109,7 +109,7 @@ def learned_only(retained: pd.DataFrame, curves: pd.DataFrame | None, ours: str 
     if curves is None:
         return retained
     keys = ["algo", "panel", "seed"]
-    div = diverged_runs(curves)
+    div = diverged(curves)
     bad = {tuple(k) for k in div.loc[div["diverged"], keys].astype(str).itertuples(index=False)}
     hit = [tuple(k) in bad for k in retained[keys].astype(str).itertuples(index=False)]
     out = retained.copy()
@@ -157,7 +157,7 @@ def _ours(frame: pd.DataFrame, spec: Mapping[str, Any]) -> str:
 
 
 def learned_curves(curves: pd.DataFrame, ours: str) -> pd.DataFrame:
-    """``curves`` without the runs that diverged in training (:func:`diverged_runs`, Fig 4.7's rule), for every learner:
+    """``curves`` without the runs that diverged in training (:func:`diverged`, Fig 4.7's rule), for every learner:
     a claim reads no diverged run (design v3's ``drop_diverged``). Inconclusive, worded :data:`DIVERGED`, when no
     run of ``ours`` is left.
 
@@ -166,7 +166,7 @@ def learned_curves(curves: pd.DataFrame, ours: str) -> pd.DataFrame:
     >>> sorted(set(learned_curves(c, "a")["algo"]))
     ['a']
     """
-    div = diverged_runs(curves)
+    div = diverged(curves)
     ok = div.loc[~div["diverged"], ["algo", "panel", "seed"]]
     out = curves.merge(ok, on=["algo", "panel", "seed"])
     if ours not in set(out["algo"]):
@@ -243,7 +243,7 @@ def _ch4_noise(data: Data, spec: Mapping[str, Any]) -> Groups:
     return {"": [_vs_baselines(r, "retained", ours, f"{k} panel {p}", noise=k, panel=p) for k, p in keys]}
 
 
-def diverged_runs(curves: pd.DataFrame, fraction: float = 0.5) -> pd.DataFrame:
+def diverged(curves: pd.DataFrame, fraction: float = 0.5) -> pd.DataFrame:
     """Per (algo, panel, seed): did the run diverge (late return below ``fraction`` of its own peak, smoothed
     over 5 iterations, or a non-finite return / entropy)?"""
     rows = []
@@ -263,7 +263,7 @@ def _ch4_entropy(data: Data, spec: Mapping[str, Any]) -> Groups:
     """Fig 4.7: final policy entropy above each baseline's, over runs that did not diverge only."""
     cur = data["curves"]
     ours = _ours(cur, spec)
-    div = diverged_runs(cur)
+    div = diverged(cur)
     ok = div[~div["diverged"]][["algo", "panel", "seed"]]
     final = cur[cur["iteration"] == cur["iteration"].max()].merge(ok, on=["algo", "panel", "seed"])
     if ours not in set(final["algo"]):
