@@ -194,3 +194,28 @@ def ball_in_cup(ax: plt.Axes, rollout: Mapping[str, Any], title: str, cup_radius
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=9)
     ax.set_xlabel("x (m)")
+
+
+def budget_curve(
+    ax: plt.Axes, cells: pd.DataFrame, summary: pd.DataFrame, thesis: tuple[int, int], title: str = ""
+) -> None:
+    """r against training budget (:func:`thesis_repro.figures.ch3.budget_correlations` and ``budget_summary``): one
+    thin line per (task, test) cell (the thesis's statistic), the pooled r in black, each budget's ``k/n`` runs on
+    the axis and the thesis's share of negative cells beside the legend."""
+    millions = summary["steps"].to_numpy(float) / 1e6
+    for (env, test), g in cells.groupby(["env", "test"], sort=False):
+        g = g.sort_values("steps")
+        ax.plot(g["steps"] / 1e6, g["r"], marker=".", lw=0.8, alpha=0.6, label=f"{env}/{test}")
+    ax.plot(millions, summary["pooled_r"], "k-o", lw=2, label="pooled r (seed-keyed)")
+    ax.axhline(0.0, color="grey", lw=0.8)
+    ax.set(xlabel="training budget (M env steps)", ylabel="r (testing AUC vs training return)", ylim=(-1.05, 1.05))
+    ax.set_xticks(
+        millions,
+        [f"{m:g}M\n{k}/{n} runs" for m, k, n in zip(millions, summary["runs"], summary["runs_total"], strict=True)],
+    )
+    neg = [f"{a}/{b}" if b else "-" for a, b in zip(summary["negative"], summary["cells"], strict=True)]
+    ax.set_title(title or f"cells with r < 0: {', '.join(neg)} (thesis {thesis[0]}/{thesis[1]})")
+    if len(cells):
+        ax.legend(fontsize=7, ncol=2, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    else:
+        ax.text(0.5, 0.5, "no study run computed yet", ha="center", va="center", transform=ax.transAxes)

@@ -39,13 +39,22 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from thesis_repro import figures
 from thesis_repro.core import job_kinds, paths, scales
 from thesis_repro.core.cache import Job, Result, RunCache
 from thesis_repro.core.validation import check_choice
-from thesis_repro.evaluation import Benchmark, benchmark_jobs
-from thesis_repro.figures.ch3 import learner_timesteps, timesteps_for, variants
+from thesis_repro.evaluation import Benchmark, auc, benchmark_jobs, expected_return
+from thesis_repro.figures.ch3 import (
+    BUDGET_POINTS,
+    budget_correlations,
+    budget_summary,
+    learner_timesteps,
+    timesteps_for,
+    training_return_at,
+    variants,
+)
 from thesis_repro.learners.config import rollout_steps, snapshot_at_steps, train_config
 from thesis_repro.runs.costs import core_hours
 from thesis_repro.runs.generator import Queued
@@ -441,3 +450,112 @@ def size_line(est: SizeEstimate) -> str:
         f"evaluations {est.evaluate / 1e6:,.1f} MB)"
     )
     return text + (f"; {len(est.missing)} runs without a shipped twin not counted" if est.missing else "")
+
+
+# ---------------------------------------------------------------- Fig 3.3 at each budget, from the runs made so far
+@dataclass(frozen=True)
+class BudgetPoints:
+    """The study's per-seed Fig 3.3 points at one budget, from the runs made so far: ``points`` (columns
+    :data:`thesis_repro.figures.ch3.BUDGET_POINTS`; a run counts once its training entry and its evaluation under
+    every test at that budget exist), ``runs`` of ``runs_total`` made."""
+
+    steps: int
+    points: pd.DataFrame
+    runs: int
+    runs_total: int
+
+    @property
+    def complete(self) -> bool:
+        return self.runs == self.runs_total
+
+    @property
+    def coverage(self) -> str:
+        """``k of n runs`` (the words a page and the claims say)."""
+        return f"{self.runs} of {self.runs_total} runs"
+
+
+def points_at(scale: str, steps: int, cache: RunCache | None = None) -> BudgetPoints:
+    """:class:`BudgetPoints` of :func:`benchmark_at` ``(scale, steps)`` read from the run cache and the shipped layer
+    only: nothing is trained or evaluated. The training return is the mean of the run's last 100 training episodes
+    finished by the budget point (:func:`~thesis_repro.figures.ch3.training_return_at`; at the last point the
+    run's own ``train_return``), the AUC that of the evaluation of the point's snapshot (Eq 3.6)."""
+    cache = cache or RunCache()
+    bench = benchmark_at(scale, steps)
+    rows: list[dict[str, Any]] = []
+    made = 0
+    for i, job in enumerate(bench.train_jobs):
+        cfg = job.config
+        at = next(p for p in points(cfg) if p.steps >= steps)
+        train = cache.load(job)
+        evals = {name: cache.load(jobs[i]) for name, jobs in bench.eval_jobs.items()}
+        if train is None or any(e is None for e in evals.values()):
+            continue
+        made += 1
+        tr = float(training_return_at(train, [at.steps])[0])
+        for name, ev in evals.items():
+            sig = bench.tests[name]["sigmas"]
+            value = float(auc(expected_return(np.asarray(ev["returns"], float), axis=-1), sig))
+            rows.append(
+                {
+                    "steps": int(steps),
+                    "env": cfg["env"],
+                    "test": name,
+                    "algo": cfg["algorithm"],
+                    "seed": int(cfg["seed"]),
+                    "train_return": tr,
+                    "auc": value,
+                }
+            )
+    return BudgetPoints(int(steps), pd.DataFrame(rows, columns=list(BUDGET_POINTS)), made, len(bench.train_jobs))
+
+
+def budget_points(scale: str, cache: RunCache | None = None) -> list[BudgetPoints]:
+    """:func:`points_at` at every budget of the study (:func:`budgets`), from the runs made so far."""
+    cache = cache or RunCache()
+    return [points_at(scale, b, cache) for b in budgets(scale)]
+
+
+def budget_curve(at: Sequence[BudgetPoints]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """r against training budget: per budget and Fig 3.3 cell (:func:`~thesis_repro.figures.ch3.budget_correlations`)
+    and per budget (:func:`~thesis_repro.figures.ch3.budget_summary`, with ``runs`` and ``runs_total``)."""
+    frames = [b.points for b in at if len(b.points)]
+    pts = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=list(BUDGET_POINTS))
+    cells = budget_correlations(pts)
+    summary = budget_summary(cells).set_index("steps")
+    summary = summary.reindex([b.steps for b in at])
+    summary["runs"] = [b.runs for b in at]
+    summary["runs_total"] = [b.runs_total for b in at]
+    summary["negative"] = summary["negative"].fillna(0).astype(int)
+    summary["cells"] = summary["cells"].fillna(0).astype(int)
+    return cells, summary.rename_axis("steps").reset_index()
+
+
+def claims_meta(last: BudgetPoints) -> dict[str, Any]:
+    """What a page hands the claims layer about the study (its meta key ``thesis_budget``): the study, the budget,
+    how many of the runs it needs are made and, once all are, the per-seed points at that budget (the frame
+    ``points`` the page's claims read at ``small``), so the same frozen rules judge them."""
+    out: dict[str, Any] = {"study": NAME, "steps": last.steps, "runs": last.runs, "runs_total": last.runs_total}
+    if last.complete:
+        out["frames"] = {"points": json.loads(last.points.to_json(orient="records"))}
+    return out
+
+
+def headline(last: BudgetPoints, summary: pd.DataFrame, thesis: tuple[int, int]) -> str:
+    """One sentence of numbers (the verdict is the claims layer's): Fig 3.3's correlation at the study's last budget
+    beside the thesis's count of negative cells, or that the study's runs are not all computed yet (k of n).
+
+    >>> s = pd.DataFrame({"steps": [4_000_000], "negative": [2], "cells": [12], "pooled_r": [0.61]})
+    >>> headline(BudgetPoints(4_000_000, pd.DataFrame(), 12, 108), s, (18, 20))
+    "At the thesis's budget (4M steps) the study's runs are not all computed yet (12 of 108 runs)."
+    >>> headline(BudgetPoints(4_000_000, pd.DataFrame(), 108, 108), s, (18, 20))
+    "At the thesis's budget (4M steps, 108 runs): r < 0 in 2/12 cells (thesis: 18/20), pooled r +0.61."
+    """
+    if not last.complete:
+        return f"At the thesis's budget ({last.steps / 1e6:g}M steps) the study's runs are not all computed yet " + (
+            f"({last.coverage})."
+        )
+    row = summary[summary["steps"] == last.steps].iloc[0]
+    return (
+        f"At the thesis's budget ({last.steps / 1e6:g}M steps, {last.runs} runs): r < 0 in {int(row['negative'])}/"
+        f"{int(row['cells'])} cells (thesis: {thesis[0]}/{thesis[1]}), pooled r {float(row['pooled_r']):+.2f}."
+    )
