@@ -40,6 +40,15 @@ PAGES: tuple[str, ...] = ("fig-3.3", "table-3.4", "table-3.6")
 THESIS_STEPS = 4_000_000
 
 
+def steps_words(steps: int) -> str:
+    """An env-step budget in a few characters: ``4M`` from a million up, else with thousands separators.
+
+    >>> steps_words(4_000_000), steps_words(2_500_000), steps_words(256)
+    ('4M', '2.5M', '256')
+    """
+    return f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps:,}"
+
+
 def applies(s: Spec) -> bool:
     """Whether claim ``s`` reads runs the study retrains (a page of :data:`PAGES` among its data pages)."""
     return bool(set(s.data_pages) & set(PAGES))
@@ -178,7 +187,7 @@ def text(info: Mapping[str, Any], ours: str = "") -> str:
     ...       "runs_total": 108}, "pooled r +0.61 [+0.40, +0.76]")
     "thesis's budget (4M steps, 108/108 runs): does not reproduce (v2: same) · pooled r +0.61 [+0.40, +0.76]"
     """
-    steps = f"{int(info.get('steps') or THESIS_STEPS) / 1e6:g}M steps"
+    steps = f"{steps_words(int(info.get('steps') or THESIS_STEPS))} steps"
     verdict = str(info.get("verdict") or report.NOT_COMPUTED)
     if verdict == report.NOT_COMPUTED:
         why = coverage(info) or str(info.get("note") or "")

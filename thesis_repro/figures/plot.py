@@ -201,20 +201,21 @@ def budget_curve(
 ) -> None:
     """r against training budget (:func:`thesis_repro.figures.ch3.budget_correlations` and ``budget_summary``): one
     thin line per (task, test) cell (the thesis's statistic), the pooled r in black, each budget's ``k/n`` runs on
-    the axis and the thesis's share of negative cells beside the legend."""
-    millions = summary["steps"].to_numpy(float) / 1e6
+    the axis (one tick per budget) and the thesis's share of negative cells in the title."""
+    steps = [int(s) for s in summary["steps"]]
+    at = {s: i for i, s in enumerate(steps)}
     for (env, test), g in cells.groupby(["env", "test"], sort=False):
         g = g.sort_values("steps")
-        ax.plot(g["steps"] / 1e6, g["r"], marker=".", lw=0.8, alpha=0.6, label=f"{env}/{test}")
-    ax.plot(millions, summary["pooled_r"], "k-o", lw=2, label="pooled r (seed-keyed)")
+        ax.plot([at[s] for s in g["steps"]], g["r"], marker=".", lw=0.8, alpha=0.6, label=f"{env}/{test}")
+    ax.plot(range(len(steps)), summary["pooled_r"], "k-o", lw=2, label="pooled r (seed-keyed)")
     ax.axhline(0.0, color="grey", lw=0.8)
-    ax.set(xlabel="training budget (M env steps)", ylabel="r (testing AUC vs training return)", ylim=(-1.05, 1.05))
-    ax.set_xticks(
-        millions,
-        [f"{m:g}M\n{k}/{n} runs" for m, k, n in zip(millions, summary["runs"], summary["runs_total"], strict=True)],
-    )
+    ax.set(xlabel="training budget (env steps)", ylabel="r (testing AUC vs training return)", ylim=(-1.05, 1.05))
+    words = [f"{s / 1e6:g}M" if s >= 1_000_000 else f"{s:,}" for s in steps]
+    runs = zip(words, summary["runs"], summary["runs_total"], strict=True)
+    ax.set_xticks(range(len(steps)), [f"{w}\n{k}/{n} runs" for w, k, n in runs])
+    ax.set_xlim(-0.3, len(steps) - 0.7)
     neg = [f"{a}/{b}" if b else "-" for a, b in zip(summary["negative"], summary["cells"], strict=True)]
-    ax.set_title(title or f"cells with r < 0: {', '.join(neg)} (thesis {thesis[0]}/{thesis[1]})")
+    ax.set_title(title or f"r < 0 in {', '.join(neg)} cells by budget (thesis: {thesis[0]}/{thesis[1]})", fontsize=10)
     if len(cells):
         ax.legend(fontsize=7, ncol=2, loc="center left", bbox_to_anchor=(1.0, 0.5))
     else:

@@ -540,6 +540,15 @@ def claims_meta(last: BudgetPoints) -> dict[str, Any]:
     return out
 
 
+def steps_words(steps: int) -> str:
+    """An env-step budget in a few characters: ``4M`` from a million up, else with thousands separators.
+
+    >>> steps_words(4_000_000), steps_words(2_500_000), steps_words(256)
+    ('4M', '2.5M', '256')
+    """
+    return f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps:,}"
+
+
 def headline(last: BudgetPoints, summary: pd.DataFrame, thesis: tuple[int, int]) -> str:
     """One sentence of numbers (the verdict is the claims layer's): Fig 3.3's correlation at the study's last budget
     beside the thesis's count of negative cells, or that the study's runs are not all computed yet (k of n).
@@ -551,11 +560,10 @@ def headline(last: BudgetPoints, summary: pd.DataFrame, thesis: tuple[int, int])
     "At the thesis's budget (4M steps, 108 runs): r < 0 in 2/12 cells (thesis: 18/20), pooled r +0.61."
     """
     if not last.complete:
-        return f"At the thesis's budget ({last.steps / 1e6:g}M steps) the study's runs are not all computed yet " + (
-            f"({last.coverage})."
-        )
+        where = f"At the thesis's budget ({steps_words(last.steps)} steps)"
+        return f"{where} the study's runs are not all computed yet ({last.coverage})."
     row = summary[summary["steps"] == last.steps].iloc[0]
     return (
-        f"At the thesis's budget ({last.steps / 1e6:g}M steps, {last.runs} runs): r < 0 in {int(row['negative'])}/"
+        f"At the thesis's budget ({steps_words(last.steps)} steps, {last.runs} runs): r < 0 in {int(row['negative'])}/"
         f"{int(row['cells'])} cells (thesis: {thesis[0]}/{thesis[1]}), pooled r {float(row['pooled_r']):+.2f}."
     )
