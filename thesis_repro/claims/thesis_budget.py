@@ -132,7 +132,7 @@ def check(
     out: dict[str, Any] = {"study": "thesis-budget", "steps": THESIS_STEPS, "runs": None, "runs_total": None}
     out.update(verdict=report.NOT_COMPUTED, primary={}, n_seeds=0, note="")
     if info is None:
-        return {**out, "note": "the page's saved numbers carry no thesis-budget runs (execute the page again)"}
+        return {**out, "note": "the page's saved numbers carry no thesis-budget runs"}
     out.update(steps=int(info.get("steps", THESIS_STEPS)), runs=info.get("runs"), runs_total=info.get("runs_total"))
     frames = frames_of(info)
     if not frames or (out["runs"] is not None and out["runs"] < (out["runs_total"] or 0)):
