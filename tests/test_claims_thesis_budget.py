@@ -203,3 +203,34 @@ def test_results_md_has_the_thesis_budget_column():
     table = results.claims_table(claims).splitlines()
     assert table[0].endswith("| thesis's budget (4M steps) |")
     assert table[2].endswith("| not computed (3 of 108 runs) |") and table[3].endswith("| - |")
+
+
+# ---------------------------------------------------------------- the tables that read the same runs
+TABLES = [s for s in registry.specs() if s.page in ("table-3.4", "table-3.6") and "measure" in s.rule]
+
+
+def test_a_table_counts_only_its_own_learners_runs():
+    sac = next(j.label for j in bs.train_jobs("small") if j.config["algorithm"] == "sac")
+    cache = _made({sac})
+    t34, t36 = bs.page_meta("table-3.4", "small", cache), bs.page_meta("table-3.6", "small", cache)
+    assert (t34["runs"], t34["runs_total"]) == (47, 48) and "frames" not in t34  # ppo, trpo, ddpg, sac x 3 x 4
+    assert t36["runs"] == t36["runs_total"] == 6 * 3 * 4 and set(t36["frames"]) == {"aucs", "returns", "train"}
+    assert {r["method"] for r in t36["frames"]["aucs"]} == bs.item_learners("table-3.6", "small")
+    with pytest.raises(ValueError, match="reads no run of the thesis-budget study"):
+        bs.page_meta("table-3.5", "small", cache)
+
+
+@pytest.mark.parametrize("cid", [s.id for s in TABLES])
+def test_a_table_claim_is_judged_by_its_frozen_rule_on_the_studys_runs(cid):
+    s = registry.spec(cid)
+    meta = bs.page_meta(s.page, "small", _made())
+    frames = tb.frames_of(meta)
+    store.save_page(s.page, "small", frames, {"scale": "small"})
+    alone = ledger.judge(s, "small", with_null=False)
+    store.save_page(s.page, "small", frames, {"scale": "small", "thesis_budget": meta})
+    got = ledger.judge(s, "small", with_null=False).thesis_budget
+    if alone.v3.get("status") in (report.NOT_RUN, report.NOT_COMPUTED) or not alone.primary:
+        assert got["verdict"] in (report.NOT_RUN, report.INCONCLUSIVE, alone.v3.get("status"))
+        return
+    assert got["verdict"] == alone.v3["status"] and got["v2_verdict"] == alone.v2_status
+    assert json.dumps(got["primary"], sort_keys=True) == json.dumps(alone.primary, sort_keys=True)

@@ -140,12 +140,12 @@ def check(
     try:
         groups = _groups(frames, rule)
     except M.NotRun as err:
-        return {**out, "note": str(err)}
+        return {**out, "verdict": report.NOT_RUN, "note": str(err)}
     except M.Inconclusive as err:
         return {**out, "verdict": report.INCONCLUSIVE, "note": str(err)}
     run = {g: us for g, us in groups.items() if us}
-    if not run:
-        return {**out, "note": "no unit on the study's runs"}
+    if not run:  # every unit is on a task or learner the study does not train: no run of it will ever come
+        return {**out, "verdict": report.NOT_RUN, "note": "the study trains none of the claim's tasks or learners"}
     res = judge(run, frames)
     status = res.status
     if len(run) < len(groups):  # a part the study does not run may hold or not
@@ -192,6 +192,8 @@ def text(info: Mapping[str, Any], ours: str = "") -> str:
     if verdict == report.NOT_COMPUTED:
         why = coverage(info) or str(info.get("note") or "")
         return f"thesis's budget ({steps}): {verdict}" + (f" ({why})" if why else "")
+    if verdict == report.NOT_RUN:
+        return f"thesis's budget ({steps}): {verdict}" + (f" ({info['note']})" if info.get("note") else "")
     v2 = info.get("v2_verdict")
     beside = "" if not v2 else " (v2: same)" if v2 == verdict else f" (v2: {v2})"
     runs = f", {info['runs']}/{info['runs_total']} runs" if info.get("runs_total") else ""

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -453,16 +453,24 @@ def size_line(est: SizeEstimate) -> str:
 
 
 # ---------------------------------------------------------------- Fig 3.3 at each budget, from the runs made so far
+#: The columns of :attr:`BudgetPoints.returns`.
+RETURN_COLUMNS = ("env", "algo", "test", "sigma", "seed", "return")
+
+
 @dataclass(frozen=True)
 class BudgetPoints:
     """The study's per-seed Fig 3.3 points at one budget, from the runs made so far: ``points`` (columns
     :data:`thesis_repro.figures.ch3.BUDGET_POINTS`; a run counts once its training entry and its evaluation under
-    every test at that budget exist), ``runs`` of ``runs_total`` made."""
+    every test at that budget exist), ``runs`` of ``runs_total`` made, and the testing ``returns`` per σ."""
 
     steps: int
     points: pd.DataFrame
     runs: int
     runs_total: int
+    #: the testing returns behind each AUC (``env, algo, test, sigma, seed, return``: mean over testing rollouts)
+    returns: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(columns=list(RETURN_COLUMNS)))
+    #: every run the budget needs, as (learner, task, seed)
+    expected: tuple[tuple[str, str, int], ...] = ()
 
     @property
     def complete(self) -> bool:
@@ -482,6 +490,7 @@ def points_at(scale: str, steps: int, cache: RunCache | None = None) -> BudgetPo
     cache = cache or RunCache()
     bench = benchmark_at(scale, steps)
     rows: list[dict[str, Any]] = []
+    rets: list[dict[str, Any]] = []
     made = 0
     for i, job in enumerate(bench.train_jobs):
         cfg = job.config
@@ -494,7 +503,10 @@ def points_at(scale: str, steps: int, cache: RunCache | None = None) -> BudgetPo
         tr = float(training_return_at(train, [at.steps])[0])
         for name, ev in evals.items():
             sig = bench.tests[name]["sigmas"]
-            value = float(auc(expected_return(np.asarray(ev["returns"], float), axis=-1), sig))
+            per_sigma = expected_return(np.asarray(ev["returns"], float), axis=-1)
+            value = float(auc(per_sigma, sig))
+            key = {"env": cfg["env"], "algo": cfg["algorithm"], "test": name, "seed": int(cfg["seed"])}
+            rets += [{**key, "sigma": float(x), "return": float(r)} for x, r in zip(sig, per_sigma, strict=True)]
             rows.append(
                 {
                     "steps": int(steps),
@@ -506,7 +518,10 @@ def points_at(scale: str, steps: int, cache: RunCache | None = None) -> BudgetPo
                     "auc": value,
                 }
             )
-    return BudgetPoints(int(steps), pd.DataFrame(rows, columns=list(BUDGET_POINTS)), made, len(bench.train_jobs))
+    points_frame = pd.DataFrame(rows, columns=list(BUDGET_POINTS))
+    returns = pd.DataFrame(rets, columns=list(RETURN_COLUMNS))
+    expected = tuple((j.config["algorithm"], j.config["env"], int(j.config["seed"])) for j in bench.train_jobs)
+    return BudgetPoints(int(steps), points_frame, made, len(bench.train_jobs), returns, expected)
 
 
 def budget_points(scale: str, cache: RunCache | None = None) -> list[BudgetPoints]:
@@ -530,14 +545,44 @@ def budget_curve(at: Sequence[BudgetPoints]) -> tuple[pd.DataFrame, pd.DataFrame
     return cells, summary.rename_axis("steps").reset_index()
 
 
-def claims_meta(last: BudgetPoints) -> dict[str, Any]:
+def table_frames(at: BudgetPoints, methods: Sequence[str]) -> dict[str, pd.DataFrame]:
+    """The study's numbers at one budget in a chapter-3 table page's schema
+    (:func:`thesis_repro.figures.ch3_tables.seed_frames`), for the table's ``methods`` only: ``aucs`` (env, test,
+    method, seed, value), ``returns`` (env, method, test, sigma, seed, return) and ``train`` (env, method, seed,
+    value: the training return at the budget)."""
+    keep = list(methods)
+    pts = at.points[at.points["algo"].isin(keep)].rename(columns={"algo": "method"})
+    aucs = pts[["env", "test", "method", "seed", "auc"]].rename(columns={"auc": "value"})
+    rets = at.returns[at.returns["algo"].isin(keep)].rename(columns={"algo": "method"})
+    rets = rets[["env", "method", "test", "sigma", "seed", "return"]]
+    train = pts.drop_duplicates(["env", "method", "seed"])[["env", "method", "seed", "train_return"]]
+    train = train.rename(columns={"train_return": "value"})
+    return {"aucs": aucs.reset_index(drop=True), "returns": rets.reset_index(drop=True), "train": train}
+
+
+def claims_meta(last: BudgetPoints, methods: Sequence[str] | None = None) -> dict[str, Any]:
     """What a page hands the claims layer about the study (its meta key ``thesis_budget``): the study, the budget,
-    how many of the runs it needs are made and, once all are, the per-seed points at that budget (the frame
-    ``points`` the page's claims read at ``small``), so the same frozen rules judge them."""
+    how many of the runs it needs are made and, once all are, the study's per-seed frames at that budget in the
+    page's own schema (Fig 3.3's ``points``; a table page's, :func:`table_frames`, when it names its ``methods``),
+    so the same frozen rules judge them."""
     out: dict[str, Any] = {"study": NAME, "steps": last.steps, "runs": last.runs, "runs_total": last.runs_total}
-    if last.complete:
-        out["frames"] = {"points": json.loads(last.points.to_json(orient="records"))}
+    if methods is not None:  # only the runs of the page's learners count
+        made = set(zip(last.points["algo"], last.points["env"], last.points["seed"].astype(int), strict=True))
+        needed = [r for r in last.expected if r[0] in set(methods)]
+        out.update(runs=sum(r in made for r in needed), runs_total=len(needed))
+    if out["runs"] == out["runs_total"]:
+        frames = {"points": last.points} if methods is None else table_frames(last, methods)
+        out["frames"] = {k: json.loads(f.to_json(orient="records")) for k, f in frames.items()}
     return out
+
+
+def page_meta(figure_id: str, scale: str, cache: RunCache | None = None) -> dict[str, Any]:
+    """:func:`claims_meta` of item ``figure_id`` (one of :data:`ITEMS`) at the study's last budget, from the runs made
+    so far: Fig 3.3's points, or a table's frames for its learners (:func:`item_learners`) and their runs only."""
+    if figure_id not in ITEMS:
+        raise ValueError(f"{figure_id!r} reads no run of the {NAME} study; its items are: {', '.join(ITEMS)}")
+    last = points_at(scale, budgets(scale)[-1], cache)
+    return claims_meta(last, None if figure_id == "3.3" else sorted(item_learners(figure_id, scale)))
 
 
 def steps_words(steps: int) -> str:
