@@ -17,6 +17,10 @@ and no existing run's key changes.
   the items that read its runs (Fig 3.3, Tables 3.4 and 3.6) ranked by claims settled per core-hour
   (:func:`thesis_repro.runs.order.rank`), each item's runs cheapest first, then by seed; every run is still trained
   to the full budget.
+* :func:`budget_points` / :func:`points_at`: Fig 3.3's per-seed points at each budget from the runs made so far (read
+  from the cache and the shipped layer only: nothing trains), with ``k of n runs``; :func:`budget_curve`: r against
+  training budget per cell and pooled; :func:`claims_meta` / :func:`page_meta`: what Fig 3.3's and Tables 3.4 and
+  3.6's pages hand the claims layer (:mod:`thesis_repro.claims.thesis_budget` judges the 4M numbers).
 * :func:`budget_schedule` and :func:`prefix_checks`: where a learner has no budget-dependent schedule (SAC,
   DDPG and TRPO as configured), the snapshot at the ``small`` budget is the shipped ``small`` run of the same
   seed, bit for bit (``python -m thesis_repro verify --study thesis-budget``).
