@@ -528,10 +528,23 @@ def points_at(scale: str, steps: int, cache: RunCache | None = None) -> BudgetPo
     return BudgetPoints(int(steps), points_frame, made, len(bench.train_jobs), returns, expected)
 
 
+class _Loaded:
+    """A cache's :meth:`~thesis_repro.core.cache.RunCache.load`, each entry read once (a training run serves every
+    budget)."""
+
+    def __init__(self, cache: Any):
+        self.cache, self.seen = cache, {}
+
+    def load(self, job: Job) -> Any:
+        if job.key not in self.seen:
+            self.seen[job.key] = self.cache.load(job)
+        return self.seen[job.key]
+
+
 def budget_points(scale: str, cache: RunCache | None = None) -> list[BudgetPoints]:
     """:func:`points_at` at every budget of the study (:func:`budgets`), from the runs made so far."""
-    cache = cache or RunCache()
-    return [points_at(scale, b, cache) for b in budgets(scale)]
+    loaded = _Loaded(cache or RunCache())
+    return [points_at(scale, b, loaded) for b in budgets(scale)]
 
 
 def budget_curve(at: Sequence[BudgetPoints]) -> tuple[pd.DataFrame, pd.DataFrame]:
