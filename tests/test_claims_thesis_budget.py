@@ -234,3 +234,15 @@ def test_a_table_claim_is_judged_by_its_frozen_rule_on_the_studys_runs(cid):
         return
     assert got["verdict"] == alone.v3["status"] and got["v2_verdict"] == alone.v2_status
     assert json.dumps(got["primary"], sort_keys=True) == json.dumps(alone.primary, sort_keys=True)
+
+
+def test_the_pages_first_line_says_the_answer_at_the_thesis_budget():
+    from thesis_repro.book import builder
+
+    small = {"points": bs.points_at("small", STEPS[0], _made()).points}
+    page_verdicts.judge_page("fig-3.3", "small", small, {"thesis_budget": bs.page_meta("3.3", "small")}, display=False)
+    first = "".join(builder.verdicts_cell("fig-3.3", "small")["source"]).splitlines()[0]
+    assert first.startswith("**At the thesis's budget (4M steps):** 3.3-negative-correlation not computed (0 of 108")
+    page_verdicts.judge_page("fig-3.3", "small", small, {"thesis_budget": bs.page_meta("3.3", "small", _made())})
+    first = "".join(builder.verdicts_cell("fig-3.3", "small")["source"]).splitlines()[0]
+    assert first.startswith("**At the thesis's budget (4M steps, 108/108 runs):** 3.3-negative-correlation reproduces")

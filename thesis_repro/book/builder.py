@@ -197,14 +197,16 @@ def budget_sentence(verdicts: list[report.Verdict]) -> str:
     >>> v = report.Verdict("3.3", "c", report.DOES_NOT, headline="does not reproduce · 3.3-x · l. 5 c",
     ...     thesis_budget="thesis's budget (4M steps): not computed (0 of 108 runs)")
     >>> budget_sentence([v])
-    "**At the thesis's budget:** 3.3-x, thesis's budget (4M steps): not computed (0 of 108 runs)."
+    "**At the thesis's budget (4M steps):** 3.3-x not computed (0 of 108 runs)."
     """
     first = next((v for v in verdicts if v.thesis_budget), None)
     if first is None:
         return ""
     parts = first.headline.split(" · ")
     cid = parts[1] if len(parts) > 1 else first.claim
-    return f"**At the thesis's budget:** {_escape_md(cid)}, {_escape_md(first.thesis_budget)}."
+    where, _, said = first.thesis_budget.partition("): ")
+    head = f"At the {where})" if said else "At the thesis's budget"
+    return f"**{_escape_md(head)}:** {_escape_md(cid)} {_escape_md(said or first.thesis_budget)}."
 
 
 def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
