@@ -102,13 +102,13 @@ wide.round(3)
 
 # %%
 at = budget_study.budget_points(SCALE)
-cells, by_budget = budget_study.budget_curve(at)
+cells, by_budget = budget_study.r_by_budget(at)
 thesis = ch3.thesis_negative()
 fig, ax = plt.subplots(figsize=(9.5, 4))
-plot.budget_curve(ax, cells, by_budget, thesis)
+plot.r_by_budget_lines(ax, cells, by_budget, thesis)
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-3.3-budget", dpi=120)
-print(budget_study.headline(at[-1], by_budget, thesis))
+print(budget_study.budget_headline(at[-1], by_budget, thesis))
 by_budget.round(3)
 
 # %% [markdown]

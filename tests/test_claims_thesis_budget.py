@@ -65,7 +65,7 @@ class FakeCache:
 
 
 def _made(missing: set[str] = frozenset()) -> FakeCache:
-    return FakeCache(bs.variants(bs.settings("small")), missing=missing)
+    return FakeCache(bs.variants(bs.budget_settings("small")), missing=missing)
 
 
 # ---------------------------------------------------------------- r against training budget (figures, runs)
@@ -73,7 +73,7 @@ def test_r_per_budget_on_a_synthetic_benchmark_flips_sign_where_the_auc_does():
     at = bs.budget_points("small", _made())
     assert [b.steps for b in at] == STEPS == [1_000_000, 2_000_000, 3_000_000, 4_000_000]
     assert all(b.complete and b.coverage == "108 of 108 runs" for b in at)
-    cells, by_budget = bs.budget_curve(at)
+    cells, by_budget = bs.r_by_budget(at)
     assert len(cells) == 4 * 12 and set(cells["algos"]) == {9} and set(cells["seeds"]) == {4}
     early = cells[cells["steps"] < 2_500_000]
     late = cells[cells["steps"] > 2_500_000]
@@ -81,14 +81,14 @@ def test_r_per_budget_on_a_synthetic_benchmark_flips_sign_where_the_auc_does():
     assert (late["r"] < -0.9).all() and (late["r_seeds"] < -0.9).all()
     assert by_budget["negative"].tolist() == [0, 0, 12, 12] and by_budget["cells"].tolist() == [12] * 4
     assert (by_budget["pooled_r"].to_numpy()[:2] > 0.9).all() and (by_budget["pooled_r"].to_numpy()[2:] < -0.9).all()
-    line = bs.headline(at[-1], by_budget, ch3.thesis_negative())
+    line = bs.budget_headline(at[-1], by_budget, ch3.thesis_negative())
     assert line.startswith("At the thesis's budget (4M steps, 108 runs): r < 0 in 12/12 cells (thesis: 18/20)")
 
 
 def test_the_thesis_side_comes_from_its_transcribed_table():
     """18 of Fig 3.3(c)'s 20 cells are negative (D-Pendulum's env and dom are not), all 12 on the study's tasks."""
     assert ch3.thesis_negative() == (18, 20)
-    assert ch3.thesis_negative(bs.task_order(bs.settings("small"))) == (12, 12)
+    assert ch3.thesis_negative(bs.task_order(bs.budget_settings("small"))) == (12, 12)
 
 
 def test_the_thesis_statistic_is_the_best_training_seed_per_variant():
@@ -109,9 +109,9 @@ def test_the_thesis_statistic_is_the_best_training_seed_per_variant():
 def test_with_no_runs_made_every_budget_reads_not_computed_k_of_n():
     at = bs.budget_points("small")  # the empty cache and shipped layer of the test
     assert [(b.runs, b.runs_total, len(b.points)) for b in at] == [(0, 108, 0)] * 4
-    cells, by_budget = bs.budget_curve(at)
+    cells, by_budget = bs.r_by_budget(at)
     assert cells.empty and by_budget["negative"].tolist() == [0] * 4 and by_budget["runs"].tolist() == [0] * 4
-    assert bs.headline(at[-1], by_budget, (18, 20)) == (
+    assert bs.budget_headline(at[-1], by_budget, (18, 20)) == (
         "At the thesis's budget (4M steps) the study's runs are not all computed yet (0 of 108 runs)."
     )
     meta = bs.claims_meta(at[-1])
@@ -188,7 +188,7 @@ def test_the_pages_agree_with_the_studys_items():
     from thesis_repro.book.notebooks import page_id
 
     assert set(tb.PAGES) == {page_id(i) for i in bs.ITEMS}
-    assert tb.THESIS_STEPS == bs.settings("small")["timesteps"]
+    assert tb.THESIS_STEPS == bs.budget_settings("small")["timesteps"]
 
 
 def test_results_md_has_the_thesis_budget_column():

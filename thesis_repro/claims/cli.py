@@ -119,7 +119,7 @@ def ledger_lines(rows: Sequence[ledger_row.Row], verbose: bool = False) -> list[
         if r.confirmation:
             out.append(f"    {r.confirmation.line()}")
         if r.thesis_budget:
-            out.append(f"    {r.thesis_budget.get('line') or thesis_budget.text(r.thesis_budget)}")
+            out.append(f"    {r.thesis_budget.get('line') or thesis_budget.thesis_budget_line(r.thesis_budget)}")
         if verbose:
             gate = f" ({r.v3['reason']})" if r.v3.get("reason") else ""
             before = f"v2: {r.v2_status or r.status}; v1: {r.v1_status or r.status}"

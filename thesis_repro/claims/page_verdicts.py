@@ -19,7 +19,7 @@ from thesis_repro.claims.ledger import judge
 from thesis_repro.claims.ledger_row import headline
 from thesis_repro.claims.registry import page_claims
 from thesis_repro.claims.store import save_page
-from thesis_repro.claims.thesis_budget import text as budget_text
+from thesis_repro.claims.thesis_budget import thesis_budget_line
 
 
 def verdicts(page: str, scale: str) -> list[report.Verdict]:
@@ -52,7 +52,7 @@ def budget_line(info: Mapping[str, Any]) -> str:
     """
     if not info:
         return ""
-    return str(info.get("line") or budget_text(info))
+    return str(info.get("line") or thesis_budget_line(info))
 
 
 def judge_page(

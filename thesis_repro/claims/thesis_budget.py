@@ -4,15 +4,15 @@ Every verdict of the ledger is measured at the scale's budgets; the thesis-budge
 (:mod:`thesis_repro.runs.budget_study`) retrains Fig 3.3's variants at the thesis's own 4e6 steps. A page whose
 runs the study retrains saves, in its meta under :data:`KEY` (:func:`thesis_repro.runs.budget_study.claims_meta`),
 the study's budget, how many of the runs it needs are made (``runs`` of ``runs_total``) and, once all are, the
-study's per-seed frames at that budget (``frames``, the same schema as the page's own). :func:`check` runs the
+study's per-seed frames at that budget (``frames``, the same schema as the page's own). :func:`judge_on_study` runs the
 claim's measure and a judgement handed to it unchanged on those frames (the ledger hands it design v3's seed-keyed
-judgement, with its Holm family taken on the same frames: :func:`family`, and v2's for the label beside it). The
+judgement, with its Holm family taken on the same frames: :func:`holm_family_on`, and v2's for the label beside it). The
 label is the statistical one, as the fresh seeds' and the subset checks read it (no calibration gate). While runs
 are missing it says *not computed (k of n runs)*; a page saved before it carried the study says so too.
 
 Nothing here trains or reads runs: the numbers come from the page's saved meta (:mod:`thesis_repro.claims.store`).
 
->>> text({"verdict": "not computed", "steps": 4_000_000, "runs": 12, "runs_total": 108})
+>>> thesis_budget_line({"verdict": "not computed", "steps": 4_000_000, "runs": 12, "runs_total": 108})
 "thesis's budget (4M steps): not computed (12 of 108 runs)"
 """
 
@@ -40,16 +40,16 @@ PAGES: tuple[str, ...] = ("fig-3.3", "table-3.4", "table-3.6")
 THESIS_STEPS = 4_000_000
 
 
-def steps_words(steps: int) -> str:
+def _steps(steps: int) -> str:
     """An env-step budget in a few characters: ``4M`` from a million up, else with thousands separators.
 
-    >>> steps_words(4_000_000), steps_words(2_500_000), steps_words(256)
+    >>> _steps(4_000_000), _steps(2_500_000), _steps(256)
     ('4M', '2.5M', '256')
     """
     return f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps:,}"
 
 
-def applies(s: Spec) -> bool:
+def reads_study_runs(s: Spec) -> bool:
     """Whether claim ``s`` reads runs the study retrains (a page of :data:`PAGES` among its data pages)."""
     return bool(set(s.data_pages) & set(PAGES))
 
@@ -82,7 +82,9 @@ def _groups(frames: Mapping[str, pd.DataFrame], rule: Mapping[str, Any]) -> dict
         return M.MEASURES[rule["measure"]](frames, rule)
 
 
-def family(s: Spec, frames: Mapping[str, pd.DataFrame], own: Mapping[str, Sequence[Unit]], version: int) -> list[float]:
+def holm_family_on(
+    s: Spec, frames: Mapping[str, pd.DataFrame], own: Mapping[str, Sequence[Unit]], version: int
+) -> list[float]:
     """Holm's family of ``s`` on the study's ``frames``: the decisive p-values of the other pooled claims that read
     its page data, each measured on the same frames (design ``version`` 3: distinct tests only, as
     :func:`thesis_repro.claims.ledger.family_p3`; 2: as :func:`~thesis_repro.claims.ledger.family_p`)."""
@@ -118,7 +120,7 @@ def family(s: Spec, frames: Mapping[str, pd.DataFrame], own: Mapping[str, Sequen
     return out
 
 
-def check(
+def judge_on_study(
     meta: Mapping[str, Any],
     rule: Mapping[str, Any],
     judge: Callable[[Mapping[str, Sequence[Unit]], Mapping[str, pd.DataFrame]], Any],
@@ -179,15 +181,15 @@ def derived(parts: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     }
 
 
-def text(info: Mapping[str, Any], ours: str = "") -> str:
+def thesis_budget_line(info: Mapping[str, Any], ours: str = "") -> str:
     """One short line for a page, ``claims --verbose`` and RESULTS.md: the thesis-budget label (design v2's beside it
     when ``info`` carries it), the runs it rests on, our number.
 
-    >>> text({"verdict": "does not reproduce", "v2_verdict": "does not reproduce", "steps": 4_000_000, "runs": 108,
-    ...       "runs_total": 108}, "pooled r +0.61 [+0.40, +0.76]")
+    >>> info = {"verdict": "does not reproduce", "v2_verdict": "does not reproduce", "steps": 4_000_000, "runs": 108}
+    >>> thesis_budget_line({**info, "runs_total": 108}, "pooled r +0.61 [+0.40, +0.76]")
     "thesis's budget (4M steps, 108/108 runs): does not reproduce (v2: same) · pooled r +0.61 [+0.40, +0.76]"
     """
-    steps = f"{steps_words(int(info.get('steps') or THESIS_STEPS))} steps"
+    steps = f"{_steps(int(info.get('steps') or THESIS_STEPS))} steps"
     verdict = str(info.get("verdict") or report.NOT_COMPUTED)
     if verdict == report.NOT_COMPUTED:
         why = coverage(info) or str(info.get("note") or "")

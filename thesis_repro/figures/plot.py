@@ -196,7 +196,7 @@ def ball_in_cup(ax: plt.Axes, rollout: Mapping[str, Any], title: str, cup_radius
     ax.set_xlabel("x (m)")
 
 
-def budget_curve(
+def r_by_budget_lines(
     ax: plt.Axes, cells: pd.DataFrame, summary: pd.DataFrame, thesis: tuple[int, int], title: str = ""
 ) -> None:
     """r against training budget (:func:`thesis_repro.figures.ch3.budget_correlations` and ``budget_summary``): one

@@ -18,7 +18,7 @@ and no existing run's key changes.
   (:func:`thesis_repro.runs.order.rank`), each item's runs cheapest first, then by seed; every run is still trained
   to the full budget.
 * :func:`budget_points` / :func:`points_at`: Fig 3.3's per-seed points at each budget from the runs made so far (read
-  from the cache and the shipped layer only: nothing trains), with ``k of n runs``; :func:`budget_curve`: r against
+  from the cache and the shipped layer only: nothing trains), with ``k of n runs``; :func:`r_by_budget`: r against
   training budget per cell and pooled; :func:`claims_meta` / :func:`page_meta`: what Fig 3.3's and Tables 3.4 and
   3.6's pages hand the claims layer (:mod:`thesis_repro.claims.thesis_budget` judges the 4M numbers).
 * :func:`budget_schedule` and :func:`prefix_checks`: where a learner has no budget-dependent schedule (SAC,
@@ -547,7 +547,7 @@ def budget_points(scale: str, cache: RunCache | None = None) -> list[BudgetPoint
     return [points_at(scale, b, loaded) for b in budgets(scale)]
 
 
-def budget_curve(at: Sequence[BudgetPoints]) -> tuple[pd.DataFrame, pd.DataFrame]:
+def r_by_budget(at: Sequence[BudgetPoints]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """r against training budget: per budget and Fig 3.3 cell (:func:`~thesis_repro.figures.ch3.budget_correlations`)
     and per budget (:func:`~thesis_repro.figures.ch3.budget_summary`, with ``runs`` and ``runs_total``)."""
     frames = [b.points for b in at if len(b.points)]
@@ -611,14 +611,14 @@ def steps_words(steps: int) -> str:
     return f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps:,}"
 
 
-def headline(last: BudgetPoints, summary: pd.DataFrame, thesis: tuple[int, int]) -> str:
+def budget_headline(last: BudgetPoints, summary: pd.DataFrame, thesis: tuple[int, int]) -> str:
     """One sentence of numbers (the verdict is the claims layer's): Fig 3.3's correlation at the study's last budget
     beside the thesis's count of negative cells, or that the study's runs are not all computed yet (k of n).
 
     >>> s = pd.DataFrame({"steps": [4_000_000], "negative": [2], "cells": [12], "pooled_r": [0.61]})
-    >>> headline(BudgetPoints(4_000_000, pd.DataFrame(), 12, 108), s, (18, 20))
+    >>> budget_headline(BudgetPoints(4_000_000, pd.DataFrame(), 12, 108), s, (18, 20))
     "At the thesis's budget (4M steps) the study's runs are not all computed yet (12 of 108 runs)."
-    >>> headline(BudgetPoints(4_000_000, pd.DataFrame(), 108, 108), s, (18, 20))
+    >>> budget_headline(BudgetPoints(4_000_000, pd.DataFrame(), 108, 108), s, (18, 20))
     "At the thesis's budget (4M steps, 108 runs): r < 0 in 2/12 cells (thesis: 18/20), pooled r +0.61."
     """
     if not last.complete:
