@@ -30,6 +30,7 @@ SCALE = "small"
 from thesis_repro import claims
 from thesis_repro.book import pages
 from thesis_repro.figures import ch3_tables
+from thesis_repro.runs import budget_study
 
 settings = ch3_tables.checked_settings("table-3.4", SCALE)
 print(pages.runs_summary("table-3.4", SCALE))
@@ -49,6 +50,6 @@ _ = claims.judge_page(
     "table-3.4",
     SCALE,
     ch3_tables.seed_frames(res),
-    pages.claim_meta("table-3.4", settings),
+    {**pages.claim_meta("table-3.4", settings), "thesis_budget": budget_study.page_meta("table-3.4", SCALE)},
     kit_checks=[claims.bolding_check("table-3.4", comp.agreement, SCALE)],
 )

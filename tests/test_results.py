@@ -32,9 +32,10 @@ def test_the_fallbacks_word_todays_ledger_keys():
     row = results.claims_table([CLAIM]).splitlines()[2]
     cut = "There is a clear trade-off between training performance and generalisation across all ..."
     assert row.startswith(f"| `3.3-pareto` | l. 547 | {cut} |")
-    # ... thesis, ours, verdict, the thesis's effect, v2's verdict (none given: the verdict), fresh seeds
+    # ... thesis, ours, verdict, the thesis's effect, v2's verdict (none given: the verdict), fresh seeds, thesis's
+    # budget
     assert row.endswith(
-        "| - | 0/2 units yes, yes-share [0.00, 0.00] | **does not reproduce** | - | does not reproduce | - |"
+        "| - | 0/2 units yes, yes-share [0.00, 0.00] | **does not reproduce** | - | does not reproduce | - | - |"
     )
     assert len(results.short(CLAIM).removesuffix(" ...").split()) == results.SHORT_WORDS
 
@@ -45,7 +46,8 @@ def test_the_ledgers_new_keys_win_over_the_fallbacks():
     new |= {"thesis_effect": {"excluded": True, "ours_side": "larger"}}
     row = results.claims_table([new]).splitlines()[2]
     assert "| Training return trades off against generalisation | r < 0 | r = 0.71 [0.02, 1.39] |" in row
-    assert row.endswith("**contradicted** | excluded (ours larger) | does not reproduce | - |")  # no fresh seeds
+    # no fresh seeds, no thesis-budget verdict
+    assert row.endswith("**contradicted** | excluded (ours larger) | does not reproduce | - | - |")
     assert results.v2_counts([new]) == [("does not reproduce", 1)]
     block = results.readme_results({"claims": [new, {**CLAIM, "id": "x", "verdict": "inconclusive"}]}, "small")
     assert "| contradicted | 1 | 0 |" in block and "| inconclusive | 1 | 1 |" in block

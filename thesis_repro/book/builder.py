@@ -189,18 +189,44 @@ def verdict_line(v: report.Verdict) -> str:
     return f"**{v.status}**{beside} · {_escape_md(rest)}"
 
 
+def budget_sentence(verdicts: list[report.Verdict]) -> str:
+    """The page's answer at the thesis's budget, for its first line: the thesis-budget line of its first claim that
+    has one (the headline claim, listed first), a verdict or that the study's runs are not computed yet (k of n);
+    ``""`` for a page whose runs the thesis-budget study does not retrain.
+
+    >>> v = report.Verdict("3.3", "c", report.DOES_NOT, headline="does not reproduce · 3.3-x · l. 5 c",
+    ...     thesis_budget="thesis's budget (4M steps): not computed (0 of 108 runs)")
+    >>> budget_sentence([v])
+    "**At the thesis's budget (4M steps):** 3.3-x not computed (0 of 108 runs)."
+    """
+    first = next((v for v in verdicts if v.thesis_budget), None)
+    if first is None:
+        return ""
+    parts = first.headline.split(" · ")
+    cid = parts[1] if len(parts) > 1 else first.claim
+    where, _, said = first.thesis_budget.partition("): ")
+    head = f"At the {where})" if said else "At the thesis's budget"
+    return f"**{_escape_md(head)}:** {_escape_md(cid)} {_escape_md(said or first.thesis_budget)}."
+
+
 def verdicts_cell(page: str, scale: str) -> dict[str, Any] | None:
-    """The page's verdicts first, one line per claim (:func:`verdict_line`), each with its confirmatory line under
-    it when the fresh seeds are judged, or None when the page saved none; each verdict's evidence stays at the end
-    of the page."""
+    """The page's verdicts first, one line per claim (:func:`verdict_line`), each with its confirmatory line and its
+    thesis-budget line under it when they exist, or None when the page saved none; for a page whose runs the
+    thesis-budget study retrains, the cell opens with whether its headline claim holds at the thesis's budget
+    (:func:`budget_sentence`); each verdict's evidence stays at the end of the page."""
+    saved = report.load_verdicts(page, scale)
     lines = [
-        f"- {verdict_line(v)}" + (f"\n  - *{_escape_md(v.confirmatory)}*" if v.confirmatory else "")
-        for v in report.load_verdicts(page, scale)
+        f"- {verdict_line(v)}"
+        + (f"\n  - *{_escape_md(v.confirmatory)}*" if v.confirmatory else "")
+        + (f"\n  - *{_escape_md(v.thesis_budget)}*" if v.thesis_budget else "")
+        for v in saved
     ]
     if not lines:
         return None
+    budget = budget_sentence(saved)
     head = (
-        "**Verdicts** (claims design v3, design v2's verdict beside each; each one's evidence is at the end of the "
+        (f"{budget} The verdicts below are at this scale's budgets.\n\n" if budget else "")
+        + "**Verdicts** (claims design v3, design v2's verdict beside each; each one's evidence is at the end of the "
         "page):\n\n"
     )
     return md_cell(head + "\n".join(lines))

@@ -15,6 +15,8 @@ Its modules, bottom up (each imports only those above it in this list, and the l
 * :mod:`.design`: the pre-registered design v2 (level, margin, rule) and its freeze;
 * :mod:`.calibration`, :mod:`.sensitivity`, :mod:`.confirmatory`: false-verdict rates and power, the registered
   subset checks, the verdict on the fresh seeds alone;
+* :mod:`.thesis_budget`: the same frozen rule on the thesis-budget study's runs at the thesis's 4e6 steps, beside the
+  verdict (*not computed (k of n runs)* until they are made);
 * :mod:`.snapshot`, :mod:`.store`: the shipped claims snapshot; the numbers each page saves, read back;
 * :mod:`.rules`: a claim's count rule and its threshold from the thesis's own numbers;
 * :mod:`.ledger_row`: one ledger row, its JSON form and its headline;

@@ -20,7 +20,7 @@ import sys
 import warnings
 from collections.abc import Sequence
 
-from thesis_repro.claims import design, evidence, ledger, ledger_row, registry, scoreboard, snapshot
+from thesis_repro.claims import design, evidence, ledger, ledger_row, registry, scoreboard, snapshot, thesis_budget
 from thesis_repro.core.scales import SCALES
 
 
@@ -118,6 +118,8 @@ def ledger_lines(rows: Sequence[ledger_row.Row], verbose: bool = False) -> list[
         out.append(ledger_row.headline(r, width=160))
         if r.confirmation:
             out.append(f"    {r.confirmation.line()}")
+        if r.thesis_budget:
+            out.append(f"    {r.thesis_budget.get('line') or thesis_budget.thesis_budget_line(r.thesis_budget)}")
         if verbose:
             gate = f" ({r.v3['reason']})" if r.v3.get("reason") else ""
             before = f"v2: {r.v2_status or r.status}; v1: {r.v1_status or r.status}"

@@ -36,6 +36,7 @@ from thesis_repro.claims import measures as M
 from thesis_repro.claims import readings as R
 from thesis_repro.claims import sensitivity as subsets
 from thesis_repro.claims import stats_v3 as T
+from thesis_repro.claims import thesis_budget as budget
 from thesis_repro.claims.confirmatory import FIRST_FRESH, Confirmation, fresh_frames, fresh_seeds, seeds_in
 from thesis_repro.claims.diagnosis import diagnose, sensitivity_dict, study_result
 from thesis_repro.claims.evidence import no_ci_words
@@ -107,6 +108,9 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
             v3={"status": plain, "reason": "; ".join(gate), "derived": True},
             # a derived claim's calibration is its parts' (each one gated on its own)
             calibration={"parts": {x.spec.id: x.calibration for x in rows}} if with_null else {},
+            thesis_budget=budget.derived([{**x.thesis_budget, "id": x.spec.id} for x in rows if x.thesis_budget])
+            if budget.reads_study_runs(s) or any(x.thesis_budget for x in rows)
+            else {},
         )
     try:
         got = page_data(s, scale)
@@ -121,6 +125,8 @@ def judge(s: Spec, scale: str, with_null: bool | str = CACHED) -> Row:
     row.shipped = list(meta["shipped_pages"])
     row.local_runs = dict(meta["local_runs"])
     row.confirmation = confirm(s, scale, row, frames, meta)
+    if budget.reads_study_runs(s):
+        row.thesis_budget = budget_check(s, scale, meta)
     if R.applies(s):
         row.readings = judge_readings(s, scale, with_null, frames)
     return row
@@ -662,6 +668,33 @@ def subset_check(s: Spec, scale: str, frames: Mapping[str, pd.DataFrame]) -> dic
     ours = ours_text(Row(s, str(info["verdict"]), primary=info["primary"])) if info.get("primary") else ""
     v2_ours = ours_text(Row(s, str(before["verdict"]), primary=before["primary"])) if before.get("primary") else ""
     return {**info, "ours": ours, "v2_ours": v2_ours, "line": subsets.text(info, ours)}
+
+
+def budget_check(s: Spec, scale: str, meta: Mapping[str, Any]) -> dict[str, Any]:
+    """The claim's thesis-budget verdict (:func:`thesis_repro.claims.thesis_budget.judge_on_study`) on the study's
+    frames its page saved: design v3's seed-keyed rule, count rules and Holm family (taken on the same frames), as its
+    primary verdict (the statistical label, as the subset and fresh seeds' checks), with design v2's beside it
+    (``v2_verdict``, ``v2_ours``); ``ours`` is its number (:func:`ours_text`) and ``line`` its one line."""
+    rule2, lv2, mg2 = design.rule(s.rule, s.v2), design.level(s.v2), design.margin(s.v2)
+    rule3 = design.rule3(s.rule, s.v2, s.v3)
+    lv3, mg3, conj = design.level3(s.v2, s.v3), design.margin3(s.v2, s.v3), design.conjunction(s.v3)
+
+    def v2(run: Mapping[str, Sequence[Unit]], frames: Mapping[str, pd.DataFrame]) -> Any:
+        family = budget.holm_family_on(s, frames, run, 2) if lv2 == "pooled" else ()
+        return J.judge_v2(run, lv2, mg2, {g: J.count_rule(rule_for(s, g, rule2)[0], lv2, rule2) for g in run}, family)
+
+    def v3(run: Mapping[str, Sequence[Unit]], frames: Mapping[str, pd.DataFrame]) -> Any:
+        rules = {g: J.count_rule(rule_for(s, g, rule3)[0], lv3, rule3) for g in run}
+        family = budget.holm_family_on(s, frames, run, 3) if lv3 == "pooled" and not conj else ()
+        return J3.judge_v3(run, lv3, mg3, rules, conj, family)
+
+    judged = scale != "smoke"
+    info = budget.judge_on_study(meta, rule3, v3, judged)
+    before = budget.judge_on_study(meta, rule2, v2, judged)
+    info["v2_verdict"] = before["verdict"]
+    ours = ours_text(Row(s, str(info["verdict"]), primary=info["primary"])) if info.get("primary") else ""
+    v2_ours = ours_text(Row(s, str(before["verdict"]), primary=before["primary"])) if before.get("primary") else ""
+    return {**info, "ours": ours, "v2_ours": v2_ours, "line": budget.thesis_budget_line(info, ours)}
 
 
 def _null_rate(s: Spec, scale: str, run: Mapping[str, Sequence[Unit]], versions: Sequence[str]) -> float:

@@ -53,6 +53,9 @@ class Row:
     v3: dict[str, Any] = field(default_factory=dict)
     #: chapter 4's claims: the verdict per reading of the thesis's update (:mod:`thesis_repro.claims.readings`)
     readings: list[dict[str, Any]] = field(default_factory=list)
+    #: the same frozen rule on the thesis-budget study's runs (:mod:`thesis_repro.claims.thesis_budget`); ``{}`` for a
+    #: claim whose runs the study does not retrain
+    thesis_budget: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         s = self.spec
@@ -101,6 +104,7 @@ class Row:
             "sensitivity_studies": list(s.sensitivity),
             "protocol_sensitivity": self.sensitivity,
             "sensitivity": self.subset or None,
+            "thesis_budget": self.thesis_budget or None,
             "groups": self.groups,
             "stale_pages": self.stale,
             "shipped_pages": self.shipped,

@@ -19,6 +19,7 @@ from thesis_repro.claims.ledger import judge
 from thesis_repro.claims.ledger_row import headline
 from thesis_repro.claims.registry import page_claims
 from thesis_repro.claims.store import save_page
+from thesis_repro.claims.thesis_budget import thesis_budget_line
 
 
 def verdicts(page: str, scale: str) -> list[report.Verdict]:
@@ -38,8 +39,20 @@ def verdicts(page: str, scale: str) -> list[report.Verdict]:
         fig = page.removeprefix("fig-")
         line = headline(row, width=report.LINE - len(f"[{fig}] "))  # the terminal's line is the page's first line
         fresh = row.confirmation.line() if row.confirmation else ""
-        out.append(report.Verdict(fig, claim, row.status, evidence, line, fresh, row.v2_status or row.status))
+        budget = budget_line(row.thesis_budget)
+        out.append(report.Verdict(fig, claim, row.status, evidence, line, fresh, row.v2_status or row.status, budget))
     return out
+
+
+def budget_line(info: Mapping[str, Any]) -> str:
+    """A claim's thesis-budget line for its page (``""`` when the study does not retrain its runs).
+
+    >>> budget_line({}), budget_line({"verdict": "not computed", "runs": 0, "runs_total": 108, "steps": 4_000_000})
+    ('', "thesis's budget (4M steps): not computed (0 of 108 runs)")
+    """
+    if not info:
+        return ""
+    return str(info.get("line") or thesis_budget_line(info))
 
 
 def judge_page(

@@ -96,6 +96,9 @@ class Verdict:
     #: design v2's verdict (the registered analysis of seeds 0-5), shown beside ``status`` (design v3's); ``""``
     #: for a verdict no design judges (a kit check, a page's own rule)
     v2: str = ""
+    #: the same frozen rule on the thesis-budget study's runs (:mod:`thesis_repro.claims.thesis_budget`): its line,
+    #: ``""`` for a claim whose runs the study does not retrain
+    thesis_budget: str = ""
 
     def __post_init__(self) -> None:
         check_choice(self.status, STATUSES, "verdict status")
@@ -124,6 +127,7 @@ class Verdict:
         if self.headline:
             label, _, rest = self.headline.partition(" · ")
             fresh = f"\n\n{self.confirmatory}" if self.confirmatory else ""
+            fresh += f"\n\n{self.thesis_budget}" if self.thesis_budget else ""
             v2 = f" *(design {self.v2_text()})*" if self.v2 else ""
             body = f"{self.claim}{v2}{fresh}\n\n<details><summary>evidence</summary>\n\n{self.evidence}\n\n</details>"
             return f"```{{admonition}} {label.capitalize()} · {rest}\n:class: {_STYLE[self.status]}\n{body}\n```\n"

@@ -339,3 +339,88 @@ def frontier(points: pd.DataFrame) -> pd.DataFrame:
     if ok.empty:
         return ok
     return ok.iloc[pareto_frontier(ok.train_return, ok.auc)]
+
+
+# ---------------------------------------------------------------- Fig 3.3 against training budget
+#: The columns of a per-seed points frame at several training budgets (:func:`budget_correlations`' input).
+BUDGET_POINTS = ("steps", "env", "test", "algo", "seed", "train_return", "auc")
+
+
+def _r(x: np.ndarray, y: np.ndarray) -> float:
+    """Pearson r of the finite pairs of ``x`` and ``y`` (NaN with fewer than 3 or no spread)."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    try:
+        return float(correlation(x[ok], y[ok])[0]) if ok.sum() >= 3 else float("nan")
+    except ValueError:
+        return float("nan")
+
+
+def budget_correlations(points: pd.DataFrame) -> pd.DataFrame:
+    """Fig 3.3(c) at each training budget: per ``steps`` and (task, test) cell, Pearson r of testing AUC vs training
+    return across the variants, two ways: ``r`` the thesis's statistic (each variant's best-training seed, as
+    :func:`correlation_table` with ``"best"``), ``r_seeds`` the seed-keyed one the page's pooled r reads (r per
+    training seed, averaged through Fisher z), with ``algos`` (variants with a point) and ``seeds`` (training seeds
+    whose r is defined). ``points`` has the columns :data:`BUDGET_POINTS` (a run missing at a budget has no rows).
+
+    >>> pts = pd.DataFrame([{"steps": 1, "env": "E", "test": "obs", "algo": a, "seed": s, "train_return": tr + s,
+    ...     "auc": au - s} for s in (0, 1) for a, tr, au in (("a", 1, 30), ("b", 2, 20), ("c", 3, 10))])
+    >>> budget_correlations(pts).round(2).to_dict("records")
+    [{'steps': 1, 'env': 'E', 'test': 'obs', 'r': -1.0, 'r_seeds': -1.0, 'algos': 3, 'seeds': 2}]
+    """
+    rows = []
+    for (steps, env, test), cell in points.groupby(["steps", "env", "test"], sort=False):
+        wide = cell.pivot_table(index="seed", columns="algo", values=["train_return", "auc"], aggfunc="mean")
+        tr, au = wide["train_return"].to_numpy(float), wide["auc"].to_numpy(float)
+        best = np.nanargmax(np.where(np.isnan(tr), -np.inf, tr), axis=0)
+        pick = np.arange(tr.shape[1])
+        per_seed = [_r(tr[i], au[i]) for i in range(tr.shape[0])]
+        z = np.arctanh(np.clip([r for r in per_seed if np.isfinite(r)], -0.999999, 0.999999))
+        rows.append(
+            {
+                "steps": int(steps),
+                "env": env,
+                "test": test,
+                "r": _r(tr[best, pick], au[best, pick]),
+                "r_seeds": float(np.tanh(z.mean())) if z.size else float("nan"),
+                "algos": int(np.isfinite(tr).any(axis=0).sum()),
+                "seeds": int(z.size),
+            }
+        )
+    return pd.DataFrame(rows, columns=["steps", "env", "test", "r", "r_seeds", "algos", "seeds"])
+
+
+def budget_summary(cells: pd.DataFrame) -> pd.DataFrame:
+    """Per budget (``steps``) over the cells of :func:`budget_correlations`: ``negative`` (cells with the thesis's
+    statistic r < 0) of ``cells`` (cells with r defined), ``mean_r`` (its mean) and ``pooled_r``, the seed-keyed r
+    pooled through Fisher z over the cells (the point estimate of the page's pooled r).
+
+    >>> cells = pd.DataFrame({"steps": [1, 1], "r": [-0.5, 0.2], "r_seeds": [-0.5, 0.5]})
+    >>> budget_summary(cells).round(3).to_dict("records")
+    [{'steps': 1, 'negative': 1, 'cells': 2, 'mean_r': -0.15, 'pooled_r': 0.0}]
+    """
+    rows = []
+    for steps, g in cells.groupby("steps", sort=True):
+        r = g["r"].to_numpy(float)
+        z = np.arctanh(np.clip(g["r_seeds"].dropna().to_numpy(float), -0.999999, 0.999999))
+        rows.append(
+            {
+                "steps": int(steps),
+                "negative": int((r[np.isfinite(r)] < 0).sum()),
+                "cells": int(np.isfinite(r).sum()),
+                "mean_r": float(np.nanmean(r)) if np.isfinite(r).any() else float("nan"),
+                "pooled_r": float(np.tanh(z.mean())) if z.size else float("nan"),
+            }
+        )
+    return pd.DataFrame(rows, columns=["steps", "negative", "cells", "mean_r", "pooled_r"])
+
+
+def thesis_negative(envs: Sequence[str] | None = None) -> tuple[int, int]:
+    """(cells with r < 0, cells) of the thesis's Fig 3.3(c) (``data/thesis/fig3_3c.csv``), over ``envs`` if given.
+
+    >>> thesis_negative(), thesis_negative(["Walker2d", "HalfCheetah", "Hopper"])
+    ((18, 20), (12, 12))
+    """
+    t = thesis_numbers.load("fig3_3c")
+    if envs is not None:
+        t = t[t["env"].isin(list(envs))]
+    return int((t["value"] < 0).sum()), int(len(t))

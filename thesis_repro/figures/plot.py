@@ -194,3 +194,29 @@ def ball_in_cup(ax: plt.Axes, rollout: Mapping[str, Any], title: str, cup_radius
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=9)
     ax.set_xlabel("x (m)")
+
+
+def r_by_budget_lines(
+    ax: plt.Axes, cells: pd.DataFrame, summary: pd.DataFrame, thesis: tuple[int, int], title: str = ""
+) -> None:
+    """r against training budget (:func:`thesis_repro.figures.ch3.budget_correlations` and ``budget_summary``): one
+    thin line per (task, test) cell (the thesis's statistic), the pooled r in black, each budget's ``k/n`` runs on
+    the axis (one tick per budget) and the thesis's share of negative cells in the title."""
+    steps = [int(s) for s in summary["steps"]]
+    at = {s: i for i, s in enumerate(steps)}
+    for (env, test), g in cells.groupby(["env", "test"], sort=False):
+        g = g.sort_values("steps")
+        ax.plot([at[s] for s in g["steps"]], g["r"], marker=".", lw=0.8, alpha=0.6, label=f"{env}/{test}")
+    ax.plot(range(len(steps)), summary["pooled_r"], "k-o", lw=2, label="pooled r (seed-keyed)")
+    ax.axhline(0.0, color="grey", lw=0.8)
+    ax.set(xlabel="training budget (env steps)", ylabel="r (testing AUC vs training return)", ylim=(-1.05, 1.05))
+    words = [f"{s / 1e6:g}M" if s >= 1_000_000 else f"{s:,}" for s in steps]
+    runs = zip(words, summary["runs"], summary["runs_total"], strict=True)
+    ax.set_xticks(range(len(steps)), [f"{w}\n{k}/{n} runs" for w, k, n in runs])
+    ax.set_xlim(-0.3, len(steps) - 0.7)
+    neg = [f"{a}/{b}" if b else "-" for a, b in zip(summary["negative"], summary["cells"], strict=True)]
+    ax.set_title(title or f"r < 0 in {', '.join(neg)} cells by budget (thesis: {thesis[0]}/{thesis[1]})", fontsize=10)
+    if len(cells):
+        ax.legend(fontsize=7, ncol=2, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    else:
+        ax.text(0.5, 0.5, "no study run computed yet", ha="center", va="center", transform=ax.transAxes)

@@ -17,6 +17,10 @@ and no existing run's key changes.
   the items that read its runs (Fig 3.3, Tables 3.4 and 3.6) ranked by claims settled per core-hour
   (:func:`thesis_repro.runs.order.rank`), each item's runs cheapest first, then by seed; every run is still trained
   to the full budget.
+* :func:`budget_points` / :func:`points_at`: Fig 3.3's per-seed points at each budget from the runs made so far (read
+  from the cache and the shipped layer only: nothing trains), with ``k of n runs``; :func:`r_by_budget`: r against
+  training budget per cell and pooled; :func:`claims_meta` / :func:`page_meta`: what Fig 3.3's and Tables 3.4 and
+  3.6's pages hand the claims layer (:mod:`thesis_repro.claims.thesis_budget` judges the 4M numbers).
 * :func:`budget_schedule` and :func:`prefix_checks`: where a learner has no budget-dependent schedule (SAC,
   DDPG and TRPO as configured), the snapshot at the ``small`` budget is the shipped ``small`` run of the same
   seed, bit for bit (``python -m thesis_repro verify --study thesis-budget``).
@@ -34,18 +38,27 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from thesis_repro import figures
 from thesis_repro.core import job_kinds, paths, scales
 from thesis_repro.core.cache import Job, Result, RunCache
 from thesis_repro.core.validation import check_choice
-from thesis_repro.evaluation import Benchmark, benchmark_jobs
-from thesis_repro.figures.ch3 import learner_timesteps, timesteps_for, variants
+from thesis_repro.evaluation import Benchmark, auc, benchmark_jobs, expected_return
+from thesis_repro.figures.ch3 import (
+    BUDGET_POINTS,
+    budget_correlations,
+    budget_summary,
+    learner_timesteps,
+    timesteps_for,
+    training_return_at,
+    variants,
+)
 from thesis_repro.learners.config import rollout_steps, snapshot_at_steps, train_config
 from thesis_repro.runs.costs import core_hours
 from thesis_repro.runs.generator import Queued
@@ -441,3 +454,178 @@ def size_line(est: SizeEstimate) -> str:
         f"evaluations {est.evaluate / 1e6:,.1f} MB)"
     )
     return text + (f"; {len(est.missing)} runs without a shipped twin not counted" if est.missing else "")
+
+
+# ---------------------------------------------------------------- Fig 3.3 at each budget, from the runs made so far
+#: The columns of :attr:`BudgetPoints.returns`.
+RETURN_COLUMNS = ("env", "algo", "test", "sigma", "seed", "return")
+
+
+@dataclass(frozen=True)
+class BudgetPoints:
+    """The study's per-seed Fig 3.3 points at one budget, from the runs made so far: ``points`` (columns
+    :data:`thesis_repro.figures.ch3.BUDGET_POINTS`; a run counts once its training entry and its evaluation under
+    every test at that budget exist), ``runs`` of ``runs_total`` made, and the testing ``returns`` per σ."""
+
+    steps: int
+    points: pd.DataFrame
+    runs: int
+    runs_total: int
+    #: the testing returns behind each AUC (``env, algo, test, sigma, seed, return``: mean over testing rollouts)
+    returns: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(columns=list(RETURN_COLUMNS)))
+    #: every run the budget needs, as (learner, task, seed)
+    expected: tuple[tuple[str, str, int], ...] = ()
+
+    @property
+    def complete(self) -> bool:
+        return self.runs == self.runs_total
+
+    @property
+    def coverage(self) -> str:
+        """``k of n runs`` (the words a page and the claims say)."""
+        return f"{self.runs} of {self.runs_total} runs"
+
+
+def points_at(scale: str, steps: int, cache: RunCache | None = None) -> BudgetPoints:
+    """:class:`BudgetPoints` of :func:`benchmark_at` ``(scale, steps)`` read from the run cache and the shipped layer
+    only: nothing is trained or evaluated. The training return is the mean of the run's last 100 training episodes
+    finished by the budget point (:func:`~thesis_repro.figures.ch3.training_return_at`; at the last point the
+    run's own ``train_return``), the AUC that of the evaluation of the point's snapshot (Eq 3.6)."""
+    cache = cache or RunCache()
+    bench = benchmark_at(scale, steps)
+    rows: list[dict[str, Any]] = []
+    rets: list[dict[str, Any]] = []
+    made = 0
+    for i, job in enumerate(bench.train_jobs):
+        cfg = job.config
+        at = next(p for p in points(cfg) if p.steps >= steps)
+        train = cache.load(job)
+        evals = {name: cache.load(jobs[i]) for name, jobs in bench.eval_jobs.items()}
+        if train is None or any(e is None for e in evals.values()):
+            continue
+        made += 1
+        tr = float(training_return_at(train, [at.steps])[0])
+        for name, ev in evals.items():
+            sig = bench.tests[name]["sigmas"]
+            per_sigma = expected_return(np.asarray(ev["returns"], float), axis=-1)
+            value = float(auc(per_sigma, sig))
+            key = {"env": cfg["env"], "algo": cfg["algorithm"], "test": name, "seed": int(cfg["seed"])}
+            rets += [{**key, "sigma": float(x), "return": float(r)} for x, r in zip(sig, per_sigma, strict=True)]
+            rows.append(
+                {
+                    "steps": int(steps),
+                    "env": cfg["env"],
+                    "test": name,
+                    "algo": cfg["algorithm"],
+                    "seed": int(cfg["seed"]),
+                    "train_return": tr,
+                    "auc": value,
+                }
+            )
+    points_frame = pd.DataFrame(rows, columns=list(BUDGET_POINTS))
+    returns = pd.DataFrame(rets, columns=list(RETURN_COLUMNS))
+    expected = tuple((j.config["algorithm"], j.config["env"], int(j.config["seed"])) for j in bench.train_jobs)
+    return BudgetPoints(int(steps), points_frame, made, len(bench.train_jobs), returns, expected)
+
+
+class _Loaded:
+    """A cache's :meth:`~thesis_repro.core.cache.RunCache.load`, each entry read once (a training run serves every
+    budget)."""
+
+    def __init__(self, cache: Any):
+        self.cache, self.seen = cache, {}
+
+    def load(self, job: Job) -> Any:
+        if job.key not in self.seen:
+            self.seen[job.key] = self.cache.load(job)
+        return self.seen[job.key]
+
+
+def budget_points(scale: str, cache: RunCache | None = None) -> list[BudgetPoints]:
+    """:func:`points_at` at every budget of the study (:func:`budgets`), from the runs made so far."""
+    loaded = _Loaded(cache or RunCache())
+    return [points_at(scale, b, loaded) for b in budgets(scale)]
+
+
+def r_by_budget(at: Sequence[BudgetPoints]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """r against training budget: per budget and Fig 3.3 cell (:func:`~thesis_repro.figures.ch3.budget_correlations`)
+    and per budget (:func:`~thesis_repro.figures.ch3.budget_summary`, with ``runs`` and ``runs_total``)."""
+    frames = [b.points for b in at if len(b.points)]
+    pts = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=list(BUDGET_POINTS))
+    cells = budget_correlations(pts)
+    summary = budget_summary(cells).set_index("steps")
+    summary = summary.reindex([b.steps for b in at])
+    summary["runs"] = [b.runs for b in at]
+    summary["runs_total"] = [b.runs_total for b in at]
+    summary["negative"] = summary["negative"].fillna(0).astype(int)
+    summary["cells"] = summary["cells"].fillna(0).astype(int)
+    return cells, summary.rename_axis("steps").reset_index()
+
+
+def table_frames(at: BudgetPoints, methods: Sequence[str]) -> dict[str, pd.DataFrame]:
+    """The study's numbers at one budget in a chapter-3 table page's schema
+    (:func:`thesis_repro.figures.ch3_tables.seed_frames`), for the table's ``methods`` only: ``aucs`` (env, test,
+    method, seed, value), ``returns`` (env, method, test, sigma, seed, return) and ``train`` (env, method, seed,
+    value: the training return at the budget)."""
+    keep = list(methods)
+    pts = at.points[at.points["algo"].isin(keep)].rename(columns={"algo": "method"})
+    aucs = pts[["env", "test", "method", "seed", "auc"]].rename(columns={"auc": "value"})
+    rets = at.returns[at.returns["algo"].isin(keep)].rename(columns={"algo": "method"})
+    rets = rets[["env", "method", "test", "sigma", "seed", "return"]]
+    train = pts.drop_duplicates(["env", "method", "seed"])[["env", "method", "seed", "train_return"]]
+    train = train.rename(columns={"train_return": "value"})
+    return {"aucs": aucs.reset_index(drop=True), "returns": rets.reset_index(drop=True), "train": train}
+
+
+def claims_meta(last: BudgetPoints, methods: Sequence[str] | None = None) -> dict[str, Any]:
+    """What a page hands the claims layer about the study (its meta key ``thesis_budget``): the study, the budget,
+    how many of the runs it needs are made and, once all are, the study's per-seed frames at that budget in the
+    page's own schema (Fig 3.3's ``points``; a table page's, :func:`table_frames`, when it names its ``methods``),
+    so the same frozen rules judge them."""
+    out: dict[str, Any] = {"study": NAME, "steps": last.steps, "runs": last.runs, "runs_total": last.runs_total}
+    if methods is not None:  # only the runs of the page's learners count
+        made = set(zip(last.points["algo"], last.points["env"], last.points["seed"].astype(int), strict=True))
+        needed = [r for r in last.expected if r[0] in set(methods)]
+        out.update(runs=sum(r in made for r in needed), runs_total=len(needed))
+    if out["runs"] == out["runs_total"]:
+        frames = {"points": last.points} if methods is None else table_frames(last, methods)
+        out["frames"] = {k: json.loads(f.to_json(orient="records")) for k, f in frames.items()}
+    return out
+
+
+def page_meta(figure_id: str, scale: str, cache: RunCache | None = None) -> dict[str, Any]:
+    """:func:`claims_meta` of item ``figure_id`` (one of :data:`ITEMS`) at the study's last budget, from the runs made
+    so far: Fig 3.3's points, or a table's frames for its learners (:func:`item_learners`) and their runs only."""
+    if figure_id not in ITEMS:
+        raise ValueError(f"{figure_id!r} reads no run of the {NAME} study; its items are: {', '.join(ITEMS)}")
+    last = points_at(scale, budgets(scale)[-1], cache)
+    return claims_meta(last, None if figure_id == "3.3" else sorted(item_learners(figure_id, scale)))
+
+
+def steps_words(steps: int) -> str:
+    """An env-step budget in a few characters: ``4M`` from a million up, else with thousands separators.
+
+    >>> steps_words(4_000_000), steps_words(2_500_000), steps_words(256)
+    ('4M', '2.5M', '256')
+    """
+    return f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps:,}"
+
+
+def budget_headline(last: BudgetPoints, summary: pd.DataFrame, thesis: tuple[int, int]) -> str:
+    """One sentence of numbers (the verdict is the claims layer's): Fig 3.3's correlation at the study's last budget
+    beside the thesis's count of negative cells, or that the study's runs are not all computed yet (k of n).
+
+    >>> s = pd.DataFrame({"steps": [4_000_000], "negative": [2], "cells": [12], "pooled_r": [0.61]})
+    >>> budget_headline(BudgetPoints(4_000_000, pd.DataFrame(), 12, 108), s, (18, 20))
+    "At the thesis's budget (4M steps) the study's runs are not all computed yet (12 of 108 runs)."
+    >>> budget_headline(BudgetPoints(4_000_000, pd.DataFrame(), 108, 108), s, (18, 20))
+    "At the thesis's budget (4M steps, 108 runs): r < 0 in 2/12 cells (thesis: 18/20), pooled r +0.61."
+    """
+    if not last.complete:
+        where = f"At the thesis's budget ({steps_words(last.steps)} steps)"
+        return f"{where} the study's runs are not all computed yet ({last.coverage})."
+    row = summary[summary["steps"] == last.steps].iloc[0]
+    return (
+        f"At the thesis's budget ({steps_words(last.steps)} steps, {last.runs} runs): r < 0 in {int(row['negative'])}/"
+        f"{int(row['cells'])} cells (thesis: {thesis[0]}/{thesis[1]}), pooled r {float(row['pooled_r']):+.2f}."
+    )
