@@ -312,6 +312,10 @@ def readme_results(ledger_json: Mapping[str, Any], scale: str) -> str:
         fresh_counts(claims) + " " + fresh_summary(claims),
         "",
     ]
+    first = next((c for c in claims if c.get(thesis_budget.KEY)), None)  # the headline claim comes first
+    if first is not None:
+        line = thesis_budget.thesis_budget_line(first[thesis_budget.KEY], first[thesis_budget.KEY].get("ours", ""))
+        out += [f"The headline at the thesis's own budget: `{first.get('id')}`, {line}.", ""]
     against = [c for c in claims if does_not_reproduce(verdict_label(c))]
     if against:
         out.append("Claims that do not reproduce:")
