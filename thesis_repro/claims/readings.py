@@ -103,16 +103,25 @@ def applies(s: Spec) -> bool:
 
 
 def routes(frames: Mapping[str, pd.DataFrame]) -> list[tuple[str, str, str]]:
-    """Per reading: ``(algo, outcome, how)`` where ``how`` is ``"judge"`` (its runs are on the pages),
-    ``"params_avg"`` (judged on params_avg's runs), ``"diverged"`` (its pilot diverged) or ``"not trained"``."""
-    have = {a for f in frames.values() if isinstance(f, pd.DataFrame) and "algo" in f.columns for a in f["algo"]}
+    """Per reading: ``(algo, outcome, how)`` where ``how`` is ``"judge"`` (its runs are on every page the claim
+    reads), ``"params_avg"`` (judged on params_avg's runs), ``"diverged"`` (its pilot diverged) or ``"not trained"``
+    (also while its grid has reached only some of the claim's pages: a claim reads all of them or none).
+
+    >>> import unittest.mock as mock
+    >>> one = {"wind": pd.DataFrame({"algo": ["kl_exact"]}), "curves@fig-4.1": pd.DataFrame({"algo": ["joint"]})}
+    >>> with mock.patch(f"{__name__}.outcomes", lambda: {"kl-exact": DISTINCT}):
+    ...     routes(one), routes({"wind": one["wind"]})
+    ([('kl-exact', 'distinct', 'not trained')], [('kl-exact', 'distinct', 'judge')])
+    """
+    sets = [set(f["algo"]) for f in frames.values() if isinstance(f, pd.DataFrame) and "algo" in f.columns]
+    anywhere, everywhere = set().union(*sets), set.intersection(*sets) if sets else set()
     out = []
     for algo, outcome in outcomes().items():
-        if outcome == PILOT_DIVERGED and column(algo) not in have:
+        if outcome == PILOT_DIVERGED and column(algo) not in anywhere:
             how = "diverged"
         elif outcome == PARAMS_AVG:
             how = "params_avg"
-        elif column(algo) in have:
+        elif column(algo) in everywhere:
             how = "judge"
         else:
             how = "not trained"

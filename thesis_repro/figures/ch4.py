@@ -35,8 +35,18 @@ from thesis_repro.figures import register_figure
 from thesis_repro.learners import iteration_steps, load_policy, train_config
 
 EVAL_KINDS: tuple[str, ...] = ("wind", "shift", "obs", "act")
-#: The thesis's spelling of the learners (figures and tables show these names; configs use the ids).
-THESIS_NAMES: dict[str, str] = {"kl-avg": "kl_avg", "params-avg": "params_avg", "kl-exact": "kl_exact"}
+
+
+def thesis_name(algo: str) -> str:
+    """A learner as the thesis spells it (figures, tables and the claims' frames; configs use the ids): the id with
+    underscores, so the readings of Eq 4.11 (``kl-avg-trpo`` -> ``kl_avg_trpo``) follow ``kl-avg`` -> ``kl_avg``.
+
+    >>> thesis_name("params-avg"), thesis_name("joint")
+    ('params_avg', 'joint')
+    """
+    return algo.replace("-", "_")
+
+
 #: The thesis's method (the claims of chapter 4 are about it), as figures name it.
 OURS = "kl_avg"
 
@@ -90,10 +100,10 @@ def run_config(
 def algo_names(settings: Mapping[str, Any]) -> list[str]:
     """The thesis's names of the figure's learners, in the settings' order (hue order of the plots).
 
-    >>> algo_names({"algos": ["kl-avg", "params-avg", "joint"]})
-    ['kl_avg', 'params_avg', 'joint']
+    >>> algo_names({"algos": ["kl-avg", "params-avg", "joint", "kl-avg-trpo"]})
+    ['kl_avg', 'params_avg', 'joint', 'kl_avg_trpo']
     """
-    return [THESIS_NAMES.get(a, a) for a in settings["algos"]]
+    return [thesis_name(a) for a in settings["algos"]]
 
 
 def runs(settings: Mapping[str, Any]) -> pd.DataFrame:
@@ -105,7 +115,7 @@ def runs(settings: Mapping[str, Any]) -> pd.DataFrame:
             for seed in range(int(settings["train_seeds"])):
                 rows.append(
                     {
-                        "algo": THESIS_NAMES.get(algo, algo),
+                        "algo": thesis_name(algo),
                         "panel": cond["panel"],
                         "condition": panel_title(cond),
                         "seed": seed,
