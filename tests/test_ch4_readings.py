@@ -183,3 +183,19 @@ def test_the_readings_page_is_rendered_from_the_pilot_summary(monkeypatch):
         assert p["provenance"]["git_commit"] and p["provenance"]["seed"] == 0
         assert p["provenance"]["timesteps"] >= p["config"]["stop_at"]
     assert pilots.summary_path("ch4-readings").stat().st_size < 200_000
+
+
+def test_a_reading_listed_on_some_items_stays_in_the_grid_until_every_item_lists_it():
+    """Fig 4.4 lists kl-avg-trpo and kl-avg-once once their runs are shipped; the other items still need them, so
+    the grid keeps both (the generator skips what is shipped), while kl-exact, on every item, is no grid learner."""
+    import json
+
+    from thesis_repro import figures
+    from thesis_repro.core import paths
+
+    doc = json.loads((paths.ROOT / "data" / "reference" / "pilots" / "ch4-readings.json").read_text())  # shipped
+    algos = pilots.grid_algos(doc)
+    listed = set.intersection(*(set(figures.get(f).settings("small")["algos"]) for f in pilots.GRID_ITEMS))
+    assert "kl-exact" in listed and "kl-exact" not in algos
+    assert {"kl-avg-trpo", "kl-avg-once"} <= set(algos)
+    assert pilots.readings_grid_jobs("small", algos)
