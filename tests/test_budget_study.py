@@ -180,3 +180,19 @@ def test_an_interrupted_study_run_resumes_to_the_same_snapshots(algo, tmp_path):
             for r in ("straight", "resumed")
         )
         assert a.keys() == b.keys() and all(th.equal(a[k], b[k]) for k in a)
+
+
+def test_a_page_that_reads_the_study_runs_is_executed_again_when_one_lands(tmp_path, monkeypatch):
+    """Fig 3.3 reads the study's runs as they land, not through its own job grid: a study run made since the page
+    was executed changes its execution key, so the book runs it again; a page that does not read them keeps its key."""
+    from thesis_repro.book import notebooks
+
+    monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "runs"))
+    before = {n: notebooks.execution_key(n, "smoke", modules=[]) for n in ("3.3", "4.4")}
+    assert notebooks.landed_runs("3.3", "smoke") == []
+    job = bs.train_jobs("smoke")[0]
+    RunCache().run(job)
+    assert notebooks.landed_runs("3.3", "smoke") == [job.key]
+    assert notebooks.landed_runs("4.4", "smoke") == []
+    assert notebooks.execution_key("3.3", "smoke", modules=[]) != before["3.3"]
+    assert notebooks.execution_key("4.4", "smoke", modules=[]) == before["4.4"]

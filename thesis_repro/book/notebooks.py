@@ -159,6 +159,20 @@ _DEPS_CODE = (
 )
 
 
+def landed_runs(nid: str, scale: str) -> list[str]:
+    """The keys of the thesis-budget study's training runs made so far (local cache or shipped), for a page that
+    reads them as they land rather than through its own job grid (:data:`thesis_repro.claims.thesis_budget.PAGES`:
+    Fig 3.3, Tables 3.4 and 3.6); ``[]`` for any other page. Part of :func:`execution_key`, so such a page is
+    executed again when a study run lands (its evaluations land with it: the generator makes them next)."""
+    from thesis_repro.claims import thesis_budget  # local: the claims' measures load pandas
+
+    if page_id(nid) not in thesis_budget.PAGES:
+        return []
+    from thesis_repro.runs import studies  # local: the study's job list loads the figures (torch)
+
+    return studies.made_study_runs(scale)
+
+
 def execution_key(
     nid: str, scale: str, parameters: dict[str, Any] | None = None, modules: list[str] | None = None
 ) -> str:
@@ -166,7 +180,7 @@ def execution_key(
 
     ``modules`` are the kit modules the notebook's kernel imported (recorded at execution, paths relative
     to the repository); ``None`` means every module of the kit. Configuration and ``data/thesis`` files
-    always count.
+    always count, and so do the study runs the page reads as they land (:func:`landed_runs`).
     """
     nid = check_notebook(nid)
     mods = paths.all_modules() if modules is None else [paths.ROOT / m for m in modules]  # relative to the repo
@@ -177,6 +191,8 @@ def execution_key(
         "retrain": os.environ.get("THESIS_REPRO_RETRAIN", ""),
         "files": paths.files_hash([*mods, *paths.data_files()]),
     }
+    if landed := landed_runs(nid, scale):
+        payload["landed"] = landed
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()
 
 

@@ -12,6 +12,7 @@ Evaluations count under their unbound and bound keys (bound: the shipped runs th
 from __future__ import annotations
 
 import json
+from functools import lru_cache
 from pathlib import Path
 
 from thesis_repro.core import job_kinds, paths
@@ -44,3 +45,18 @@ def keys(scale: str = "small", layer_root: str | Path | None = None, protocol: b
     layer = Path(layer_root) if layer_root is not None else paths.reference()
     out = budget_study.study_keys(scale, layer) | grid_keys(scale, layer)
     return out | {j.key for j in study_jobs()} if protocol else out
+
+
+@lru_cache(maxsize=8)
+def _made(scale: str, roots: tuple[str, ...], folders: tuple[str, ...]) -> list[str]:
+    """:func:`made_study_runs` for one state of the training folders (``roots`` and ``folders`` key the memo)."""
+    cache = RunCache()
+    return sorted(j.key for j in budget_study.train_jobs(scale) if cache.state(j) in ("cached", "shipped"))
+
+
+def made_study_runs(scale: str) -> list[str]:
+    """The keys of the thesis-budget study's training runs at ``scale`` that are made (in the local run cache or the
+    shipped layer), sorted; recomputed only when a training folder appears or goes."""
+    roots = (paths.runs_dir(), paths.reference())
+    folders = tuple(sorted(f"{r}/{p.name}" for r in roots for p in (r / "train").glob("*")))
+    return _made(scale, tuple(map(str, roots)), folders)
