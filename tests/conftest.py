@@ -28,6 +28,29 @@ def shipped(monkeypatch):
     return layer
 
 
+#: The xdist group of every test that reads :func:`snapshot_ledger`: one process judges it once for all of them.
+SNAPSHOT_LEDGER_GROUP = "snapshot-ledger"
+
+
+@pytest.fixture(scope="session")
+def snapshot_ledger(tmp_path_factory) -> tuple:
+    """Every claim judged from the real shipped snapshot with its shipped calibration, as a fresh clone's
+    ``claims --scale small`` judges it (:func:`thesis_repro.claims.results.snapshot_ledger`): half a minute of
+    judging, done once per pytest process for every test that reads it (they share the xdist group
+    :data:`SNAPSHOT_LEDGER_GROUP`). Read-only: a tuple of the ledger's rows."""
+    from thesis_repro.claims import results
+    from thesis_repro.core import paths
+
+    layer = paths.ROOT / "data" / "reference"
+    if not (layer / "evaluate").is_dir():
+        pytest.skip("no shipped evaluations (data/reference/evaluate)")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("THESIS_REPRO_REFERENCE", str(layer))
+        mp.setenv("THESIS_REPRO_DATA", str(tmp_path_factory.mktemp("snapshot-ledger-runs")))
+        mp.delenv("THESIS_REPRO_RETRAIN", raising=False)
+        return tuple(results.snapshot_ledger("small"))
+
+
 @pytest.fixture(autouse=True)
 def _isolated_dirs(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path_factory.mktemp("runs")))
@@ -61,12 +84,9 @@ LONGEST_FIRST: tuple[str, ...] = (
     "group:smoke",  # the smoke notebooks and the smoke book in Chromium (minutes)
     "group:claims-seeds",  # every claim judged three times
     "tests/test_claims_snapshot.py::test_the_snapshot_judges_every_claim_exactly_as_the_build_it_was_shipped_from",
-    "tests/test_results.py::test_results_md_and_readme_blocks_are_current_with_the_shipped_snapshot",
-    "tests/test_claims_v3.py::test_no_plain_verdict_rests_on_a_rule_outside_the_calibration_gate",
+    "group:" + SNAPSHOT_LEDGER_GROUP,
     "tests/test_install.py::test_a_built_wheel_scores_against_the_checkouts_shipped_runs",
     "tests/test_shipped.py::test_cheapest_shipped_run_retrains_to_the_same_policy",
-    "tests/test_claims_v3.py::test_v2_still_gives_its_registered_verdicts_on_seeds_0_to_5",
-    "tests/test_shipped.py::test_the_claims_snapshot_covers_every_ledger_file_intact",
     "tests/test_budget_study.py::test_an_interrupted_study_run_resumes_to_the_same_snapshots",
     "tests/test_claims.py::test_null_calibration",
     "group:ray",

@@ -241,12 +241,11 @@ def test_the_gate_relabels_a_rule_outside_its_calibration_or_that_cannot_be_sett
     assert judge_v3.gated(report.NOT_RUN, {}) == (report.NOT_RUN, "")
 
 
-def test_no_plain_verdict_rests_on_a_rule_outside_the_calibration_gate(shipped):
+@pytest.mark.xdist_group("snapshot-ledger")  # conftest.SNAPSHOT_LEDGER_GROUP: one judging for all
+def test_no_plain_verdict_rests_on_a_rule_outside_the_calibration_gate(snapshot_ledger):
     """Over the real ledger (the shipped snapshot): every plain v3 label comes with a calibration over >= 2,000
     draws at the observed spread whose false R and false D are within the gate."""
-    from thesis_repro.claims import ledger
-
-    rows = ledger.ledger("small")
+    rows = snapshot_ledger
     plain = [r for r in rows if r.status in judge_v3.JUDGED and r.groups and not r.v3.get("derived")]
     assert len(plain) > 20
     for r in plain:
@@ -285,16 +284,15 @@ def test_v3_is_frozen_with_v2_kept_beside_it():
     assert design.engine_of("v2") == v2["engine"] != design.engine_of("v3")
 
 
-def test_v2_still_gives_its_registered_verdicts_on_seeds_0_to_5(shipped):
+@pytest.mark.xdist_group("snapshot-ledger")  # conftest.SNAPSHOT_LEDGER_GROUP: one judging for all
+def test_v2_still_gives_its_registered_verdicts_on_seeds_0_to_5(snapshot_ledger):
     """Design v2's verdicts, recorded when v3 was made (by v2's own code), come out the same beside v3's."""
     import json
     from pathlib import Path
 
-    from thesis_repro.claims import ledger
-
     record = json.loads((Path(__file__).parent / "data" / "claims-v2-verdicts.json").read_text())
     assert record["design"]["hash"] == design.previous()["hash"]
-    got = {r.spec.id: r.v2_status or r.status for r in ledger.ledger("small")}
+    got = {r.spec.id: r.v2_status or r.status for r in snapshot_ledger}
     assert got == record["verdicts"]
 
 

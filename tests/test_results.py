@@ -22,9 +22,11 @@ CLAIM = {
 }
 
 
-def test_results_md_and_readme_blocks_are_current_with_the_shipped_snapshot(monkeypatch):
+@pytest.mark.xdist_group("snapshot-ledger")  # conftest.SNAPSHOT_LEDGER_GROUP: one judging for all
+def test_results_md_and_readme_blocks_are_current_with_the_shipped_snapshot(snapshot_ledger, monkeypatch):
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(paths.ROOT / "data" / "reference"))  # the real shipped layer
-    stale = [p.name for p, text in results.generated_files("small").items() if not p.exists() or p.read_text() != text]
+    files = results.generated_files("small", rows=snapshot_ledger)
+    stale = [p.name for p, text in files.items() if not p.exists() or p.read_text() != text]
     assert not stale, f"out of date with the shipped claims snapshot: {', '.join(stale)}; run `make results`"
 
 

@@ -11,7 +11,7 @@ import re
 
 import pytest
 
-from thesis_repro.claims import ledger, report, snapshot
+from thesis_repro.claims import report, snapshot
 from thesis_repro.cli import verify
 from thesis_repro.core import paths, provenance
 from thesis_repro.core.cache import RunCache, read_entry
@@ -105,7 +105,8 @@ def test_cheapest_shipped_run_retrains_to_the_same_policy(tmp_path):
         assert fresh["train_return"] == pytest.approx(shipped["train_return"], rel=1e-6, abs=1e-6)
 
 
-def test_the_claims_snapshot_covers_every_ledger_file_intact(monkeypatch):
+@pytest.mark.xdist_group("snapshot-ledger")  # conftest.SNAPSHOT_LEDGER_GROUP: one judging for all
+def test_the_claims_snapshot_covers_every_ledger_file_intact(snapshot_ledger, monkeypatch):
     """What a fresh clone's ``claims --scale small --json`` judges before its book (``make ship-claims``): every
     file the ledger reads, each matching its SHA-256, with the provenance of its shipping; judged from it alone
     (an empty build folder), no claim is left *not computed*."""
@@ -115,7 +116,7 @@ def test_the_claims_snapshot_covers_every_ledger_file_intact(monkeypatch):
     assert idx["provenance"]["git_commit"] and idx["provenance"]["platform"]["cpu"]
     for name in snapshot.files():
         assert snapshot.read(name, "small") is not None
-    rows = [ledger.judge(s, "small", with_null=False) for s in ledger.specs()]
+    rows = snapshot_ledger
     assert [r.spec.id for r in rows if r.status == report.NOT_COMPUTED] == []
     judged = [r for r in rows if r.status != report.VISUAL]
     assert all(r.shipped for r in judged), [r.spec.id for r in judged if not r.shipped]

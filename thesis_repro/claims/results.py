@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 from unittest import mock
 
-from thesis_repro.claims import deviations, ledger, registry, scoreboard, thesis_budget
+from thesis_repro.claims import deviations, ledger, scoreboard, thesis_budget
 from thesis_repro.claims.confirmatory import (
     FIRST_FRESH,
     FRESH_WORDS,
@@ -42,6 +42,7 @@ from thesis_repro.claims.confirmatory import (
     seed_range,
     v2_words,
 )
+from thesis_repro.claims.ledger_row import Row
 from thesis_repro.core import paths, scales, yamlfile
 
 #: The README's generated blocks: the results summary and the scale table.
@@ -414,12 +415,18 @@ def snapshot_only() -> Iterator[None]:
             yield
 
 
-def ledger_json(scale: str) -> dict[str, Any]:
-    """The ledger's JSON at ``scale`` from the shipped snapshot, with the shipped calibration (v3's gate reads it;
-    nothing is simulated here)."""
+def snapshot_ledger(scale: str) -> list[Row]:
+    """Every claim judged at ``scale`` from the shipped snapshot alone, with the shipped calibration (v3's gate
+    reads it; nothing is simulated here): what a fresh clone's ``claims`` prints."""
     with snapshot_only():
-        rows = sorted((ledger.judge(s, scale) for s in registry.specs()), key=lambda r: r.spec.beyond)
-        return scoreboard.as_json(rows, scale)
+        return ledger.ledger(scale)
+
+
+def ledger_json(scale: str, rows: Sequence[Row] | None = None) -> dict[str, Any]:
+    """The ledger's JSON at ``scale`` from the shipped snapshot (``rows``: :func:`snapshot_ledger`'s, when already
+    judged)."""
+    with snapshot_only():
+        return scoreboard.as_json(list(snapshot_ledger(scale) if rows is None else rows), scale)
 
 
 def more_seeds(scale: str) -> dict[str, int]:
@@ -462,11 +469,12 @@ def scale_rows() -> str:
     return f"{table}\n\n{note}" if note else table
 
 
-def generated_files(scale: str = SCALE, root: Path | None = None) -> dict[Path, str]:
-    """{path: text} of every generated file, rendered from the shipped snapshot (nothing is written)."""
+def generated_files(scale: str = SCALE, root: Path | None = None, rows: Sequence[Row] | None = None) -> dict[Path, str]:
+    """{path: text} of every generated file, rendered from the shipped snapshot (nothing is written; ``rows``:
+    :func:`snapshot_ledger`'s, when already judged)."""
     root = Path(root) if root is not None else paths.ROOT
     readme = (root / "README.md").read_text()
-    texts = render_results(ledger_json(scale), scale, readme, scale_rows())
+    texts = render_results(ledger_json(scale, rows), scale, readme, scale_rows())
     return {root / name: text for name, text in texts.items()}
 
 
