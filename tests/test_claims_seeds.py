@@ -211,7 +211,8 @@ def judged(saved):
             for var, folder in env.items():
                 mp.setenv(var, folder)
             specs = [registry.spec(i) for i in COMPARATIVE_IDS] if name == "decided" else registry.specs()
-            out[name] = {s.id: ledger.judge(s, SCALE, with_null=False) for s in specs}
+            with store.one_pass():  # each page read once, as `claims` reads them
+                out[name] = {s.id: ledger.judge(s, SCALE, with_null=False) for s in specs}
     return out
 
 
