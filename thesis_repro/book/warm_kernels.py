@@ -94,13 +94,24 @@ def _kernel_env(env: dict[str, str]) -> dict[str, str]:
     return {k: v for k, v in env.items() if k != "PYTHONEXECUTABLE"}
 
 
-def env_differences(server: dict[str, str], kernel: dict[str, str]) -> list[str]:
-    """Variables whose values differ between ``server`` and ``kernel``, per-kernel ones aside.
+def env_differences(
+    server: dict[str, str], kernel: dict[str, str], imported: dict[str, str] | None = None
+) -> list[str]:
+    """Variables whose values differ between ``server`` and ``kernel``, per-kernel ones aside, and those the server's
+    imports set (``imported``) to the kernel's value (gymnasium sets ``PYGAME_HIDE_SUPPORT_PROMPT`` on import: the
+    builder has it once it imported gymnasium, the server once it has, and a kernel once it does).
 
     >>> env_differences({"MKL_CBWR": "COMPATIBLE", "THESIS_REPRO_BUILD": "a"}, {"THESIS_REPRO_BUILD": "b"})
     ['MKL_CBWR']
+    >>> env_differences({}, {"PYGAME_HIDE_SUPPORT_PROMPT": "hide"}, {"PYGAME_HIDE_SUPPORT_PROMPT": "hide"})
+    []
     """
-    return sorted(k for k in set(server) | set(kernel) if not _per_kernel(k) and server.get(k) != kernel.get(k))
+    imported = imported or {}
+    return sorted(
+        k
+        for k in set(server) | set(kernel)
+        if not _per_kernel(k) and server.get(k) != kernel.get(k) and (k not in imported or imported[k] != kernel.get(k))
+    )
 
 
 class WarmProcess:
@@ -178,6 +189,7 @@ class WarmServer:
         self.path = str(Path(tempfile.gettempdir()) / f"{KERNEL_PREFIX}{os.getpid()}-warm")
         self.env = _kernel_env(dict(os.environ))
         self.executable: str | None = None
+        self.imported: dict[str, str] = {}  # variables the server's imports set (env_differences)
         with contextlib.suppress(OSError):
             os.unlink(self.path)
         boot = "import sys; del sys.path[0]; from thesis_repro.book.warm_kernels import serve; serve(*sys.argv[1:])"
@@ -198,6 +210,7 @@ class WarmServer:
                 with contextlib.suppress(ValueError):
                     hello = json.loads(self.proc.stdout.readline() or b"{}")
                     self.executable = hello.get("executable") or ""
+                    self.imported = hello.get("imported") or {}
             self.executable = self.executable or ""
         return bool(self.executable) and self.proc.poll() is None
 
@@ -209,7 +222,7 @@ class WarmServer:
             and cmd[n : n + 2] == ["-m", "ipykernel_launcher"]
             and cmd[0] == self.executable
             and set(kw) <= _KEYWORDS
-            and not env_differences(self.env, _kernel_env(kw.get("env", os.environ)))
+            and not env_differences(self.env, _kernel_env(kw.get("env", os.environ)), self.imported)
         )
 
     def launch(self, cmd: list[str], kw: dict[str, Any]) -> WarmProcess | None:
@@ -303,11 +316,17 @@ def serve(path: str, parent: str) -> None:
     """The server: import :data:`PRELOAD`, say ``{"executable": ...}`` on stdout, then fork a kernel per request
     on the Unix socket ``path`` until stdin closes (the builder ended the build or died)."""
     _die_with_parent(int(parent))
+    hello = os.fdopen(os.dup(1), "w")
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)  # what the imports print is no hello
+    os.close(null)
+    before = dict(os.environ)
     if not os.environ.get("MPLBACKEND"):  # what ipykernel sets, and before matplotlib loads (inline figures)
         os.environ["MPLBACKEND"] = INLINE_BACKEND
     for name in PRELOAD:
         with contextlib.suppress(Exception):
             importlib.import_module(name)
+    imported = {k: v for k, v in os.environ.items() if k != "MPLBACKEND" and before.get(k) != v}
     if threading.active_count() != 1:
         os._exit(1)  # a fork would copy a half-held lock: the builder sees no hello and launches cold
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -320,8 +339,8 @@ def serve(path: str, parent: str) -> None:
     signal.signal(signal.SIGCHLD, lambda *_: None)  # wakes select() through wake_w
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # the parent-death signal: clean up below
     children: dict[int, socket.socket] = {}
-    sys.stdout.write(json.dumps({"executable": sys.executable}) + "\n")
-    sys.stdout.flush()
+    with hello:
+        hello.write(json.dumps({"executable": sys.executable, "imported": imported}) + "\n")
     try:
         while True:
             ready = select.select([listener, 0, wake_r], [], [])[0]
@@ -410,6 +429,8 @@ def _kernel(request: dict[str, Any], fds: list[int], close: list[int]) -> None:
         spec = importlib.util.find_spec("ipykernel_launcher")
         sys.argv = [spec.origin if spec and spec.origin else "ipykernel_launcher", *request["argv"]]
         _forget_kit()
+        if (np_random := sys.modules.get("numpy.random")) is not None:
+            np_random.seed()  # fresh entropy, as a cold kernel's import draws (Python's random reseeds at fork)
         from ipykernel import kernelapp
 
         try:
