@@ -429,8 +429,7 @@ def _kernel(request: dict[str, Any], fds: list[int], close: list[int]) -> None:
         spec = importlib.util.find_spec("ipykernel_launcher")
         sys.argv = [spec.origin if spec and spec.origin else "ipykernel_launcher", *request["argv"]]
         _forget_kit()
-        if (np_random := sys.modules.get("numpy.random")) is not None:
-            np_random.seed()  # fresh entropy, as a cold kernel's import draws (Python's random reseeds at fork)
+        _as_in_a_kernel()
         from ipykernel import kernelapp
 
         try:
@@ -450,6 +449,16 @@ def _kernel(request: dict[str, Any], fds: list[int], close: list[int]) -> None:
             with contextlib.suppress(Exception):
                 stream.flush()
         os._exit(code)
+
+
+def _as_in_a_kernel() -> None:
+    """Redo what a preloaded library decided on import from where it ran (the server is no Jupyter kernel): a
+    cold kernel imports it with fresh entropy, and inside a kernel."""
+    if (np_random := sys.modules.get("numpy.random")) is not None:
+        np_random.seed()  # numpy's global generator (Python's random reseeds itself at a fork)
+    if (pandas := sys.modules.get("pandas")) is not None:
+        # pandas' config_init: 0 (fit the terminal) outside IPython, 20 inside a Jupyter kernel
+        pandas.set_option("display.max_columns", 20)
 
 
 def _forget_kit() -> None:
