@@ -8,6 +8,7 @@ import asyncio
 import json
 import os
 import re
+import socket
 import sys
 import tempfile
 from pathlib import Path
@@ -29,6 +30,23 @@ def test_env_differences_ignore_only_per_kernel_variables():
     assert warm_kernels.env_differences(server, {k: v for k, v in kernel.items() if k != "OMP_NUM_THREADS"}) == [
         "OMP_NUM_THREADS"
     ]
+
+
+def test_warm_process_reads_the_exit_status_the_server_sends():
+    """The handle's returncode is what the server reports after reaping the kernel; with the server gone, the
+    kernel counts as alive while it exists."""
+    ours, servers = socket.socketpair()
+    proc = warm_kernels.WarmProcess(os.getpid(), ours)
+    assert proc.poll() is None
+    servers.sendall(b"-9\n")
+    assert proc.wait(5) == -9 and proc.poll() == -9
+    ours, servers = socket.socketpair()
+    proc = warm_kernels.WarmProcess(os.getpid(), ours, b"0\n")  # the status came with the pid
+    assert proc.poll() == 0
+    ours, servers = socket.socketpair()
+    proc = warm_kernels.WarmProcess(os.getpid(), ours)
+    servers.close()
+    assert proc.poll() is None  # this process is alive
 
 
 def test_off_switch(monkeypatch):

@@ -123,13 +123,17 @@ class WarmProcess:
 
     stdin = stdout = stderr = None
 
-    def __init__(self, pid: int, conn: socket.socket):
+    def __init__(self, pid: int, conn: socket.socket, buf: bytes = b""):
         self.pid, self.returncode, self.args = pid, None, ["warm kernel", str(pid)]
         self._conn: socket.socket | None = conn
-        self._buf = b""
+        self._buf = buf  # what the server sent after the pid: the exit status, once the kernel has ended
 
     def poll(self) -> int | None:
         if self.returncode is not None:
+            return self.returncode
+        if b"\n" in self._buf:
+            self.returncode = int(self._buf.split(b"\n", 1)[0])
+            self._close()
             return self.returncode
         if self._conn is not None:
             while select.select([self._conn], [], [], 0)[0]:
@@ -247,7 +251,8 @@ class WarmServer:
                     raise OSError("the warm-kernel server closed the connection")
                 reply += chunk
             conn.settimeout(None)
-            return WarmProcess(int(reply.split(b"\n", 1)[0]), conn)
+            pid, _, rest = reply.partition(b"\n")
+            return WarmProcess(int(pid), conn, rest)
         except (OSError, ValueError):
             conn.close()
             return None
