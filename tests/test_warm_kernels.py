@@ -32,6 +32,13 @@ def test_env_differences_ignore_only_per_kernel_variables():
     ]
 
 
+def test_the_socket_is_a_kernel_file_of_the_builder():
+    """``clean_stale`` removes a dead builder's socket with its kernels' files."""
+    name = warm_kernels.SOCKET_NAME.format(pid=123)
+    assert name.startswith(notebook_kernel.KERNEL_PREFIX)
+    assert notebook_kernel.owner_pid(name, notebook_kernel.KERNEL_PREFIX) == 123
+
+
 def test_warm_process_reads_the_exit_status_the_server_sends():
     """The handle's returncode is what the server reports after reaping the kernel; with the server gone, the
     kernel counts as alive while it exists."""

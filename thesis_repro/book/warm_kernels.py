@@ -4,10 +4,10 @@ A fresh Jupyter kernel spends about 5 s importing the same third-party modules (
 stable-baselines3, gymnasium, MuJoCo, seaborn) before its notebook does anything; a book executes 25 notebooks.
 :func:`warm_kernels` (the book builder's context) starts a *server*: ``python -c`` with the kernelspec's flags,
 which imports :data:`PRELOAD` and ipykernel, then forks one kernel per request on a Unix socket
-(``<tmp>/thesis-repro-kernel-<builder pid>-warm``, removed with the build or by
-:func:`thesis_repro.book.notebooks.clean_stale`). :class:`thesis_repro.book.notebook_kernel.QuietKernelManager`
-asks it first (:func:`launch`) and launches the kernel the usual (cold) way when there is no server, it failed,
-or the kernel would differ from the server in anything but its per-kernel variables (:data:`PER_KERNEL`).
+(:data:`SOCKET_NAME`, removed with the build or by :func:`thesis_repro.book.notebooks.clean_stale`).
+:class:`thesis_repro.book.notebook_kernel.QuietKernelManager` asks it first (:func:`launch`) and launches the
+kernel the usual (cold) way when there is no server, it failed, or the kernel would differ from the server in
+anything but its per-kernel variables (:data:`PER_KERNEL`).
 
 What a warm kernel must share with a cold one:
 
@@ -82,6 +82,10 @@ PER_KERNEL: tuple[str, ...] = ("THESIS_REPRO_BUILD", "THESIS_REPRO_PUBLISHED_BUI
 _KEYWORDS = {"env", "cwd", "stdout", "stderr", "extra_arguments", "kernel_id"}
 #: Seconds to wait for the server's imports, and for a fork's reply.
 START_TIMEOUT, REPLY_TIMEOUT = 180.0, 30.0
+#: The server's socket in the temp folder, named as a kernel file of the builder
+#: (:data:`thesis_repro.book.notebook_kernel.KERNEL_PREFIX`, not imported: it imports this module), so that
+#: :func:`thesis_repro.book.notebooks.clean_stale` removes it once the builder is dead.
+SOCKET_NAME = "thesis-repro-kernel-{pid}-warm"
 _ACTIVE: list[WarmServer] = []
 
 
@@ -187,10 +191,8 @@ class WarmServer:
     """The builder's side of the server: its process, socket, and the environment and python it runs."""
 
     def __init__(self, argv: list[str]):
-        from thesis_repro.book.notebook_kernel import KERNEL_PREFIX  # local: the server must not import it
-
         self.prefix = argv[: argv.index("-m")]  # the kernelspec's python and its flags (-Xfrozen_modules=off)
-        self.path = str(Path(tempfile.gettempdir()) / f"{KERNEL_PREFIX}{os.getpid()}-warm")
+        self.path = str(Path(tempfile.gettempdir()) / SOCKET_NAME.format(pid=os.getpid()))
         self.env = _kernel_env(dict(os.environ))
         self.executable: str | None = None
         self.imported: dict[str, str] = {}  # variables the server's imports set (env_differences)
