@@ -52,7 +52,7 @@ from typing import Any
 
 import yaml
 
-from thesis_repro.book import notebooks, protocol
+from thesis_repro.book import notebooks, protocol, warm_kernels
 from thesis_repro.claims import ledger, readings, registry, report, results
 from thesis_repro.claims import scoreboard as claims_scoreboard
 from thesis_repro.core import paths, yamlfile
@@ -627,7 +627,7 @@ def build(
     (root / "executed").mkdir()
     ran, kept, failed, pending = [], [], {}, {}
     order = execution_order(ids)  # pages read by other pages' claims first; the TOC keeps book order
-    with BookProgress(len(order)) as progress:
+    with BookProgress(len(order)) as progress, warm_kernels.warm_kernels():  # kernels forked, imports done
         for nid in order:
             total, todo = untrained(nid, scale) if shipped_only else (0, [])
             if todo:

@@ -73,13 +73,30 @@ class QuietKernelManager(AsyncKernelManager):
         dropped (the pool's resource tracker, for one, warns of the semaphores it then cleans up)."""
         read, write = os.pipe()
         try:
-            await super()._async_launch_kernel(kernel_cmd, **{**kw, "stderr": write})
+            if not self._launch_warm(kernel_cmd, {**kw, "stderr": write}):
+                await super()._async_launch_kernel(kernel_cmd, **{**kw, "stderr": write})
         except BaseException:
             os.close(read)
             raise
         finally:
             os.close(write)  # the kernel holds its own copy: the relay ends when the kernel family is gone
         threading.Thread(target=self._relay, args=(read,), name=f"stderr of {self.ip}", daemon=True).start()
+
+    def _launch_warm(self, kernel_cmd: list[str], kw: dict[str, Any]) -> bool:
+        """Fork the kernel from a book build's warm server (:mod:`thesis_repro.book.warm_kernels`) and set up
+        the provisioner as jupyter_client's launch would; False: no warm kernel, launch it cold."""
+        from thesis_repro.book import warm_kernels
+
+        proc = warm_kernels.launch(kernel_cmd, kw)
+        if proc is None:
+            return False
+        prov = self.provisioner
+        assert prov is not None
+        prov.process, prov.pid = proc, proc.pid  # type: ignore[attr-defined]
+        prov.pgid = proc.pid  # type: ignore[attr-defined]  # the kernel leads a session of its own
+        prov.cwd = kw.get("cwd", Path.cwd())  # type: ignore[attr-defined]
+        self._reconcile_connection_info(prov.connection_info)
+        return True
 
     def _relay(self, fd: int) -> None:
         """Copy the kernel's stderr pipe ``fd`` to this process's stderr (file descriptor 2, which the kernel
