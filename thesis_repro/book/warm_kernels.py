@@ -64,6 +64,8 @@ PRELOAD: tuple[str, ...] = (
     "seaborn",
     "torch",
     "torch.nn.functional",
+    "torch.optim",
+    "torch._dynamo",  # imported by every optimizer step (torch.optim.optimizer._use_grad): 2-3 s a kernel
     "gymnasium",
     "mujoco",
     "stable_baselines3",
