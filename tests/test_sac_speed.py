@@ -49,9 +49,11 @@ def test_polyak_factor_and_step_counters_give_the_same_bits():
 
 
 def test_replay_sample_take_path_equals_advanced_indexing():
-    m = FastSAC("MlpPolicy", gym.make("InvertedPendulum-v5"), learning_starts=10, buffer_size=500, seed=0)
-    m.learn(300)
+    # 600 random steps fill the 500-step buffer and wrap (no gradient step: only the sampling is under test)
+    m = FastSAC("MlpPolicy", gym.make("InvertedPendulum-v5"), learning_starts=10_000, buffer_size=500, seed=0)
+    m.learn(600)
     buf = m.replay_buffer
+    assert buf.full
     np.random.seed(3)
     fast = _replay_sample(m, 64)
     after = np.random.get_state()[1].copy()
