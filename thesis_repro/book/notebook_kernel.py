@@ -73,8 +73,9 @@ class QuietKernelManager(AsyncKernelManager):
         dropped (the pool's resource tracker, for one, warns of the semaphores it then cleans up)."""
         read, write = os.pipe()
         try:
-            if not self._launch_warm(kernel_cmd, {**kw, "stderr": write}):
-                await super()._async_launch_kernel(kernel_cmd, **{**kw, "stderr": write})
+            kw = {**kw, "stderr": write}
+            if not self._launch_warm(kernel_cmd, kw):
+                await super()._async_launch_kernel(kernel_cmd, **kw)
         except BaseException:
             os.close(read)
             raise

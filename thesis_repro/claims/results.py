@@ -425,8 +425,9 @@ def snapshot_ledger(scale: str) -> list[Row]:
 def ledger_json(scale: str, rows: Sequence[Row] | None = None) -> dict[str, Any]:
     """The ledger's JSON at ``scale`` from the shipped snapshot (``rows``: :func:`snapshot_ledger`'s, when already
     judged)."""
+    rows = snapshot_ledger(scale) if rows is None else rows
     with snapshot_only():
-        return scoreboard.as_json(list(snapshot_ledger(scale) if rows is None else rows), scale)
+        return scoreboard.as_json(list(rows), scale)
 
 
 def more_seeds(scale: str) -> dict[str, int]:
