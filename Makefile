@@ -99,7 +99,8 @@ test-verify: $(STAMP)
 # pytest with its arguments $(1), in a temporary run cache and build folder (removed after)
 define pytest_in_tmp
 	tmp=$$(mktemp -d); trap 'rm -rf "$$tmp"' EXIT; \
-	export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build SB3_LOGDIR=$$tmp/sb3-log; \
+	export THESIS_REPRO_DATA=$$tmp/runs THESIS_REPRO_BUILD=$$tmp/build SB3_LOGDIR=$$tmp/sb3-log \
+	  THESIS_REPRO_STAMPS=$$tmp/stamps; \
 	$(BIN)/python -m pytest $(1) \
 	  || { rc=$$?; [ $$rc -ne 5 ] || echo "error: pytest collected no tests"; exit $$rc; }
 endef

@@ -34,14 +34,16 @@ import seaborn as sns
 
 from thesis_repro import claims, figures
 from thesis_repro.book import pages
+from thesis_repro.claims.measures.ch4 import diverged
 from thesis_repro.evaluation import tables
-from thesis_repro.figures import ch4, plot
+from thesis_repro.figures import ch4, entropy, plot
 
 settings = figures.settings("4.7", SCALE)
 print(pages.runs_summary("4.7", SCALE))
 (cond,) = ch4.conditions("4.7", settings["panels"])
 KL_FLOOR = 1e-12  # a KL of exactly 0 (sub-policies equal to the aggregate) is drawn at this floor
-curves = ch4.curves_frame(ch4.train_runs(settings, n_jobs=settings["n_jobs"]))
+runs = ch4.train_runs(settings, n_jobs=settings["n_jobs"])
+curves = ch4.curves_frame(runs)
 
 # %%
 fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
@@ -60,6 +62,20 @@ axes[1].set(
 fig.suptitle(f"Fig 4.7 reproduced — {settings['env']}, scale={SCALE}\n{plot.seed_band(curves, ['algo', 'iteration'])}")
 fig.tight_layout()
 plot.save(fig, SCALE, "fig-4.7")
+
+# %% [markdown]
+# ## The log-σ argument, checked on these runs
+#
+# log σ is state-independent, so every Fisher-weighted aggregate (Eq 4.10/4.11 and the readings built on it) sets
+# it to params_avg's at each aggregation (the chapter-4 readings page derives this). The entropy of a diagonal
+# Gaussian is Σ log σ plus a constant. The argument therefore predicts that a Fisher reading taking full steps
+# ends at params_avg's entropy up to seed noise (*same*), while kl_exact's moment matching and a trust region's
+# fractional step α < 1 may move it (*moves*). Runs that diverged (the claims' rule) are left out.
+
+# %%
+sigma = entropy.log_sigma_check(runs, curves, diverged(curves))
+print(sigma.to_string())
+print(entropy.check_line(sigma))
 
 # %% [markdown]
 # ## Does the claim reproduce at this scale?

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 import thesis_repro  # noqa: F401 - sets the pinned numerics before any test imports torch
@@ -49,6 +51,21 @@ def snapshot_ledger(tmp_path_factory) -> tuple:
         mp.setenv("THESIS_REPRO_DATA", str(tmp_path_factory.mktemp("snapshot-ledger-runs")))
         mp.delenv("THESIS_REPRO_RETRAIN", raising=False)
         return tuple(results.snapshot_ledger("small"))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _shared_stamps(tmp_path_factory):
+    """One folder of computed module hashes for the whole session (``make test`` names it for every worker and
+    subprocess): each test's fresh build folder would otherwise hash the kit's modules again. The entries are
+    content-addressed, so sharing them changes no stamp."""
+    from thesis_repro.core import stamps
+
+    if os.environ.get(stamps.STAMPS_ENV):
+        yield
+        return
+    os.environ[stamps.STAMPS_ENV] = str(tmp_path_factory.mktemp("stamps"))
+    yield
+    os.environ.pop(stamps.STAMPS_ENV, None)
 
 
 @pytest.fixture(autouse=True)

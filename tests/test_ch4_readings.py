@@ -199,3 +199,54 @@ def test_a_reading_listed_on_some_items_stays_in_the_grid_until_every_item_lists
     assert "kl-exact" in listed and "kl-exact" not in algos
     assert {"kl-avg-trpo", "kl-avg-once"} <= set(algos)
     assert pilots.readings_grid_jobs("small", algos)
+
+
+def _entropy_runs(final: dict[str, list[float]], alpha: dict[str, float]) -> tuple:
+    """A runs table and curves frame: per algo and seed, 6 iterations of return 100 ending at ``final`` entropy."""
+    import pandas as pd
+
+    runs, parts = [], []
+    for algo, ents in final.items():
+        for seed, e in enumerate(ents):
+            result = {"curve_step_fraction": [alpha[algo]] * 6} if algo in alpha else {}
+            runs.append({"algo": algo, "seed": seed, "result": result})
+            parts.append(
+                pd.DataFrame(
+                    {"algo": algo, "seed": seed, "iteration": range(1, 7), "return": 100.0, "entropy": [8.5] * 5 + [e]}
+                )
+            )
+    return pd.DataFrame(runs), pd.concat(parts, ignore_index=True)
+
+
+def test_the_log_sigma_check_tests_only_full_step_fisher_readings_against_params_avg():
+    from thesis_repro.figures import entropy
+
+    final = {
+        "params_avg": [6.6, 6.7, 6.8],
+        "kl_avg_once": [6.5, 6.7, 6.9],  # same σ rule, full steps: the interval covers 0
+        "kl_diag": [7.6, 7.7, 7.8],  # same σ rule, full steps, 1 nat higher: the argument fails
+        "kl_avg_trpo": [8.6, 8.7, 8.8],  # α < 1: allowed to move
+        "kl_exact": [8.0, 8.1, 8.2],
+    }
+    runs, curves = _entropy_runs(final, {"kl_avg_once": 1.0, "kl_diag": 1.0, "kl_avg_trpo": 0.4})
+    table = entropy.log_sigma_check(runs, curves)
+    assert table.loc["kl_avg_once", "argument"] == "same: yes"
+    assert table.loc["kl_diag", "argument"] == "same: NO"
+    assert table.loc["kl_avg_trpo", "argument"] == table.loc["kl_exact", "argument"] == "moves"
+    assert table.loc["params_avg", "argument"] == "-"
+    assert table.loc["kl_avg_trpo", "mean α"] == "0.40"
+    line = entropy.check_line(table)
+    assert "kl_diag keeps params_avg's log σ with a full step" in line and "NOT consistent" in line
+
+
+def test_the_log_sigma_check_leaves_out_diverged_runs_and_says_so():
+    import pandas as pd
+
+    from thesis_repro.figures import entropy
+
+    runs, curves = _entropy_runs({"params_avg": [6.6, 6.7], "kl_avg": [float("nan"), float("nan")]}, {})
+    div = pd.DataFrame({"algo": ["kl_avg"] * 2, "seed": [0, 1], "diverged": True})
+    table = entropy.log_sigma_check(runs, curves, div)
+    assert table.loc["kl_avg", "argument"] == "diverged, not judged"
+    assert table.loc["kl_avg", "seeds"] == "0 (2 diverged)"
+    assert "kl_avg: every run diverged in training, not judged." in entropy.check_line(table)

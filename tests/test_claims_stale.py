@@ -172,3 +172,22 @@ def test_a_ledger_without_saved_pages_says_how_to_compute_them(tmp_path, monkeyp
 def test_a_ledger_with_every_page_saved_prints_no_hint(saved, capsys):
     assert cli.main(["--scale", SCALE, "--no-null", "--ids", "3.3-negative-correlation"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_computed_hashes_are_kept_content_addressed_where_thesis_repro_stamps_says(tmp_path, monkeypatch):
+    monkeypatch.setenv(stamps.STAMPS_ENV, str(tmp_path / "shared"))
+    calls = []
+
+    def compute() -> str:
+        calls.append(1)
+        return "0123456789abcdef"
+
+    assert stamps._memo("module", b"x = 1\n", compute) == "0123456789abcdef"
+    (entry,) = (tmp_path / "shared").rglob("module-*")
+    assert stamps._memo("module", b"x = 1\n", compute) == "0123456789abcdef" and len(calls) == 1  # read back
+    entry.write_text("not a hash")  # a corrupt entry is recomputed and rewritten
+    assert stamps._memo("module", b"x = 1\n", compute) == "0123456789abcdef" and len(calls) == 2
+    assert entry.read_text() == "0123456789abcdef"
+    monkeypatch.delenv(stamps.STAMPS_ENV)  # unset: the build folder's own .stamps
+    stamps._memo("module", b"x = 1\n", compute)
+    assert list((paths.build_dir(".stamps")).rglob("module-*"))

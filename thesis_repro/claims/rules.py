@@ -8,6 +8,7 @@ claim's power is computed (:func:`thesis_effects`).
 
 from __future__ import annotations
 
+import json
 import warnings
 from collections.abc import Mapping
 from functools import cache
@@ -120,7 +121,17 @@ def rule_text(s: Spec) -> str:
 def thesis_effects(s: Spec, rule2: Mapping[str, Any]) -> dict[str, float]:
     """Per unit label, the thesis's own effect in margin units (for power): Fig 3.3c's r per cell for the
     correlation measures, else the claim's measure on the thesis's tables (:func:`thesis_data`); ``{}`` when
-    the thesis reports no number the measure can read."""
+    the thesis reports no number the measure can read. Computed once per (page, rule) in a process: the thesis's
+    tables do not change while it runs."""
+    return dict(_thesis_effects(s.page, json.dumps(rule2, sort_keys=True, default=str)))
+
+
+@cache
+def _thesis_effects(page: str, rule_json: str) -> tuple[tuple[str, float], ...]:
+    return tuple(_compute_thesis_effects(page, json.loads(rule_json)).items())
+
+
+def _compute_thesis_effects(page: str, rule2: Mapping[str, Any]) -> dict[str, float]:
     m = rule2.get("measure")
     if m in ("correlation", "mean_selection"):
         t = thesis_numbers.load("fig3_3c")
@@ -128,7 +139,7 @@ def thesis_effects(s: Spec, rule2: Mapping[str, Any]) -> dict[str, float]:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            groups = M.MEASURES[m](thesis_data(s.page), rule2)
+            groups = M.MEASURES[m](thesis_data(page), rule2)
     except Exception:  # noqa: BLE001 - the thesis's tables cannot feed every measure: no thesis effect
         return {}
     out = {}

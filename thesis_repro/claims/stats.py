@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from functools import lru_cache
 from typing import Any
 
@@ -399,6 +399,39 @@ def combine_groups(statuses: Sequence[str]) -> str:
     return PARTLY
 
 
+@dataclass(frozen=True)
+class _EstimatedOnce(Contrast):
+    """A :class:`Contrast` whose :meth:`estimate` (per level) and :meth:`n` are computed once (pure functions of its
+    fields): a judge reads each several times, and the null draws judge thousands of contrasts."""
+
+    def estimate(self, level: float = LEVEL) -> Estimate:
+        memo = self.__dict__.setdefault("_estimates", {})
+        if level not in memo:
+            memo[level] = super().estimate(level)
+        return memo[level]
+
+    def n(self) -> int:
+        if "_n" not in self.__dict__:
+            self.__dict__["_n"] = super().n()
+        return self.__dict__["_n"]
+
+
+def estimated_once(u: Unit) -> Unit:
+    """``u`` with each contrast an :class:`_EstimatedOnce` (its null draws are too): judged exactly as ``u``.
+
+    >>> u = Unit("u", (Contrast("a-b", a=(1.0, 1.2, 0.9), b=(0.0, 0.1, 0.2)),))
+    >>> estimated_once(u).summary() == u.summary()
+    True
+    """
+
+    def once(c: Contrast) -> Contrast:
+        return _EstimatedOnce(**{f.name: getattr(c, f.name) for f in fields(c)})
+
+    if u.groups:
+        return replace(u, groups=tuple(tuple(once(c) for c in g) for g in u.groups))
+    return replace(u, parts=tuple(once(c) for c in u.parts))
+
+
 def null_pass_rate(
     groups: dict[str, Sequence[Unit]], rules: dict[str, CountRule], draws: int = 200, seed: int = 0
 ) -> float:
@@ -409,6 +442,7 @@ def null_pass_rate(
     True
     """
     rng = np.random.default_rng(seed)
+    groups = {g: [estimated_once(u) for u in us] for g, us in groups.items()}
     passes = 0
     for _ in range(draws):
         statuses = [rules[g].judge([u.null_draw(rng) for u in us]).status for g, us in groups.items() if us]

@@ -78,9 +78,21 @@ def _memo_version() -> str:
     return hashlib.sha256(f"{sys.version_info[:2]}".encode() + Path(__file__).read_bytes()).hexdigest()[:12]
 
 
+#: Environment variable naming a folder for the computed hashes instead of the build folder's ``.stamps``: the
+#: entries are content-addressed, so any number of build folders (``make test`` gives each test its own) can
+#: share one.
+STAMPS_ENV = "THESIS_REPRO_STAMPS"
+
+
 def _memo_dir() -> Path:
-    """Where computed hashes are kept between processes: ``<build folder>/.stamps/<version>``."""
-    return paths.build_dir(".stamps") / _memo_version()
+    """Where computed hashes are kept between processes: ``$THESIS_REPRO_STAMPS/<version>``, else the build folder's
+    ``.stamps/<version>`` (in a notebook's kernel the finished build's, not its own staging folder's, so that the
+    pages of one build share it)."""
+    given = os.environ.get(STAMPS_ENV)
+    if given:
+        return Path(given) / _memo_version()
+    published = os.environ.get(paths.PUBLISHED_ENV)
+    return (Path(published) / ".stamps" if published else paths.build_dir(".stamps")) / _memo_version()
 
 
 _MEMO_VALUE = re.compile(r"(bytes:)?[0-9a-f]{16}|[0-9a-f]{64}")
