@@ -174,9 +174,12 @@ verify-all: $(STAMP)
 
 ## make ship-claims SCALE=small : after `make book SCALE=small`, copy the numbers every ledger page saved into the
 ## claims snapshot data/reference/claims/$(SCALE) (what a fresh clone's `claims` judges before its book; refuses
-## pages not run or stale); make check-claims SCALE=small : after `make book`, compare this build's numbers with it
+## pages not run or stale), then renders the book again (nothing re-executed) so that its pages read the
+## calibrations the ship computed; make check-claims SCALE=small : after `make book`, compare this build's numbers
+## with it
 ship-claims: $(STAMP)
 	$(BIN)/python -m thesis_repro claims --scale $(SCALE) --ship
+	$(BIN)/python -m thesis_repro book --scale $(SCALE)
 
 check-claims: $(STAMP)
 	$(BIN)/python -m thesis_repro claims --scale $(SCALE) --check-snapshot
