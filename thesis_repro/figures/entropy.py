@@ -111,15 +111,18 @@ def log_sigma_check(runs: pd.DataFrame, curves: pd.DataFrame, diverged: pd.DataF
                 "learner": algo,
                 "log σ at an aggregation": SIGMA_RULE.get(algo, "?"),
                 "seeds": str(len(ent)),
-                "final entropy": round(float(ent.mean()), 2),
+                "final entropy": float(ent.mean()),
                 "Δ vs params_avg [95 % CI]": _diff_text(d, lo, hi),
                 "mean α": "-" if not np.isfinite(a) else f"{a:.2f}",
-                "late return": round(float(late[late["algo"] == algo].groupby("seed")["return"].mean().mean())),
+                "late return": float(late[late["algo"] == algo].groupby("seed")["return"].mean().mean()),
                 "argument": agrees,
             }
         )
     cols = ["learner", "log σ at an aggregation", "seeds", "final entropy", "Δ vs params_avg [95 % CI]", "mean α"]
-    return pd.DataFrame(rows).reindex(columns=[*cols, "late return", "argument"]).set_index("learner")
+    table = pd.DataFrame(rows).reindex(columns=[*cols, "late return", "argument"]).set_index("learner")
+    table["late return"] = [f"{v:.0f}" if pd.notna(v) else "" for v in table["late return"]]
+    table["final entropy"] = [f"{v:.2f}" if pd.notna(v) else "" for v in table["final entropy"]]
+    return table.fillna("")
 
 
 def check_line(table: pd.DataFrame) -> str:
@@ -142,8 +145,8 @@ def check_line(table: pd.DataFrame) -> str:
             )
         else:
             extra = ""
-            if ref is not None and np.isfinite(float(ref.get("late return", np.nan))):
-                extra = f"; late return {r['late return']:.0f} against params_avg's {ref['late return']:.0f}"
+            if ref is not None and ref.get("late return") and r["late return"]:
+                extra = f"; late return {r['late return']} against params_avg's {ref['late return']}"
             step = "" if r["mean α"] == "-" else f", mean step fraction α {r['mean α']}"
             lines.append(
                 f"{algo}'s log σ at an aggregation is {r['log σ at an aggregation']}{step}: "
