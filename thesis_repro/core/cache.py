@@ -50,7 +50,6 @@ import fcntl
 import fnmatch
 import hashlib
 import json
-import math
 import os
 import re
 import shutil
@@ -104,46 +103,15 @@ class CorruptEntryWarning(UserWarning):
 
 def _jsonable(obj: Any, where: str = "config") -> Any:
     """Canonical JSON-compatible copy of ``obj``; raises ``TypeError`` naming the offending key."""
-    try:
-        return _plain(obj)
-    except TypeError:
-        return _plain_at(obj, where)  # again, naming the key (the fast pass does not build the key names)
-
-
-def _plain(obj: Any) -> Any:
-    """:func:`_jsonable` without the offending key's name in its error (every config's key is hashed: fast)."""
-    if isinstance(obj, str | bool) or obj is None:
-        return obj
-    if isinstance(obj, Mapping):
-        out = {}
-        for k, v in obj.items():
-            if not isinstance(k, str):
-                raise TypeError
-            out[k] = _plain(v)
-        return out
-    if isinstance(obj, list | tuple):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.integer | int):
-        return int(obj)
-    if isinstance(obj, np.floating | float):
-        f = float(obj)
-        if not math.isfinite(f):
-            raise TypeError
-        return f
-    raise TypeError
-
-
-def _plain_at(obj: Any, where: str) -> Any:
-    """:func:`_plain`, naming the key at fault in the ``TypeError``."""
     if isinstance(obj, Mapping):
         out = {}
         for k, v in obj.items():
             if not isinstance(k, str):
                 raise TypeError(f"{where}: keys must be strings, got {k!r}")
-            out[k] = _plain_at(v, f"{where}.{k}")
+            out[k] = _jsonable(v, f"{where}.{k}")
         return out
     if isinstance(obj, list | tuple):
-        return [_plain_at(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+        return [_jsonable(v, f"{where}[{i}]") for i, v in enumerate(obj)]
     if isinstance(obj, bool | str) or obj is None:
         return obj
     if isinstance(obj, np.integer | int):
