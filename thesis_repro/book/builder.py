@@ -415,6 +415,24 @@ def chapter_summary(chapter: str, executed: list[str], scale: str, notes: dict[s
 
 #: The chapter whose page opens with the answer over the readings of its method (:func:`readings.answer`).
 READINGS_CHAPTER = "4"
+#: The summary of the folded list under that answer: each claim's verdict per reading.
+READINGS_LIST = "Each claim's verdict per reading of the update"
+
+
+def readings_opening(rows: list[dict[str, Any]]) -> str:
+    """The chapter-4 page's opening: the answer over the readings (:func:`readings.answer`), then each claim's
+    verdict per reading folded under it, so that the page's first verdict stays on its first screen ("" when no
+    claim is judged by reading). ``rows``: ``claims --json``'s rows.
+
+    >>> e = {"reading": "kl-diag", "verdict": "inconclusive", "ours": "0/4 units yes", "judged_on": "params_avg"}
+    >>> text = readings_opening([{"id": "4.3-wind", "readings": [e]}])
+    >>> text.startswith("**No") and "<details><summary>Each claim's verdict per reading" in text
+    True
+    """
+    line = readings.answer(rows)
+    if not line:
+        return ""
+    return f"{line}\n\n<details><summary>{READINGS_LIST}</summary>\n\n{readings.verdict_list(rows)}\n\n</details>"
 
 
 def open_with(page: str, line: str) -> str:
@@ -668,11 +686,7 @@ def build(
     for md in chapter_pages(root):
         chapter = md.stem.split("-", 1)[1]
         if chapter == READINGS_CHAPTER and scale != "smoke":
-            judged_rows = [r.as_dict() for r in rows]
-            line = readings.answer(judged_rows)
-            if line:
-                line += "\n\n" + readings.verdict_list(judged_rows)
-            md.write_text(open_with(md.read_text(), line))
+            md.write_text(open_with(md.read_text(), readings_opening([r.as_dict() for r in rows])))
         with md.open("a") as f:
             f.write(chapter_summary(chapter, judged, scale, pending))
     intro = root / "intro.md"
