@@ -472,6 +472,9 @@ policy (`thesis_repro.mdl.readings.log_std_gaps`; checked exactly in
 `tests/test_ch4_readings.py::test_log_std_of_eq_4_11_is_params_avg_exactly`):
 
 {_markdown(gap_rows)}
+{{doc}}`Figure 4.7 <executed/fig-4.7>` checks the argument on the trained runs: a Fisher reading that takes full
+steps should end at params_avg's entropy, and a trust region's entropy moves only by its step fraction.
+
 ## Pilots: one seed each, past the literal reading's collapse
 
 Setting: {setting}. Kit commit(s): {made_by}.
