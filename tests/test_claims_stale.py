@@ -191,3 +191,6 @@ def test_computed_hashes_are_kept_content_addressed_where_thesis_repro_stamps_sa
     monkeypatch.delenv(stamps.STAMPS_ENV)  # unset: the build folder's own .stamps
     stamps._memo("module", b"x = 1\n", compute)
     assert list((paths.build_dir(".stamps")).rglob("module-*"))
+    # in a notebook's kernel (its build folder a staging one): the finished build's, shared by every page
+    monkeypatch.setenv(paths.PUBLISHED_ENV, str(tmp_path / "finished"))
+    assert stamps._memo_dir().parent == tmp_path / "finished" / ".stamps"
