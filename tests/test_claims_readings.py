@@ -52,8 +52,8 @@ def test_every_reading_claim_has_a_verdict_per_reading(reading_rows):
 
 
 def test_a_diverged_run_never_enters_a_claim(shipped):
-    """Fig 4.7's entropy claim per reading: a kl_exact run made to diverge leaves the claim with one seed fewer;
-    every run diverged reads *diverged, not judged*."""
+    """Fig 4.7's entropy claim per reading: a kl_exact run made to diverge leaves the claim with one seed fewer,
+    and its entry counts and names the run it left out; every run diverged reads *diverged, not judged*."""
     s = registry.spec("4.7-entropy")
     frames, _ = store.page_data(s, "small")
 
@@ -69,8 +69,10 @@ def test_a_diverged_run_never_enters_a_claim(shipped):
         return {e["reading"]: e for e in ledger.judge_readings(s, "small", False, out)}
 
     seeds = sorted(set(frames["curves"]["seed"]))
-    assert judged([])["kl-exact"]["n_seeds"] == len(seeds)
-    assert judged(seeds[:1])["kl-exact"]["n_seeds"] == len(seeds) - 1
+    clean, one = judged([])["kl-exact"], judged(seeds[:1])["kl-exact"]
+    assert clean["n_seeds"] == len(seeds) and clean["diverged_runs"] == [0, len(seeds)]
+    assert one["n_seeds"] == len(seeds) - 1 and one["diverged_runs"] == [1, len(seeds)]
+    assert readings.dropped_note(1, len(seeds)) in one["note"]  # the page says how many runs it left out
     assert judged(seeds)["kl-exact"]["verdict"] == DIVERGED
 
 

@@ -158,8 +158,11 @@ def judge_readings(
         else:
             row = Row(v, v3["label"], primary=v3["primary"])
             row.v3 = {"reason": v3["reason"]}
-            entry = R.entry(algo, outcome, how, v3["label"], ours_text(row), v3["reason"])
-            out.append({**entry, "n_seeds": v3["n_seeds"], "calibration": R.calibration_summary(v3["calibration"])})
+            bad, total = R.diverged_runs(got, algo) if how == "judge" else (0, 0)
+            note = "; ".join(t for t in (v3["reason"], R.dropped_note(bad, total)) if t)
+            entry = R.entry(algo, outcome, how, v3["label"], ours_text(row), note)
+            cal = R.calibration_summary(v3["calibration"])
+            out.append({**entry, "n_seeds": v3["n_seeds"], "diverged_runs": [bad, total], "calibration": cal})
     return out
 
 

@@ -32,7 +32,7 @@ from typing import Any
 import pandas as pd
 
 from thesis_repro.claims import design
-from thesis_repro.claims.measures.ch4 import DIVERGED
+from thesis_repro.claims.measures.ch4 import DIVERGED, diverged
 from thesis_repro.claims.registry import Spec
 
 #: A pilot's outcome: it trains and differs from params_avg, it reduces to params_avg, or it diverged.
@@ -142,6 +142,47 @@ def entry(algo: str, outcome: str, how: str, status: str, ours: str = "", note: 
     }
 
 
+def diverged_runs(frames: Mapping[str, pd.DataFrame], algo: str) -> tuple[int, int]:
+    """How many of reading ``algo``'s training runs on the claim's pages diverged (:func:`~thesis_repro.claims.
+    measures.ch4.diverged`, the rule that keeps them out of every claim), of how many: over each frame of training
+    curves (``curves@<page>``; the bare ``curves`` only when no page is named), each run once however many pages
+    show it (a run is known by its panel, seed and returns).
+
+    >>> c = pd.DataFrame({"algo": "kl_x", "panel": ["a"] * 9 + ["b"] * 9, "seed": 0, "iteration": [*range(9)] * 2,
+    ...                   "return": [100.0, 500] + [1000] * 7 + [900] * 3 + [-5] * 6, "entropy": 1.0})
+    >>> diverged_runs({"curves": c, "wind": pd.DataFrame()}, "kl-x")
+    (1, 2)
+    >>> diverged_runs({"curves@fig-4.1": c, "curves@fig-4.3": c}, "kl-x")
+    (1, 2)
+    """
+    named = [k for k in frames if k.startswith("curves@")]
+    runs: dict[tuple[Any, ...], bool] = {}
+    for k in named or ["curves"]:
+        f = frames.get(k)
+        if not (isinstance(f, pd.DataFrame) and "algo" in f.columns):
+            continue
+        mine = f[f["algo"] == column(algo)]
+        if mine.empty:
+            continue
+        div = diverged(mine).set_index(["panel", "seed"])["diverged"]
+        for (panel, seed), g in mine.sort_values("iteration").groupby(["panel", "seed"]):
+            runs[(panel, seed, tuple(g["return"].round(6)))] = bool(div[(panel, seed)])
+    return sum(runs.values()), len(runs)
+
+
+def dropped_note(bad: int, total: int) -> str:
+    """The note a judged reading carries when some of its runs diverged ("" when none did).
+
+    >>> dropped_note(4, 12)
+    '4 of its 12 training runs diverged (late return below half its peak) and are not read'
+    >>> dropped_note(0, 12)
+    ''
+    """
+    if not bad:
+        return ""
+    return f"{bad} of its {total} training runs diverged (late return below half its peak) and are not read"
+
+
 def calibration_summary(cal: Mapping[str, Any]) -> dict[str, Any]:
     """The parts of a v3 calibration a reading's entry carries: the gate's rates and the power figures."""
     keep = ("draws", "false_reproduces", "false_does_not", "effect", "power_at", "seeds_for_80", "max_seeds")
@@ -213,12 +254,16 @@ def verdict_list(rows: Sequence[Mapping[str, Any]]) -> str:
     >>> e = {"reading": "kl-diag", "verdict": "inconclusive", "ours": "0/4 units yes", "judged_on": "params_avg"}
     >>> print(verdict_list([{"id": "4.3-wind", "readings": [e]}]))
     - **4.3-wind**: `kl-diag` (on params_avg's runs) *inconclusive*, 0/4 units yes
+    >>> print(verdict_list([{"id": "4.3-wind", "readings": [{**e, "diverged_runs": [4, 12]}]}]))
+    - **4.3-wind**: `kl-diag` (on params_avg's runs) *inconclusive*, 0/4 units yes (4 of 12 runs diverged, not read)
     """
 
     def one(e: Mapping[str, Any]) -> str:
         on = " (on params_avg's runs)" if e.get("judged_on") == COMPARATOR else ""
         num = f", {e['ours']}" if e.get("ours") else ""
-        return f"`{e['reading']}`{on} *{e['verdict']}*{num}"
+        bad, total = e.get("diverged_runs") or (0, 0)
+        drop = f" ({bad} of {total} runs diverged, not read)" if bad else ""
+        return f"`{e['reading']}`{on} *{e['verdict']}*{num}{drop}"
 
     return "\n".join(f"- **{r['id']}**: " + "; ".join(one(e) for e in r["readings"]) for r in rows if r.get("readings"))
 
