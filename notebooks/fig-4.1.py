@@ -30,6 +30,7 @@ SCALE = "small"
 # %%
 from thesis_repro import claims, figures
 from thesis_repro.book import pages
+from thesis_repro.claims import readings
 from thesis_repro.figures import ch4, plot
 
 settings = figures.settings("4.1", SCALE)
@@ -63,4 +64,6 @@ plot.save(fig, SCALE, "fig-4.1")
 # %%
 late = ch4.late_returns_ci(curves)
 print(late, late.attrs["note"], sep="\n")
+print("\nTraining runs that diverged (late return below half its peak; no claim reads them), of the seeds run:")
+print(readings.diverged_table(curves))
 _ = claims.judge_page("fig-4.1", SCALE, {"curves": curves}, pages.claim_meta("4.1", settings))

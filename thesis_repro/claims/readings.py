@@ -170,6 +170,21 @@ def diverged_runs(frames: Mapping[str, pd.DataFrame], algo: str) -> tuple[int, i
     return sum(runs.values()), len(runs)
 
 
+def diverged_table(curves: pd.DataFrame) -> pd.DataFrame:
+    """Per learner (rows) and panel (columns) of a chapter-4 page's training curves: how many of its training runs
+    diverged (:func:`~thesis_repro.claims.measures.ch4.diverged`: late return below half its peak), of how many;
+    the runs no claim reads.
+
+    >>> c = pd.DataFrame({"algo": "kl_x", "panel": ["a"] * 9 + ["b"] * 9, "seed": 0, "iteration": [*range(9)] * 2,
+    ...                   "return": [100.0, 500] + [1000] * 7 + [900] * 3 + [-5] * 6, "entropy": 1.0})
+    >>> diverged_table(c).to_dict("index")
+    {'kl_x': {'a': '0/1', 'b': '1/1'}}
+    """
+    d = diverged(curves)
+    count = d.groupby(["algo", "panel"])["diverged"].agg(lambda v: f"{int(v.sum())}/{len(v)}")
+    return count.unstack("panel").rename_axis(index="learner", columns="panel")
+
+
 def dropped_note(bad: int, total: int) -> str:
     """The note a judged reading carries when some of its runs diverged ("" when none did).
 
