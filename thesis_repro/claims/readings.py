@@ -164,9 +164,8 @@ def diverged_runs(frames: Mapping[str, pd.DataFrame], algo: str) -> tuple[int, i
         mine = f[f["algo"] == column(algo)]
         if mine.empty:
             continue
-        div = diverged(mine).set_index(["panel", "seed"])["diverged"]
         for (panel, seed), g in mine.sort_values("iteration").groupby(["panel", "seed"]):
-            runs[(panel, seed, tuple(g["return"].round(6)))] = bool(div[(panel, seed)])
+            runs[(panel, seed, tuple(g["return"].round(6)))] = bool(diverged(g)["diverged"].iloc[0])
     return sum(runs.values()), len(runs)
 
 
