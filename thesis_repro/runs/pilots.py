@@ -107,8 +107,8 @@ def readings_grid_jobs(scale: str, algos: Sequence[str]) -> list[Queued]:
     """The jobs of ``algos`` on every :data:`GRID_ITEMS` item at ``scale`` (the item's own settings and seeds, so
     each is the job the item makes once it lists the learner), deduplicated; the training runs item by item, the
     items with the fewest runs first (an item is judged once all its runs are shipped), each item's runs cheapest
-    first; then the evaluations. Items the figure registry does not hold are left out."""
-    held = [f for f in GRID_ITEMS if f in figures.ids()]
+    first; then the evaluations. Items the figure registry does not hold are left out; no ``algos``, no jobs."""
+    held = [f for f in GRID_ITEMS if f in figures.ids()] if algos else []
     out: dict[str, Queued] = {}
     for fid in held:
         for job in figures.jobs(fid, scale, algos=list(algos)):
@@ -572,6 +572,9 @@ def _grid(args: argparse.Namespace) -> int:
         todo = costs.to_compute([p.job for p in planned])
         print(f"readings to the grid (stable and distinct in their pilots): {', '.join(algos) or 'none'}")
         print(costs.cost_report(costs.plan_jobs(f"{args.name} grid", todo, "small", 2, rates), rates))
+        return 0
+    if not planned:
+        print(f"the {args.name} grid is done: every chapter-4 item lists each stable, distinct reading")
         return 0
     until = generator.parse_until(args.until) if args.until is not None else None
     kinds = ("train", "evaluate")
