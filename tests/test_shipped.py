@@ -62,7 +62,7 @@ def test_verify_samples_every_shipped_evaluation_the_fresh_seeds_too():
 
 
 def test_shipped_layer_is_compact():
-    """Small compact files (no tracked file over 2 MiB; the layer under 180 MB), never optimiser state."""
+    """Small compact files (no tracked file over 2 MiB; the layer under 200 MB), never optimiser state."""
     files = [p for p in LAYER.rglob("*") if p.is_file()]
     sizes = {p: p.stat().st_size for p in files}
     big = sorted(f"{p.relative_to(LAYER)} ({n / 2**20:.1f} MiB)" for p, n in sizes.items() if n > 2**21)
@@ -70,8 +70,9 @@ def test_shipped_layer_is_compact():
     total = sum(sizes.values())
     # ~0.35 MB per training run: small's 3 seeds of every chapter 3-4 run and their evaluations.
     # Compact files, never optimiser state. 150 MB until the thesis-budget study: its 108 runs at 4e6 steps with
-    # 3 snapshots each and their 1,728 evaluations add ~42 MB (`python -m thesis_repro plan thesis-budget`).
-    assert total < 180e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is 180 MB"
+    # 3 snapshots each and their 1,728 evaluations add ~42 MB (`python -m thesis_repro plan thesis-budget`) to the
+    # ~144 MB the other items ship (chapter 4's readings grid included), hence 200 MB (the README says so).
+    assert total < 200e6, f"the shipped layer is {total / 1e6:.0f} MB; the budget is 200 MB"
 
 
 def test_the_cheapest_shipped_run_is_cheap_and_loads_as_shipped(tmp_path):
