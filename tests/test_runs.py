@@ -378,3 +378,27 @@ def test_plan_produces_seeds_past_the_scale_s_own_count():
     assert figures.settings("3.3", "smoke")["train_seeds"] == 1
     assert len(seed1) == len(seed0) > 0 and {needs.training_seed(p.job) for p in seed1} == {1}
     assert {p.job.config["env"] for p in seed1} == {p.job.config["env"] for p in seed0}
+
+
+def test_two_stored_runs_compare_bit_for_bit_in_equal_pinned_numerics_on_any_cpu(tmp_path):
+    """``same_making`` compares two runs with each other, not with this machine: pinned numerics on two CPUs agree
+    bit for bit; native numerics only on equal platforms; native against pinned never."""
+    import thesis_repro
+    from thesis_repro.core.provenance import platform_info
+
+    amd = {**platform_info(), "cpu": "AMD EPYC", "vendor": "AuthenticAMD"}
+    intel = {**platform_info(), "cpu": "Intel(R) Xeon(R) Processor", "vendor": "GenuineIntel"}
+
+    def run(name: str, **prov: object) -> Path:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "provenance.json").write_text(json.dumps(prov))
+        return tmp_path / name
+
+    pinned_amd = run("a", platform=amd, numerics=thesis_repro.numerics())
+    pinned_intel = run("b", platform=intel, numerics=thesis_repro.numerics())
+    native_amd, native_intel = run("c", platform=amd), run("d", platform=intel)
+    assert provenance.same_making(pinned_amd, pinned_intel) is True
+    assert provenance.same_making(native_amd, run("e", platform=amd)) is True
+    assert provenance.same_making(native_amd, native_intel) is False
+    assert provenance.same_making(native_intel, pinned_intel) is False
+    assert provenance.same_making(native_amd, run("f")) is None

@@ -175,6 +175,19 @@ def same_platform(result_or_path: HasPath | str | Path) -> bool | None:
     return recorded == json.loads(json.dumps(platform_info())) and numerics_env(path) == numerics_env(None)
 
 
+def same_making(a: HasPath | str | Path, b: HasPath | str | Path) -> bool | None:
+    """Were runs ``a`` and ``b`` made so that the kit claims they agree bit for bit: both in the same pinned
+    numerics (on any x86-64 CPU), or both in native numerics on equal platforms? ``None`` if they are native and
+    either does not record its platform. Unlike :func:`same_platform`, this platform plays no part: it compares
+    two stored runs, recomputing neither."""
+    if numerics_env(a) != numerics_env(b):
+        return False
+    if numerics_env(a)[NUMERICS_ENV] == "portable":
+        return True
+    pa, pb = (json.loads((Path(getattr(r, "path", r)) / "provenance.json").read_text()).get("platform") for r in (a, b))
+    return None if pa is None or pb is None else pa == pb
+
+
 def numerics_env(result_or_path: HasPath | str | Path | None) -> dict[str, str]:
     """The numerics variables that recompute an entry as it was made: its provenance's ``numerics`` (entries
     made before they were recorded: native, ``THESIS_REPRO_NUMERICS=native``); ``None``: this process's.

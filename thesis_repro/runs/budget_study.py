@@ -350,8 +350,10 @@ def prefix_check(job: Job, cache: RunCache, budget: int) -> PrefixCheck:
     seed (:func:`small_twin` at ``budget``), bit for bit (policy weights, observation filter, every training episode
     up to then)? Only for learners
     without a budget-dependent schedule (:func:`budget_schedule`) and runs made on the platform and in the
-    numerics of the twin (:func:`thesis_repro.core.provenance.same_platform`)."""
-    from thesis_repro.core.provenance import same_platform
+    numerics of the twin (:func:`thesis_repro.core.provenance.same_making`; pinned numerics agree on any x86-64
+    CPU, so a run made on another CPU than this one is checked too)."""
+    from thesis_repro import NUMERICS_ENV
+    from thesis_repro.core.provenance import numerics_env, same_making
     from thesis_repro.runs.retrain_check import max_abs_diff
 
     why = budget_schedule(job.config)
@@ -366,8 +368,10 @@ def prefix_check(job: Job, cache: RunCache, budget: int) -> PrefixCheck:
     snap = Path(run.path) / "out" / "snapshots" / f"step_{done:09d}"
     if not (snap / "policy.pth").exists():
         return PrefixCheck(job.label, "no snapshot", f"no snapshot at {done:,} env steps in {run.path}")
-    if same_platform(twin) is False or same_platform(run) is False:
-        return PrefixCheck(job.label, "other platform", "made on another platform or in other numerics than its twin")
+    if same_making(twin, run) is False:
+        made = {numerics_env(r)[NUMERICS_ENV] for r in (twin, run)}
+        why = "in other numerics than its twin" if len(made) > 1 else "natively, on another platform than its twin"
+        return PrefixCheck(job.label, "other platform", f"made {why}: not comparable bit for bit")
     diff = max_abs_diff(twin, snap)
     a, b = _episodes(twin, done), _episodes(run, done)
     same_eps = a.shape == b.shape and bool(np.array_equal(a, b))
