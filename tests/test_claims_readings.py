@@ -49,6 +49,9 @@ def test_every_reading_claim_has_a_verdict_per_reading(reading_rows):
                 assert max(cal["false_reproduces"], cal["false_does_not"]) <= limit, (row["id"], algo)
                 assert e["ours"], (row["id"], algo)  # a verdict with numbers
         assert got["kl-exact"]["judged_on"] == "kl_exact"
+        for e in row["readings"]:  # a reading judged on params_avg's runs counts those runs, not none
+            if e["judged_on"] == "params_avg" and e["verdict"] in judge_v3.JUDGED:
+                assert e["diverged_runs"][1] > 0, (row["id"], e["reading"])
 
 
 def test_a_diverged_run_never_enters_a_claim(shipped):

@@ -158,7 +158,7 @@ def judge_readings(
         else:
             row = Row(v, v3["label"], primary=v3["primary"])
             row.v3 = {"reason": v3["reason"]}
-            bad, total = R.diverged_runs(got, algo) if how == "judge" else (0, 0)
+            bad, total = R.diverged_runs(got, algo)  # params_avg's runs for a reading judged on them
             note = "; ".join(t for t in (v3["reason"], R.dropped_note(bad, total)) if t)
             entry = R.entry(algo, outcome, how, v3["label"], ours_text(row), note)
             cal = R.calibration_summary(v3["calibration"])
