@@ -62,7 +62,7 @@ import numpy as np
 import thesis_repro
 from thesis_repro.core import job_kinds, paths, scales
 from thesis_repro.core.cache import Result, RunCache, find_entry, read_entry
-from thesis_repro.core.provenance import numerics_env
+from thesis_repro.core.provenance import numerics_env, same_making
 from thesis_repro.core.validation import check_choice, one_line
 from thesis_repro.runs import costs as plan
 from thesis_repro.runs import layer as runs
@@ -513,20 +513,6 @@ def _provenance(path: Path) -> dict[str, Any]:
         return {}
 
 
-def same_numerics(shipped: Path, fresh: Path) -> bool | None:
-    """Were ``shipped`` and its recomputation ``fresh`` made on equal platforms
-    (:func:`~thesis_repro.core.provenance.platform_info`) in equal numerics (where ``shipped`` records them)? Then the
-    kit
-    claims bit-identity. ``None`` if ``shipped`` does not record its platform."""
-    a, b = _provenance(shipped), _provenance(fresh)
-    if a.get("platform") is None:
-        return None
-    same = a["platform"] == b.get("platform")
-    if a.get("numerics") is not None:
-        same = same and a["numerics"] == b.get("numerics")
-    return same
-
-
 def pinned(path: Path) -> bool:
     """Was entry ``path`` made with pinned numerics (:data:`thesis_repro.PORTABLE_NUMERICS`, its provenance's
     ``numerics`` records ``MKL_CBWR``)? Then its recomputation must be bit-identical on any x86-64 CPU."""
@@ -546,7 +532,7 @@ def check_entry(path: Path, fresh: Path | str) -> Check:
         )
     fresh_values, _ = read_entry(fresh)
     summaries = path.parent.name in ARM_KINDS
-    same = True if pinned(path) else same_numerics(path, fresh)
+    same = same_making(path, fresh)
     return compare_values(shipped_values, fresh_values, same, entry=name, summaries_only=summaries)
 
 

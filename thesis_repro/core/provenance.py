@@ -178,13 +178,20 @@ def same_platform(result_or_path: HasPath | str | Path) -> bool | None:
 def same_making(a: HasPath | str | Path, b: HasPath | str | Path) -> bool | None:
     """Were runs ``a`` and ``b`` made so that the kit claims they agree bit for bit: both in the same pinned
     numerics (on any x86-64 CPU), or both in native numerics on equal platforms? ``None`` if they are native and
-    either does not record its platform. Unlike :func:`same_platform`, this platform plays no part: it compares
-    two stored runs, recomputing neither."""
-    if numerics_env(a) != numerics_env(b):
+    either does not record its platform (or has no readable provenance). Unlike :func:`same_platform`, this
+    platform plays no part: it compares two stored runs, recomputing neither."""
+
+    def prov(r: HasPath | str | Path) -> dict[str, Any]:
+        try:
+            return json.loads((Path(getattr(r, "path", r)) / "provenance.json").read_text())
+        except (OSError, ValueError):
+            return {}
+
+    (pa, na), (pb, nb) = ((p.get("platform"), _numerics_of(p.get("numerics"))) for p in (prov(a), prov(b)))
+    if na != nb:
         return False
-    if numerics_env(a)[NUMERICS_ENV] == "portable":
+    if na[NUMERICS_ENV] == "portable":
         return True
-    pa, pb = (json.loads((Path(getattr(r, "path", r)) / "provenance.json").read_text()).get("platform") for r in (a, b))
     return None if pa is None or pb is None else pa == pb
 
 
@@ -200,6 +207,11 @@ def numerics_env(result_or_path: HasPath | str | Path | None) -> dict[str, str]:
     else:
         path = Path(getattr(result_or_path, "path", result_or_path))
         rec = json.loads((path / "provenance.json").read_text()).get("numerics")
+    return _numerics_of(rec)
+
+
+def _numerics_of(rec: dict[str, Any] | None) -> dict[str, str]:
+    """:func:`numerics_env` of a provenance's ``numerics`` record."""
     if not rec or not rec.get("MKL_CBWR"):
         return {NUMERICS_ENV: "native"}
     return {NUMERICS_ENV: "portable", **{k: str(rec[k]) for k in PORTABLE_NUMERICS}}
