@@ -111,7 +111,7 @@ endef
 ## figure by figure (ORDER=item: every seed of an item before the next; ORDER=claims: item by item, ranked by claims
 ## settled per core-hour, chapter 5 to 10 seeds: `make plan-order`); KINDS="train evaluate" also ships each evaluation as soon as the run it loads has landed; UNTIL=HH:MM starts only jobs expected to end by then (a session's end: a run cut
 ## off there restarts on a new machine)
-reference-runs: $(STAMP)
+reference-runs: $(NEEDS)
 	nice -n 10 $(BIN)/python -m thesis_repro reference-runs --scale $(SCALE) $(if $(FIGURES),--figures $(FIGURES)) \
 	  $(if $(COMMIT),--commit) $(if $(JOBS),--jobs $(JOBS)) \
 	  $(if $(ALGOS),--algos $(ALGOS)) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(KINDS),--kind $(KINDS)) \
@@ -134,12 +134,13 @@ confirmatory:
 	  KINDS="train evaluate arm-solve arm-source arm-competitor-source arm-target arm-curriculum" \
 	  $(if $(UNTIL),UNTIL=$(UNTIL))
 
-## make thesis-budget UNTIL=HH:MM [COMMIT=0] [JOBS=1] : the thesis-budget study's one resumable command, started
+## make thesis-budget UNTIL=HH:MM [COMMIT=0] [JOBS=1] [BACKEND=ray] : the thesis-budget study's one resumable command, started
 ## niced in the background (nohup ... &) once the claims design it is judged under (v3) is frozen (it refuses before):
 ## Fig 3.3's nine variants on Walker2d, HalfCheetah and Hopper, seeds 0-3, trained for the thesis's 4e6 steps and
 ## evaluated after 1M, 2M, 3M and 4M, each committed compactly into data/reference as it lands (COMMIT=0: not
 ## committed), two at a time, in the study's order (`python -m thesis_repro plan thesis-budget --rates shipped`);
-## UNTIL = the session's end. `python -m thesis_repro plan thesis-budget --missing` counts what is left (0: done)
+## UNTIL = the session's end. `python -m thesis_repro plan thesis-budget --missing` counts what is left (0: done).
+## BACKEND=ray JOBS=92 (RAY_ADDRESS=auto): JOBS runs at a time as Ray tasks, landing here as they end (book/cluster.md)
 thesis-budget:
 	$(MAKE) reference-runs SCALE=small STUDY=thesis-budget KINDS="train evaluate" JOBS=$(or $(JOBS),2) \
 	  $(if $(filter 0,$(COMMIT)),,COMMIT=1) $(if $(UNTIL),UNTIL=$(UNTIL))

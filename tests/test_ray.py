@@ -249,3 +249,33 @@ def test_evaluation_and_its_training_run_in_one_call(on_ray):
     assert (ev_res.source, train_res.source) == ("computed", "computed")
     assert ev_res["train_return"] == pytest.approx(float(np.mean(train_res["train_return"])))
     assert ev_res["returns"].shape == (2, 2)
+
+
+def test_the_generator_keeps_its_queue_on_ray_with_the_local_pools_numbers(on_ray, tmp_path, monkeypatch):
+    """`make thesis-budget BACKEND=ray JOBS=n`: the generator hands Ray its queue n tasks at a time and ships each
+    run as it lands, bit for bit the run its local pool ships."""
+    from thesis_repro.runs import generator
+
+    def no_local_pool(*args, **kwargs):
+        raise AssertionError("THESIS_REPRO_BACKEND=ray: the generator started a local pool")
+
+    queue = [generator.Queued(Job("train", _smoke_train(seed))) for seed in (4, 5)]
+    lines: list[str] = []
+    with monkeypatch.context() as m:
+        m.setattr(backends, "LocalPool", no_local_pool)
+        ray_runs = generator.generate(
+            "smoke", kinds=["train"], n_jobs=2, layer_root=tmp_path / "ray", jobs=queue, log=lines.append
+        )
+    assert any("running 2 jobs, 2 at a time" in line for line in lines)
+    assert all(RunCache().state(q.job) == "cached" for q in queue)  # committed by the driver as they landed
+    monkeypatch.setenv(backends.ENV_VAR, "local")
+    monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "local"))
+    local = generator.generate(
+        "smoke", kinds=["train"], n_jobs=2, layer_root=tmp_path / "local-layer", jobs=queue, log=str
+    )
+    assert sorted(e.path.name for e in ray_runs) == sorted(e.path.name for e in local)
+    for a, b in zip(sorted(ray_runs, key=lambda e: e.path.name), sorted(local, key=lambda e: e.path.name), strict=True):
+        ours, theirs = read_entry(a.path)[0], read_entry(b.path)[0]
+        assert ours.keys() == theirs.keys()
+        for key in ours:
+            np.testing.assert_array_equal(np.asarray(ours[key]), np.asarray(theirs[key]))

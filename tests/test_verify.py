@@ -421,7 +421,7 @@ def test_evaluations_follow_their_policy_in_one_command(toy_figure, tmp_path, mo
     assert again == []
     # two at a time: the [i/n] tags count the training jobs alone, the evaluations that follow them are untagged
     pooled: list[str] = []
-    monkeypatch.setattr(generator, "execute", _pool_execute)
+    monkeypatch.setattr(backends, "execute", _pool_execute)  # the pool pickles it by name: workers import us
     generator.generate("smoke", ["_verify"], kinds, layer_root=tmp_path / "pooled", n_jobs=2, log=pooled.append)
     assert sorted(line.split()[0] for line in pooled if line.startswith("[") and "follows" not in line) == [
         "[1/3]",

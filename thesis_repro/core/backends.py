@@ -56,7 +56,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterable, Iterator, Mapping
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from pathlib import Path
 from types import SimpleNamespace
@@ -445,6 +445,17 @@ def _env(cache: RunCache) -> dict[str, str | None]:
     return env
 
 
+def _task_options(job: Job) -> tuple[dict[str, Any], int]:
+    """Ray options of ``job``'s task (its kind's resources, retries, a name) and the torch threads it runs with."""
+    res = resources(job.kind)
+    opts = {**res, "max_retries": retries(), "retry_exceptions": False, "name": f"{job.kind}:{job.label}"}
+    return opts, int(res.get("num_cpus", 1))
+
+
+def _reference(cache: RunCache) -> str | bool:
+    return str(Path(cache.reference).resolve()) if cache.reference is not None else False
+
+
 def run_ray(todo: Mapping[str, Job], cache: RunCache, bar: Any = None) -> dict[str, Result]:
     """Compute ``todo`` (key -> job, none of them cached) as Ray tasks; commit each result as it lands.
 
@@ -453,9 +464,7 @@ def run_ray(todo: Mapping[str, Job], cache: RunCache, bar: Any = None) -> dict[s
     """
     ray = init_ray()
     remote = ray.remote(compute)
-    root = str(cache.root.resolve())
-    reference: str | bool = str(Path(cache.reference).resolve()) if cache.reference is not None else False
-    env = _env(cache)
+    root, reference, env = str(cache.root.resolve()), _reference(cache), _env(cache)
     refs: dict[str, Any] = {}
     put: dict[str, Any] = {}  # dependency key -> ref of its packed committed entry
 
@@ -471,9 +480,7 @@ def run_ray(todo: Mapping[str, Job], cache: RunCache, bar: Any = None) -> dict[s
     needed = {d.key for job in todo.values() for d in job_dependencies(job)}
     for key, job in sorted(todo.items(), key=lambda kv: kv[0] not in needed):
         deps = [r for r in (dep_ref(d) for d in job_dependencies(job)) if r is not None]
-        res = resources(job.kind)
-        threads = int(res.get("num_cpus", 1))
-        opts = {**res, "max_retries": retries(), "retry_exceptions": False, "name": f"{job.kind}:{job.label}"}
+        opts, threads = _task_options(job)
         refs[key] = remote.options(**opts).remote(job, root, reference, env, threads, list(sys.argv), *deps)
     pending = {ref: key for key, ref in refs.items()}
     results: dict[str, Result] = {}
@@ -493,3 +500,75 @@ def run_ray(todo: Mapping[str, Job], cache: RunCache, bar: Any = None) -> dict[s
     if failures:
         raise JobsFailed(failures, cache.root)
     return results
+
+
+# ---------------------------------------------------------------- pools for a caller's own queue
+class LocalPool:
+    """``n_jobs`` local worker processes (:func:`execute`) for a caller that keeps its own queue and hands them one
+    job at a time (the reference-run generator): :meth:`submit` returns a future of the job's :class:`Result`,
+    :meth:`stop` ends the workers now (their runs resume from their checkpoints)."""
+
+    def __init__(self, n_jobs: int, cache: RunCache):
+        ctx = mp.get_context("spawn")
+        self.ex = ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx, initializer=die_with_parent)
+        self.root, self.reference = str(cache.root), str(cache.reference) if cache.reference is not None else False
+
+    def submit(self, job: Job) -> Future:
+        with interrupts_held():  # the workers start (and stay) deaf to Ctrl-C: the caller ends them
+            return self.ex.submit(execute, job, self.root, self.reference)
+
+    def stop(self) -> None:
+        stop_pool(self.ex)
+
+    def __enter__(self) -> LocalPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.ex.shutdown(wait=True)
+
+
+class RayPool:
+    """:class:`LocalPool`'s interface on Ray (``THESIS_REPRO_BACKEND=ray``): each job one task (:func:`compute`,
+    resuming from its workdir's checkpoint on shared storage), its packed entry committed to ``cache`` by this
+    process as it lands (:func:`commit`); the jobs it loads are sent from ``cache``, packed. The future says
+    ``running()`` from the start: Ray, not this process, queues a task until a node has its resources."""
+
+    def __init__(self, cache: RunCache):
+        self.ray = init_ray()
+        self.remote = self.ray.remote(compute)
+        self.cache = cache
+        self.args = (str(cache.root.resolve()), _reference(cache), _env(cache))
+        self.refs: list[Any] = []
+
+    def submit(self, job: Job) -> Future:
+        deps = [self.ray.put(pack(hit.path)) for d in job_dependencies(job) if (hit := self.cache.load(d)) is not None]
+        opts, threads = _task_options(job)
+        ref = self.remote.options(**opts).remote(job, *self.args, threads, list(sys.argv), *deps)
+        self.refs.append(ref)
+        out: Future = Future()
+        out.set_running_or_notify_cancel()
+
+        def landed(task: Future) -> None:  # in Ray's thread: commit here, then hand the caller its Result
+            try:
+                out.set_result(commit(self.cache, job, task.result()))
+            except BaseException as err:  # noqa: BLE001 - the caller's result() raises it
+                out.set_exception(err)
+
+        ref.future().add_done_callback(landed)
+        return out
+
+    def stop(self) -> None:
+        for ref in self.refs:
+            self.ray.cancel(ref, force=True)
+
+    def __enter__(self) -> RayPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+
+def job_pool(n_jobs: int, cache: RunCache) -> LocalPool | RayPool:
+    """The pool of the backend ``THESIS_REPRO_BACKEND`` names (:func:`backend`): :class:`RayPool` or
+    :class:`LocalPool` of ``n_jobs`` workers."""
+    return RayPool(cache) if backend() == "ray" else LocalPool(n_jobs, cache)

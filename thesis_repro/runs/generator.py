@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -19,7 +19,7 @@ from typing import Any
 
 from thesis_repro import figures
 from thesis_repro.core import job_kinds, paths
-from thesis_repro.core.backends import die_with_parent, execute, interrupts_held, stop_pool
+from thesis_repro.core.backends import backend, job_pool
 from thesis_repro.core.cache import (
     Job,
     Result,
@@ -360,7 +360,8 @@ def generate(
     ``figure_ids``,
     figure by figure in that order; ``order="item"``: every requested seed of an item before the next item;
     ``item_seeds``: an item's own seeds), skips those already
-    shipped with a verified entry, runs the rest through the local cache ``n_jobs`` at a time (an
+    shipped with a verified entry, runs the rest through the local cache ``n_jobs`` at a time, in local worker
+    processes or as Ray tasks (``THESIS_REPRO_BACKEND=ray``: :func:`~thesis_repro.core.backends.job_pool`; an
     interrupted run resumes from its workdir checkpoint on the next call), exports each finished one into
     the layer and, with ``commit``, commits it as it lands; every ``heartbeat`` seconds without one landing it
     logs a :func:`jobs_progress_line`. Returns the exported runs.
@@ -453,7 +454,7 @@ def generate(
             follow(followers.ready(None))
 
     queue = _Deadline(todo, until, eta or _default_eta(cache), log)
-    if n_jobs <= 1 or len(todo) <= 1:
+    if backend() == "local" and (n_jobs <= 1 or len(todo) <= 1):
         follow_shipped()
         i = 0
         while (p := queue.take()) is not None:
@@ -462,19 +463,13 @@ def generate(
             log(f"[{i}/{len(todo)}] {p.job.kind} {p.job.label} ({p.cost:,.0f} steps; {state}) for {used_by}")
             land(i, p, cache.run(p.job))
     else:
-        import multiprocessing as mp
-
-        with ProcessPoolExecutor(
-            max_workers=n_jobs, mp_context=mp.get_context("spawn"), initializer=die_with_parent
-        ) as ex:
-            ref = str(cache.reference) if cache.reference is not None else False
+        with job_pool(n_jobs, cache) as pool:  # local worker processes, or Ray tasks (THESIS_REPRO_BACKEND=ray)
             futures: dict[Future, Queued] = {}
             pending: set[Future] = set()
 
             def submit() -> None:  # keep n_jobs in flight, each the next job the deadline allows
                 while len(pending) < n_jobs and (p := queue.take()) is not None:
-                    with interrupts_held():  # the workers start (and stay) deaf to Ctrl-C: the generator ends them
-                        fut = ex.submit(execute, p.job, str(cache.root), ref)
+                    fut = pool.submit(p.job)
                     futures[fut] = p
                     pending.add(fut)
 
@@ -497,7 +492,7 @@ def generate(
                         land(landed, futures[fut], fut.result())
                     submit()
             except KeyboardInterrupt:  # Ctrl-C: stop now (the interrupted runs resume from their checkpoints)
-                stop_pool(ex)
+                pool.stop()
                 raise
     queue.report()
     if failed:
