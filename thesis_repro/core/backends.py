@@ -189,19 +189,15 @@ def run_jobs(
             if bar:
                 bar.update()
     else:
-        with ProcessPoolExecutor(
-            max_workers=min(n_jobs, len(todo)), mp_context=mp.get_context("spawn"), initializer=die_with_parent
-        ) as ex:
-            ref = str(cache.reference) if cache.reference is not None else False
+        with LocalPool(min(n_jobs, len(todo)), cache) as pool:
             try:  # Ctrl-C or SIGTERM: end the workers now (their runs resume from their checkpoints), one line
-                with interrupts_held():  # the workers start deaf to Ctrl-C: this process ends them
-                    futures = {ex.submit(execute, job, str(cache.root), ref): key for key, job in todo.items()}
+                futures = {pool.submit(job): key for key, job in todo.items()}
                 for fut in as_completed(futures):
                     results[futures[fut]] = fut.result()
                     if bar:
                         bar.update()
             except BaseException:
-                stop_pool(ex)
+                pool.stop()
                 raise
     if bar:
         bar.set_postfix_str(f"{time.time() - t0:.0f}s")
