@@ -106,6 +106,37 @@ def test_the_thesis_statistic_is_the_best_training_seed_per_variant():
     assert r == pytest.approx(np.corrcoef(x, y)[0, 1])
 
 
+def test_the_budget_figure_draws_and_lists_only_the_cells_with_an_r():
+    """A cell whose runs are too few for an r at every budget (a task the study has barely started) is neither a
+    line nor a legend entry; a cell with an r at some budget is both."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from thesis_repro.figures import plot
+
+    cells = pd.DataFrame(
+        [{"steps": s, "env": "Walker2d", "test": "obs", "r": r} for s, r in ((1, 0.5), (2, np.nan))]
+        + [{"steps": s, "env": "Hopper", "test": "obs", "r": np.nan} for s in (1, 2)]
+    )
+    summary = pd.DataFrame(
+        {
+            "steps": [1, 2],
+            "pooled_r": [0.5, np.nan],
+            "runs": [3, 3],
+            "runs_total": [8, 8],
+            "negative": [0, 0],
+            "cells": [1, 0],
+        }
+    )
+    fig, ax = plt.subplots()
+    plot.r_by_budget_lines(ax, cells, summary, (18, 20))
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    plt.close(fig)
+    assert labels == ["Walker2d/obs", "pooled r (seed-keyed)"]
+
+
 def test_with_no_runs_made_every_budget_reads_not_computed_k_of_n():
     at = bs.budget_points("small")  # the empty cache and shipped layer of the test
     assert [(b.runs, b.runs_total, len(b.points)) for b in at] == [(0, 108, 0)] * 4

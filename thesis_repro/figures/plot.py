@@ -201,10 +201,12 @@ def r_by_budget_lines(
 ) -> None:
     """r against training budget (:func:`thesis_repro.figures.ch3.budget_correlations` and ``budget_summary``): one
     thin line per (task, test) cell (the thesis's statistic), the pooled r in black, each budget's ``k/n`` runs on
-    the axis (one tick per budget) and the thesis's share of negative cells in the title."""
+    the axis (one tick per budget) and the thesis's share of negative cells in the title. A cell with no r at any
+    budget yet (too few of its runs made) is left out of the lines and the legend."""
     steps = [int(s) for s in summary["steps"]]
     at = {s: i for i, s in enumerate(steps)}
-    for (env, test), g in cells.groupby(["env", "test"], sort=False):
+    drawn = cells[cells.groupby(["env", "test"], sort=False)["r"].transform(lambda r: r.notna().any())]
+    for (env, test), g in drawn.groupby(["env", "test"], sort=False):
         g = g.sort_values("steps")
         ax.plot([at[s] for s in g["steps"]], g["r"], marker=".", lw=0.8, alpha=0.6, label=f"{env}/{test}")
     ax.plot(range(len(steps)), summary["pooled_r"], "k-o", lw=2, label="pooled r (seed-keyed)")
@@ -216,7 +218,7 @@ def r_by_budget_lines(
     ax.set_xlim(-0.3, len(steps) - 0.7)
     neg = [f"{a}/{b}" if b else "-" for a, b in zip(summary["negative"], summary["cells"], strict=True)]
     ax.set_title(title or f"r < 0 in {', '.join(neg)} cells by budget (thesis: {thesis[0]}/{thesis[1]})", fontsize=10)
-    if len(cells):
+    if len(drawn):
         ax.legend(fontsize=7, ncol=2, loc="center left", bbox_to_anchor=(1.0, 0.5))
     else:
         ax.text(0.5, 0.5, "no study run computed yet", ha="center", va="center", transform=ax.transAxes)
