@@ -136,6 +136,13 @@ def test_the_budget_figure_draws_and_lists_only_the_cells_with_an_r():
     plt.close(fig)
     assert labels == ["Walker2d/obs", "pooled r (seed-keyed)"]
 
+    none, by_budget = bs.r_by_budget(bs.budget_points("small"))  # no run made yet (as at smoke)
+    fig, ax = plt.subplots()
+    plot.r_by_budget_lines(ax, none, by_budget, (18, 20))
+    texts = [t.get_text() for t in ax.texts]
+    plt.close(fig)
+    assert ax.get_legend() is None and texts == ["no study run computed yet"]
+
 
 def test_with_no_runs_made_every_budget_reads_not_computed_k_of_n():
     at = bs.budget_points("small")  # the empty cache and shipped layer of the test

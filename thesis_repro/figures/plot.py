@@ -205,7 +205,8 @@ def r_by_budget_lines(
     budget yet (too few of its runs made) is left out of the lines and the legend."""
     steps = [int(s) for s in summary["steps"]]
     at = {s: i for i, s in enumerate(steps)}
-    drawn = cells[cells.groupby(["env", "test"], sort=False)["r"].transform(lambda r: r.notna().any())]
+    has_r = {(e, t) for e, t, r in zip(cells["env"], cells["test"], cells["r"], strict=True) if np.isfinite(r)}
+    drawn = cells.loc[[(e, t) in has_r for e, t in zip(cells["env"], cells["test"], strict=True)]]
     for (env, test), g in drawn.groupby(["env", "test"], sort=False):
         g = g.sort_values("steps")
         ax.plot([at[s] for s in g["steps"]], g["r"], marker=".", lw=0.8, alpha=0.6, label=f"{env}/{test}")
