@@ -134,16 +134,17 @@ confirmatory:
 	  KINDS="train evaluate arm-solve arm-source arm-competitor-source arm-target arm-curriculum" \
 	  $(if $(UNTIL),UNTIL=$(UNTIL))
 
-## make thesis-budget UNTIL=HH:MM [COMMIT=0] [JOBS=1] [BACKEND=ray] : the thesis-budget study's one resumable command, started
+## make thesis-budget UNTIL=HH:MM [COMMIT=0] [JOBS=1] [ALGOS=sac] [BACKEND=ray] : the thesis-budget study's one resumable command, started
 ## niced in the background (nohup ... &) once the claims design it is judged under (v3) is frozen (it refuses before):
 ## Fig 3.3's nine variants on Walker2d, HalfCheetah and Hopper, seeds 0-3, trained for the thesis's 4e6 steps and
 ## evaluated after 1M, 2M, 3M and 4M, each committed compactly into data/reference as it lands (COMMIT=0: not
 ## committed), two at a time, in the study's order (`python -m thesis_repro plan thesis-budget --rates shipped`);
 ## UNTIL = the session's end. `python -m thesis_repro plan thesis-budget --missing` counts what is left (0: done).
+## ALGOS="sac" JOBS=1 beside ALGOS="<the others>" JOBS=1: SAC's 2.5-hour runs on one core, the rest on the other
 ## BACKEND=ray JOBS=92 (RAY_ADDRESS=auto): JOBS runs at a time as Ray tasks, landing here as they end (book/cluster.md)
 thesis-budget:
 	$(MAKE) reference-runs SCALE=small STUDY=thesis-budget KINDS="train evaluate" JOBS=$(or $(JOBS),2) \
-	  $(if $(filter 0,$(COMMIT)),,COMMIT=1) $(if $(UNTIL),UNTIL=$(UNTIL))
+	  $(if $(filter 0,$(COMMIT)),,COMMIT=1) $(if $(UNTIL),UNTIL=$(UNTIL)) $(if $(ALGOS),ALGOS="$(ALGOS)")
 
 ## make ch4-readings-grid UNTIL=HH:MM [COMMIT=0] [JOBS=1] : chapter 4's readings that train and differ from params_avg
 ## in their pilots (kl-avg-trpo, kl-avg-once), on every chapter-4 item at `small`'s seeds, each committed into

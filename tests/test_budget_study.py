@@ -124,6 +124,25 @@ def test_bad_names_are_one_line_errors(capsys):
         train_config("ppo", "Hopper", 0, 1000, snapshot_at=[500], snapshot_every=100)
 
 
+def test_algos_splits_the_study_into_learner_queues_in_the_study_order(capsys):
+    """``--algos sac`` keeps SAC's runs and their evaluations, in the study's order; with the other learners it
+    partitions the queue, so two commands (SAC on one core, the rest on the other) make the study between them."""
+    from thesis_repro.cli.commands import _of_learners
+
+    queue = bs.ordered("small", RATES, (), ("train", "evaluate"))
+    sac = _of_learners(queue, ["sac"])
+    rest = _of_learners(queue, [a for a in VARIANTS if a != "sac"])
+    assert _of_learners(queue, None) == queue and len(sac) + len(rest) == len(queue)
+    assert [q for q in queue if q in sac] == sac and [q for q in queue if q in rest] == rest
+    trained = [q.job for q in sac if q.job.kind == "train"]
+    assert len(trained) == 12 and {j.config["algorithm"] for j in trained} == {"sac"}
+    assert {q.job.config["train"]["algorithm"] for q in sac if q.job.kind == "evaluate"} == {"sac"}
+    assert sac[1].job.kind == "evaluate" and Job("train", sac[1].job.config["train"]).key == sac[0].job.key
+    assert main(["reference-runs", "--study", "thesis-budget", "--scale", "smoke", "--algos", "td3"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "valid thesis-budget learners are: 'ppo', 'sac'" in err
+
+
 def test_the_study_refuses_to_start_before_the_design_it_is_judged_under_is_frozen(capsys, monkeypatch):
     monkeypatch.setattr("thesis_repro.core.provenance.claims_design", lambda: {"version": "v2", "hash": "x"})
     assert main(["reference-runs", "--study", "thesis-budget"]) == 2

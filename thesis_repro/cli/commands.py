@@ -29,7 +29,7 @@ import os
 import signal
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -879,27 +879,43 @@ def _order_plan(
     return order.confirmatory_plan(scale, seeds, _ledger_claims(scale), rates, missing, figure_ids)
 
 
+def _of_learners(queue: list[Any], algos: Sequence[str] | None) -> list[Any]:
+    """The ``queue``'s jobs (training runs and their evaluations) of the learners ``algos``, in order; all without."""
+    if not algos:
+        return queue
+
+    def learner(job: Any) -> str:
+        return (job.config["train"] if job.kind == "evaluate" else job.config)["algorithm"]
+
+    return [q for q in queue if learner(q.job) in algos]
+
+
 def _study_runs(args: argparse.Namespace) -> int:
     """``reference-runs --study thesis-budget``: the study's jobs (default kinds: train and evaluate, each run's
     evaluations as soon as it is shipped) in its order, through the generator (``--commit``, ``--until``, ``--jobs``
-    as for the figures). Outside ``smoke`` it refuses to start before the claims design it is judged under is frozen
-    (:func:`thesis_repro.runs.budget_study.check_design`)."""
+    as for the figures; ``--algos``: only those learners' runs, in the same order, so two commands can split the
+    study, SAC's long runs on one core and the rest on the other). Outside ``smoke`` it refuses to start before
+    the claims design it is judged under is frozen (:func:`thesis_repro.runs.budget_study.check_design`)."""
     from thesis_repro.core import paths
     from thesis_repro.core.provenance import claims_design, platform_info
+    from thesis_repro.core.validation import check_choice
     from thesis_repro.runs import budget_study, generator, throughput
 
     budget_study.check_study(args.study)
-    given = [f"--{k}" for k in ("figures", "algos", "seeds") if getattr(args, k)]
+    given = [f"--{k}" for k in ("figures", "seeds") if getattr(args, k)]
     if given or args.order != "seed-first":
         drop = ", ".join(given) or "--order"
         raise ValueError(f"--study {args.study} makes the whole study in its own order; drop {drop}")
+    learners = budget_study.variants(budget_study.budget_settings(args.scale))
+    for algo in args.algos or ():
+        check_choice(algo, learners, f"{args.study} learner")
     if args.scale != "smoke":
         budget_study.check_design(claims_design())
     for folder in (paths.runs_dir(), paths.reference()):
         check_writable(folder)
     kinds = args.kind or ("train", "evaluate")
     rates = throughput.shipped_rates(by_env=True, machine=platform_info())
-    jobs = _study_order(args.study, args.scale, rates, kinds)
+    jobs = _of_learners(_study_order(args.study, args.scale, rates, kinds), args.algos)
     until = generator.parse_until(args.until) if args.until is not None else None
     generator.generate(args.scale, None, kinds, commit=args.commit, n_jobs=args.jobs or 1, until=until, jobs=jobs)
     return 0
