@@ -881,13 +881,9 @@ def _order_plan(
 
 def _of_learners(queue: list[Any], algos: Sequence[str] | None) -> list[Any]:
     """The ``queue``'s jobs (training runs and their evaluations) of the learners ``algos``, in order; all without."""
-    if not algos:
-        return queue
+    from thesis_repro.runs.needs import job_algorithm
 
-    def learner(job: Any) -> str:
-        return (job.config["train"] if job.kind == "evaluate" else job.config)["algorithm"]
-
-    return [q for q in queue if learner(q.job) in algos]
+    return [q for q in queue if job_algorithm(q.job) in algos] if algos else queue
 
 
 def _study_runs(args: argparse.Namespace) -> int:
