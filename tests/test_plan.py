@@ -263,3 +263,19 @@ def test_a_cpu_pace_elsewhere_beats_this_cpus_wall_pace(tmp_path):
     _ship(tmp_path, "intel-timed1", sac, 310.0, intel, cpu_pace=400.0)
     three = throughput.shipped_rates(tmp_path, throughput.load_rates(), machine=intel)
     assert three.rate("sac") == 390.0 and three.source("sac") == "shipped pace on this CPU, CPU-timed, median of 2"
+
+
+def test_a_resumed_run_is_priced_at_the_work_past_its_checkpoint(tmp_path):
+    from thesis_repro.core.cache import RunCache
+
+    job = Job("train", train_config("ppo", "Hopper", 0, 1_000_000))
+    cache = RunCache(tmp_path / "runs", reference=False)
+    assert throughput.work_left(job, cache) == 1_000_000  # never started: all of it
+    (cache.workdir(job) / "ckpt-000000600000").mkdir(parents=True)  # interrupted at 600k steps
+    assert throughput.work_left(job, cache) == 400_000
+    fresh = plan.plan_jobs("x", [job], "small", 1, RATES)
+    resumed = plan.plan_jobs("x", [job], "small", 1, RATES, resume=cache)
+    assert fresh.env_steps == 1_000_000 and resumed.env_steps == 400_000
+    assert resumed.core_hours == pytest.approx(0.4 * fresh.core_hours)
+    evaluate = Job("evaluate", {"train": {}, "test": {"sigmas": [0.0], "n_rollouts": 2, "max_episode_steps": 50}})
+    assert throughput.work_left(evaluate, cache) == throughput.work(evaluate)  # only training runs resume

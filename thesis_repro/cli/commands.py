@@ -822,13 +822,14 @@ ORDER_SHOWN = 12
 def _study_plan(name: str, scale: str, cores: int | None, rates: Any, missing: bool) -> str:
     """``plan thesis-budget``: the study's price (every job, or with ``missing`` those neither cached nor shipped,
     and how many are left) and the first training runs of its order."""
+    from thesis_repro.core.cache import RunCache
     from thesis_repro.runs import budget_study, throughput
     from thesis_repro.runs import costs as plan
 
     budget_study.check_study(name)
     jobs = budget_study.budget_jobs(scale)
     todo = plan.to_compute(jobs) if missing else jobs
-    p = plan.plan_jobs(name, todo, scale, cores or os.cpu_count() or 1, rates)
+    p = plan.plan_jobs(name, todo, scale, cores or os.cpu_count() or 1, rates, RunCache() if missing else None)
     lines = [plan.cost_report(p, rates), budget_study.size_line(budget_study.size_estimate(scale))]
     if missing:
         n_train = sum(j.kind == "train" for j in todo)

@@ -34,7 +34,7 @@ from thesis_repro import figures
 from thesis_repro.core import paths
 from thesis_repro.core.cache import Job, RunCache
 from thesis_repro.runs.needs import seed_jobs, training_seed
-from thesis_repro.runs.throughput import TRAINING_KINDS, Rates, family, job_rate, load_rates, unit, work
+from thesis_repro.runs.throughput import TRAINING_KINDS, Rates, family, job_rate, load_rates, unit, work, work_left
 
 
 # ---------------------------------------------------------------- arithmetic (pure)
@@ -128,15 +128,19 @@ class Plan:
         return train, makespan([d for ln in self.other for d in ln.durations], n)
 
 
-def plan_jobs(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rates | None = None) -> Plan:
-    """:class:`Plan` of ``jobs`` (deduplicated by key), priced with ``rates`` (default :func:`load_rates`)."""
+def plan_jobs(
+    name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rates | None = None, resume: RunCache | None = None
+) -> Plan:
+    """:class:`Plan` of ``jobs`` (deduplicated by key), priced with ``rates`` (default :func:`load_rates`); with
+    ``resume``, a training run interrupted in that cache counts only its work past its newest checkpoint
+    (:func:`~thesis_repro.runs.throughput.work_left`)."""
     rates = rates or load_rates()
     lines: dict[tuple[str, str], Line] = {}
     seeds: dict[int | None, tuple[int, float]] = {}
     for job in {j.key: j for j in jobs}.values():
         fam = family(job)
         ln = lines.setdefault((job.kind, fam), Line(job.kind, fam))
-        w = work(job)
+        w = work(job) if resume is None else work_left(job, resume)
         ln.jobs += 1
         ln.work += w
         ln.durations.append(core_hours(w, job_rate(job, rates)))
@@ -161,7 +165,10 @@ def plan_figure(
     ``seeds``, the jobs of those training seeds (:func:`seed_jobs`)."""
     fig = figures.get(figure_id)
     jobs = seed_jobs(figure_id, scale, seeds, **overrides)
-    return plan_jobs(fig.notebook_id, to_compute(jobs) if missing else jobs, scale, cores or os.cpu_count() or 1, rates)
+    cores = cores or os.cpu_count() or 1
+    if missing:
+        return plan_jobs(fig.notebook_id, to_compute(jobs), scale, cores, rates, resume=RunCache())
+    return plan_jobs(fig.notebook_id, jobs, scale, cores, rates)
 
 
 def to_compute(jobs: Iterable[Job]) -> list[Job]:
@@ -180,7 +187,7 @@ def refuse_training(figure_id: str, scale: str, rates: Rates | None = None) -> i
     jobs = figures.training_jobs(figure_id, scale)
     missing = to_compute(jobs)
     if missing:
-        p = plan_jobs(figure_id, missing, scale, os.cpu_count() or 1, rates)
+        p = plan_jobs(figure_id, missing, scale, os.cpu_count() or 1, rates, resume=RunCache())
         raise ValueError(
             f"figure {figure_id} at {scale} would train {len(missing)} of its {len(jobs)} runs "
             f"({p.env_steps:,.0f} env steps, {_num(p.core_hours)} core-hours): they are neither shipped in "
@@ -210,8 +217,9 @@ def plan_book(
     per = {fid: seed_jobs(fid, scale, seeds) for fid in figures.ids()}
     if missing:
         per = {fid: to_compute(js) for fid, js in per.items()}
-    plans = [plan_jobs(figures.get(f).notebook_id, js, scale, cores, rates) for f, js in per.items()]
-    return plans, plan_jobs("book", (j for js in per.values() for j in js), scale, cores, rates)
+    resume = RunCache() if missing else None
+    plans = [plan_jobs(figures.get(f).notebook_id, js, scale, cores, rates, resume) for f, js in per.items()]
+    return plans, plan_jobs("book", (j for js in per.values() for j in js), scale, cores, rates, resume)
 
 
 # ---------------------------------------------------------------- printing

@@ -35,7 +35,7 @@ from thesis_repro.core.provenance import platform_info
 from thesis_repro.core.validation import check_choice, one_line
 from thesis_repro.runs.layer import TARGET_BYTES, Exported, export, git_commit, wall_seconds
 from thesis_repro.runs.needs import needed, training_seed
-from thesis_repro.runs.throughput import Rates, cost, job_rate, shipped_rates, work
+from thesis_repro.runs.throughput import Rates, cost, job_rate, shipped_rates, work_left
 
 
 @dataclass
@@ -264,16 +264,8 @@ def eta_seconds(job: Job, cache: RunCache, rates: Rates) -> float:
     >>> eta_seconds(ppo, RunCache(reference=False), Rates({"ppo": 100.0, "ppo:Hopper": 50.0}, {}))
     20.0
     """
-    left = work(job)
-    if job.kind in figures.TRAINING_KINDS:
-        from thesis_repro.learners.train import checkpoint_steps  # local: the listing stays importable without torch
-
-        try:
-            left = max(0.0, left - checkpoint_steps(cache.workdir(job)))
-        except (OSError, ValueError):
-            pass
     rate = job_rate(job, rates)
-    return left / rate if rate > 0 else math.inf
+    return work_left(job, cache) / rate if rate > 0 else math.inf
 
 
 def _default_eta(cache: RunCache) -> Callable[[Job], float]:

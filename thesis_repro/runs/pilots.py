@@ -571,7 +571,7 @@ def _grid(args: argparse.Namespace) -> int:
     if args.price:
         todo = costs.to_compute([p.job for p in planned])
         print(f"readings to the grid (stable and distinct in their pilots): {', '.join(algos) or 'none'}")
-        print(costs.cost_report(costs.plan_jobs(f"{args.name} grid", todo, "small", 2, rates), rates))
+        print(costs.cost_report(costs.plan_jobs(f"{args.name} grid", todo, "small", 2, rates, RunCache()), rates))
         return 0
     if not planned:
         print(f"the {args.name} grid is done: every chapter-4 item lists each stable, distinct reading")

@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 
 from thesis_repro import figures
 from thesis_repro.core import paths
-from thesis_repro.core.cache import Job
+from thesis_repro.core.cache import Job, RunCache
 
 #: Job kinds whose runs come first (the training phase); every other kind is the second phase.
 TRAINING_KINDS: tuple[str, ...] = figures.TRAINING_KINDS
@@ -125,6 +125,24 @@ def work(job: Job) -> float:
     if job.kind == "arm-solve":
         return pop * int(cfg.get("generations", 0))
     return _timesteps(cfg)
+
+
+def work_left(job: Job, cache: RunCache) -> float:
+    """:func:`work` still to do for ``job`` in ``cache``: a training run's env steps past the newest checkpoint
+    of its interrupted run (what resuming it trains), else all of its work.
+
+    >>> work_left(Job("train", {"algorithm": "ppo", "timesteps": 1000}), RunCache(reference=False))
+    1000.0
+    """
+    left = work(job)
+    if job.kind in TRAINING_KINDS:
+        from thesis_repro.learners.train import checkpoint_steps  # local: the listing stays importable without torch
+
+        try:
+            left = max(0.0, left - checkpoint_steps(cache.workdir(job)))
+        except (OSError, ValueError):
+            pass
+    return left
 
 
 def cost(job: Job) -> float:
