@@ -274,7 +274,7 @@ def test_a_resumed_run_is_priced_at_the_work_past_its_checkpoint(tmp_path):
     (cache.workdir(job) / "ckpt-000000600000").mkdir(parents=True)  # interrupted at 600k steps
     assert throughput.work_left(job, cache) == 400_000
     fresh = plan.plan_jobs("x", [job], "small", 1, RATES)
-    resumed = plan.plan_jobs("x", [job], "small", 1, RATES, resume=cache)
+    resumed = plan.plan_jobs("x", [job], "small", 1, RATES, missing_in=cache)
     assert fresh.env_steps == 1_000_000 and resumed.env_steps == 400_000
     assert resumed.core_hours == pytest.approx(0.4 * fresh.core_hours)
     evaluate = Job("evaluate", {"train": {}, "test": {"sigmas": [0.0], "n_rollouts": 2, "max_episode_steps": 50}})

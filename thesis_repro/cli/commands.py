@@ -828,14 +828,12 @@ def _study_plan(name: str, scale: str, cores: int | None, rates: Any, missing: b
 
     budget_study.check_study(name)
     jobs = budget_study.budget_jobs(scale)
-    todo = plan.to_compute(jobs) if missing else jobs
-    p = plan.plan_jobs(name, todo, scale, cores or os.cpu_count() or 1, rates, RunCache() if missing else None)
+    p = plan.plan_jobs(name, jobs, scale, cores or os.cpu_count() or 1, rates, RunCache() if missing else None)
     lines = [plan.cost_report(p, rates), budget_study.size_line(budget_study.size_estimate(scale))]
     if missing:
-        n_train = sum(j.kind == "train" for j in todo)
         lines.append(
-            f"{name} ({scale}): {len(todo):,} jobs left of {len(jobs):,} ({n_train:,} training runs, "
-            f"{len(todo) - n_train:,} evaluations)"
+            f"{name} ({scale}): {p.n_jobs:,} jobs left of {len(jobs):,} ({p.n_train:,} training runs, "
+            f"{p.n_other:,} evaluations)"
         )
     ordered = [q.job for q in _study_order(name, scale, rates, ("train",))]
     rows, total = [], 0.0

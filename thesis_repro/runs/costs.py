@@ -113,6 +113,10 @@ class Plan:
         return sum(ln.jobs for ln in self.other)
 
     @property
+    def n_jobs(self) -> int:
+        return self.n_train + self.n_other
+
+    @property
     def env_steps(self) -> float:
         """Training env steps (the budget the scale table sets)."""
         return sum(ln.work for ln in self.training)
@@ -129,18 +133,26 @@ class Plan:
 
 
 def plan_jobs(
-    name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rates | None = None, resume: RunCache | None = None
+    name: str,
+    jobs: Iterable[Job],
+    scale: str,
+    cores: int,
+    rates: Rates | None = None,
+    missing_in: RunCache | None = None,
 ) -> Plan:
     """:class:`Plan` of ``jobs`` (deduplicated by key), priced with ``rates`` (default :func:`load_rates`); with
-    ``resume``, a training run interrupted in that cache counts only its work past its newest checkpoint
+    ``missing_in``, only those neither cached nor shipped in that cache (:func:`to_compute`), a training run
+    interrupted there counted at its work past its newest checkpoint
     (:func:`~thesis_repro.runs.throughput.work_left`)."""
     rates = rates or load_rates()
+    if missing_in is not None:
+        jobs = to_compute(jobs, missing_in)
     lines: dict[tuple[str, str], Line] = {}
     seeds: dict[int | None, tuple[int, float]] = {}
     for job in {j.key: j for j in jobs}.values():
         fam = family(job)
         ln = lines.setdefault((job.kind, fam), Line(job.kind, fam))
-        w = work(job) if resume is None else work_left(job, resume)
+        w = work(job) if missing_in is None else work_left(job, missing_in)
         ln.jobs += 1
         ln.work += w
         ln.durations.append(core_hours(w, job_rate(job, rates)))
@@ -166,14 +178,13 @@ def plan_figure(
     fig = figures.get(figure_id)
     jobs = seed_jobs(figure_id, scale, seeds, **overrides)
     cores = cores or os.cpu_count() or 1
-    if missing:
-        return plan_jobs(fig.notebook_id, to_compute(jobs), scale, cores, rates, resume=RunCache())
-    return plan_jobs(fig.notebook_id, jobs, scale, cores, rates)
+    return plan_jobs(fig.notebook_id, jobs, scale, cores, rates, RunCache() if missing else None)
 
 
-def to_compute(jobs: Iterable[Job]) -> list[Job]:
-    """The ``jobs`` neither cached nor shipped: what running them now would compute."""
-    cache = RunCache()
+def to_compute(jobs: Iterable[Job], cache: RunCache | None = None) -> list[Job]:
+    """The ``jobs`` neither cached nor shipped in ``cache`` (default: the kit's): what running them now would
+    compute."""
+    cache = cache or RunCache()
     return [j for j in jobs if cache.state(j) not in ("cached", "shipped")]
 
 
@@ -185,15 +196,14 @@ def refuse_training(figure_id: str, scale: str, rates: Rates | None = None) -> i
     if figure_id not in figures.ids():
         return 0
     jobs = figures.training_jobs(figure_id, scale)
-    missing = to_compute(jobs)
-    if missing:
-        p = plan_jobs(figure_id, missing, scale, os.cpu_count() or 1, rates, resume=RunCache())
+    cache = RunCache()
+    p = plan_jobs(figure_id, jobs, scale, os.cpu_count() or 1, rates, missing_in=cache)
+    if p.n_jobs:
         raise ValueError(
-            f"figure {figure_id} at {scale} would train {len(missing)} of its {len(jobs)} runs "
+            f"figure {figure_id} at {scale} would train {p.n_jobs} of its {len(jobs)} runs "
             f"({p.env_steps:,.0f} env steps, {_num(p.core_hours)} core-hours): they are neither shipped in "
             f"{paths.reference()} nor cached; pass --train (make figure-{figure_id} TRAIN=1) to train them"
         )
-    cache = RunCache()
     local = sum(cache.state(j) == "cached" and cache.shipped(j) is not None for j in jobs)
     if local:
         print(
@@ -215,11 +225,9 @@ def plan_book(
     cores = cores or os.cpu_count() or 1
     rates = rates or load_rates()
     per = {fid: seed_jobs(fid, scale, seeds) for fid in figures.ids()}
-    if missing:
-        per = {fid: to_compute(js) for fid, js in per.items()}
-    resume = RunCache() if missing else None
-    plans = [plan_jobs(figures.get(f).notebook_id, js, scale, cores, rates, resume) for f, js in per.items()]
-    return plans, plan_jobs("book", (j for js in per.values() for j in js), scale, cores, rates, resume)
+    left = RunCache() if missing else None
+    plans = [plan_jobs(figures.get(f).notebook_id, js, scale, cores, rates, left) for f, js in per.items()]
+    return plans, plan_jobs("book", (j for js in per.values() for j in js), scale, cores, rates, left)
 
 
 # ---------------------------------------------------------------- printing

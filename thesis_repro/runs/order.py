@@ -28,9 +28,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from thesis_repro import figures
+from thesis_repro.core.cache import RunCache
 from thesis_repro.runs.costs import core_hours, text_table, to_compute
 from thesis_repro.runs.needs import CH5_TARGET_SEEDS, seed_count, seed_jobs
-from thesis_repro.runs.throughput import Rates, job_rate, work
+from thesis_repro.runs.throughput import Rates, job_rate, work, work_left
 
 #: The chapters whose every item is in the plan; the other items (chapter 4's) only where they can settle a claim.
 EVERY_ITEM_CHAPTERS: tuple[int, ...] = (3, 5)
@@ -158,11 +159,13 @@ def priced_runs(
     figure_id: str, scale: str, seeds: Iterable[int], rates: Rates, missing: bool = False
 ) -> dict[str, float]:
     """Core-hours of each job (by key) figure ``figure_id`` runs at ``scale`` for ``seeds`` (:func:`item_seeds`),
-    priced with ``rates``; with ``missing``, only the jobs neither cached nor shipped."""
+    priced with ``rates``; with ``missing``, only the jobs neither cached nor shipped, each at its work left
+    (:func:`~thesis_repro.runs.throughput.work_left`)."""
     jobs = seed_jobs(figure_id, scale, item_seeds(figure_id, seeds))
-    if missing:
-        jobs = to_compute(jobs)
-    return {j.key: core_hours(work(j), job_rate(j, rates)) for j in jobs}
+    if not missing:
+        return {j.key: core_hours(work(j), job_rate(j, rates)) for j in jobs}
+    cache = RunCache()
+    return {j.key: core_hours(work_left(j, cache), job_rate(j, rates)) for j in to_compute(jobs, cache)}
 
 
 def item_state(figure_id: str, scale: str, seeds: Iterable[int]) -> str:

@@ -569,9 +569,9 @@ def _grid(args: argparse.Namespace) -> int:
     planned = readings_grid_jobs("small", algos)
     rates = throughput.shipped_rates(by_env=True, machine=platform_info())
     if args.price:
-        todo = costs.to_compute([p.job for p in planned])
         print(f"readings to the grid (stable and distinct in their pilots): {', '.join(algos) or 'none'}")
-        print(costs.cost_report(costs.plan_jobs(f"{args.name} grid", todo, "small", 2, rates, RunCache()), rates))
+        grid = costs.plan_jobs(f"{args.name} grid", [p.job for p in planned], "small", 2, rates, RunCache())
+        print(costs.cost_report(grid, rates))
         return 0
     if not planned:
         print(f"the {args.name} grid is done: every chapter-4 item lists each stable, distinct reading")
