@@ -144,15 +144,18 @@ def plan_jobs(
     ``missing_in``, only those neither cached nor shipped in that cache (:func:`to_compute`), a training run
     interrupted there counted at its work past its newest checkpoint
     (:func:`~thesis_repro.runs.throughput.work_left`)."""
-    rates = rates or load_rates()
-    if missing_in is not None:
-        jobs = to_compute(jobs, missing_in)
+    jobs = jobs if missing_in is None else to_compute(jobs, missing_in)
+    return _priced(name, jobs, scale, cores, rates or load_rates(), missing_in)
+
+
+def _priced(name: str, jobs: Iterable[Job], scale: str, cores: int, rates: Rates, left: RunCache | None) -> Plan:
+    """:func:`plan_jobs` of ``jobs`` already filtered: each at its work left in ``left``, or whole."""
     lines: dict[tuple[str, str], Line] = {}
     seeds: dict[int | None, tuple[int, float]] = {}
     for job in {j.key: j for j in jobs}.values():
         fam = family(job)
         ln = lines.setdefault((job.kind, fam), Line(job.kind, fam))
-        w = work(job) if missing_in is None else work_left(job, missing_in)
+        w = work(job) if left is None else work_left(job, left)
         ln.jobs += 1
         ln.work += w
         ln.durations.append(core_hours(w, job_rate(job, rates)))
@@ -226,8 +229,10 @@ def plan_book(
     rates = rates or load_rates()
     per = {fid: seed_jobs(fid, scale, seeds) for fid in figures.ids()}
     left = RunCache() if missing else None
-    plans = [plan_jobs(figures.get(f).notebook_id, js, scale, cores, rates, left) for f, js in per.items()]
-    return plans, plan_jobs("book", (j for js in per.values() for j in js), scale, cores, rates, left)
+    if left is not None:  # each figure's jobs checked once; the book's are their union
+        per = {fid: to_compute(js, left) for fid, js in per.items()}
+    plans = [_priced(figures.get(f).notebook_id, js, scale, cores, rates, left) for f, js in per.items()]
+    return plans, _priced("book", (j for js in per.values() for j in js), scale, cores, rates, left)
 
 
 # ---------------------------------------------------------------- printing
