@@ -153,13 +153,16 @@ def test_the_generator_makes_the_smoke_study_resumably_and_plan_missing_reads_0(
     monkeypatch.setenv("THESIS_REPRO_DATA", str(tmp_path / "runs"))
     monkeypatch.setenv("THESIS_REPRO_REFERENCE", str(tmp_path / "ref"))
     assert main(["plan", "thesis-budget", "--scale", "smoke", "--missing"]) == 0
-    assert "6 jobs left of 6 (2 training runs, 4 evaluations)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "6 jobs left of 6 (2 training runs, 4 evaluations)" in out
+    assert "ppo__Hopper__s0" in out and "sac__Hopper__s0" in out  # the order lists the runs left
     assert main(["reference-runs", "--study", "thesis-budget", "--scale", "smoke"]) == 0
     out = capsys.readouterr().out
     assert out.count("[follows] evaluate") == 4 and "step128" in out and "step150" in out
     assert not plan.to_compute(bs.budget_jobs("smoke"))
     assert main(["plan", "thesis-budget", "--scale", "smoke", "--missing"]) == 0
-    assert "0 jobs left of 6" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "0 jobs left of 6" in out and "no training runs left" in out and "sac__Hopper__s0" not in out
     assert main(["reference-runs", "--study", "thesis-budget", "--scale", "smoke"]) == 0
     assert "2 already shipped, 0 to produce" in capsys.readouterr().out
 

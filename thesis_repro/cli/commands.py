@@ -821,14 +821,16 @@ ORDER_SHOWN = 12
 
 def _study_plan(name: str, scale: str, cores: int | None, rates: Any, missing: bool) -> str:
     """``plan thesis-budget``: the study's price (every job, or with ``missing`` those neither cached nor shipped,
-    and how many are left) and the first training runs of its order."""
+    and how many are left) and the first training runs of its order (with ``missing``, of the runs left, each at its
+    work left)."""
     from thesis_repro.core.cache import RunCache
     from thesis_repro.runs import budget_study, throughput
     from thesis_repro.runs import costs as plan
 
     budget_study.check_study(name)
     jobs = budget_study.budget_jobs(scale)
-    p = plan.plan_jobs(name, jobs, scale, cores or os.cpu_count() or 1, rates, RunCache() if missing else None)
+    cache = RunCache() if missing else None
+    p = plan.plan_jobs(name, jobs, scale, cores or os.cpu_count() or 1, rates, cache)
     lines = [plan.cost_report(p, rates), budget_study.size_line(budget_study.size_estimate(scale))]
     if missing:
         lines.append(
@@ -836,16 +838,19 @@ def _study_plan(name: str, scale: str, cores: int | None, rates: Any, missing: b
             f"{p.n_other:,} evaluations)"
         )
     ordered = [q.job for q in _study_order(name, scale, rates, ("train",))]
+    if cache is not None:
+        ordered = plan.to_compute(ordered, cache)
     rows, total = [], 0.0
     for i, j in enumerate(ordered[:ORDER_SHOWN], 1):
-        h = plan.core_hours(throughput.work(j), throughput.job_rate(j, rates))
-        total += h
+        w = throughput.work(j) if cache is None else throughput.work_left(j, cache)
+        total += (h := plan.core_hours(w, throughput.job_rate(j, rates)))
         rows.append({"#": str(i), "run": j.label, "core-hours": f"{h:,.2f}", "total": f"{total:,.1f}"})
     lines.append(
-        f"the generator's order (`make {name}`): the Pareto panels' tasks first, within a task the items that read its "
-        "runs by claims settled per core-hour, each item's runs cheapest first; each run's evaluations follow it"
+        f"the generator's order (`make {name}`{', the runs left, each at its work left' if missing else ''}): the "
+        "Pareto panels' tasks first, within a task the items that read its runs by claims settled per core-hour, each "
+        "item's runs cheapest first; each run's evaluations follow it"
     )
-    lines.append(plan.text_table(rows, ("#", "run", "core-hours", "total")))
+    lines.append(plan.text_table(rows, ("#", "run", "core-hours", "total")) if rows else "no training runs left")
     if len(ordered) > ORDER_SHOWN:
         lines.append(f"... {len(ordered) - ORDER_SHOWN} more training runs")
     return "\n".join(lines)
